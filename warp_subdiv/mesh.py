@@ -1,0 +1,277 @@
+"""The tagged control mesh: points, polygons, creases, corners, concave sectors, normals and holes.
+
+Everything a user hands in is validated here, so that later stages can trust their input. Errors are
+:class:`SubdivInputError` (a ``ValueError``) and name the face, vertex, edge or tag at fault.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import SubdivInputError
+
+#: Sharpness at or above this value is infinitely sharp (as in USD and OpenSubdiv).
+INFINITE_SHARPNESS = 10.0
+
+
+@dataclass(frozen=True)
+class MeshEdges:
+    """The control mesh's edges, in OpenSubdiv's order (order of first appearance around the faces).
+
+    ``corner_edge[h]`` is the edge from corner ``h`` to the next corner of the same face;
+    ``edge_verts[e]`` is oriented as first met. ``sorted_keys``/``sorted_ids`` look edges up by vertex pair.
+    """
+
+    corner_next: np.ndarray
+    corner_edge: np.ndarray
+    edge_verts: np.ndarray
+    sorted_keys: np.ndarray
+    sorted_ids: np.ndarray
+
+    def find(self, pairs: np.ndarray, num_vertices: int) -> np.ndarray:
+        """Edge ids of vertex pairs (m, 2); -1 where the pair is not an edge."""
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        keys = np.minimum(pairs[:, 0], pairs[:, 1]) * num_vertices + np.maximum(pairs[:, 0], pairs[:, 1])
+        pos = np.searchsorted(self.sorted_keys, keys)
+        pos = np.minimum(pos, len(self.sorted_keys) - 1)
+        found = self.sorted_keys[pos] == keys if len(self.sorted_keys) else np.zeros(len(keys), bool)
+        return np.where(found, self.sorted_ids[pos], -1).astype(np.int64)
+
+
+def face_offsets_of(counts: np.ndarray) -> np.ndarray:
+    """Start of each face in the flat corner list, plus the total at the end."""
+    offsets = np.zeros(len(counts) + 1, dtype=np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    return offsets
+
+
+def next_corner_of(counts: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """For every corner, the next corner of the same face (wrapping around)."""
+    total = int(offsets[-1])
+    nxt = np.arange(1, total + 1, dtype=np.int64)
+    last = offsets[1:] - 1
+    nxt[last] = offsets[:-1]
+    return nxt
+
+
+def find_edges(counts: np.ndarray, indices: np.ndarray, num_vertices: int) -> MeshEdges:
+    """Discover the edges of a polygon mesh (level 0 only; refined levels derive theirs by index arithmetic)."""
+    offsets = face_offsets_of(counts)
+    nxt = next_corner_of(counts, offsets)
+    a = indices.astype(np.int64)
+    b = a[nxt]
+    keys = np.minimum(a, b) * num_vertices + np.maximum(a, b)
+    uniq, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")  # edge ids in order of first appearance
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    corner_edge = rank[inverse.reshape(-1)]
+    first_corner = first[order]
+    edge_verts = np.stack([a[first_corner], b[first_corner]], axis=1)
+    return MeshEdges(
+        corner_next=nxt,
+        corner_edge=corner_edge.astype(np.int32),
+        edge_verts=edge_verts.astype(np.int32),
+        sorted_keys=uniq,
+        sorted_ids=rank,
+    )
+
+
+def _int_array(value, name: str, shape_tail: tuple = ()) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.size == 0:
+        return np.zeros((0,) + shape_tail, dtype=np.int64)
+    if arr.dtype.kind == "f":
+        if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
+            raise SubdivInputError(f"{name} must hold integers")
+        arr = arr.astype(np.int64)
+    elif arr.dtype.kind not in "iu":
+        raise SubdivInputError(f"{name} must hold integers, got dtype {arr.dtype}")
+    arr = arr.astype(np.int64)
+    if shape_tail:
+        if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
+            raise SubdivInputError(f"{name} must have shape (n, {', '.join(map(str, shape_tail))}), got {arr.shape}")
+    elif arr.ndim != 1:
+        raise SubdivInputError(f"{name} must be one-dimensional, got shape {arr.shape}")
+    return arr
+
+
+def _check_vertex_ids(ids: np.ndarray, num_vertices: int, name: str) -> None:
+    bad = np.flatnonzero((ids < 0) | (ids >= num_vertices))
+    if len(bad):
+        flat = bad[0]
+        raise SubdivInputError(
+            f"{name} entry {np.unravel_index(flat, ids.shape)} is vertex {ids.flat[flat]}, "
+            f"outside [0, {num_vertices})"
+        )
+
+
+def _sharpness(values, count: int, name: str) -> np.ndarray:
+    if values is None:
+        return np.full(count, INFINITE_SHARPNESS)
+    arr = np.asarray(values, dtype=np.float64).reshape(-1)
+    if arr.size == 1 and count != 1:
+        arr = np.full(count, float(arr[0]))
+    if len(arr) != count:
+        raise SubdivInputError(f"{name} has {len(arr)} values for {count} tags")
+    bad = np.flatnonzero(~np.isfinite(arr) | (arr < 0))
+    if len(bad):
+        raise SubdivInputError(f"{name}[{bad[0]}] = {arr[bad[0]]} is not a finite sharpness >= 0")
+    return np.minimum(arr, INFINITE_SHARPNESS)
+
+
+class Mesh:
+    """A polygon control mesh with subdivision tags.
+
+    ``creases``: (m, 2) vertex pairs of tagged edges; ``corners``: vertex ids; their sharpness arrays default
+    to infinite (>= 10 means infinitely sharp); ``concave``: (t, 2) pairs (corner vertex, neighbour vertex)
+    marking the sector of that corner that contains the edge as concave; ``normals``: a pair
+    (vertex ids (n,), unit normals (n, 3)) of prescribed normals; ``holes``: face ids.
+    Boundary edges are always creases.
+    """
+
+    def __init__(
+        self,
+        points,
+        face_vertex_counts,
+        face_vertex_indices,
+        *,
+        creases=None,
+        crease_sharpness=None,
+        corners=None,
+        corner_sharpness=None,
+        concave=None,
+        normals=None,
+        holes=None,
+    ):
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise SubdivInputError(f"points must have shape (n, 3), got {pts.shape}")
+        bad = np.flatnonzero(~np.all(np.isfinite(pts), axis=1))
+        if len(bad):
+            raise SubdivInputError(f"point {bad[0]} is not finite: {pts[bad[0]].tolist()}")
+        nv = len(pts)
+
+        counts = _int_array(face_vertex_counts, "face_vertex_counts")
+        indices = _int_array(face_vertex_indices, "face_vertex_indices")
+        if len(counts) == 0:
+            raise SubdivInputError("the mesh has no faces")
+        small = np.flatnonzero(counts < 3)
+        if len(small):
+            raise SubdivInputError(f"face {small[0]} has {counts[small[0]]} vertices; a face needs at least 3")
+        if int(counts.sum()) != len(indices):
+            raise SubdivInputError(
+                f"face_vertex_counts add up to {int(counts.sum())} but face_vertex_indices has {len(indices)} entries"
+            )
+        if len(indices) >= 2**31 // 16:
+            raise SubdivInputError(f"{len(indices)} face-vertex indices exceed what 32-bit tables can refine")
+        offsets = face_offsets_of(counts)
+        corner_face = np.repeat(np.arange(len(counts)), counts)
+        out = np.flatnonzero((indices < 0) | (indices >= nv))
+        if len(out):
+            h = out[0]
+            f = corner_face[h]
+            raise SubdivInputError(
+                f"face {f} corner {h - offsets[f]} refers to vertex {indices[h]}, outside [0, {nv})"
+            )
+        # repeated vertices inside one face
+        order = np.lexsort((indices, corner_face))
+        same = (corner_face[order][1:] == corner_face[order][:-1]) & (indices[order][1:] == indices[order][:-1])
+        if np.any(same):
+            h = order[1:][np.flatnonzero(same)[0]]
+            raise SubdivInputError(f"face {corner_face[h]} uses vertex {indices[h]} more than once")
+
+        self.points = pts
+        self.face_vertex_counts = counts.astype(np.int32)
+        self.face_vertex_indices = indices.astype(np.int32)
+        self.face_offsets = offsets
+        self.edges = find_edges(counts, indices, nv)
+
+        # creases
+        cr = _int_array(creases if creases is not None else [], "creases", (2,))
+        _check_vertex_ids(cr, nv, "creases")
+        cr_sharp = _sharpness(crease_sharpness, len(cr), "crease_sharpness")
+        cr_edges = self.edges.find(cr, nv) if len(cr) else np.zeros(0, np.int64)
+        missing = np.flatnonzero(cr_edges < 0)
+        if len(missing):
+            i = missing[0]
+            raise SubdivInputError(f"crease {i} ({cr[i, 0]}, {cr[i, 1]}) is not an edge of the mesh")
+        self.creases = cr.astype(np.int32)
+        self.crease_sharpness = cr_sharp
+        self.crease_edges = cr_edges
+
+        # corners
+        co = _int_array(corners if corners is not None else [], "corners")
+        _check_vertex_ids(co, nv, "corners")
+        self.corners = co.astype(np.int32)
+        self.corner_sharpness = _sharpness(corner_sharpness, len(co), "corner_sharpness")
+
+        # concave sectors
+        cc = _int_array(concave if concave is not None else [], "concave", (2,))
+        _check_vertex_ids(cc, nv, "concave")
+        cc_edges = self.edges.find(cc, nv) if len(cc) else np.zeros(0, np.int64)
+        missing = np.flatnonzero(cc_edges < 0)
+        if len(missing):
+            i = missing[0]
+            raise SubdivInputError(
+                f"concave tag {i} ({cc[i, 0]}, {cc[i, 1]}): the pair is not an edge of the mesh"
+            )
+        self.concave = cc.astype(np.int32)
+        self.concave_edges = cc_edges
+
+        # prescribed normals
+        if normals is None:
+            self.normal_vertices = np.zeros(0, np.int32)
+            self.normal_vectors = np.zeros((0, 3))
+        else:
+            try:
+                ids, vecs = normals
+            except (TypeError, ValueError):
+                raise SubdivInputError("normals must be a pair (vertex ids, unit normals)") from None
+            ids = _int_array(ids, "normals vertex ids")
+            _check_vertex_ids(ids, nv, "normals vertex ids")
+            vecs = np.asarray(vecs, dtype=np.float64)
+            if vecs.shape != (len(ids), 3):
+                raise SubdivInputError(f"normals need shape ({len(ids)}, 3) for {len(ids)} vertex ids, got {vecs.shape}")
+            length = np.linalg.norm(vecs, axis=1)
+            bad = np.flatnonzero(~np.isfinite(length) | (np.abs(length - 1.0) > 1e-3))
+            if len(bad):
+                raise SubdivInputError(
+                    f"prescribed normal for vertex {ids[bad[0]]} has length {length[bad[0]]:.6g}; give unit normals"
+                )
+            uniq, cnt = np.unique(ids, return_counts=True)
+            if np.any(cnt > 1):
+                raise SubdivInputError(f"vertex {uniq[cnt > 1][0]} has more than one prescribed normal")
+            self.normal_vertices = ids.astype(np.int32)
+            self.normal_vectors = vecs / length[:, None]
+
+        # holes
+        ho = _int_array(holes if holes is not None else [], "holes")
+        bad = np.flatnonzero((ho < 0) | (ho >= len(counts)))
+        if len(bad):
+            raise SubdivInputError(f"hole {bad[0]} is face {ho[bad[0]]}, outside [0, {len(counts)})")
+        self.holes = ho.astype(np.int32)
+
+    @property
+    def num_vertices(self) -> int:
+        return len(self.points)
+
+    @property
+    def num_faces(self) -> int:
+        return len(self.face_vertex_counts)
+
+    @property
+    def num_edges(self) -> int:
+        return len(self.edges.edge_verts)
+
+    def is_all(self, size: int) -> bool:
+        """True when every face has ``size`` vertices."""
+        return bool(np.all(self.face_vertex_counts == size))
+
+    def __repr__(self) -> str:
+        return (
+            f"Mesh({self.num_vertices} vertices, {self.num_faces} faces, {len(self.creases)} creases, "
+            f"{len(self.corners)} corners, {len(self.concave)} concave tags, {len(self.normal_vertices)} normals, "
+            f"{len(self.holes)} holes)"
+        )

@@ -1,0 +1,135 @@
+"""Wavefront OBJ in and out, with OpenSubdiv's ``t`` tags and the ``.creases``/``.corners`` side files.
+
+``t crease 2/1/0 v0 v1 sharpness``, ``t corner 1/1/0 v sharpness``, ``t hole 1/0/0 face`` and
+``t interpolateboundary 1/0/0 N`` (0 none, 1 edge-and-corner, 2 edge-only) are read; side files hold lines
+``v0 v1 sharpness`` and ``v sharpness`` with 0-based ids. Faces use 1-based (or negative, relative) ids.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import SubdivInputError
+from .mesh import Mesh
+
+BOUNDARY_FROM_TAG = {0: "none", 1: "edge-and-corner", 2: "edge-only"}
+
+
+@dataclass
+class ObjData:
+    """What an OBJ file says: the tagged mesh plus the options its tags ask for."""
+
+    mesh: Mesh
+    options: dict = field(default_factory=dict)
+
+
+def _read_side_file(path: str, width: int) -> np.ndarray:
+    rows = []
+    with open(path, encoding="utf-8") as fh:
+        for lineno, line in enumerate(fh, 1):
+            line = line.split("#", 1)[0].strip()
+            if not line:
+                continue
+            parts = line.split()
+            if len(parts) != width:
+                raise SubdivInputError(f"{path}:{lineno}: expected {width} values, got {len(parts)}")
+            rows.append([float(p) for p in parts])
+    return np.asarray(rows, dtype=np.float64).reshape(-1, width)
+
+
+def read_obj(path: str) -> ObjData:
+    """Read an OBJ file (and its side files) into a :class:`Mesh`."""
+    points, counts, indices = [], [], []
+    creases, crease_s, corners, corner_s, holes = [], [], [], [], []
+    options: dict = {}
+    try:
+        fh = open(path, encoding="utf-8")
+    except OSError as exc:
+        raise SubdivInputError(f"cannot read {path}: {exc.strerror}") from None
+    with fh:
+        for lineno, raw in enumerate(fh, 1):
+            line = raw.split("#", 1)[0].strip()
+            if not line:
+                continue
+            parts = line.split()
+            try:
+                if parts[0] == "v":
+                    points.append([float(x) for x in parts[1:4]])
+                elif parts[0] == "f":
+                    ids = []
+                    for tok in parts[1:]:
+                        i = int(tok.split("/")[0])
+                        ids.append(i - 1 if i > 0 else len(points) + i)
+                    counts.append(len(ids))
+                    indices.extend(ids)
+                elif parts[0] == "t":
+                    name = parts[1]
+                    nint, nfloat, _ = (int(x) for x in parts[2].split("/"))
+                    ints = [int(x) for x in parts[3:3 + nint]]
+                    floats = [float(x) for x in parts[3 + nint:3 + nint + nfloat]]
+                    if name == "crease":
+                        for a, b in zip(ints[:-1], ints[1:]):
+                            creases.append((a, b))
+                            crease_s.append(floats[0] if floats else 10.0)
+                    elif name == "corner":
+                        for v in ints:
+                            corners.append(v)
+                            corner_s.append(floats[0] if floats else 10.0)
+                    elif name == "hole":
+                        holes.extend(ints)
+                    elif name == "interpolateboundary":
+                        options["boundary"] = BOUNDARY_FROM_TAG.get(ints[0], "edge-only")
+                    elif name == "creasemethod":
+                        options["crease_method"] = parts[3 + nint] if len(parts) > 3 + nint else "uniform"
+            except (ValueError, IndexError):
+                raise SubdivInputError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
+    stem = os.path.splitext(path)[0]
+    if os.path.exists(stem + ".creases"):
+        side = _read_side_file(stem + ".creases", 3)
+        creases.extend(side[:, :2].astype(np.int64).tolist())
+        crease_s.extend(side[:, 2].tolist())
+    if os.path.exists(stem + ".corners"):
+        side = _read_side_file(stem + ".corners", 2)
+        corners.extend(side[:, 0].astype(np.int64).tolist())
+        corner_s.extend(side[:, 1].tolist())
+    if not points:
+        raise SubdivInputError(f"{path}: no vertices")
+    mesh = Mesh(
+        np.asarray(points, dtype=np.float64).reshape(-1, 3),
+        counts,
+        indices,
+        creases=np.asarray(creases, dtype=np.int64).reshape(-1, 2) if creases else None,
+        crease_sharpness=crease_s if creases else None,
+        corners=corners or None,
+        corner_sharpness=corner_s if corners else None,
+        holes=holes or None,
+    )
+    return ObjData(mesh, options)
+
+
+def write_obj(path: str, points: np.ndarray, face_vertex_counts: np.ndarray, face_vertex_indices: np.ndarray) -> None:
+    """Write a polygon mesh as OBJ, through a temporary file and a rename (no partial file on failure)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=".obj", dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(f"# warp-subdiv: {len(points)} vertices, {len(face_vertex_counts)} faces\n")
+            np.savetxt(fh, np.asarray(points, dtype=np.float64), fmt="v %.9g %.9g %.9g")
+            counts = np.asarray(face_vertex_counts)
+            idx = np.asarray(face_vertex_indices, dtype=np.int64) + 1
+            if len(counts) and np.all(counts == counts[0]):
+                fmt = "f" + " %d" * int(counts[0])
+                np.savetxt(fh, idx.reshape(-1, int(counts[0])), fmt=fmt)
+            else:
+                start = 0
+                for c in counts:
+                    fh.write("f " + " ".join(map(str, idx[start:start + c])) + "\n")
+                    start += c
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise

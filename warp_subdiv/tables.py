@@ -1,0 +1,222 @@
+"""Stencil tables: for each level, one CSR row per child vertex over the parent level's vertices.
+
+Rows follow the child vertex order of :mod:`warp_subdiv.topology` (vertex children, face children for
+Catmull-Clark, edge children). The weights come from :mod:`warp_subdiv.rules`; this module only gathers the
+neighbourhoods (by index arithmetic over the level's tables) and lays the weights out. Weights are float64.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import rules
+from .rules import CATMULL_CLARK, CORNER, CREASE, DART, LOOP, SMOOTH
+from .topology import Level, _offsets, _rows_of
+
+
+@dataclass
+class StencilTable:
+    """Child vertex i = sum_j weights[j] * parent[indices[j]] for j in offsets[i]..offsets[i+1]."""
+
+    offsets: np.ndarray  # (rows+1,) int32
+    indices: np.ndarray  # (entries,) int32
+    weights: np.ndarray  # (entries,) float64
+    num_sources: int
+
+    @property
+    def num_rows(self) -> int:
+        return len(self.offsets) - 1
+
+    def nbytes(self, weight_bytes: int = 4) -> int:
+        """Bytes of the table on the device with weights of ``weight_bytes`` each."""
+        return self.offsets.nbytes + self.indices.nbytes + len(self.weights) * weight_bytes
+
+    def row(self, i: int) -> dict:
+        """Row i as {parent vertex: total weight} (duplicates merged); for tests and debugging."""
+        out: dict = {}
+        for j in range(int(self.offsets[i]), int(self.offsets[i + 1])):
+            key = int(self.indices[j])
+            out[key] = out.get(key, 0.0) + float(self.weights[j])
+        return out
+
+
+class _Layout:
+    """Collects (row, position-in-row) -> (index, weight) entries for rows whose sizes are known up front."""
+
+    def __init__(self, sizes: np.ndarray, num_sources: int):
+        self.offsets = _offsets(sizes)
+        total = int(self.offsets[-1])
+        self.indices = np.full(total, -1, dtype=np.int64)
+        self.weights = np.zeros(total, dtype=np.float64)
+        self.num_sources = num_sources
+
+    def put(self, rows, position, index, weight):
+        at = self.offsets[rows] + position
+        self.indices[at] = index
+        self.weights[at] = weight
+
+    def table(self) -> StencilTable:
+        assert np.all(self.indices >= 0), "stencil layout left an entry unfilled"
+        return StencilTable(
+            offsets=self.offsets.astype(np.int32),
+            indices=self.indices.astype(np.int32),
+            weights=self.weights,
+            num_sources=self.num_sources,
+        )
+
+
+def _crease_neighbours(level: Level) -> np.ndarray:
+    """(V, 2) the two crease-edge neighbours of every vertex with exactly two sharp edges (-1 elsewhere)."""
+    ev = level.edge_verts[level.edge_sharp].astype(np.int64)
+    a = np.concatenate([ev[:, 0], ev[:, 1]])
+    b = np.concatenate([ev[:, 1], ev[:, 0]])
+    nb = np.full((level.num_vertices, 2), -1, dtype=np.int64)
+    nb[a, 0] = b
+    other = nb[a, 0] != b
+    nb[a[other], 1] = b[other]
+    return nb
+
+
+def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop") -> StencilTable:
+    """The stencil table that refines ``level`` to the next level."""
+    scheme = level.scheme
+    V, F, E = level.num_vertices, level.num_faces, level.num_edges
+    cc = scheme == CATMULL_CLARK
+    vclass = level.vert_class
+    voff = level.vert_corner_offsets
+    vcount = np.diff(voff)
+    face_sizes = level.face_sizes()
+    face_starts = level.face_starts()
+    corner_vert = level.corner_vert.astype(np.int64)
+
+    # ----- row sizes
+    smooth = (vclass == SMOOTH) | (vclass == DART)
+    slot_vertex = _rows_of(voff)
+    slot_corner = level.vert_corners.astype(np.int64)
+    slot_smooth = smooth[slot_vertex]
+    slot_face = level.corner_face(slot_corner)
+    per_slot = (face_sizes[slot_face] - 2) if cc else np.ones(len(slot_corner), dtype=np.int64)
+    per_slot = np.where(slot_smooth, per_slot, 0)
+    vertex_sizes = np.where(smooth, 1 + np.bincount(slot_vertex, weights=per_slot, minlength=V).astype(np.int64),
+                            np.where(vclass == CREASE, 3, 1))
+
+    eoff = level.edge_corner_offsets
+    h0 = level.edge_corners[eoff[:-1]].astype(np.int64)
+    h1 = level.edge_corners[np.minimum(eoff[:-1] + 1, len(level.edge_corners) - 1)].astype(np.int64)
+    sharp = level.edge_sharp
+    f0 = level.corner_face(h0)
+    f1 = level.corner_face(h1)
+    if cc:
+        edge_sizes = np.where(sharp, 2, face_sizes[f0] + face_sizes[f1] - 2)
+    else:
+        edge_sizes = np.where(sharp, 2, 4)
+    sizes = [vertex_sizes] + ([face_sizes] if cc else []) + [edge_sizes]
+    out = _Layout(np.concatenate(sizes), V)
+    face_row0 = V
+    edge_row0 = V + (F if cc else 0)
+
+    # ----- vertex rows
+    v = np.arange(V, dtype=np.int64)
+    out.put(v[vclass == CORNER], 0, v[vclass == CORNER], rules.corner_vertex_weights())
+    crease_v = v[vclass == CREASE]
+    w_c, w_n = rules.crease_vertex_weights()
+    nb = _crease_neighbours(level)[crease_v]
+    out.put(crease_v, 0, crease_v, w_c)
+    out.put(crease_v, 1, nb[:, 0], w_n)
+    out.put(crease_v, 2, nb[:, 1], w_n)
+
+    sv = v[smooth]
+    n = vcount[sv].astype(np.float64)
+    slots = np.flatnonzero(slot_smooth)
+    sl_v = slot_vertex[slots]
+    sl_h = slot_corner[slots]
+    sl_n = vcount[sl_v].astype(np.float64)
+    # position of each slot's first entry inside its row: 1 + entries of the row's earlier slots
+    cum = np.concatenate([[0], np.cumsum(per_slot)])
+    sl_pos = 1 + cum[slots] - cum[voff[sl_v]]
+    nxt = level.corner_next(sl_h)
+    if cc:
+        w_self, w_edge, w_face = rules.catmull_clark_interior_vertex_weights(n)
+        m_f = face_sizes[slot_face[slots]].astype(np.float64)
+        # every face point gives 1/n^2 * (1/m) to each of its vertices; v itself collects one per face
+        self_faces = np.bincount(sl_v, weights=1.0 / (sl_n * sl_n * m_f), minlength=V)[sv]
+        out.put(sv, 0, sv, w_self + self_faces)
+        # the edge neighbour p: edge weight plus the face points on both sides of the edge
+        e_sl = level.corner_edge[sl_h].astype(np.int64)
+        other = h0[e_sl] + h1[e_sl] - sl_h
+        m_g = face_sizes[level.corner_face(other)].astype(np.float64)
+        _, w_edge_sl, w_face_sl = rules.catmull_clark_interior_vertex_weights(sl_n)
+        out.put(sl_v, sl_pos, corner_vert[nxt], w_edge_sl + w_face_sl / m_f + w_face_sl / m_g)
+        # the far vertices of the face (not v, not p, not the previous neighbour): face-point weight only
+        far_count = (m_f - 3).astype(np.int64)
+        rep = np.repeat(np.arange(len(slots)), far_count)
+        t = np.arange(len(rep)) - np.repeat(np.concatenate([[0], np.cumsum(far_count)[:-1]]), far_count)
+        walk = nxt[rep]
+        walk = _advance(level, walk, t + 1)
+        out.put(sl_v[rep], sl_pos[rep] + 1 + t, corner_vert[walk], (w_face_sl / m_f)[rep])
+    else:
+        w_self, w_ring = rules.loop_interior_vertex_weights(n, loop_beta)
+        out.put(sv, 0, sv, w_self)
+        _, w_ring_sl = rules.loop_interior_vertex_weights(sl_n, loop_beta)
+        out.put(sl_v, sl_pos, corner_vert[nxt], w_ring_sl)
+
+    # ----- face rows (Catmull-Clark)
+    if cc:
+        c = np.arange(level.num_corners, dtype=np.int64)
+        f_of_c = level.corner_face(c)
+        out.put(face_row0 + f_of_c, c - face_starts[f_of_c], corner_vert, rules.face_point_weights(face_sizes[f_of_c]))
+
+    # ----- edge rows
+    e = np.arange(E, dtype=np.int64)
+    ev = level.edge_verts.astype(np.int64)
+    se = e[sharp]
+    wa, wb = rules.crease_edge_weights()
+    out.put(edge_row0 + se, 0, ev[se, 0], wa)
+    out.put(edge_row0 + se, 1, ev[se, 1], wb)
+
+    me = e[~sharp]
+    a, b = ev[me, 0], ev[me, 1]
+    g0, g1 = h0[me], h1[me]
+    # theta of the sector of each endpoint that contains this edge: read at that endpoint's corner in face f0
+    at_a = np.where(corner_vert[g0] == a, g0, level.corner_next(g0))
+    at_b = np.where(corner_vert[g0] == b, g0, level.corner_next(g0))
+    tagged_a = (vclass[a] == CREASE) | (vclass[a] == CORNER)
+    tagged_b = (vclass[b] == CREASE) | (vclass[b] == CORNER)
+    theta = level.corner_theta
+    shift_a = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_a]))
+    shift_b = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_b]))
+    w_a, w_b = rules.tagged_edge_endpoint_weights(scheme, shift_a, shift_b, tagged_a, tagged_b)
+    _, w_wing = rules.smooth_edge_weights(scheme)
+    rows = edge_row0 + me
+    if cc:
+        m0 = face_sizes[level.corner_face(g0)].astype(np.int64)
+        m1 = face_sizes[level.corner_face(g1)].astype(np.int64)
+        # each new face point f weighs 1/4, i.e. 1/(4m) on each vertex of its face
+        out.put(rows, 0, a, w_a + w_wing / m0 + w_wing / m1)
+        out.put(rows, 1, b, w_b + w_wing / m0 + w_wing / m1)
+        pos = 2
+        for g, m, first in ((g0, m0, 2), (g1, m1, None)):
+            cnt = m - 2
+            rep = np.repeat(np.arange(len(me)), cnt)
+            t = np.arange(len(rep)) - np.repeat(np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
+            walk = _advance(level, g[rep], t + 2)
+            base_pos = 2 if first else 2 + (m0 - 2)[rep]
+            out.put(rows[rep], base_pos + t, corner_vert[walk], w_wing / m[rep])
+    else:
+        out.put(rows, 0, a, w_a)
+        out.put(rows, 1, b, w_b)
+        out.put(rows, 2, corner_vert[level.corner_prev(g0)], w_wing)
+        out.put(rows, 3, corner_vert[level.corner_prev(g1)], w_wing)
+    return out.table()
+
+
+def _advance(level: Level, h: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """The corner ``steps`` places after ``h`` in its face."""
+    if level.face_size:
+        n = level.face_size
+        return h - h % n + (h % n + steps) % n
+    f = level.corner_face(h)
+    start = level.face_offsets[f]
+    size = level.face_offsets[f + 1] - start
+    return start + (h - start + steps) % size

@@ -1,0 +1,576 @@
+"""Topology: flat index tables for one subdivision level, and their refinement by index arithmetic.
+
+A :class:`Level` stores faces as corners (a corner is a face's use of a vertex, and also the half-edge from
+that vertex to the next corner's vertex), edges with their corners, vertices with their corners, the vertex
+classes of RULES.md section 1, and the sector angle theta of every corner at a crease or corner vertex.
+
+The control mesh (level 0) is analysed once, with sorting (edges, rings, fans, sectors). Every later level
+is derived from its parent's tables by index arithmetic, as OpenSubdiv's Vtr does, in OpenSubdiv's order:
+child vertices are [one per parent vertex, one per parent face (Catmull-Clark), one per parent edge];
+child faces follow parent corners; child edges are [edges inside parent faces, two halves per parent edge].
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import rules
+from .errors import NonManifoldWarning, SubdivInputError
+from .mesh import INFINITE_SHARPNESS, Mesh, MeshEdges, face_offsets_of, find_edges
+from .rules import CATMULL_CLARK, CORNER, CREASE, DART, LOOP, SMOOTH
+
+BOUNDARY_MODES = ("edge-and-corner", "edge-only", "none")
+RULE_SETS = ("piecewise-smooth", "opensubdiv")
+
+
+def _offsets(counts: np.ndarray) -> np.ndarray:
+    out = np.zeros(len(counts) + 1, dtype=np.int64)
+    np.cumsum(counts, out=out[1:])
+    return out
+
+
+def _rows_of(offsets: np.ndarray) -> np.ndarray:
+    """Row id of every entry of a CSR layout."""
+    return np.repeat(np.arange(len(offsets) - 1, dtype=np.int64), np.diff(offsets))
+
+
+def _i32(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.int32)
+
+
+@dataclass
+class Level:
+    """Topology of one level. Arrays are int32 unless noted; C = number of corners."""
+
+    scheme: str
+    num_vertices: int
+    num_faces: int
+    face_size: int  # 3 or 4 when every face has that size, 0 for mixed polygons (control mesh only)
+    corner_vert: np.ndarray  # (C,)
+    face_hole: np.ndarray  # (F,) bool
+    # the rest is absent on a "faces only" level (the last one, which nothing refines further)
+    face_offsets: np.ndarray | None = None  # (F+1,) int64, only for mixed polygons
+    corner_next_table: np.ndarray | None = None  # (C,), only for mixed polygons
+    corner_edge: np.ndarray | None = None  # (C,) edge from this corner to the next one
+    edge_verts: np.ndarray | None = None  # (E, 2)
+    edge_corner_offsets: np.ndarray | None = None  # (E+1,) int64
+    edge_corners: np.ndarray | None = None  # (C,) corners whose edge is e
+    vert_corner_offsets: np.ndarray | None = None  # (V+1,) int64
+    vert_corners: np.ndarray | None = None  # (C,) corners at v
+    edge_sharp: np.ndarray | None = None  # (E,) bool
+    vert_class: np.ndarray | None = None  # (V,) int8, rules.SMOOTH/DART/CREASE/CORNER
+    corner_theta: np.ndarray | None = None  # (C,) float64 sector theta at crease/corner vertices, NaN elsewhere
+
+    @property
+    def num_corners(self) -> int:
+        return len(self.corner_vert)
+
+    @property
+    def num_edges(self) -> int:
+        return len(self.edge_verts)
+
+    def face_sizes(self) -> np.ndarray:
+        if self.face_size:
+            return np.full(self.num_faces, self.face_size, dtype=np.int64)
+        return np.diff(self.face_offsets)
+
+    def face_starts(self) -> np.ndarray:
+        if self.face_size:
+            return np.arange(self.num_faces, dtype=np.int64) * self.face_size
+        return self.face_offsets[:-1]
+
+    def corner_face(self, h=None) -> np.ndarray:
+        if h is None:
+            h = np.arange(self.num_corners, dtype=np.int64)
+        if self.face_size:
+            return h // self.face_size
+        return np.searchsorted(self.face_offsets, h, side="right") - 1
+
+    def corner_next(self, h: np.ndarray) -> np.ndarray:
+        if self.face_size:
+            n = self.face_size
+            return h - h % n + (h % n + 1) % n
+        return self.corner_next_table[h]
+
+    def corner_prev(self, h: np.ndarray) -> np.ndarray:
+        if self.face_size:
+            n = self.face_size
+            return h - h % n + (h % n + n - 1) % n
+        f = self.corner_face(h)
+        start = self.face_offsets[f]
+        end = self.face_offsets[f + 1]
+        return np.where(h == start, end - 1, h - 1)
+
+    def face_vertex_counts(self) -> np.ndarray:
+        return self.face_sizes().astype(np.int32)
+
+    def nbytes(self) -> int:
+        total = 0
+        for value in self.__dict__.values():
+            if isinstance(value, np.ndarray):
+                total += value.nbytes
+        return total
+
+
+# --------------------------------------------------------------------------------------------------------
+# level 0
+
+
+def triangulate(counts: np.ndarray, indices: np.ndarray):
+    """Fan-triangulate every polygon from its first corner: (v0, v_i, v_i+1), i = 1..n-2.
+
+    Returns (counts, indices, parent face of each triangle). Polygon edges stay edges, so crease and
+    concave tags given as vertex pairs keep their meaning; the diagonals are new smooth edges.
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    offsets = face_offsets_of(counts)
+    ntri = counts - 2
+    parent = np.repeat(np.arange(len(counts)), ntri)
+    i = np.arange(int(ntri.sum())) - np.repeat(_offsets(ntri)[:-1], ntri)
+    start = offsets[parent]
+    tri = np.stack([indices[start], indices[start + i + 1], indices[start + i + 2]], axis=1)
+    return np.full(len(parent), 3, dtype=np.int32), tri.reshape(-1).astype(np.int32), parent
+
+
+def _fan_labels(corner_vert, cw, ccw, max_valence):
+    """Label every corner with the smallest corner of its fan (faces around a vertex joined through edges)."""
+    label = np.arange(len(corner_vert), dtype=np.int64)
+    a, b = cw.copy(), ccw.copy()
+    steps = int(np.ceil(np.log2(max(max_valence, 2)))) + 1
+    for _ in range(steps):
+        label = np.minimum(label, np.minimum(label[a], label[b]))
+        a, b = a[a], b[b]
+    return label
+
+
+def _list_rank(link: np.ndarray, max_valence: int):
+    """Follow ``link`` to its fixed point (pointer jumping): returns (head, distance to head)."""
+    idx = np.arange(len(link), dtype=np.int64)
+    link = link.astype(np.int64)
+    dist = (link != idx).astype(np.int64)
+    steps = int(np.ceil(np.log2(max(max_valence, 2)))) + 1
+    for _ in range(steps):
+        dist = dist + dist[link]
+        link = link[link]
+    return link, dist
+
+
+def base_level(
+    mesh: Mesh,
+    scheme: str,
+    boundary: str = "edge-and-corner",
+    rule_set: str = "piecewise-smooth",
+    triangulate_polygons: bool = True,
+) -> Level:
+    """Analyse the control mesh: edges, fans, manifoldness, vertex classes and sectors."""
+    if scheme not in rules.SCHEMES:
+        raise ValueError(f"scheme must be one of {rules.SCHEMES}, got {scheme!r}")
+    if boundary not in BOUNDARY_MODES:
+        raise ValueError(f"boundary must be one of {BOUNDARY_MODES}, got {boundary!r}")
+    if rule_set not in RULE_SETS:
+        raise ValueError(f"rules must be one of {RULE_SETS}, got {rule_set!r}")
+
+    nv = mesh.num_vertices
+    counts = mesh.face_vertex_counts
+    indices = mesh.face_vertex_indices
+    edges: MeshEdges = mesh.edges
+    face_hole = np.zeros(len(counts), dtype=bool)
+    face_hole[mesh.holes] = True
+    if scheme == LOOP and not mesh.is_all(3):
+        if not triangulate_polygons:
+            bad = int(np.flatnonzero(counts != 3)[0])
+            raise SubdivInputError(
+                f"Loop subdivision needs triangles: face {bad} has {counts[bad]} vertices "
+                "(pass triangulate=True to fan-triangulate polygons)"
+            )
+        counts, indices, parent = triangulate(counts, indices)
+        edges = find_edges(counts, indices, nv)
+        face_hole = face_hole[parent]
+
+    offsets = face_offsets_of(counts)
+    C = len(indices)
+    F = len(counts)
+    corner_vert = indices.astype(np.int64)
+    nxt = edges.corner_next.astype(np.int64)
+    prv = np.empty_like(nxt)
+    prv[nxt] = np.arange(C)
+    corner_edge = edges.corner_edge.astype(np.int64)
+    edge_verts = edges.edge_verts.astype(np.int64)
+    E = len(edge_verts)
+
+    # edge -> corners
+    ecount = np.bincount(corner_edge, minlength=E)
+    eoff = _offsets(ecount)
+    ecorners = np.argsort(corner_edge, kind="stable")
+    first = ecorners[eoff[:-1]]
+    second = ecorners[np.minimum(eoff[:-1] + 1, C - 1)]
+    two = ecount == 2
+    opposite = two & (corner_vert[first] == corner_vert[nxt[second]])
+    boundary_edge = ecount == 1
+    nonmanifold_edge = (ecount > 2) | (two & ~opposite)
+    twin = np.full(C, -1, dtype=np.int64)
+    twin[first[opposite]] = second[opposite]
+    twin[second[opposite]] = first[opposite]
+
+    # vertex -> corners
+    vcount = np.bincount(corner_vert, minlength=nv)
+    voff = _offsets(vcount)
+    vcorners = np.argsort(corner_vert, kind="stable")
+    max_valence = int(vcount.max())
+
+    # fans (for non-manifold vertices)
+    cw = np.where(twin >= 0, nxt[np.maximum(twin, 0)], np.arange(C))
+    ccw_src = twin[prv]
+    ccw = np.where(ccw_src >= 0, ccw_src, np.arange(C))
+    label = _fan_labels(corner_vert, cw, ccw, max_valence)
+    fans = np.bincount(corner_vert[label == np.arange(C)], minlength=nv)
+    nonmanifold_vert = fans > 1
+    nonmanifold_vert[edge_verts[nonmanifold_edge].reshape(-1)] = True
+
+    # sharp edges: boundary, non-manifold, tagged creases
+    finite = (mesh.crease_sharpness > 0) & (mesh.crease_sharpness < INFINITE_SHARPNESS)
+    if np.any(finite):
+        i = int(np.flatnonzero(finite)[0])
+        raise NotImplementedError(
+            f"crease {i} ({mesh.creases[i, 0]}, {mesh.creases[i, 1]}) has finite sharpness "
+            f"{mesh.crease_sharpness[i]}; semi-sharp creases are not supported yet (use >= 10 for infinitely sharp)"
+        )
+    edge_sharp = boundary_edge | nonmanifold_edge
+    if len(mesh.creases):
+        tagged = edges.find(mesh.creases, nv) if edges is not mesh.edges else mesh.crease_edges
+        edge_sharp[tagged[mesh.crease_sharpness > 0]] = True
+
+    if np.any(nonmanifold_edge) or np.any(fans > 1):
+        ne = np.flatnonzero(nonmanifold_edge)
+        nmv = np.flatnonzero(fans > 1)
+        parts = []
+        if len(ne):
+            parts.append(f"{len(ne)} non-manifold edges (first: {tuple(edge_verts[ne[0]])})")
+        if len(nmv):
+            parts.append(f"{len(nmv)} vertices joining separate fans (first: vertex {nmv[0]})")
+        warnings.warn(
+            "non-manifold mesh: " + ", ".join(parts) + "; their edges are made sharp and their vertices corners "
+            "or creases, as OpenSubdiv does",
+            NonManifoldWarning,
+            stacklevel=3,
+        )
+
+    # vertex classes
+    sharp_count = np.bincount(edge_verts[edge_sharp].reshape(-1), minlength=nv)
+    on_boundary = np.zeros(nv, dtype=bool)
+    on_boundary[edge_verts[boundary_edge].reshape(-1)] = True
+    vclass = np.full(nv, SMOOTH, dtype=np.int8)
+    vclass[sharp_count == 1] = DART
+    vclass[sharp_count == 2] = CREASE
+    vclass[sharp_count >= 3] = CORNER
+    vclass[nonmanifold_vert & (sharp_count != 2)] = CORNER
+    finite = (mesh.corner_sharpness > 0) & (mesh.corner_sharpness < INFINITE_SHARPNESS)
+    if np.any(finite):
+        i = int(np.flatnonzero(finite)[0])
+        raise NotImplementedError(
+            f"corner vertex {mesh.corners[i]} has finite sharpness {mesh.corner_sharpness[i]}; semi-sharp corners "
+            "are not supported yet (use >= 10 for infinitely sharp)"
+        )
+    vclass[mesh.corners[mesh.corner_sharpness > 0]] = CORNER
+    if boundary == "edge-and-corner":
+        vclass[on_boundary & (vcount == 1)] = CORNER
+    vclass[vcount == 0] = CORNER  # unused vertices keep their position
+    if boundary == "none":
+        # OpenSubdiv's VTX_BOUNDARY_NONE: faces touching the boundary have no limit surface
+        touches = on_boundary[corner_vert]
+        face_hole |= np.bincount(np.repeat(np.arange(F), counts)[touches], minlength=F) > 0
+
+    # sectors and their angles (piecewise-smooth rules only)
+    corner_theta = np.full(C, np.nan)
+    if rule_set == "piecewise-smooth":
+        corner_theta = _sector_thetas(
+            mesh, scheme, corner_vert, nxt, prv, twin, corner_edge, edge_sharp, ecount, eoff, ecorners,
+            edges, vclass, sharp_count, max_valence,
+        )
+
+    uniform = int(counts[0]) if np.all(counts == counts[0]) and int(counts[0]) in (3, 4) else 0
+    return Level(
+        scheme=scheme,
+        num_vertices=nv,
+        num_faces=F,
+        face_size=uniform,
+        corner_vert=_i32(corner_vert),
+        face_hole=face_hole,
+        face_offsets=None if uniform else offsets,
+        corner_next_table=None if uniform else _i32(nxt),
+        corner_edge=_i32(corner_edge),
+        edge_verts=_i32(edge_verts),
+        edge_corner_offsets=eoff,
+        edge_corners=_i32(ecorners),
+        vert_corner_offsets=voff,
+        vert_corners=_i32(vcorners),
+        edge_sharp=edge_sharp,
+        vert_class=vclass,
+        corner_theta=corner_theta,
+    )
+
+
+def _sector_thetas(mesh, scheme, corner_vert, nxt, prv, twin, corner_edge, edge_sharp, ecount, eoff, ecorners,
+                   edges, vclass, sharp_count, max_valence):
+    """theta of every corner's sector at crease and corner vertices (RULES.md section 2), NaN elsewhere.
+
+    Sectors are the runs of faces around a vertex between two crease edges, walked clockwise to their
+    first face (whose outgoing edge is a crease) by pointer jumping. alpha is measured once, here.
+    """
+    C = len(corner_vert)
+    idx = np.arange(C, dtype=np.int64)
+    smooth_edge = ~edge_sharp[corner_edge]
+    cw = np.where(smooth_edge & (twin >= 0), nxt[np.maximum(twin, 0)], idx)
+    head, pos = _list_rank(cw, max_valence)
+    tagged_vertex = ((vclass == CREASE) | (vclass == CORNER)) & (sharp_count >= 2)
+    sel = tagged_vertex[corner_vert]
+    k_of_head = np.bincount(head[sel], minlength=C)
+    k = k_of_head[head]
+    tail_of_head = np.zeros(C, dtype=np.int64)
+    is_tail = sel & (pos == k - 1)
+    tail_of_head[head[is_tail]] = idx[is_tail]
+
+    pts = mesh.points
+    c = corner_vert[head]
+    p0 = corner_vert[nxt[head]]
+    pk = corner_vert[prv[tail_of_head[head]]]
+    u = pts[p0] - pts[c]
+    w = pts[pk] - pts[c]
+    alpha = np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w))
+
+    kind = np.where(vclass[corner_vert] == CREASE, rules.SECTOR_CREASE, rules.SECTOR_CONVEX)
+    if len(mesh.concave):
+        concave_heads = _concave_sector_heads(mesh, corner_vert, nxt, corner_edge, edge_sharp, ecount, eoff,
+                                              ecorners, edges, vclass, sharp_count, head, k)
+        is_concave = np.zeros(C, dtype=bool)
+        is_concave[concave_heads] = True
+        kind = np.where(is_concave[head] & (kind == rules.SECTOR_CONVEX), rules.SECTOR_CONCAVE, kind)
+    theta = rules.sector_theta(kind, np.maximum(k, 1), alpha)
+    return np.where(sel, theta, np.nan)
+
+
+def _concave_sector_heads(mesh, corner_vert, nxt, corner_edge, edge_sharp, ecount, eoff, ecorners, edges,
+                          vclass, sharp_count, head, k):
+    """The first corner of each sector named by a concave tag (corner vertex, neighbour vertex)."""
+    tags = mesh.concave.astype(np.int64)
+    nv = mesh.num_vertices
+    e = edges.find(tags, nv) if edges is not mesh.edges else mesh.concave_edges
+    c = tags[:, 0]
+    for i in np.flatnonzero(vclass[c] != CORNER)[:1]:
+        name = rules.VERTEX_CLASS_NAMES[int(vclass[c[i]])]
+        raise SubdivInputError(
+            f"concave tag {i} ({c[i]}, {tags[i, 1]}): vertex {c[i]} is not a corner (it is a {name} vertex); "
+            "tag it in corners"
+        )
+    for i in np.flatnonzero(sharp_count[c] < 2)[:1]:
+        raise SubdivInputError(
+            f"concave tag {i} ({c[i]}, {tags[i, 1]}): corner {c[i]} has {sharp_count[c[i]]} crease edges, so no "
+            "sector bounded by two creases"
+        )
+    for i in np.flatnonzero(edge_sharp[e] & (ecount[e] != 1))[:1]:
+        raise SubdivInputError(
+            f"concave tag {i} ({c[i]}, {tags[i, 1]}): the edge is a crease between two sectors; name a "
+            "non-crease edge inside the concave sector"
+        )
+    h0 = ecorners[eoff[e]]
+    h1 = ecorners[np.minimum(eoff[e] + 1, len(ecorners) - 1)]
+    # the corner at c in a face containing edge e: the edge's corner if it starts at c, else the next one
+    at_c0 = np.where(corner_vert[h0] == c, h0, nxt[h0])
+    at_c1 = np.where(corner_vert[h1] == c, h1, nxt[h1])
+    corner_at_c = np.where(corner_vert[at_c0] == c, at_c0, at_c1)
+    heads = head[corner_at_c]
+    for i in np.flatnonzero(k[corner_at_c] < 2)[:1]:
+        raise SubdivInputError(
+            f"concave tag {i} ({c[i]}, {tags[i, 1]}): that sector of corner {c[i]} has one face; a concave "
+            "sector needs at least two"
+        )
+    return heads
+
+
+# --------------------------------------------------------------------------------------------------------
+# refinement by index arithmetic
+
+
+def refine_level(level: Level, faces_only: bool = False) -> Level:
+    """The next level's topology, derived from ``level`` by index arithmetic (no sorting, no hashing).
+
+    ``faces_only`` builds just the child faces (for the last level, which nothing refines further).
+    """
+    if level.scheme == CATMULL_CLARK:
+        return _refine_catmull_clark(level, faces_only)
+    return _refine_loop(level, faces_only)
+
+
+def _side(level: Level, h: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """0 where corner h's vertex is edge e's first vertex, else 1."""
+    return (level.corner_vert[h] != level.edge_verts[e, 0]).astype(np.int64)
+
+
+def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
+    V, F, C, E = level.num_vertices, level.num_faces, level.num_corners, level.num_edges
+    h = np.arange(C, dtype=np.int64)
+    prev = level.corner_prev(h)
+    nxt = level.corner_next(h)
+    face = level.corner_face(h)
+    e_h = level.corner_edge.astype(np.int64)
+    e_prev = e_h[prev]
+    # Child face h (one per parent corner) holds, in this cyclic order: the child of v_h, the child of
+    # edge h, the face child, the child of edge prev(h). As in OpenSubdiv, it is rotated so that the vertex
+    # child sits at position (local index of h) mod 4: type t of corner h is child corner 4h + (t + r) % 4.
+    r = (h - level.face_starts()[face]) % 4
+
+    def child(hh, t):
+        return 4 * hh + (t + r[hh]) % 4
+
+    cv = np.empty(4 * C, dtype=np.int64)
+    ce = np.empty(4 * C, dtype=np.int64)
+    cv[child(h, 0)] = level.corner_vert
+    cv[child(h, 1)] = V + F + e_h
+    cv[child(h, 2)] = V + face
+    cv[child(h, 3)] = V + F + e_prev
+    child_hole = level.face_hole[face]
+    nV = V + F + E
+    if faces_only:
+        return Level(level.scheme, nV, C, 4, _i32(cv), child_hole)
+
+    ce[child(h, 0)] = C + 2 * e_h + _side(level, h, e_h)
+    ce[child(h, 1)] = h
+    ce[child(h, 2)] = prev
+    ce[child(h, 3)] = C + 2 * e_prev + _side(level, h, e_prev)
+    interior_verts = np.stack([V + face, V + F + e_h], axis=1)
+    interior_corners = np.stack([child(h, 1), child(nxt, 2)], axis=1)
+    near = child(h, 0)  # child corner on the half of edge h at v_h's side
+    far = child(nxt, 3)  # child corner on the half at v_next's side
+    vertex_child_corner = child(h, 0)
+    face_child_corners = child(h, 2)
+    edge_child_corners = np.stack([child(h, 1), child(nxt, 3)], axis=1)
+    return _assemble(level, nV, C, 4, cv, ce, interior_verts, interior_corners, near, far,
+                     vertex_child_corner, face_child_corners, edge_child_corners, child_hole, V + F)
+
+
+def _refine_loop(level: Level, faces_only: bool) -> Level:
+    V, F, C, E = level.num_vertices, level.num_faces, level.num_corners, level.num_edges
+    if level.face_size != 3:
+        raise ValueError("Loop refinement needs a triangle level")
+    vt = level.corner_vert.reshape(F, 3)
+    et = V + level.corner_edge.astype(np.int64).reshape(F, 3)
+    # child 4f+j (j < 3): vertex child at position j, then edge j, then edge j-1; child 4f+3: edge m+1 at m
+    cv = np.empty((F, 4, 3), dtype=np.int64)
+    for j in range(3):
+        cv[:, j, j] = vt[:, j]
+        cv[:, j, (j + 1) % 3] = et[:, j]
+        cv[:, j, (j + 2) % 3] = et[:, (j + 2) % 3]
+        cv[:, 3, j] = et[:, (j + 1) % 3]
+    child_hole = np.repeat(level.face_hole, 4)
+    nV = V + E
+    if faces_only:
+        return Level(level.scheme, nV, 4 * F, 3, _i32(cv.reshape(-1)), child_hole)
+
+    h = np.arange(C, dtype=np.int64)
+    f = h // 3
+    j = h % 3
+    jn = (j + 1) % 3
+    jp = (j + 2) % 3
+    e_h = level.corner_edge.astype(np.int64)
+    e_prev = e_h[3 * f + jp]
+    base = 12 * f
+    ce = np.empty((F, 4, 3), dtype=np.int64)
+    fr = np.arange(F)
+    for jj in range(3):
+        hj = 3 * fr + jj
+        ep = e_h[3 * fr + (jj + 2) % 3]
+        ce[:, jj, jj] = C + 2 * e_h[hj] + _side(level, hj, e_h[hj])
+        ce[:, jj, (jj + 1) % 3] = hj
+        ce[:, jj, (jj + 2) % 3] = C + 2 * ep + _side(level, hj, ep)
+        ce[:, 3, jj] = 3 * fr + (jj + 2) % 3
+    # interior edge 3f+j joins the children of edges j and j-1
+    interior_verts = np.stack([V + e_h, V + e_prev], axis=1)
+    interior_corners = np.stack([base + 3 * j + jn, base + 9 + jn], axis=1)
+    near = base + 4 * j
+    far = base + 3 * jn + j
+    vertex_child_corner = base + 4 * j
+    edge_child_corners = np.stack([base + 3 * j + jn, base + 3 * jn + j, base + 9 + jp], axis=1)
+    return _assemble(level, nV, C, 3, cv.reshape(-1, 3), ce.reshape(-1, 3), interior_verts, interior_corners,
+                     near, far, vertex_child_corner, None, edge_child_corners, child_hole, V)
+
+
+def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners, near, far,
+              vertex_child_corner, face_child_corners, edge_child_corners, child_hole, edge_child_base):
+    """Shared tail of both schemes: child edges, edge->corner and vertex->corner tables, classes, thetas."""
+    V, E, C = level.num_vertices, level.num_edges, level.num_corners
+    nC = 4 * C
+    e = np.arange(E, dtype=np.int64)
+    ev = level.edge_verts.astype(np.int64)
+    echild = edge_child_base + e
+    # child edges: nI interior ones, then halves (child of v0, child of e) and (child of v1, child of e)
+    halves = np.empty((E, 2, 2), dtype=np.int64)
+    halves[:, 0, 0] = echild
+    halves[:, 0, 1] = ev[:, 0]
+    halves[:, 1, 0] = echild
+    halves[:, 1, 1] = ev[:, 1]
+    child_edge_verts = np.concatenate([interior_verts, halves.reshape(-1, 2)])
+
+    # edge -> corners: interior edges have two corners; each half has as many as its parent edge
+    eoff = level.edge_corner_offsets
+    ecount = np.diff(eoff)
+    half_off = np.empty((E, 2), dtype=np.int64)
+    half_off[:, 0] = 2 * nI + 2 * eoff[:-1]
+    half_off[:, 1] = half_off[:, 0] + ecount
+    child_eoff = np.concatenate([2 * np.arange(nI, dtype=np.int64), half_off.reshape(-1), [nC]])
+    child_ecorners = np.empty(nC, dtype=np.int64)
+    child_ecorners[: 2 * nI] = interior_corners.reshape(-1)
+    slot_edge = _rows_of(eoff)
+    slot_corner = level.edge_corners.astype(np.int64)
+    t = np.arange(C, dtype=np.int64) - eoff[slot_edge]
+    s0 = _side(level, slot_corner, slot_edge)
+    child_ecorners[half_off[slot_edge, s0] + t] = near[slot_corner]
+    child_ecorners[half_off[slot_edge, 1 - s0] + t] = far[slot_corner]
+
+    # vertex -> corners: vertex children keep their ring, face children get their face's corners,
+    # edge children get m corners per parent corner on the edge
+    voff = level.vert_corner_offsets
+    vcount = np.diff(voff)
+    m = edge_child_corners.shape[1]
+    count_blocks = [vcount]
+    corner_blocks = [vertex_child_corner[level.vert_corners.astype(np.int64)]]
+    if face_child_corners is not None:
+        count_blocks.append(level.face_sizes())
+        corner_blocks.append(face_child_corners)
+    count_blocks.append(m * ecount)
+    corner_blocks.append(edge_child_corners[slot_corner].reshape(-1))
+    child_voff = _offsets(np.concatenate(count_blocks))
+    child_vcorners = np.concatenate(corner_blocks)
+
+    # sharpness and classes: halves inherit, edges inside faces are smooth; a sharp edge's child is a crease
+    child_sharp = np.concatenate([np.zeros(nI, dtype=bool), np.repeat(level.edge_sharp, 2)])
+    n_face_children = nV - V - E
+    edge_child_class = np.where(level.edge_sharp, CREASE, SMOOTH).astype(np.int8)
+    child_class = np.concatenate([level.vert_class, np.full(n_face_children, SMOOTH, np.int8), edge_child_class])
+    # theta: a vertex child keeps its sector (theta is fixed on all levels); every other corner is
+    # either smooth or a regular crease, whose rules are the standard ones
+    child_theta = np.full(nC, np.nan)
+    child_theta[vertex_child_corner] = level.corner_theta
+    edge_child_crease = level.edge_sharp[level.corner_edge.astype(np.int64)]
+    regular = np.pi / (2 if level.scheme == CATMULL_CLARK else 3)
+    for col in range(m):
+        corners = edge_child_corners[:, col]
+        child_theta[corners] = np.where(edge_child_crease, regular, np.nan)
+    return Level(
+        scheme=level.scheme,
+        num_vertices=nV,
+        num_faces=nC // face_size,
+        face_size=face_size,
+        corner_vert=_i32(cv.reshape(-1)),
+        face_hole=child_hole,
+        corner_edge=_i32(ce.reshape(-1)),
+        edge_verts=_i32(child_edge_verts),
+        edge_corner_offsets=child_eoff,
+        edge_corners=_i32(child_ecorners),
+        vert_corner_offsets=child_voff,
+        vert_corners=_i32(child_vcorners),
+        edge_sharp=child_sharp,
+        vert_class=child_class,
+        corner_theta=child_theta,
+    )
