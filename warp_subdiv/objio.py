@@ -1,7 +1,8 @@
 """Wavefront OBJ in and out, with OpenSubdiv's ``t`` tags and the ``.creases``/``.corners`` side files.
 
 ``t crease 2/1/0 v0 v1 sharpness``, ``t corner 1/1/0 v sharpness``, ``t hole 1/0/0 face`` and
-``t interpolateboundary 1/0/0 N`` (0 none, 1 edge-and-corner, 2 edge-only) are read; side files hold lines
+``t interpolateboundary 1/0/0 N`` (0 none, 1 edge-and-corner, 2 edge-only) are read, and warp-subdiv's
+own ``t concave 2/0/0 c n`` (the sector of corner c that contains edge (c, n) is concave); side files hold lines
 ``v0 v1 sharpness`` and ``v sharpness`` with 0-based ids. Faces use 1-based (or negative, relative) ids.
 """
 from __future__ import annotations
@@ -43,7 +44,7 @@ def _read_side_file(path: str, width: int) -> np.ndarray:
 def read_obj(path: str) -> ObjData:
     """Read an OBJ file (and its side files) into a :class:`Mesh`."""
     points, counts, indices = [], [], []
-    creases, crease_s, corners, corner_s, holes = [], [], [], [], []
+    creases, crease_s, corners, corner_s, holes, concave = [], [], [], [], [], []
     options: dict = {}
     try:
         fh = open(path, encoding="utf-8")
@@ -78,6 +79,8 @@ def read_obj(path: str) -> ObjData:
                         for v in ints:
                             corners.append(v)
                             corner_s.append(floats[0] if floats else 10.0)
+                    elif name == "concave":  # warp-subdiv's own tag: corner vertex, neighbour vertex
+                        concave.append((ints[0], ints[1]))
                     elif name == "hole":
                         holes.extend(ints)
                     elif name == "interpolateboundary":
@@ -106,6 +109,7 @@ def read_obj(path: str) -> ObjData:
         corners=corners or None,
         corner_sharpness=corner_s if corners else None,
         holes=holes or None,
+        concave=np.asarray(concave, dtype=np.int64).reshape(-1, 2) if concave else None,
     )
     return ObjData(mesh, options)
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from . import rules
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, LOOP, SMOOTH
-from .topology import Level, _offsets, _rows_of
+from .topology import Level, _offsets, _rows_of, expand_counts
 
 
 @dataclass
@@ -150,8 +150,7 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
         out.put(sl_v, sl_pos, corner_vert[nxt], w_edge_sl + w_face_sl / m_f + w_face_sl / m_g)
         # the far vertices of the face (not v, not p, not the previous neighbour): face-point weight only
         far_count = (m_f - 3).astype(np.int64)
-        rep = np.repeat(np.arange(len(slots)), far_count)
-        t = np.arange(len(rep)) - np.repeat(np.concatenate([[0], np.cumsum(far_count)[:-1]]), far_count)
+        rep, t = expand_counts(far_count)
         walk = nxt[rep]
         walk = _advance(level, walk, t + 1)
         out.put(sl_v[rep], sl_pos[rep] + 1 + t, corner_vert[walk], (w_face_sl / m_f)[rep])
@@ -198,8 +197,7 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
         pos = 2
         for g, m, first in ((g0, m0, 2), (g1, m1, None)):
             cnt = m - 2
-            rep = np.repeat(np.arange(len(me)), cnt)
-            t = np.arange(len(rep)) - np.repeat(np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
+            rep, t = expand_counts(cnt)
             walk = _advance(level, g[rep], t + 2)
             base_pos = 2 if first else 2 + (m0 - 2)[rep]
             out.put(rows[rep], base_pos + t, corner_vert[walk], w_wing / m[rep])

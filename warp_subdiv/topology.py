@@ -36,6 +36,14 @@ def _rows_of(offsets: np.ndarray) -> np.ndarray:
     return np.repeat(np.arange(len(offsets) - 1, dtype=np.int64), np.diff(offsets))
 
 
+def expand_counts(counts: np.ndarray):
+    """For a list of groups of the given sizes: (group of each item, rank of the item inside its group)."""
+    counts = np.asarray(counts, dtype=np.int64)
+    group = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
+    rank = np.arange(len(group), dtype=np.int64) - np.repeat(_offsets(counts)[:-1], counts)
+    return group, rank
+
+
 def _i32(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.int32)
 
@@ -126,9 +134,7 @@ def triangulate(counts: np.ndarray, indices: np.ndarray):
     """
     counts = np.asarray(counts, dtype=np.int64)
     offsets = face_offsets_of(counts)
-    ntri = counts - 2
-    parent = np.repeat(np.arange(len(counts)), ntri)
-    i = np.arange(int(ntri.sum())) - np.repeat(_offsets(ntri)[:-1], ntri)
+    parent, i = expand_counts(counts - 2)
     start = offsets[parent]
     tri = np.stack([indices[start], indices[start + i + 1], indices[start + i + 2]], axis=1)
     return np.full(len(parent), 3, dtype=np.int32), tri.reshape(-1).astype(np.int32), parent
