@@ -1,0 +1,44 @@
+"""Shared fixtures: test meshes, reference data and the devices to run on (CPU always, CUDA when present)."""
+import os
+
+import numpy as np
+import pytest
+import warp as wp
+
+wp.config.log_level = 30  # keep Warp's start-up and module-load lines out of the test log
+
+DATA = os.path.join(os.path.dirname(__file__), "data")
+MESHES = os.path.join(DATA, "meshes")
+
+
+def mesh_path(name: str) -> str:
+    return os.path.join(MESHES, name if name.endswith(".obj") else name + ".obj")
+
+
+def load_mesh(name: str):
+    """A test mesh from tests/data/meshes (with its side files) as a warp_subdiv.Mesh."""
+    from warp_subdiv.objio import read_obj
+
+    return read_obj(mesh_path(name)).mesh
+
+
+def devices():
+    out = ["cpu"]
+    if wp.get_cuda_device_count() > 0:
+        out.append("cuda")
+    return out
+
+
+@pytest.fixture(params=devices())
+def device(request):
+    """Every device-dependent test runs on the CPU, and on CUDA when a GPU is present."""
+    return request.param
+
+
+def dense(table, num_sources=None):
+    """A stencil table as a dense (rows, sources) matrix, duplicates summed."""
+    n = table.num_sources if num_sources is None else num_sources
+    out = np.zeros((table.num_rows, n))
+    rows = np.repeat(np.arange(table.num_rows), np.diff(table.offsets.astype(np.int64)))
+    np.add.at(out, (rows, table.indices.astype(np.int64)), table.weights)
+    return out

@@ -1,0 +1,125 @@
+"""Topology derived by index arithmetic equals topology rediscovered from scratch on the refined faces."""
+import numpy as np
+import pytest
+
+import warp_subdiv as ws
+from conftest import load_mesh
+from warp_subdiv import rules
+from warp_subdiv.topology import base_level, refine_level, triangulate
+
+CASES = [
+    ("cube", "catmull-clark"),
+    ("cube_creased", "catmull-clark"),
+    ("grid3x3", "catmull-clark"),
+    ("quad_lshape", "catmull-clark"),
+    ("quad_halffan", "catmull-clark"),
+    ("mixed_prism", "catmull-clark"),
+    ("icosahedron", "loop"),
+    ("tri_halffan", "loop"),
+    ("tri_grid3x3", "loop"),
+    ("mixed_prism", "loop"),
+]
+
+
+def levels_of(mesh, scheme, n, rule_set="piecewise-smooth"):
+    level = base_level(mesh, scheme, "edge-and-corner", rule_set)
+    out = [level]
+    for _ in range(n):
+        level = refine_level(level)
+        out.append(level)
+    return out
+
+
+def check_tables(level):
+    C = level.num_corners
+    h = np.arange(C)
+    nxt = level.corner_next(h)
+    ends = np.sort(np.stack([level.corner_vert[h], level.corner_vert[nxt]], 1), 1)
+    np.testing.assert_array_equal(np.sort(level.edge_verts[level.corner_edge], 1), ends)
+    # edge -> corners lists every corner exactly once, under its own edge
+    rows = np.repeat(np.arange(level.num_edges), np.diff(level.edge_corner_offsets))
+    np.testing.assert_array_equal(level.corner_edge[level.edge_corners], rows)
+    assert np.array_equal(np.sort(level.edge_corners), h)
+    # vertex -> corners likewise
+    rows = np.repeat(np.arange(level.num_vertices), np.diff(level.vert_corner_offsets))
+    np.testing.assert_array_equal(level.corner_vert[level.vert_corners], rows)
+    assert np.array_equal(np.sort(level.vert_corners), h)
+    # prev/next are inverse
+    np.testing.assert_array_equal(level.corner_prev(nxt), h)
+
+
+@pytest.mark.parametrize("name,scheme", CASES)
+def test_derived_tables_are_consistent(name, scheme):
+    for level in levels_of(load_mesh(name), scheme, 3):
+        check_tables(level)
+
+
+@pytest.mark.parametrize("name,scheme", CASES)
+def test_derived_equals_rediscovered(name, scheme):
+    mesh = load_mesh(name)
+    lv = levels_of(mesh, scheme, 2)
+    top = lv[-1]
+    # a fresh Mesh of the level-2 faces with its sharp edges tagged as creases and its corners as corners
+    pts = ws.refine(mesh, 2, scheme=scheme, device="cpu", precision="float64").points
+    sharp = top.edge_verts[top.edge_sharp]
+    fresh = ws.Mesh(pts, top.face_vertex_counts(), top.corner_vert, creases=sharp,
+                    corners=np.flatnonzero(top.vert_class == rules.CORNER))
+    again = base_level(fresh, scheme, "edge-and-corner", "piecewise-smooth")
+    # same edges (as sets) with the same sharpness
+    key = lambda ev: ev.min(1).astype(np.int64) * top.num_vertices + ev.max(1)
+    k1, k2 = key(top.edge_verts), key(again.edge_verts)
+    assert len(k1) == len(np.unique(k1)) == len(k2)
+    o1, o2 = np.argsort(k1), np.argsort(k2)
+    np.testing.assert_array_equal(k1[o1], k2[o2])
+    np.testing.assert_array_equal(top.edge_sharp[o1], again.edge_sharp[o2])
+    np.testing.assert_array_equal(top.vert_class, again.vert_class)
+    # crease-vertex sectors: theta = pi/k with k recounted on the refined mesh
+    crease = top.vert_class[top.corner_vert] == rules.CREASE
+    np.testing.assert_allclose(top.corner_theta[crease], again.corner_theta[crease], atol=1e-12)
+    # boundary edges of the refined mesh are exactly the children of boundary edges
+    counts = np.diff(top.edge_corner_offsets)
+    assert np.all(top.edge_sharp[counts == 1])
+
+
+def test_counts_per_level():
+    lv = levels_of(load_mesh("cube"), "catmull-clark", 3)
+    assert [l.num_vertices for l in lv] == [8, 26, 98, 386]
+    assert [l.num_faces for l in lv] == [6, 24, 96, 384]
+    assert [l.num_edges for l in lv] == [12, 48, 192, 768]
+    lv = levels_of(load_mesh("icosahedron"), "loop", 3)
+    assert [l.num_vertices for l in lv] == [12, 42, 162, 642]
+    assert [l.num_faces for l in lv] == [20, 80, 320, 1280]
+
+
+def test_vertex_classes_on_control_mesh():
+    lv = base_level(load_mesh("quad_lshape"), "catmull-clark", "edge-and-corner", "piecewise-smooth")
+    # one-face boundary vertices are corners, the 3-face concave vertex 10 a crease, interior ones smooth
+    assert set(np.flatnonzero(lv.vert_class == rules.CORNER)) == {0, 3, 11, 12, 14}
+    assert lv.vert_class[10] == rules.CREASE
+    assert set(np.flatnonzero(lv.vert_class == rules.SMOOTH)) == {5, 6, 9}
+    lv = base_level(load_mesh("quad_lshape"), "catmull-clark", "edge-only", "piecewise-smooth")
+    assert not np.any(lv.vert_class == rules.CORNER)
+
+
+def test_sector_angles_on_control_mesh():
+    m = load_mesh("quad_lshape")
+    tagged = ws.Mesh(m.points, m.face_vertex_counts, m.face_vertex_indices, corners=[10, 0], concave=[[10, 6]])
+    lv = base_level(tagged, "catmull-clark", "edge-and-corner", "piecewise-smooth")
+    at = lambda v: lv.corner_theta[lv.corner_vert == v]
+    # vertex 10 (2, 2, 0.5): three faces, crease edges to (3, 2, 0) and (2, 3, 0): cos alpha = 0.25/1.25;
+    # concave: theta = (2 pi - alpha)/3
+    np.testing.assert_allclose(at(10), (2 * np.pi - np.arccos(0.2)) / 3)
+    # vertex 0: one face, convex, alpha = pi/2: theta = alpha/1
+    np.testing.assert_allclose(at(0), np.pi / 2)
+    # a regular boundary vertex (2 faces): theta = pi/2
+    np.testing.assert_allclose(at(1), np.pi / 2)
+    # opensubdiv rules keep no sector angles on the control mesh
+    lv = base_level(tagged, "catmull-clark", "edge-and-corner", "opensubdiv")
+    assert np.all(np.isnan(lv.corner_theta))
+
+
+def test_fan_triangulation():
+    counts, idx, parent = triangulate(np.array([5, 4, 3]), np.arange(12))
+    assert list(counts) == [3] * 6
+    assert idx.reshape(-1, 3).tolist() == [[0, 1, 2], [0, 2, 3], [0, 3, 4], [5, 6, 7], [5, 7, 8], [9, 10, 11]]
+    assert parent.tolist() == [0, 0, 0, 1, 1, 2]
