@@ -186,7 +186,9 @@ class Refiner:
 
     def evaluate(self, points) -> np.ndarray:
         """Refine (n, 3) or (n, d) vertex data (n = control vertices); returns a numpy array (N, d)."""
-        out = self.evaluate_device(points).numpy()  # vec3 arrays come back as (N, 3), others as (N, d)
+        # vec3 arrays come back as (N, 3), others as (N, d); copy, because on the CPU .numpy() is a view of
+        # a buffer that the next call overwrites
+        out = np.array(self.evaluate_device(points).numpy(), copy=True)
         return out[:, 0] if np.ndim(points) == 1 else out
 
     def refine(self, points=None) -> Refined:

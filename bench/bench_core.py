@@ -1,0 +1,399 @@
+"""Benchmark of the core engine: topology + stencil-table build, Warp evaluation, end-to-end refine, memory.
+
+    python bench/bench_core.py                    # both bench meshes, levels 1-5, Markdown table on stdout
+    python bench/bench_core.py --quick            # levels 1-2 only (CI smoke test, a few seconds)
+    python bench/bench_core.py --levels 3-4 --frames 9 --device cpu --json out/bench.json
+    python bench/bench_core.py --profile catmull-clark:4   # cProfile of one Refiner build (top functions)
+
+Every (mesh, level) runs in a fresh subprocess so that its peak memory is its own: the worker reads VmHWM
+(peak resident set) from /proc/self/status after imports + mesh load (baseline) and again at the end, and
+reports both (``getrusage(RUSAGE_SELF).ru_maxrss`` where /proc is absent). The parent guards every worker
+with a timeout and a resident-memory limit (it polls the child's VmRSS and kills it when over the limit) and
+stops a mesh at the highest level that worked, saying why in the output. Within a worker:
+
+* build      ``Refiner(mesh, L, ...)``: topology of all levels + CSR stencil tables (numpy, CPU);
+* warm-up    the first ``evaluate``: table upload, buffer allocation, Warp module load (compiled once into
+             Warp's kernel cache; the compile from an empty cache is timed once, separately);
+* eval       median over ``--frames`` further ``evaluate`` calls (each with different points), numpy in and out;
+* refine     ``ws.refine(mesh, L, ...)`` end to end (build + topology + first evaluate), after the Refiner
+             above was freed.
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+MESH_DIR = os.path.join(HERE, "meshes")
+MESHES = {
+    # name: (file, scheme)
+    "cube64_noisy": ("cube64_noisy.obj", "catmull-clark"),
+    "icosphere5_noisy": ("icosphere5_noisy.obj", "loop"),
+}
+MARK = "BENCH_RESULT "
+
+
+# ------------------------------------------------------------------------------------------------ memory
+def _proc_status(pid="self") -> dict:
+    out = {}
+    try:
+        with open(f"/proc/{pid}/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith(("VmHWM", "VmRSS")):
+                    key, value = line.split(":", 1)
+                    out[key] = int(value.split()[0]) * 1024  # kB -> bytes
+    except OSError:
+        pass
+    return out
+
+
+def peak_rss_bytes() -> int:
+    """Peak resident set of this process so far (VmHWM; ru_maxrss where /proc is absent)."""
+    hwm = _proc_status().get("VmHWM")
+    if hwm is not None:
+        return hwm
+    scale = 1 if sys.platform == "darwin" else 1024  # ru_maxrss is bytes on macOS, kB on Linux
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale
+
+
+def mem_available_bytes() -> int | None:
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+# ------------------------------------------------------------------------------------------------ worker
+def _quiet_warp():
+    import warp as wp
+
+    wp.config.log_level = 30
+    wp.config.quiet = True
+    return wp
+
+
+def worker(args) -> dict:
+    """One (mesh, level) configuration; returns a dict of measurements (printed as JSON by main)."""
+    if args.kernel_cache:
+        import warp as wp
+
+        wp.config.kernel_cache_dir = args.kernel_cache
+    import numpy as np
+
+    wp = _quiet_warp()
+    import warp_subdiv as ws
+    from warp_subdiv.objio import read_obj
+
+    wp.init()
+    file, scheme = MESHES[args.mesh]
+    mesh = read_obj(os.path.join(MESH_DIR, file)).mesh
+    level = args.level
+    opts = dict(scheme=scheme, rules=args.rules, device=args.device, precision=args.precision)
+    rng = np.random.default_rng(0)
+    base = np.asarray(mesh.points, dtype=np.float64)
+    # different points every frame (an animation); made before the baseline so they are not counted
+    frames = [base + 1e-3 * rng.standard_normal(base.shape) for _ in range(args.frames)]
+    gc.collect()
+    res = {"mesh": args.mesh, "scheme": scheme, "level": level, "device": args.device,
+           "base_vertices": int(len(base)), "base_faces": int(len(mesh.face_vertex_counts)),
+           "baseline_peak_rss": peak_rss_bytes(), "baseline_rss": _proc_status().get("VmRSS")}
+
+    t = time.perf_counter()
+    r = ws.Refiner(mesh, level, **opts)
+    res["build_s"] = time.perf_counter() - t
+    res["num_vertices"] = int(r.num_vertices)
+    res["table_bytes"] = int(r.table_bytes())
+    res["table_entries"] = int(sum(len(tb.indices) for tb in r.tables))
+    t = time.perf_counter()
+    counts, _ = r.topology()
+    res["topology_s"] = time.perf_counter() - t
+    res["num_faces"] = int(len(counts))
+    del counts, _
+
+    t = time.perf_counter()
+    out = r.evaluate(base)
+    res["warmup_s"] = time.perf_counter() - t
+    assert out.shape == (r.num_vertices, 3) and np.all(np.isfinite(out))
+    times = []
+    for pts in frames:
+        t = time.perf_counter()
+        r.evaluate(pts)
+        times.append(time.perf_counter() - t)
+    res["eval_s"] = statistics.median(times)
+    res["eval_s_all"] = times
+    res["peak_rss_refiner"] = peak_rss_bytes()
+    del r, out
+    gc.collect()
+
+    if not args.skip_refine:
+        t = time.perf_counter()
+        refined = ws.refine(mesh, level, **opts)
+        res["refine_s"] = time.perf_counter() - t
+        assert refined.num_vertices == res["num_vertices"]
+        del refined
+    res["peak_rss"] = peak_rss_bytes()
+    return res
+
+
+def compile_worker(args) -> dict:
+    """Time the Warp module build from an empty kernel cache (one tiny evaluate)."""
+    import numpy as np
+
+    wp = _quiet_warp()
+    cache = tempfile.mkdtemp(prefix="wsbench_kcache_")
+    wp.config.kernel_cache_dir = cache
+    import warp_subdiv as ws
+
+    wp.init()
+    mesh = ws.Mesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float), [4], [0, 1, 2, 3])
+    r = ws.Refiner(mesh, 1, device=args.device, precision=args.precision)
+    t = time.perf_counter()
+    r.evaluate(mesh.points)
+    res = {"compile_s": time.perf_counter() - t}
+    t = time.perf_counter()
+    r.evaluate(mesh.points)
+    res["second_s"] = time.perf_counter() - t
+    import shutil
+
+    shutil.rmtree(cache, ignore_errors=True)
+    return res
+
+
+def profile_build(args):
+    import cProfile
+    import pstats
+
+    _quiet_warp()
+    import warp_subdiv as ws
+    from warp_subdiv.objio import read_obj
+
+    scheme, level = args.profile.split(":")
+    name = next(n for n, (_, s) in MESHES.items() if s == scheme)
+    mesh = read_obj(os.path.join(MESH_DIR, MESHES[name][0])).mesh
+    prof = cProfile.Profile()
+    t = time.perf_counter()
+    prof.enable()
+    ws.Refiner(mesh, int(level), scheme=scheme, rules=args.rules, device=args.device, precision=args.precision)
+    prof.disable()
+    print(f"Refiner build of {name} ({scheme}) level {level}: {time.perf_counter() - t:.2f} s wall "
+          f"(profiled), peak RSS {peak_rss_bytes() / 2**20:.0f} MiB")
+    stats = pstats.Stats(prof).strip_dirs()
+    stats.sort_stats("tottime").print_stats(25)
+    stats.sort_stats("cumulative").print_stats(25)
+
+
+# ------------------------------------------------------------------------------------------------ parent
+def run_child(cmd, timeout_s, mem_limit):
+    """Run a worker; returns (result dict | None, reason). Kills it on timeout or when over mem_limit."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    killed = {}
+    max_rss = [0]
+
+    def watch():
+        while proc.poll() is None:
+            rss = _proc_status(proc.pid).get("VmRSS", 0)
+            max_rss[0] = max(max_rss[0], rss)
+            if mem_limit and rss > mem_limit:
+                killed["why"] = f"killed at {rss / 2**30:.1f} GiB resident (limit {mem_limit / 2**30:.1f} GiB)"
+                proc.kill()
+                return
+            time.sleep(0.1)
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        out, err = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        killed.setdefault("why", f"timed out after {timeout_s:.0f} s")
+    watcher.join()
+    if "why" in killed:
+        return None, killed["why"]
+    for line in out.splitlines():
+        if line.startswith(MARK):
+            return json.loads(line[len(MARK):]), ""
+    tail = (err or out).strip().splitlines()[-3:]
+    return None, f"exit code {proc.returncode}: " + " | ".join(tail)
+
+
+def parse_levels(text: str) -> list[int]:
+    if "-" in text:
+        a, b = text.split("-")
+        return list(range(int(a), int(b) + 1))
+    return [int(x) for x in text.split(",")]
+
+
+def machine_info() -> dict:
+    import numpy
+    import warp
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    ram = None
+    try:
+        ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        pass
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:
+        cores = os.cpu_count()
+    return {"cpu": cpu, "cores": cores, "ram_bytes": ram, "os": platform.platform(),
+            "python": platform.python_version(), "numpy": numpy.__version__, "warp": warp.__version__}
+
+
+def fmt_table(rows) -> str:
+    head = ["mesh (scheme)", "level", "output verts", "build s", "warm-up s", "eval ms/frame",
+            "refine s", "table B/vert", "eval Mverts/s", "peak RSS MiB", "Δ peak MiB"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] + ["---:"] * (len(head) - 1)) + "|"]
+    mib = 2**20
+    for r in rows:
+        refine = f"{r['refine_s']:.3f}" if "refine_s" in r else "–"
+        lines.append("| " + " | ".join([
+            f"{r['mesh']} ({r['scheme']})", str(r["level"]), f"{r['num_vertices']:,}", f"{r['build_s']:.3f}",
+            f"{r['warmup_s']:.3f}", f"{r['eval_s'] * 1e3:.2f}", refine,
+            f"{r['table_bytes'] / r['num_vertices']:.1f}", f"{r['num_vertices'] / r['eval_s'] / 1e6:.1f}",
+            f"{r['peak_rss'] / mib:,.0f}", f"{(r['peak_rss'] - r['baseline_peak_rss']) / mib:,.0f}",
+        ]) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--levels", default="1-5", help="e.g. 1-5 or 1,3 (default 1-5)")
+    p.add_argument("--quick", action="store_true", help="levels 1-2, 3 frames (CI smoke test)")
+    p.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda")
+    p.add_argument("--precision", default="float32", choices=["float32", "float64"])
+    p.add_argument("--rules", default="piecewise-smooth", choices=["piecewise-smooth", "opensubdiv"])
+    p.add_argument("--meshes", default=",".join(MESHES), help="comma-separated subset of " + ",".join(MESHES))
+    p.add_argument("--frames", type=int, default=5, help="timed evaluate calls after warm-up (median)")
+    p.add_argument("--timeout", type=float, default=600.0, help="seconds per (mesh, level) subprocess")
+    p.add_argument("--mem-limit-gib", type=float, default=None,
+                   help="kill a worker above this resident size (default: 90%% of MemAvailable at start)")
+    p.add_argument("--skip-refine", action="store_true", help="do not time ws.refine end to end")
+    p.add_argument("--json", help="also write all measurements to this JSON file")
+    p.add_argument("--profile", metavar="SCHEME:LEVEL", help="cProfile one Refiner build and exit")
+    # internal
+    p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--compile-worker", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--mesh", help=argparse.SUPPRESS)
+    p.add_argument("--level", type=int, help=argparse.SUPPRESS)
+    p.add_argument("--kernel-cache", help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+
+    if args.worker or args.compile_worker or args.profile:
+        if ROOT not in sys.path:
+            sys.path.insert(0, ROOT)
+    if args.worker:
+        print(MARK + json.dumps(worker(args)), flush=True)
+        return 0
+    if args.compile_worker:
+        print(MARK + json.dumps(compile_worker(args)), flush=True)
+        return 0
+    if args.profile:
+        profile_build(args)
+        return 0
+
+    levels = [1, 2] if args.quick else parse_levels(args.levels)
+    if args.quick:
+        args.frames = min(args.frames, 3)
+    meshes = [m.strip() for m in args.meshes.split(",") if m.strip()]
+    for m in meshes:
+        if m not in MESHES:
+            p.error(f"unknown mesh {m!r}; choose from {', '.join(MESHES)}")
+    avail = mem_available_bytes()
+    mem_limit = int(args.mem_limit_gib * 2**30) if args.mem_limit_gib else (int(0.9 * avail) if avail else None)
+
+    info = machine_info()
+    started = time.perf_counter()
+    cmdline = "python bench/bench_core.py" + ("" if argv is None and len(sys.argv) <= 1 else " " + " ".join(
+        sys.argv[1:] if argv is None else argv))
+    print(f"# warp-subdiv core benchmark\n\ncommand: `{cmdline}`\n")
+    ram = f"{info['ram_bytes'] / 2**30:.1f} GiB" if info["ram_bytes"] else "?"
+    print(f"machine: {info['cpu']}, {info['cores']} cores, {ram} RAM; {info['os']}; "
+          f"Python {info['python']}, numpy {info['numpy']}, warp {info['warp']}; Warp device {args.device}, "
+          f"{args.precision}, rules {args.rules}")
+    if mem_limit:
+        print(f"guards: {args.timeout:.0f} s and {mem_limit / 2**30:.1f} GiB resident per (mesh, level) subprocess")
+    sys.stdout.flush()
+
+    common = ["--device", args.device, "--precision", args.precision, "--rules", args.rules]
+    comp, why = run_child([sys.executable, os.path.abspath(__file__), "--compile-worker"] + common,
+                          args.timeout, mem_limit)
+    compile_note = (f"Warp module build from an empty kernel cache (first evaluate of a 1-quad mesh): "
+                    f"{comp['compile_s']:.2f} s; the rows below load it from Warp's kernel cache."
+                    if comp else f"Warp module compile could not be timed: {why}")
+
+    rows, notes = [], []
+    for m in meshes:
+        for lv in levels:
+            cmd = [sys.executable, os.path.abspath(__file__), "--worker", "--mesh", m, "--level", str(lv),
+                   "--frames", str(args.frames)] + common + (["--skip-refine"] if args.skip_refine else [])
+            t = time.perf_counter()
+            res, why = run_child(cmd, args.timeout, mem_limit)
+            wall = time.perf_counter() - t
+            if res is None:
+                higher = [x for x in levels if x > lv]
+                msg = f"{m} level {lv}: stopped ({why}); highest level that worked: " \
+                      f"{max([r['level'] for r in rows if r['mesh'] == m], default='none')}"
+                if higher:
+                    msg += f"; levels {', '.join(map(str, higher))} not run"
+                notes.append(msg)
+                print(f"  {msg}", file=sys.stderr, flush=True)
+                break
+            res["subprocess_wall_s"] = wall
+            rows.append(res)
+            print(f"  {m} level {lv}: {res['num_vertices']:,} verts, build {res['build_s']:.2f} s, "
+                  f"eval {res['eval_s'] * 1e3:.1f} ms, subprocess {wall:.1f} s", file=sys.stderr, flush=True)
+
+    total = time.perf_counter() - started
+    print()
+    print(fmt_table(rows))
+    print()
+    print("build = Refiner(): topology + stencil tables of all levels (numpy, CPU); warm-up = first evaluate "
+          "(table upload + Warp module load); eval = median of "
+          f"{args.frames} further evaluate calls (numpy in, numpy out); refine = ws.refine end to end; "
+          "table B/vert = Refiner.table_bytes() / output vertices; peak RSS = VmHWM of the fresh subprocess "
+          "at its end, Δ = minus its VmHWM after imports + mesh load.")
+    print()
+    print(compile_note)
+    for n in notes:
+        print(f"\n**{n}**")
+    if not notes:
+        print(f"\nAll requested levels ({levels[0]}-{levels[-1]}) completed.")
+    print(f"\nTotal benchmark wall time: {total:.1f} s")
+    if args.json:
+        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump({"command": cmdline, "machine": info, "rows": rows, "notes": notes,
+                       "compile": comp, "total_s": total}, fh, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
