@@ -46,6 +46,51 @@ def check_tables(level):
     assert np.array_equal(np.sort(level.vert_corners), h)
     # prev/next are inverse
     np.testing.assert_array_equal(level.corner_prev(nxt), h)
+    check_rings(level)
+    check_sectors(level)
+
+
+def check_rings(level):
+    """Rings run counter-clockwise: the face after corner h around its vertex shares edge (v, prev vertex)."""
+    off = level.vert_corner_offsets
+    ring = level.vert_corners.astype(np.int64)
+    rows = np.repeat(np.arange(level.num_vertices), np.diff(off))
+    cur, nxt_in_ring = ring[:-1], ring[1:]
+    same_vertex = rows[:-1] == rows[1:]
+    joined = level.corner_vert[level.corner_prev(cur)] == level.corner_vert[level.corner_next(nxt_in_ring)]
+    manifold = np.ones(level.num_vertices, bool)
+    counts = np.diff(level.edge_corner_offsets)
+    manifold[level.edge_verts[counts > 2].reshape(-1)] = False
+    ok = joined | ~same_vertex | ~manifold[rows[:-1]]
+    assert np.all(ok), np.flatnonzero(~ok)[:5]
+    # a boundary vertex's ring starts at the face after its boundary edge
+    first = ring[off[:-1][np.diff(off) > 0]]
+    boundary_first = counts[level.corner_edge[first]] == 1
+    vert = level.corner_vert[first]
+    on_boundary = np.zeros(level.num_vertices, bool)
+    on_boundary[level.edge_verts[counts == 1].reshape(-1)] = True
+    assert np.all(boundary_first == on_boundary[vert])
+
+
+def check_sectors(level):
+    k = level.sector_k()
+    corners = level.sector_corners.astype(np.int64)
+    owner = np.repeat(np.arange(level.num_sectors), k)
+    np.testing.assert_array_equal(level.corner_vert[corners], level.sector_vertex[owner])
+    heads = corners[level.sector_offsets[:-1]]
+    tails = corners[level.sector_offsets[1:] - 1]
+    assert np.all(level.edge_sharp[level.corner_edge[heads]])
+    assert np.all(level.edge_sharp[level.corner_edge[level.corner_prev(tails)]])
+    inner = np.ones(len(corners), bool)
+    inner[level.sector_offsets[1:] - 1] = False
+    a, b = corners[inner], corners[np.flatnonzero(inner) + 1]
+    np.testing.assert_array_equal(level.corner_vert[level.corner_prev(a)], level.corner_vert[level.corner_next(b)])
+    assert not np.any(level.edge_sharp[level.corner_edge[b]])
+    # every corner of a crease or corner vertex with two or more crease edges is in exactly one sector
+    sharp_count = np.bincount(level.edge_verts[level.edge_sharp].reshape(-1), minlength=level.num_vertices)
+    tagged = np.isin(level.vert_class, [rules.CREASE, rules.CORNER]) & (sharp_count >= 2)
+    expected = np.flatnonzero(tagged[level.corner_vert])
+    np.testing.assert_array_equal(np.sort(corners), expected)
 
 
 @pytest.mark.parametrize("name,scheme", CASES)
@@ -75,7 +120,7 @@ def test_derived_equals_rediscovered(name, scheme):
     np.testing.assert_array_equal(top.vert_class, again.vert_class)
     # crease-vertex sectors: theta = pi/k with k recounted on the refined mesh
     crease = top.vert_class[top.corner_vert] == rules.CREASE
-    np.testing.assert_allclose(top.corner_theta[crease], again.corner_theta[crease], atol=1e-12)
+    np.testing.assert_allclose(top.corner_theta()[crease], again.corner_theta()[crease], atol=1e-12)
     # boundary edges of the refined mesh are exactly the children of boundary edges
     counts = np.diff(top.edge_corner_offsets)
     assert np.all(top.edge_sharp[counts == 1])
@@ -105,7 +150,7 @@ def test_sector_angles_on_control_mesh():
     m = load_mesh("quad_lshape")
     tagged = ws.Mesh(m.points, m.face_vertex_counts, m.face_vertex_indices, corners=[10, 0], concave=[[10, 6]])
     lv = base_level(tagged, "catmull-clark", "edge-and-corner", "piecewise-smooth")
-    at = lambda v: lv.corner_theta[lv.corner_vert == v]
+    at = lambda v: lv.corner_theta()[lv.corner_vert == v]
     # vertex 10 (2, 2, 0.5): three faces, crease edges to (3, 2, 0) and (2, 3, 0): cos alpha = 0.25/1.25;
     # concave: theta = (2 pi - alpha)/3
     np.testing.assert_allclose(at(10), (2 * np.pi - np.arccos(0.2)) / 3)
@@ -113,9 +158,9 @@ def test_sector_angles_on_control_mesh():
     np.testing.assert_allclose(at(0), np.pi / 2)
     # a regular boundary vertex (2 faces): theta = pi/2
     np.testing.assert_allclose(at(1), np.pi / 2)
-    # opensubdiv rules keep no sector angles on the control mesh
+    # OpenSubdiv has no concave sectors: the tag is ignored there
     lv = base_level(tagged, "catmull-clark", "edge-and-corner", "opensubdiv")
-    assert np.all(np.isnan(lv.corner_theta))
+    assert not np.any(lv.sector_kind == rules.SECTOR_CONCAVE)
 
 
 def test_fan_triangulation():

@@ -182,9 +182,12 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     at_b = np.where(corner_vert[g0] == b, g0, level.corner_next(g0))
     tagged_a = (vclass[a] == CREASE) | (vclass[a] == CORNER)
     tagged_b = (vclass[b] == CREASE) | (vclass[b] == CORNER)
-    theta = level.corner_theta
-    shift_a = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_a]))
-    shift_b = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_b]))
+    theta = level.corner_theta()
+    if rule_set == "opensubdiv":  # OpenSubdiv's smooth edge rule next to creases and corners too
+        shift_a = shift_b = np.zeros(len(me))
+    else:
+        shift_a = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_a]))
+        shift_b = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_b]))
     w_a, w_b = rules.tagged_edge_endpoint_weights(scheme, shift_a, shift_b, tagged_a, tagged_b)
     _, w_wing = rules.smooth_edge_weights(scheme)
     rows = edge_row0 + me

@@ -69,7 +69,15 @@ class Level:
     vert_corners: np.ndarray | None = None  # (C,) corners at v
     edge_sharp: np.ndarray | None = None  # (E,) bool
     vert_class: np.ndarray | None = None  # (V,) int8, rules.SMOOTH/DART/CREASE/CORNER
-    corner_theta: np.ndarray | None = None  # (C,) float64 sector theta at crease/corner vertices, NaN elsewhere
+    # sectors of crease and corner vertices (RULES.md section 0): corners listed counter-clockwise from the
+    # face after the first crease edge; theta and kind per RULES.md section 2; flatness s (NaN: optimal s*)
+    sector_vertex: np.ndarray | None = None  # (S,)
+    sector_offsets: np.ndarray | None = None  # (S+1,) int64
+    sector_corners: np.ndarray | None = None  # (sum k,)
+    sector_theta: np.ndarray | None = None  # (S,) float64
+    sector_kind: np.ndarray | None = None  # (S,) int8, rules.SECTOR_*
+    sector_flatness: np.ndarray | None = None  # (S,) float64
+    new_sector_flatness: float = float("nan")  # s of the regular crease sectors that later levels create
 
     @property
     def num_corners(self) -> int:
@@ -110,6 +118,20 @@ class Level:
         start = self.face_offsets[f]
         end = self.face_offsets[f + 1]
         return np.where(h == start, end - 1, h - 1)
+
+    @property
+    def num_sectors(self) -> int:
+        return 0 if self.sector_vertex is None else len(self.sector_vertex)
+
+    def sector_k(self) -> np.ndarray:
+        """Crease degree k (number of faces) of every sector."""
+        return np.diff(self.sector_offsets)
+
+    def corner_theta(self) -> np.ndarray:
+        """theta of the sector that holds each corner (NaN at corners of interior and dart vertices)."""
+        theta = np.full(self.num_corners, np.nan)
+        theta[self.sector_corners] = np.repeat(self.sector_theta, self.sector_k())
+        return theta
 
     def face_vertex_counts(self) -> np.ndarray:
         return self.face_sizes().astype(np.int32)
@@ -169,6 +191,7 @@ def base_level(
     boundary: str = "edge-and-corner",
     rule_set: str = "piecewise-smooth",
     triangulate_polygons: bool = True,
+    flatness=None,
 ) -> Level:
     """Analyse the control mesh: edges, fans, manifoldness, vertex classes and sectors."""
     if scheme not in rules.SCHEMES:
@@ -220,18 +243,24 @@ def base_level(
     twin[first[opposite]] = second[opposite]
     twin[second[opposite]] = first[opposite]
 
-    # vertex -> corners
+    # fans: the faces around a vertex joined through shared edges (one per vertex unless non-manifold)
     vcount = np.bincount(corner_vert, minlength=nv)
     voff = _offsets(vcount)
-    vcorners = np.argsort(corner_vert, kind="stable")
     max_valence = int(vcount.max())
-
-    # fans (for non-manifold vertices)
-    cw = np.where(twin >= 0, nxt[np.maximum(twin, 0)], np.arange(C))
+    idx = np.arange(C, dtype=np.int64)
+    cw = np.where(twin >= 0, nxt[np.maximum(twin, 0)], idx)
     ccw_src = twin[prv]
-    ccw = np.where(ccw_src >= 0, ccw_src, np.arange(C))
+    ccw = np.where(ccw_src >= 0, ccw_src, idx)
     label = _fan_labels(corner_vert, cw, ccw, max_valence)
-    fans = np.bincount(corner_vert[label == np.arange(C)], minlength=nv)
+    fans = np.bincount(corner_vert[label == idx], minlength=nv)
+
+    # vertex -> corners, counter-clockwise within each fan: a boundary fan starts at its face after the
+    # boundary, a closed fan at its smallest corner
+    has_start = np.zeros(C, dtype=bool)
+    has_start[label[twin < 0]] = True
+    link = np.where((label == idx) & ~has_start[label], idx, cw)
+    _, ring_pos = _list_rank(link, max_valence)
+    vcorners = np.lexsort((ring_pos, label, corner_vert))
     nonmanifold_vert = fans > 1
     nonmanifold_vert[edge_verts[nonmanifold_edge].reshape(-1)] = True
 
@@ -288,13 +317,12 @@ def base_level(
         touches = on_boundary[corner_vert]
         face_hole |= np.bincount(np.repeat(np.arange(F), counts)[touches], minlength=F) > 0
 
-    # sectors and their angles (piecewise-smooth rules only)
-    corner_theta = np.full(C, np.nan)
-    if rule_set == "piecewise-smooth":
-        corner_theta = _sector_thetas(
-            mesh, scheme, corner_vert, nxt, prv, twin, corner_edge, edge_sharp, ecount, eoff, ecorners,
-            edges, vclass, sharp_count, max_valence,
-        )
+    # sectors and their angles
+    sectors = _sectors(
+        mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, edge_sharp, ecount, eoff, ecorners,
+        edges, vclass, sharp_count, max_valence,
+    )
+    sector_flatness, new_flatness = _sector_flatness(flatness, sectors[0], nv)
 
     uniform = int(counts[0]) if np.all(counts == counts[0]) and int(counts[0]) in (3, 4) else 0
     return Level(
@@ -314,16 +342,23 @@ def base_level(
         vert_corners=_i32(vcorners),
         edge_sharp=edge_sharp,
         vert_class=vclass,
-        corner_theta=corner_theta,
+        sector_vertex=_i32(sectors[0]),
+        sector_offsets=sectors[1],
+        sector_corners=_i32(sectors[2]),
+        sector_theta=sectors[3],
+        sector_kind=sectors[4],
+        sector_flatness=sector_flatness,
+        new_sector_flatness=new_flatness,
     )
 
 
-def _sector_thetas(mesh, scheme, corner_vert, nxt, prv, twin, corner_edge, edge_sharp, ecount, eoff, ecorners,
-                   edges, vclass, sharp_count, max_valence):
-    """theta of every corner's sector at crease and corner vertices (RULES.md section 2), NaN elsewhere.
+def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, edge_sharp, ecount, eoff,
+             ecorners, edges, vclass, sharp_count, max_valence):
+    """Sectors of crease and corner vertices with two or more crease edges (RULES.md sections 0 and 2).
 
-    Sectors are the runs of faces around a vertex between two crease edges, walked clockwise to their
-    first face (whose outgoing edge is a crease) by pointer jumping. alpha is measured once, here.
+    A sector is a run of faces around a vertex between two crease edges; its corners are found by walking
+    clockwise to the first face (whose outgoing edge is a crease) with pointer jumping. alpha is measured
+    here, once. Returns (vertex, offsets, ordered corners, theta, kind) per sector.
     """
     C = len(corner_vert)
     idx = np.arange(C, dtype=np.int64)
@@ -333,28 +368,41 @@ def _sector_thetas(mesh, scheme, corner_vert, nxt, prv, twin, corner_edge, edge_
     tagged_vertex = ((vclass == CREASE) | (vclass == CORNER)) & (sharp_count >= 2)
     sel = tagged_vertex[corner_vert]
     k_of_head = np.bincount(head[sel], minlength=C)
-    k = k_of_head[head]
-    tail_of_head = np.zeros(C, dtype=np.int64)
-    is_tail = sel & (pos == k - 1)
-    tail_of_head[head[is_tail]] = idx[is_tail]
+    heads = np.flatnonzero(sel & (pos == 0))
+    sector_of_head = np.full(C, -1, dtype=np.int64)
+    sector_of_head[heads] = np.arange(len(heads))
+    k = k_of_head[heads]
+    offsets = _offsets(k)
+    members = np.flatnonzero(sel)
+    ordered = np.empty(len(members), dtype=np.int64)
+    ordered[offsets[sector_of_head[head[members]]] + pos[members]] = members
+    tails = ordered[offsets[1:] - 1] if len(heads) else np.zeros(0, np.int64)
 
     pts = mesh.points
-    c = corner_vert[head]
-    p0 = corner_vert[nxt[head]]
-    pk = corner_vert[prv[tail_of_head[head]]]
-    u = pts[p0] - pts[c]
-    w = pts[pk] - pts[c]
+    c = corner_vert[heads]
+    u = pts[corner_vert[nxt[heads]]] - pts[c]  # toward p_0
+    w = pts[corner_vert[prv[tails]]] - pts[c]  # toward p_k
     alpha = np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w))
 
-    kind = np.where(vclass[corner_vert] == CREASE, rules.SECTOR_CREASE, rules.SECTOR_CONVEX)
-    if len(mesh.concave):
+    kind = np.where(vclass[c] == CREASE, rules.SECTOR_CREASE, rules.SECTOR_CONVEX).astype(np.int8)
+    if len(mesh.concave) and rule_set == "piecewise-smooth":
         concave_heads = _concave_sector_heads(mesh, corner_vert, nxt, corner_edge, edge_sharp, ecount, eoff,
-                                              ecorners, edges, vclass, sharp_count, head, k)
-        is_concave = np.zeros(C, dtype=bool)
-        is_concave[concave_heads] = True
-        kind = np.where(is_concave[head] & (kind == rules.SECTOR_CONVEX), rules.SECTOR_CONCAVE, kind)
+                                              ecorners, edges, vclass, sharp_count, head, k_of_head[head])
+        kind[sector_of_head[concave_heads]] = rules.SECTOR_CONCAVE
     theta = rules.sector_theta(kind, np.maximum(k, 1), alpha)
-    return np.where(sel, theta, np.nan)
+    return c, offsets, ordered, theta, kind
+
+
+def _sector_flatness(flatness, sector_vertex, num_vertices):
+    """Per-sector flatness s (NaN: the optimal s*) and the s of regular crease sectors made later."""
+    if flatness is None:
+        return np.full(len(sector_vertex), np.nan), float("nan")
+    arr = np.asarray(flatness, dtype=np.float64)
+    if arr.ndim == 0:
+        return np.full(len(sector_vertex), float(arr)), float(arr)
+    if arr.shape != (num_vertices,):
+        raise SubdivInputError(f"flatness must be a number or one value per vertex ({num_vertices}), got {arr.shape}")
+    return arr[sector_vertex], float("nan")
 
 
 def _concave_sector_heads(mesh, corner_vert, nxt, corner_edge, edge_sharp, ecount, eoff, ecorners, edges,
@@ -451,7 +499,9 @@ def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
     far = child(nxt, 3)  # child corner on the half at v_next's side
     vertex_child_corner = child(h, 0)
     face_child_corners = child(h, 2)
-    edge_child_corners = np.stack([child(h, 1), child(nxt, 3)], axis=1)
+    # corners at the child of edge h, counter-clockwise: the face after the half at v_next, then the one
+    # before the half at v_h
+    edge_child_corners = np.stack([child(nxt, 3), child(h, 1)], axis=1)
     return _assemble(level, nV, C, 4, cv, ce, interior_verts, interior_corners, near, far,
                      vertex_child_corner, face_child_corners, edge_child_corners, child_hole, V + F)
 
@@ -497,7 +547,8 @@ def _refine_loop(level: Level, faces_only: bool) -> Level:
     near = base + 4 * j
     far = base + 3 * jn + j
     vertex_child_corner = base + 4 * j
-    edge_child_corners = np.stack([base + 3 * j + jn, base + 3 * jn + j, base + 9 + jp], axis=1)
+    # counter-clockwise around the child of edge j: child j+1, the middle child, child j
+    edge_child_corners = np.stack([base + 3 * jn + j, base + 9 + jp, base + 3 * j + jn], axis=1)
     return _assemble(level, nV, C, 3, cv.reshape(-1, 3), ce.reshape(-1, 3), interior_verts, interior_corners,
                      near, far, vertex_child_corner, None, edge_child_corners, child_hole, V)
 
@@ -554,15 +605,20 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
     n_face_children = nV - V - E
     edge_child_class = np.where(level.edge_sharp, CREASE, SMOOTH).astype(np.int8)
     child_class = np.concatenate([level.vert_class, np.full(n_face_children, SMOOTH, np.int8), edge_child_class])
-    # theta: a vertex child keeps its sector (theta is fixed on all levels); every other corner is
-    # either smooth or a regular crease, whose rules are the standard ones
-    child_theta = np.full(nC, np.nan)
-    child_theta[vertex_child_corner] = level.corner_theta
-    edge_child_crease = level.edge_sharp[level.corner_edge.astype(np.int64)]
-    regular = np.pi / (2 if level.scheme == CATMULL_CLARK else 3)
-    for col in range(m):
-        corners = edge_child_corners[:, col]
-        child_theta[corners] = np.where(edge_child_crease, regular, np.nan)
+    # sectors: a vertex child keeps its sectors (theta is fixed on all levels); every corner of a parent
+    # edge that is sharp makes one regular crease sector at the edge's child, its corners counter-clockwise
+    sharp_slots = level.edge_sharp[slot_edge]
+    new_corners = edge_child_corners[slot_corner[sharp_slots]]
+    k_new = new_corners.shape[1]
+    n_new = len(new_corners)
+    sector_vertex = np.concatenate([level.sector_vertex, edge_child_base + slot_edge[sharp_slots]])
+    sector_offsets = np.concatenate([level.sector_offsets, level.sector_offsets[-1] + k_new * np.arange(1, n_new + 1)])
+    sector_corners = np.concatenate([vertex_child_corner[level.sector_corners.astype(np.int64)],
+                                     new_corners.reshape(-1)])
+    regular = np.pi / k_new
+    sector_theta = np.concatenate([level.sector_theta, np.full(n_new, regular)])
+    sector_kind = np.concatenate([level.sector_kind, np.full(n_new, rules.SECTOR_CREASE, np.int8)])
+    sector_flatness = np.concatenate([level.sector_flatness, np.full(n_new, level.new_sector_flatness)])
     return Level(
         scheme=level.scheme,
         num_vertices=nV,
@@ -578,5 +634,11 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
         vert_corners=_i32(child_vcorners),
         edge_sharp=child_sharp,
         vert_class=child_class,
-        corner_theta=child_theta,
+        sector_vertex=_i32(sector_vertex),
+        sector_offsets=sector_offsets,
+        sector_corners=_i32(sector_corners),
+        sector_theta=sector_theta,
+        sector_kind=sector_kind,
+        sector_flatness=sector_flatness,
+        new_sector_flatness=level.new_sector_flatness,
     )

@@ -1,0 +1,210 @@
+"""Eigenvectors, limit masks and flatness parameters (RULES.md sections 6 to 9) as pure functions.
+
+Every function is vectorised over a group of neighbourhoods with the same size: ``k`` is one integer,
+``theta`` and ``s`` are arrays of shape (S,), and the result has shape (S, n) over the local vector
+
+* Loop interior ``[c, p_0..p_{k-1}]``, Catmull-Clark interior ``[c, p_0..p_{k-1}, q_0..q_{k-1}]``;
+* Loop sector ``[c, p_0..p_k]``, Catmull-Clark sector ``[c, p_0..p_k, q_0..q_{k-1}]``,
+
+with the ring listed counter-clockwise around the outward normal. ``l0`` is the limit-position mask,
+``l1``/``l2`` the tangent masks, ``x1``/``x2`` the right eigenvectors with ``l^i . x^j = delta_ij``, and
+``tu``/``tv`` the two tangent masks in the order whose cross product points outward (RULES.md section 9).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .rules import CATMULL_CLARK, LOOP, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, gamma, loop_beta
+
+
+@dataclass
+class LocalMasks:
+    """Masks and eigenvectors of a group of neighbourhoods, each (S, n)."""
+
+    l0: np.ndarray
+    l1: np.ndarray
+    l2: np.ndarray
+    x1: np.ndarray
+    x2: np.ndarray
+    tu: np.ndarray
+    tv: np.ndarray
+
+
+def local_size(scheme: str, k: int, sector: bool) -> int:
+    """Length of the local vector."""
+    ring = k + 1 if sector else k
+    return 1 + ring + (k if scheme == CATMULL_CLARK else 0)
+
+
+def _col(a):
+    return np.asarray(a, dtype=np.float64)[:, None]
+
+
+def interior_masks(scheme: str, k: int, count: int, beta_variant: str = "loop") -> LocalMasks:
+    """Interior (and dart) vertex of valence k (RULES.md 8.1 and 8.4)."""
+    n = local_size(scheme, k, sector=False)
+    i = np.arange(k)
+    tk = np.pi / k
+    cos_i, sin_i = np.cos(2 * i * tk), np.sin(2 * i * tk)
+    z = lambda: np.zeros((count, n))
+    l0, l1, l2, x1, x2 = z(), z(), z(), z(), z()
+    if scheme == LOOP:
+        beta = float(loop_beta(k, beta_variant))
+        denom = 1.0 + 8.0 * k * beta / 3.0
+        l0[:, 0] = 1.0 / denom
+        l0[:, 1:] = (8.0 * beta / 3.0) / denom
+        x1[:, 1:], x2[:, 1:] = cos_i, sin_i
+        l1[:, 1:], l2[:, 1:] = (2.0 / k) * cos_i, (2.0 / k) * sin_i
+    else:
+        lam = (5.0 + np.cos(2 * tk) + np.cos(tk) * np.sqrt(2.0 * (9.0 + np.cos(2 * tk)))) / 16.0
+        f = 4.0 * lam - 1.0
+        cos_q = np.cos(2 * i * tk) + np.cos(2 * (i + 1) * tk)
+        sin_q = np.sin(2 * i * tk) + np.sin(2 * (i + 1) * tk)
+        a = 2.0 * f * f / (k * (f * f + np.cos(tk) ** 2))
+        l0[:, 0] = k / (k + 5.0)
+        l0[:, 1:k + 1] = 4.0 / (k * (k + 5.0))
+        l0[:, k + 1:] = 1.0 / (k * (k + 5.0))
+        x1[:, 1:k + 1], x1[:, k + 1:] = cos_i, cos_q / f
+        x2[:, 1:k + 1], x2[:, k + 1:] = sin_i, sin_q / f
+        l1[:, 1:k + 1], l1[:, k + 1:] = a * cos_i, a * cos_q / (4.0 * f)
+        l2[:, 1:k + 1], l2[:, k + 1:] = a * sin_i, a * sin_q / (4.0 * f)
+    return LocalMasks(l0, l1, l2, x1, x2, tu=l1, tv=l2)
+
+
+def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatness=None) -> LocalMasks:
+    """Smooth-crease, convex-corner or concave-corner sector with crease degree k (RULES.md 8.2, 8.3, 8.5, 8.6).
+
+    ``flatness`` (S,) replaces the cross-crease mask of smooth creases by l_cross(s) (RULES.md section 6);
+    corner masks do not depend on it.
+    """
+    kind = np.asarray(kind)
+    theta = np.asarray(theta, dtype=np.float64)
+    count = len(theta)
+    n = local_size(scheme, k, sector=True)
+    s = np.zeros(count) if flatness is None else np.asarray(flatness, dtype=np.float64)
+    z = lambda: np.zeros((count, n))
+    l0, l1, l2, x1, x2 = z(), z(), z(), z(), z()
+    P = slice(1, k + 2)  # p_0..p_k
+    Q = slice(k + 2, n)  # q_0..q_{k-1} (Catmull-Clark)
+    ip = np.arange(k + 1)
+    iq = np.arange(k)
+    crease = kind == SECTOR_CREASE
+    corner = ~crease
+
+    # --- corners (convex and concave share the formulas; theta carries the difference)
+    th = _col(theta)
+    skt = np.sin(k * th)
+    l0[corner, 0] = 1.0
+    x1[:, P] = np.sin(ip * th) / skt
+    x2[:, P] = np.sin((k - ip) * th) / skt
+    if scheme == CATMULL_CLARK:
+        x1[:, Q] = (np.sin(iq * th) + np.sin((iq + 1) * th)) / skt
+        x2[:, Q] = (np.sin((k - iq) * th) + np.sin((k - iq - 1) * th)) / skt
+    l1[:, 0], l1[:, 1 + k] = -1.0, 1.0  # e_{p_k} - e_c
+    l2[:, 0], l2[:, 1] = -1.0, 1.0  # e_{p_0} - e_c
+    corner_l1, corner_l2, corner_x1, corner_x2 = l1.copy(), l2.copy(), x1.copy(), x2.copy()
+
+    # --- smooth creases
+    cl1, cl2, cx1, cx2 = z(), z(), z(), z()
+    tk = np.pi / k
+    c_, s_ = np.cos(tk), np.sin(tk)
+    l0_crease = np.zeros(n)
+    l0_crease[0], l0_crease[1], l0_crease[1 + k] = 2.0 / 3.0, 1.0 / 6.0, 1.0 / 6.0
+    if scheme == LOOP:
+        if k == 1:  # order [c, p0, p1]: x1/l1 the 1/4 mode (across), x2/l2 along (RULES.md 8.2)
+            cx1[:] = [-1.0 / 3.0, 2.0 / 3.0, 2.0 / 3.0]
+            cl1[:] = [-1.0, 0.5, 0.5]
+            cx2[:] = [0.0, 1.0, -1.0]
+            cl2[:] = [0.0, 0.5, -0.5]
+            cross = 1
+        else:  # x1/l1 along, x2/l2 across
+            cx1[:, P] = np.cos(ip * tk)
+            cl1[:, 1], cl1[:, 1 + k] = 0.5, -0.5
+            cx2[:, P] = np.sin(ip * tk)
+            cl2[:, 2:1 + k] = (2.0 / k) * np.sin(np.arange(1, k) * tk)
+            cl2[:, 0] = -(2.0 / k) * s_
+            cl2[:, 1] = cl2[:, 1 + k] = -(1.0 / k) * c_ * (1.0 + c_) / s_
+            cross = 2
+    else:
+        if k == 1:  # order [c, p0, p1, q0]; the 1/4 eigenvalue is defective (RULES.md 8.5)
+            cx1[:] = [1.0 / 18.0, -1.0 / 9.0, -1.0 / 9.0, -5.0 / 18.0]
+            cl1[:] = [6.0, -3.0, -3.0, 0.0]
+            cx2[:] = [0.0, -0.5, 0.5, 0.0]
+            cl2[:] = [0.0, -1.0, 1.0, 0.0]
+        else:  # x1/l1 across, x2/l2 along
+            d = k * (3.0 + c_)
+            r = (1.0 + c_) / (k * s_ * (3.0 + c_))
+            cx1[:, P] = np.sin(ip * tk)
+            cx1[:, Q] = np.sin(iq * tk) + np.sin((iq + 1) * tk)
+            cl1[:, 0] = -4.0 * s_ / d
+            cl1[:, 1] = cl1[:, 1 + k] = -r * (1.0 + 2.0 * c_)
+            cl1[:, 2:1 + k] = 4.0 * np.sin(np.arange(1, k) * tk) / d
+            cl1[:, Q] = (np.sin(iq * tk) + np.sin((iq + 1) * tk)) / d
+            cx2[:, P] = np.cos(ip * tk)
+            cx2[:, Q] = np.cos(iq * tk) + np.cos((iq + 1) * tk)
+            cl2[:, 1], cl2[:, 1 + k] = 0.5, -0.5
+        cross = 1
+    if k >= 2:
+        # l_cross(s) = l_cross + s g3 m_hat (RULES.md section 6), for smooth creases with flatness
+        lc = cl2 if cross == 2 else cl1
+        g3 = lc[:, 0] - 4.0 * lc[:, 1]
+        m_hat = np.zeros(n)
+        m_hat[0], m_hat[1], m_hat[1 + k] = 1.0 / 3.0, -1.0 / 6.0, -1.0 / 6.0
+        lc += (s * g3)[:, None] * m_hat
+    l0[crease] = l0_crease
+    l1 = np.where(crease[:, None], cl1, corner_l1)
+    l2 = np.where(crease[:, None], cl2, corner_l2)
+    x1 = np.where(crease[:, None], cx1, corner_x1)
+    x2 = np.where(crease[:, None], cx2, corner_x2)
+
+    # --- orientation (RULES.md section 9): normal = tu x tv
+    if scheme == LOOP and k >= 2:
+        crease_uv = (l1, l2)  # t1 along x t2 across
+    else:
+        crease_uv = (l2, l1)  # CC: t2 along x t1 across; Loop k = 1: along (l2) x across (l1)
+    concave = (kind == SECTOR_CONCAVE)[:, None]
+    convex = (kind == SECTOR_CONVEX)[:, None]
+    tu = np.where(concave, l1, np.where(convex, l2, crease_uv[0]))
+    tv = np.where(concave, l2, np.where(convex, l1, crease_uv[1]))
+    return LocalMasks(l0, l1, l2, x1, x2, tu, tv)
+
+
+def flattened_points(scheme: str, k: int) -> np.ndarray:
+    """Local indices of the non-crease ring points that flatness moves: Loop p_1..p_{k-1}; CC also all q_i."""
+    inner = np.arange(2, k + 1)
+    if scheme == CATMULL_CLARK:
+        return np.concatenate([inner, np.arange(k + 2, 2 * k + 2)])
+    return inner
+
+
+def _mu_plus(theta, phi):
+    b = 2.5 - np.cos(theta) + 0.5 * np.cos(phi)
+    return (b + np.sqrt(np.maximum(b * b - 4.0 * (1.0 - np.cos(theta)), 0.0))) / 8.0
+
+
+def optimal_flatness(scheme: str, kind, k, theta):
+    """s* = max(0, 1 - 1/(4 mu_max)): the largest scaled eigenvalue becomes lambda^2 = 1/4 (RULES.md 6, 11)."""
+    kind = np.asarray(kind)
+    k = np.asarray(k, dtype=np.float64)
+    theta = np.asarray(theta, dtype=np.float64)
+    tk = np.pi / k
+    if scheme == LOOP:
+        mu_crease = np.where(k >= 3, gamma(LOOP, tk) + 0.25 * np.cos(2 * tk), 0.25)
+        mu_corner = np.where(k >= 2, (2.0 + np.cos(tk) - np.cos(theta)) / 4.0, 0.25)
+    else:
+        mu_crease = np.where(k >= 3, np.maximum(0.25, _mu_plus(tk, 2 * tk)), 0.25)
+        mu_corner = np.where(k >= 2, np.maximum(0.25, _mu_plus(theta, tk)), 0.25)
+    mu = np.where(kind == SECTOR_CREASE, mu_crease, mu_corner)
+    return np.maximum(0.0, 1.0 - 1.0 / (4.0 * mu))
+
+
+def concave_min_flatness(scheme: str, k, theta):
+    """s_min of a concave sector: the smallest s that makes 1/2 subdominant (RULES.md section 6, "Valid s")."""
+    k = np.asarray(k, dtype=np.float64)
+    theta = np.asarray(theta, dtype=np.float64)
+    tk = np.pi / k
+    if scheme == LOOP:
+        return 1.0 - 2.0 / (2.0 + np.cos(tk) - np.cos(theta))
+    return 1.0 - 1.0 / (2.0 * _mu_plus(theta, tk))
