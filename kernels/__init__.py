@@ -1,5 +1,14 @@
 """Warp kernels of warp-subdiv (installed as ``warp_subdiv.kernels``).
 
-Kernels know nothing about creases or schemes: they apply tables that :mod:`warp_subdiv.tables` built.
+Kernels know nothing about creases or schemes: they apply tables that :mod:`warp_subdiv.tables` and
+:mod:`warp_subdiv.projections` built.
 """
-from .stencil import apply_stencils_vec, apply_stencils_rows, STENCIL_OVERLOADS  # noqa: F401
+from .projection import (  # noqa: F401
+    displace_rows,
+    displace_rows_2d,
+    project_rows,
+    scatter_rows,
+    scatter_rows_2d,
+    vertex_normals,
+)
+from .stencil import apply_stencils_rows, apply_stencils_vec  # noqa: F401

@@ -197,7 +197,8 @@ def optimal_flatness(scheme: str, kind, k, theta):
         mu_crease = np.where(k >= 3, np.maximum(0.25, _mu_plus(tk, 2 * tk)), 0.25)
         mu_corner = np.where(k >= 2, np.maximum(0.25, _mu_plus(theta, tk)), 0.25)
     mu = np.where(kind == SECTOR_CREASE, mu_crease, mu_corner)
-    return np.maximum(0.0, 1.0 - 1.0 / (4.0 * mu))
+    s = 1.0 - 1.0 / (4.0 * mu)
+    return np.where(s > 1e-12, s, 0.0)  # exactly 0 where mu_max = 1/4 (regular creases), despite rounding
 
 
 def concave_min_flatness(scheme: str, k, theta):

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from . import rules
+from . import projections, rules
 from .errors import SubdivInputError
 from .mesh import Mesh
 from .tables import StencilTable, build_stencils
@@ -40,6 +40,15 @@ class Refined:
     scheme: str
     rules: str = "piecewise-smooth"
     options: dict = field(default_factory=dict)
+    refiner: "Refiner | None" = field(default=None, repr=False, compare=False)
+
+    def limit_points(self) -> np.ndarray:
+        """Limit positions of this level's vertices (N, 3)."""
+        return self.refiner.limit_points(self.points)
+
+    def limit_normals(self) -> np.ndarray:
+        """Unit outward limit normals of this level's vertices (N, 3); the prescribed normal where one is given."""
+        return self.refiner.limit_normals(self.points)
 
     @property
     def num_vertices(self) -> int:
@@ -69,6 +78,8 @@ class Refiner:
         precision: str = "float32",
         loop_beta: str = "loop",
         triangulate: bool = True,
+        flatness=None,
+        normal_strength: float = 1.0,
     ):
         if not isinstance(mesh, Mesh):
             raise TypeError(f"mesh must be a warp_subdiv.Mesh, got {type(mesh).__name__}")
@@ -85,11 +96,14 @@ class Refiner:
             raise ValueError(f"precision must be 'float32' or 'float64', got {precision!r}")
         if loop_beta not in ("loop", "warren"):
             raise ValueError(f"loop_beta must be 'loop' or 'warren', got {loop_beta!r}")
-        if len(mesh.normal_vertices):
-            raise NotImplementedError(
-                "prescribed normals are not applied yet (normal control is the projections issue); "
-                "refine without normals"
-            )
+        strength = float(normal_strength)
+        if not 0.0 <= strength <= 1.0:
+            raise ValueError(f"normal_strength must lie in [0, 1], got {normal_strength!r}")
+        paper = rules == "piecewise-smooth"
+        if not paper and flatness is not None:
+            raise ValueError("flatness is a piecewise-smooth rule; rules='opensubdiv' has none")
+        if not paper and len(mesh.normal_vertices):
+            raise ValueError("prescribed normals need rules='piecewise-smooth' (OpenSubdiv has no normal control)")
         self.mesh = mesh
         self.levels = int(levels)
         self.scheme = SCHEME_ALIASES[key]
@@ -97,15 +111,40 @@ class Refiner:
         self.boundary = boundary
         self.precision = precision
         self.loop_beta = loop_beta
+        self.normal_strength = strength
         self.device = wp.get_device(device if device is not None else default_device())
 
-        level = base_level(mesh, self.scheme, boundary, rules, triangulate)
+        level = base_level(mesh, self.scheme, boundary, rules, triangulate, flatness=flatness if paper else None)
         self.base_num_vertices = level.num_vertices
+        normal_vertices = mesh.normal_vertices.astype(np.int64)
+        self._normals = (normal_vertices, mesh.normal_vectors)
+        base_s = projections.resolve_flatness(level) if paper else np.zeros(level.num_sectors)
+        if len(normal_vertices):
+            projections.check_normal_vertices(level, normal_vertices)
+        # the last level needs its full topology only when a projection acts on it
+        self._projecting = paper and (
+            bool(np.any(base_s > 0)) or level.new_sector_flatness > 0 or len(normal_vertices) > 0
+        )
         self.tables: list[StencilTable] = []
+        self.flatness_tables: list = []
+        self.normal_tables: list = []
+        penultimate = level
         for step in range(self.levels):
             self.tables.append(build_stencils(level, rules, loop_beta))
-            level = refine_level(level, faces_only=(step == self.levels - 1))
+            penultimate = level
+            level = refine_level(level, faces_only=(step == self.levels - 1) and not self._projecting)
+            flat = norm = None
+            if self._projecting:
+                s = projections.resolve_flatness(level)
+                flat = projections.flatness_table(level, s)
+                if len(normal_vertices) and strength > 0:
+                    norm = projections.normal_table(level, normal_vertices, mesh.normal_vectors, strength, s,
+                                                    loop_beta)
+            self.flatness_tables.append(flat)
+            self.normal_tables.append(norm)
         self._final: Level = level
+        self._penultimate: Level = penultimate
+        self._limit = None
         self.num_vertices = level.num_vertices
         self._device_tables = None
         self._buffers: dict = {}
@@ -127,36 +166,50 @@ class Refiner:
         wbytes = np.dtype(PRECISIONS[self.precision][0]).itemsize
         return sum(t.nbytes(wbytes) for t in self.tables)
 
+    def _array(self, values, dtype=None):
+        return wp.array(np.ascontiguousarray(values, dtype=dtype), device=self.device)
+
     def _upload(self):
         if self._device_tables is None:
-            np_dtype = PRECISIONS[self.precision][0]
-            self._device_tables = [
-                (
-                    wp.array(t.offsets, dtype=wp.int32, device=self.device),
-                    wp.array(t.indices, dtype=wp.int32, device=self.device),
-                    wp.array(t.weights.astype(np_dtype), device=self.device),
-                )
-                for t in self.tables
-            ]
+            np_dtype, _, vec = PRECISIONS[self.precision]
+            i32 = np.int32
+            steps = []
+            for t, flat, norm in zip(self.tables, self.flatness_tables, self.normal_tables):
+                step = {"stencil": (self._array(t.offsets, i32), self._array(t.indices, i32),
+                                    self._array(t.weights, np_dtype))}
+                if flat is not None:
+                    step["flatness"] = (self._array(flat.targets, i32), self._array(flat.offsets, i32),
+                                        self._array(flat.indices, i32), self._array(flat.weights, np_dtype))
+                if norm is not None:
+                    step["normals"] = (self._array(norm.targets, i32), self._array(norm.offsets, i32),
+                                       self._array(norm.indices, i32), self._array(norm.weights, np_dtype),
+                                       self._array(norm.normal_ids, i32),
+                                       wp.array(norm.normals.astype(np_dtype), dtype=vec, device=self.device))
+                steps.append(step)
+            self._device_tables = steps
         return self._device_tables
 
     def _level_buffers(self, width: int):
         """Per-level device arrays for data of the given width, created once and reused for every frame."""
-        key = width
-        if key not in self._buffers:
+        if width not in self._buffers:
             np_dtype, scalar, vec = PRECISIONS[self.precision]
             sizes = [self.base_num_vertices] + [t.num_rows for t in self.tables]
+            moved = [max([0] + [len(t.targets) for t in (f, n) if t is not None])
+                     for f, n in zip(self.flatness_tables, self.normal_tables)]
             if width == 3:
-                bufs = [wp.empty(n, dtype=vec, device=self.device) for n in sizes]
+                make = lambda n: wp.empty(n, dtype=vec, device=self.device)
             else:
-                bufs = [wp.empty((n, width), dtype=scalar, device=self.device) for n in sizes]
-            self._buffers[key] = bufs
-        return self._buffers[key]
+                make = lambda n: wp.empty((n, width), dtype=scalar, device=self.device)
+            self._buffers[width] = ([make(n) for n in sizes], [make(n) if n else None for n in moved])
+        return self._buffers[width]
 
-    def evaluate_device(self, data) -> wp.array:
-        """Refine vertex data already in the right layout; returns the final level's device array."""
+    def evaluate_device(self, data, normal_control=None) -> wp.array:
+        """Refine vertex data already in the right layout; returns the final level's device array.
+
+        ``normal_control``: apply prescribed normals (positions only); default: when the data is (n, 3).
+        """
         tables = self._upload()
-        np_dtype = PRECISIONS[self.precision][0]
+        np_dtype, _, vec = PRECISIONS[self.precision]
         arr = np.asarray(data)
         if arr.ndim == 1:
             arr = arr[:, None]
@@ -168,28 +221,132 @@ class Refiner:
             bad = int(np.flatnonzero(~np.all(np.isfinite(arr), axis=1))[0])
             raise SubdivInputError(f"vertex data row {bad} is not finite")
         width = arr.shape[1]
-        bufs = self._level_buffers(width)
+        if normal_control is None:
+            normal_control = width == 3
+        if normal_control and width != 3:
+            raise ValueError("normal control applies to (n, 3) positions only")
+        bufs, scratch = self._level_buffers(width)
         host = np.ascontiguousarray(arr, dtype=np_dtype)
-        if width == 3:
-            wp.copy(bufs[0], wp.array(host, dtype=PRECISIONS[self.precision][2], device="cpu"))
-        else:
-            wp.copy(bufs[0], wp.array(host, device="cpu"))
+        staged = wp.array(host, dtype=vec, device="cpu") if width == 3 else wp.array(host, device="cpu")
+        wp.copy(bufs[0], staged)
         k = _kernels()
-        for (offsets, indices, weights), t, src, dst in zip(tables, self.tables, bufs[:-1], bufs[1:]):
+        dev = self.device
+        for step, src, dst, tmp in zip(tables, bufs[:-1], bufs[1:], scratch):
+            rows = dst.shape[0]
             if width == 3:
-                wp.launch(k.apply_stencils_vec, dim=t.num_rows, inputs=[offsets, indices, weights, src, dst],
-                          device=self.device)
+                wp.launch(k.apply_stencils_vec, dim=rows, inputs=[*step["stencil"], src, dst], device=dev)
             else:
-                wp.launch(k.apply_stencils_rows, dim=(t.num_rows, width),
-                          inputs=[offsets, indices, weights, src, dst], device=self.device)
+                wp.launch(k.apply_stencils_rows, dim=(rows, width), inputs=[*step["stencil"], src, dst], device=dev)
+            if "flatness" in step:
+                targets = step["flatness"][0]
+                n = targets.shape[0]
+                if width == 3:
+                    wp.launch(k.displace_rows, dim=n, inputs=[*step["flatness"], dst, tmp], device=dev)
+                    wp.launch(k.scatter_rows, dim=n, inputs=[targets, tmp, dst], device=dev)
+                else:
+                    wp.launch(k.displace_rows_2d, dim=(n, width), inputs=[*step["flatness"], dst, tmp], device=dev)
+                    wp.launch(k.scatter_rows_2d, dim=(n, width), inputs=[targets, tmp, dst], device=dev)
+            if "normals" in step and normal_control:
+                targets = step["normals"][0]
+                n = targets.shape[0]
+                wp.launch(k.project_rows, dim=n, inputs=[*step["normals"], dst, tmp], device=dev)
+                wp.launch(k.scatter_rows, dim=n, inputs=[targets, tmp, dst], device=dev)
         return bufs[-1]
 
-    def evaluate(self, points) -> np.ndarray:
-        """Refine (n, 3) or (n, d) vertex data (n = control vertices); returns a numpy array (N, d)."""
+    def evaluate(self, points, normal_control=None) -> np.ndarray:
+        """Refine (n, 3) or (n, d) vertex data (n = control vertices); returns a numpy array (N, d).
+
+        Flatness applies to all data (it is part of the subdivision matrix); prescribed normals only to
+        positions, i.e. (n, 3) data unless ``normal_control=False``.
+        """
         # vec3 arrays come back as (N, 3), others as (N, d); copy, because on the CPU .numpy() is a view of
         # a buffer that the next call overwrites
-        out = np.array(self.evaluate_device(points).numpy(), copy=True)
+        out = np.array(self.evaluate_device(points, normal_control).numpy(), copy=True)
         return out[:, 0] if np.ndim(points) == 1 else out
+
+    # ---------------------------------------------------------------------------------------------
+    def _limit_tables(self):
+        if self._limit is None:
+            level = self._final
+            if level.edge_verts is None:  # built faces-only: derive the full last level now
+                level = refine_level(self._penultimate)
+            if level.face_size == 0 or (self.scheme == rules.CATMULL_CLARK and level.face_size != 4):
+                raise NotImplementedError("limit masks need a level of quads (Catmull-Clark) or triangles")
+            s = projections.resolve_flatness(level) if self.rules == "piecewise-smooth" else np.zeros(
+                level.num_sectors)
+            tables = projections.limit_tables(level, s, self.loop_beta)
+            np_dtype, _, vec = PRECISIONS[self.precision]
+            i32 = np.int32
+            dev = {
+                name: (self._array(t.offsets, i32), self._array(t.indices, i32), self._array(t.weights, np_dtype))
+                for name, t in (("position", tables.position), ("u", tables.tangent_u), ("v", tables.tangent_v))
+            }
+            dev["vertex_offsets"] = self._array(tables.vertex_offsets, i32)
+            dev["num_tangents"] = tables.tangent_u.num_rows
+            self._limit = dev
+        return self._limit
+
+    def _final_points(self, points) -> wp.array:
+        np_dtype, _, vec = PRECISIONS[self.precision]
+        pts = np.ascontiguousarray(points, dtype=np_dtype)
+        if pts.shape != (self.num_vertices, 3):
+            raise SubdivInputError(f"refined points must have shape ({self.num_vertices}, 3), got {pts.shape}")
+        return wp.array(pts, dtype=vec, device=self.device)
+
+    def _needs_extra_level(self) -> bool:
+        return self.levels == 0 and self.scheme == rules.CATMULL_CLARK and self._final.face_size != 4
+
+    def limit_points(self, refined_points) -> np.ndarray:
+        """Limit positions of the refined vertices (RULES.md section 9): l^0 applied to each vertex's ring."""
+        if self._needs_extra_level():
+            return self._one_more_level().limit_points(self._one_more_level().evaluate(refined_points))[
+                : self.num_vertices]
+        lim = self._limit_tables()
+        _, _, vec = PRECISIONS[self.precision]
+        src = self._final_points(refined_points)
+        out = wp.empty(self.num_vertices, dtype=vec, device=self.device)
+        wp.launch(_kernels().apply_stencils_vec, dim=self.num_vertices, inputs=[*lim["position"], src, out],
+                  device=self.device)
+        return np.array(out.numpy(), copy=True)
+
+    def limit_normals(self, refined_points) -> np.ndarray:
+        """Unit outward limit normals of the refined vertices (RULES.md section 9); prescribed normals as given.
+
+        A crease or corner vertex has one tangent plane per sector; its normal is the normalised sum of the
+        sectors' unit normals (exact where there is one sector, e.g. on a boundary).
+        """
+        if self._needs_extra_level():
+            extra = self._one_more_level()
+            return extra.limit_normals(extra.evaluate(refined_points))[: self.num_vertices]
+        lim = self._limit_tables()
+        np_dtype, _, vec = PRECISIONS[self.precision]
+        k = _kernels()
+        src = self._final_points(refined_points)
+        nt = lim["num_tangents"]
+        tu = wp.empty(nt, dtype=vec, device=self.device)
+        tv = wp.empty(nt, dtype=vec, device=self.device)
+        out = wp.empty(self.num_vertices, dtype=vec, device=self.device)
+        if nt:
+            wp.launch(k.apply_stencils_vec, dim=nt, inputs=[*lim["u"], src, tu], device=self.device)
+            wp.launch(k.apply_stencils_vec, dim=nt, inputs=[*lim["v"], src, tv], device=self.device)
+        wp.launch(k.vertex_normals, dim=self.num_vertices, inputs=[lim["vertex_offsets"], tu, tv, vec(), out],
+                  device=self.device)
+        ids, normals = self._normals
+        if len(ids) and self.normal_strength > 0:
+            wp.launch(k.scatter_rows, dim=len(ids),
+                      inputs=[self._array(ids, np.int32), wp.array(normals.astype(np_dtype), dtype=vec,
+                                                                   device=self.device), out], device=self.device)
+        return np.array(out.numpy(), copy=True)
+
+    def _one_more_level(self) -> "Refiner":
+        """A refiner one level deeper (limit masks of a polygon control mesh are read off its first level)."""
+        if not hasattr(self, "_deeper"):
+            self._deeper = Refiner(
+                self.mesh, self.levels + 1, scheme=self.scheme, rules=self.rules, boundary=self.boundary,
+                device=self.device, precision=self.precision, loop_beta=self.loop_beta,
+                normal_strength=self.normal_strength,
+            )
+        return self._deeper
 
     def refine(self, points=None) -> Refined:
         """The refined mesh of ``points`` (default: the mesh's own points)."""
@@ -203,6 +360,7 @@ class Refiner:
             scheme=self.scheme,
             rules=self.rules,
             options={"boundary": self.boundary, "precision": self.precision, "loop_beta": self.loop_beta},
+            refiner=self,
         )
 
 
@@ -217,6 +375,8 @@ def refine(
     precision: str = "float32",
     loop_beta: str = "loop",
     triangulate: bool = True,
+    flatness=None,
+    normal_strength: float = 1.0,
 ) -> Refined:
     """Refine ``mesh`` uniformly ``levels`` times.
 
@@ -226,8 +386,11 @@ def refine(
     ``device``: a Warp device ("cpu", "cuda", "cuda:1"); None picks CUDA when present, else the CPU.
     ``precision``: "float32" (default) or "float64" evaluation; weights are always computed in float64.
     ``loop_beta``: "loop" (Loop's original beta, default) or "warren" (the paper's 3/(8k)).
+    ``flatness`` (piecewise-smooth only): None for the optimal s* of every crease/corner sector, a number in
+    [0, 1] for all sectors, or one value per control vertex (NaN: s*) for the sectors of that vertex.
+    ``normal_strength``: s in [0, 1] of normal control at vertices with prescribed normals (``Mesh(normals=)``).
     """
     return Refiner(
         mesh, levels, scheme=scheme, rules=rules, boundary=boundary, device=device, precision=precision,
-        loop_beta=loop_beta, triangulate=triangulate,
+        loop_beta=loop_beta, triangulate=triangulate, flatness=flatness, normal_strength=normal_strength,
     ).refine()

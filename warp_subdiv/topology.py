@@ -282,9 +282,9 @@ def base_level(
         nmv = np.flatnonzero(fans > 1)
         parts = []
         if len(ne):
-            parts.append(f"{len(ne)} non-manifold edges (first: {tuple(edge_verts[ne[0]])})")
+            parts.append(f"{len(ne)} non-manifold edges (first: {edge_verts[ne[0]].tolist()})")
         if len(nmv):
-            parts.append(f"{len(nmv)} vertices joining separate fans (first: vertex {nmv[0]})")
+            parts.append(f"{len(nmv)} vertices joining separate fans (first: vertex {int(nmv[0])})")
         warnings.warn(
             "non-manifold mesh: " + ", ".join(parts) + "; their edges are made sharp and their vertices corners "
             "or creases, as OpenSubdiv does",
@@ -385,10 +385,11 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
     alpha = np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w))
 
     kind = np.where(vclass[c] == CREASE, rules.SECTOR_CREASE, rules.SECTOR_CONVEX).astype(np.int8)
-    if len(mesh.concave) and rule_set == "piecewise-smooth":
+    if len(mesh.concave):  # checked under both rule sets; only the piecewise-smooth rules use them
         concave_heads = _concave_sector_heads(mesh, corner_vert, nxt, corner_edge, edge_sharp, ecount, eoff,
                                               ecorners, edges, vclass, sharp_count, head, k_of_head[head])
-        kind[sector_of_head[concave_heads]] = rules.SECTOR_CONCAVE
+        if rule_set == "piecewise-smooth":
+            kind[sector_of_head[concave_heads]] = rules.SECTOR_CONCAVE
     theta = rules.sector_theta(kind, np.maximum(k, 1), alpha)
     return c, offsets, ordered, theta, kind
 
@@ -415,7 +416,8 @@ def _concave_sector_heads(mesh, corner_vert, nxt, corner_edge, edge_sharp, ecoun
     for i in np.flatnonzero(vclass[c] != CORNER)[:1]:
         name = rules.VERTEX_CLASS_NAMES[int(vclass[c[i]])]
         raise SubdivInputError(
-            f"concave tag {i} ({c[i]}, {tags[i, 1]}): vertex {c[i]} is not a corner (it is a {name} vertex); "
+            f"concave tag {i} ({c[i]}, {tags[i, 1]}): vertex {c[i]} is not a corner (it is a vertex of class "
+            f"'{name}'); "
             "tag it in corners"
         )
     for i in np.flatnonzero(sharp_count[c] < 2)[:1]:

@@ -1,0 +1,172 @@
+"""Predicted sizes of a refinement, before any work: vertex, face and corner counts per level, and bytes.
+
+Counts follow from the control mesh alone (V vertices, F faces, E edges, C face corners):
+
+* Catmull-Clark (and bilinear): V' = V + F + E, F' = C, E' = 2E + C; from level 1 on every face is a quad,
+  so C' = 4F'.
+* Loop: polygons are first fan-triangulated (F = C - 2F, E = E + C - 3F, C = 3F); then V' = V + E, F' = 4F,
+  E' = 2E + 3F, C' = 3F'.
+
+Bytes (what the memory guard compares with ``--max-memory``) are the sum of
+
+* the stencil tables, about 60 bytes per vertex of every refined level (``Refiner.table_bytes()`` measures
+  56 to 72 bytes per vertex for float32 weights);
+* the Warp buffers, one array per vertex of every level and data width (3 for points, and each primvar's
+  width), kept by the refiner for the next frame;
+* the topology working set of the refiner, 450 bytes per vertex of the last level (measured: peak RSS minus
+  the items above for Catmull-Clark cubes and Loop icosahedra at levels 7 to 9, 510 to 580 bytes per output
+  vertex in all);
+* what the written layer holds until it is saved: face counts and indices once, and per written time sample
+  the points (and extent), velocities, accelerations, normals and primvars.
+
+The tables and working set are freed after each mesh, the layer's data is not: the total is the sum of every
+mesh's output plus the largest working set.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+TABLE_BYTES_PER_VERTEX = 60
+TOPOLOGY_BYTES_PER_VERTEX = 450
+#: The refiner's tables are int32: no level may hold this many face corners.
+MAX_CORNERS = 2**31 - 1
+
+
+@dataclass
+class LevelCounts:
+    level: int
+    vertices: int
+    faces: int
+    edges: int
+    corners: int
+
+
+def level_counts(num_vertices: int, face_sizes, num_edges: int, levels: int, scheme: str) -> list[LevelCounts]:
+    """Predicted counts for levels 0..levels (level 0 is the control mesh as the refiner sees it).
+
+    ``scheme`` is "catmull-clark", "bilinear" or "loop". Counts are Python ints (they may exceed int64 for
+    absurd requests and must still compare correctly).
+    """
+    sizes = np.asarray(face_sizes, dtype=np.int64)
+    V, F, E, C = int(num_vertices), int(len(sizes)), int(num_edges), int(sizes.sum())
+    if scheme == "loop" and not np.all(sizes == 3):
+        F, E, C = C - 2 * F, E + C - 3 * F, 3 * (C - 2 * F)
+    out = [LevelCounts(0, V, F, E, C)]
+    for lvl in range(1, levels + 1):
+        if scheme == "loop":
+            V, F, E = V + E, 4 * F, 2 * E + 3 * F
+            C = 3 * F
+        else:
+            V, F, E = V + F + E, C, 2 * E + C
+            C = 4 * F
+        out.append(LevelCounts(lvl, V, F, E, C))
+    return out
+
+
+@dataclass
+class Estimate:
+    """Predicted output of one mesh: the last level's counts and the bytes it needs, item by item."""
+
+    path: str
+    counts: list
+    working_bytes: int  # freed after the mesh is done
+    output_bytes: int  # kept in the output layer until it is saved
+    items: dict = field(default_factory=dict)
+
+    @property
+    def final(self) -> LevelCounts:
+        return self.counts[-1]
+
+
+def estimate(
+    path: str,
+    num_vertices: int,
+    face_sizes,
+    num_edges: int,
+    levels: int,
+    scheme: str,
+    *,
+    precision: str = "float32",
+    samples: int = 1,
+    vertex_width: int = 0,
+    face_varying_width: int = 0,
+    uniform_width: int = 0,
+    extra_point_arrays: int = 0,
+) -> Estimate:
+    """Bytes needed to refine one mesh ``levels`` times and hold ``samples`` written time samples.
+
+    ``vertex_width``: floats per vertex of the refined vertex and varying primvars (all of them together);
+    ``face_varying_width`` the same per face corner, ``uniform_width`` per face. ``extra_point_arrays``:
+    further 3-vectors per vertex and sample (velocities, accelerations, normals).
+    """
+    counts = level_counts(num_vertices, face_sizes, num_edges, levels, scheme)
+    last = counts[-1]
+    real = 8 if precision == "float64" else 4
+    refined_vertices = sum(c.vertices for c in counts[1:])
+    all_vertices = refined_vertices + counts[0].vertices
+    items = {
+        "stencil tables": TABLE_BYTES_PER_VERTEX * refined_vertices,
+        "level buffers": real * all_vertices * (3 + vertex_width),
+        "topology": TOPOLOGY_BYTES_PER_VERTEX * last.vertices,
+        "faces": 4 * (last.faces + last.corners),
+        "points": samples * last.vertices * 12 * (1 + extra_point_arrays),
+        "primvars": samples * 4 * (last.vertices * vertex_width + last.corners * face_varying_width
+                                   + last.faces * uniform_width),
+    }
+    working = items["stencil tables"] + items["level buffers"] + items["topology"]
+    output = items["faces"] + items["points"] + items["primvars"]
+    return Estimate(path, counts, working, output, items)
+
+
+def total_bytes(estimates) -> int:
+    """Peak bytes of refining these meshes one after the other into one layer."""
+    estimates = list(estimates)
+    if not estimates:
+        return 0
+    return sum(e.output_bytes for e in estimates) + max(e.working_bytes for e in estimates)
+
+
+def physical_memory() -> int | None:
+    """Bytes of physical memory, or None where the platform does not say."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def default_max_memory() -> int:
+    """Half of the physical memory (8 GiB where it cannot be found out)."""
+    phys = physical_memory()
+    return phys // 2 if phys else 8 * 2**30
+
+
+_UNITS = {"": 1, "b": 1, "k": 2**10, "kb": 2**10, "kib": 2**10, "m": 2**20, "mb": 2**20, "mib": 2**20,
+          "g": 2**30, "gb": 2**30, "gib": 2**30, "t": 2**40, "tb": 2**40, "tib": 2**40}
+
+
+def parse_size(text: str) -> int | None:
+    """'512M', '8G', '1.5GiB', '1000000' -> bytes (binary units); 'none' or '0' -> None (no limit)."""
+    s = str(text).strip().lower()
+    if s in ("none", "off", "0", "unlimited"):
+        return None
+    num = s.rstrip("abcdefghijklmnopqrstuvwxyz")
+    unit = s[len(num):].strip()
+    try:
+        value = float(num)
+    except ValueError:
+        value = -1.0
+    if unit not in _UNITS or not np.isfinite(value) or value <= 0:
+        raise ValueError(f"--max-memory {text!r}: give a size such as 512M, 8G or 1.5GiB (or 'none')")
+    return int(value * _UNITS[unit])
+
+
+def format_bytes(n: int) -> str:
+    n = float(n)
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(n) < 1024 or unit == "PiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} PiB"

@@ -1,0 +1,264 @@
+"""Tables for the paper's projections on one level: flatness (RULES.md 6), normal control (7) and limit masks (9).
+
+Each table is built from a level's sector and ring tables plus the pure masks of :mod:`warp_subdiv.masks`;
+the Warp kernels in ``kernels/projection.py`` apply them without knowing what a sector is.
+
+* Flatness and normal control are *displacement* tables: rows are the points that move; a row holds
+  (source point, weight) entries, and for normal control also the normal each entry projects onto. Where
+  several sectors or constrained vertices move the same point, their displacements are averaged.
+* Limit tables: one CSR row per vertex for the limit position (l^0), and per (vertex, sector) pair the two
+  tangent masks whose cross product is the outward normal.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import masks as M
+from .errors import SubdivInputError
+from .rules import CATMULL_CLARK, DART, SECTOR_CONCAVE, SMOOTH
+from .tables import StencilTable
+from .topology import Level, _offsets
+
+
+@dataclass
+class DisplacementTable:
+    """dst[targets[i]] = src[targets[i]] + sum_j w_j (n_j n_j^T if normals else 1) src[indices[j]], j in row i."""
+
+    targets: np.ndarray  # (R,) int32
+    offsets: np.ndarray  # (R+1,) int32
+    indices: np.ndarray  # int32
+    weights: np.ndarray  # float64
+    normal_ids: np.ndarray | None = None  # int32 per entry, into the normals array
+    normals: np.ndarray | None = None  # (m, 3) float64
+
+    @property
+    def num_rows(self) -> int:
+        return len(self.targets)
+
+
+def _group_by_target(targets, sources, weights, normal_ids=None, normals=None) -> DisplacementTable | None:
+    """Lay updates out as rows per target point, averaging the updates that hit the same point.
+
+    Lists of blocks: block b has targets (U_b,), sources and weights (U_b, n_b), and optionally normal ids
+    (U_b,). One update moves one point."""
+    if not targets:
+        return None
+    all_targets = np.concatenate(targets)
+    uniq, hits = np.unique(all_targets, return_counts=True)
+    entry_target = np.concatenate([np.repeat(t, src.shape[1]) for t, src in zip(targets, sources)])
+    row = np.searchsorted(uniq, entry_target)
+    entry_w = np.concatenate([w.reshape(-1) for w in weights]) / hits[row]
+    order = np.argsort(row, kind="stable")
+    table = DisplacementTable(
+        targets=uniq.astype(np.int32),
+        offsets=_offsets(np.bincount(row, minlength=len(uniq))).astype(np.int32),
+        indices=np.concatenate([src.reshape(-1) for src in sources])[order].astype(np.int32),
+        weights=entry_w[order],
+    )
+    if normal_ids is not None:
+        ids = np.concatenate([np.repeat(i, src.shape[1]) for i, src in zip(normal_ids, sources)])
+        table.normal_ids = ids[order].astype(np.int32)
+        table.normals = normals
+    return table
+
+
+def sector_local_vectors(level: Level, sectors: np.ndarray, k: int) -> np.ndarray:
+    """(S, n) vertex ids of the local vectors [c, p_0..p_k, (q_0..q_{k-1})] of sectors with crease degree k."""
+    corners = level.sector_corners.astype(np.int64)[level.sector_offsets[sectors][:, None] + np.arange(k)]
+    return _local_vector(level, level.sector_vertex[sectors], corners, sector=True)
+
+
+def ring_local_vectors(level: Level, vertices: np.ndarray, k: int) -> np.ndarray:
+    """(V, n) vertex ids of the local vectors [c, p_0..p_{k-1}, (q_0..q_{k-1})] of closed rings of valence k."""
+    corners = level.vert_corners.astype(np.int64)[level.vert_corner_offsets[vertices][:, None] + np.arange(k)]
+    return _local_vector(level, vertices, corners, sector=False)
+
+
+def _local_vector(level, centre, corners, sector):
+    cv = level.corner_vert.astype(np.int64)
+    nxt = level.corner_next(corners)
+    parts = [np.asarray(centre, dtype=np.int64)[:, None], cv[nxt]]
+    if sector:
+        parts.append(cv[level.corner_prev(corners[:, -1:])])
+    if level.scheme == CATMULL_CLARK:
+        parts.append(cv[level.corner_next(nxt)])
+    return np.concatenate(parts, axis=1)
+
+
+def resolve_flatness(level: Level) -> np.ndarray:
+    """Per-sector s: the user's value, or the optimal s* where none was given; checked against [0, 1] and s_min."""
+    k = level.sector_k()
+    s = level.sector_flatness.copy()
+    default = np.isnan(s)
+    s[default] = M.optimal_flatness(level.scheme, level.sector_kind[default], k[default], level.sector_theta[default])
+    bad = np.flatnonzero(~default & ((s < 0) | (s > 1)))
+    if len(bad):
+        raise SubdivInputError(f"flatness {s[bad[0]]} at vertex {level.sector_vertex[bad[0]]} is outside [0, 1]")
+    concave = level.sector_kind == SECTOR_CONCAVE
+    s_min = M.concave_min_flatness(level.scheme, np.maximum(k, 2), level.sector_theta)
+    bad = np.flatnonzero(concave & (s <= s_min))
+    if len(bad):
+        i = bad[0]
+        raise SubdivInputError(
+            f"flatness {s[i]:.6g} at concave corner vertex {level.sector_vertex[i]} must exceed "
+            f"s_min = {s_min[i]:.6g} for a C1 surface (RULES.md section 6)"
+        )
+    return s
+
+
+def flatness_table(level: Level, flatness: np.ndarray) -> DisplacementTable | None:
+    """Flatness (RULES.md section 6) on ``level``: non-crease ring points move toward the tangent plane."""
+    k_all = level.sector_k()
+    targets, sources, weights = [], [], []
+    for k in np.unique(k_all):
+        sel = np.flatnonzero((k_all == k) & (flatness > 0))
+        if len(sel) == 0 or k < 2 and level.scheme != CATMULL_CLARK:
+            continue
+        local = sector_local_vectors(level, sel, int(k))
+        m = M.sector_masks(level.scheme, level.sector_kind[sel], int(k), level.sector_theta[sel])
+        s = flatness[sel][:, None]
+        n = local.shape[1]
+        for r in M.flattened_points(level.scheme, int(k)):
+            row = m.l0 + m.x1[:, r:r + 1] * m.l1 + m.x2[:, r:r + 1] * m.l2  # (P p)_r
+            row[:, r] -= 1.0
+            targets.append(local[:, r])
+            sources.append(local)
+            weights.append(s * row)
+            assert row.shape[1] == n
+    return _group_by_target(targets, sources, weights)
+
+
+def check_normal_vertices(level: Level, vertices: np.ndarray) -> None:
+    """Normal control needs an interior ring or a crease/corner sector with at least two faces."""
+    cls = level.vert_class[vertices]
+    has_sector = np.zeros(level.num_vertices, dtype=bool)
+    has_sector[level.sector_vertex[level.sector_k() >= 2]] = True
+    ok = np.isin(cls, [SMOOTH, DART]) | has_sector[vertices]
+    bad = np.flatnonzero(~ok)
+    if len(bad):
+        v = vertices[bad[0]]
+        raise SubdivInputError(
+            f"prescribed normal at vertex {v}: normal control needs an interior vertex or a crease/corner "
+            "sector with at least two faces (RULES.md section 7)"
+        )
+
+
+def normal_table(level: Level, vertices: np.ndarray, normals: np.ndarray, strength: float,
+                 flatness: np.ndarray, beta_variant: str) -> DisplacementTable | None:
+    """Normal control (RULES.md section 7, corrected: no x^0 term, q points too) on ``level``."""
+    targets, sources, weights, nids = [], [], [], []
+    normal_of = np.full(level.num_vertices, -1, dtype=np.int64)
+    normal_of[vertices] = np.arange(len(vertices))
+
+    def add(local, m, ids):
+        n = local.shape[1]
+        for r in range(1, n):
+            coeff = -strength * (m.x1[:, r:r + 1] * m.l1 + m.x2[:, r:r + 1] * m.l2)
+            if not np.any(coeff):
+                continue
+            targets.append(local[:, r])
+            sources.append(local)
+            weights.append(coeff)
+            nids.append(ids)
+
+    # interior and dart vertices: their whole ring
+    inner = vertices[np.isin(level.vert_class[vertices], [SMOOTH, DART])]
+    valence = np.diff(level.vert_corner_offsets)[inner]
+    for k in np.unique(valence):
+        vs = inner[valence == k]
+        add(ring_local_vectors(level, vs, int(k)),
+            M.interior_masks(level.scheme, int(k), len(vs), beta_variant), normal_of[vs])
+    # crease and corner vertices: each sector with k >= 2 (l_cross(s) where flatness is on)
+    owner = normal_of[level.sector_vertex]
+    k_all = level.sector_k()
+    for k in np.unique(k_all[(owner >= 0) & (k_all >= 2)]):
+        sel = np.flatnonzero((owner >= 0) & (k_all == k))
+        m = M.sector_masks(level.scheme, level.sector_kind[sel], int(k), level.sector_theta[sel], flatness[sel])
+        add(sector_local_vectors(level, sel, int(k)), m, owner[sel])
+    return _group_by_target(targets, sources, weights, nids, np.asarray(normals, dtype=np.float64))
+
+
+@dataclass
+class LimitTables:
+    """Limit positions (one row per vertex) and tangent pairs (one row per (vertex, sector) contribution)."""
+
+    position: StencilTable
+    tangent_u: StencilTable
+    tangent_v: StencilTable
+    contribution_vertex: np.ndarray  # (T,) int32: the vertex each tangent pair belongs to
+    vertex_offsets: np.ndarray  # (V+1,) int32: contributions of vertex v, contiguous
+
+
+def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str) -> LimitTables:
+    """Limit position and tangent masks of every vertex of ``level`` (RULES.md sections 8 and 9)."""
+    V = level.num_vertices
+    pos_rows, pos_local, pos_w = [], [], []
+    tan_rows, tan_local, tan_u, tan_v = [], [], [], []
+    cls = level.vert_class
+
+    # interior and dart vertices (and corner-tagged vertices without sectors: tangents of their ring)
+    sectored = np.zeros(V, dtype=bool)
+    sectored[level.sector_vertex] = True
+    valence = np.diff(level.vert_corner_offsets)
+    counts = np.diff(level.edge_corner_offsets)
+    boundary_vertex = np.zeros(V, dtype=bool)
+    boundary_vertex[level.edge_verts[counts != 2].reshape(-1)] = True
+    closed = ~boundary_vertex & (valence >= 3)
+    ring_vertices = np.flatnonzero(~sectored & closed)
+    for k in np.unique(valence[ring_vertices]):
+        vs = ring_vertices[valence[ring_vertices] == k]
+        local = ring_local_vectors(level, vs, int(k))
+        m = M.interior_masks(level.scheme, int(k), len(vs), beta_variant)
+        l0 = np.where(np.isin(cls[vs], [SMOOTH, DART])[:, None], m.l0, np.eye(local.shape[1])[0])
+        pos_rows.append(vs), pos_local.append(local), pos_w.append(l0)
+        tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
+
+    # sectors: crease and corner vertices
+    k_all = level.sector_k()
+    first_sector = np.zeros(level.num_sectors, dtype=bool)
+    if level.num_sectors:
+        _, first = np.unique(level.sector_vertex, return_index=True)
+        first_sector[first] = True
+    for k in np.unique(k_all):
+        sel = np.flatnonzero(k_all == k)
+        local = sector_local_vectors(level, sel, int(k))
+        m = M.sector_masks(level.scheme, level.sector_kind[sel], int(k), level.sector_theta[sel], flatness[sel])
+        once = first_sector[sel]
+        vs = level.sector_vertex[sel].astype(np.int64)
+        pos_rows.append(vs[once]), pos_local.append(local[once]), pos_w.append(m.l0[once])
+        tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
+
+    # everything else (isolated vertices, non-manifold leftovers) keeps its position and has no tangents
+    covered = np.zeros(V, dtype=bool)
+    for r in pos_rows:
+        covered[r] = True
+    rest = np.flatnonzero(~covered)
+    pos_rows.append(rest), pos_local.append(rest[:, None]), pos_w.append(np.ones((len(rest), 1)))
+
+    position = _merge_rows(pos_rows, pos_local, pos_w, V, V)
+    # tangent pairs, one per (vertex, sector); contributions of one vertex contiguous
+    vertex_of = np.concatenate(tan_rows) if tan_rows else np.zeros(0, np.int64)
+    order = np.argsort(vertex_of, kind="stable")
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    bounds = _offsets(np.array([len(r) for r in tan_rows], dtype=np.int64))
+    rank_parts = [rank[bounds[i]:bounds[i + 1]] for i in range(len(tan_rows))]
+    tu = _merge_rows(rank_parts, tan_local, tan_u, len(order), V)
+    tv = _merge_rows(rank_parts, tan_local, tan_v, len(order), V)
+    contribution_vertex = vertex_of[order]
+    vertex_offsets = _offsets(np.bincount(contribution_vertex, minlength=V)).astype(np.int32)
+    return LimitTables(position, tu, tv, contribution_vertex.astype(np.int32), vertex_offsets)
+
+
+def _merge_rows(rows_parts, local_parts, weight_parts, num_rows, num_sources) -> StencilTable:
+    """A CSR table from blocks of equal-width rows: block b gives row ids (S_b,), sources and weights (S_b, n_b)."""
+    flat_row = np.concatenate([np.repeat(np.asarray(r, dtype=np.int64), l.shape[1])
+                               for r, l in zip(rows_parts, local_parts)]) if rows_parts else np.zeros(0, np.int64)
+    flat_idx = np.concatenate([l.reshape(-1) for l in local_parts]) if local_parts else np.zeros(0, np.int64)
+    flat_w = np.concatenate([w.reshape(-1) for w in weight_parts]) if weight_parts else np.zeros(0)
+    order = np.argsort(flat_row, kind="stable")
+    counts = np.bincount(flat_row, minlength=num_rows)
+    return StencilTable(_offsets(counts).astype(np.int32), flat_idx[order].astype(np.int32), flat_w[order],
+                        num_sources)
