@@ -13,6 +13,8 @@ def _one_ring(scheme, k, kind, alpha, twist):
     interior = kind == "interior"
     nring = k if interior else k + 1
     span = {"interior": 2 * np.pi, "crease": np.pi, "convex": alpha, "concave": 2 * np.pi - alpha}[kind]
+    if kind == "crease" and k == 1:
+        span = np.pi / 2  # one face cannot span a straight angle
     step = span / k
     ang = np.arange(nring) * step
     p = np.stack([np.cos(ang), np.sin(ang), twist * (-1.0) ** np.arange(nring)], axis=1)
@@ -68,9 +70,16 @@ def local_ids(scheme, mesh, kind, k, levels=1, **options):
     return out
 
 
+def options_for(kind, k):
+    """A one-face boundary vertex is a corner under edge-and-corner: a k = 1 crease needs edge-only."""
+    return {"boundary": "edge-only"} if kind == "crease" and k == 1 else {}
+
+
 def local_matrix(scheme, mesh, kind, k, **options):
     """S with (level-1 local vector) = S (level-0 local vector), read off Refiner.evaluate of unit vectors."""
     options.setdefault("device", "cpu")
+    for key, value in options_for(kind, k).items():
+        options.setdefault(key, value)
     r = ws.Refiner(mesh, 1, scheme=scheme, precision="float64", **options)
     out = r.evaluate(np.eye(mesh.num_vertices), normal_control=False)
     ids0, ids1 = local_ids(scheme, mesh, kind, k, **{k_: v for k_, v in options.items() if k_ != "device"})

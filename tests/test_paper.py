@@ -1,0 +1,215 @@
+"""The paper's claims as properties of the implementation (RULES.md sections 6 to 11).
+
+Local subdivision matrices are read off the implementation itself: a patch whose vertex 0 has the wanted
+neighbourhood is refined with unit basis vectors as vertex data through Refiner.evaluate, and the rows and
+columns of vertex 0's local vector are kept (tests/fans.py).
+"""
+import numpy as np
+import pytest
+from numpy import pi
+
+import warp_subdiv as ws
+from conftest import dense, load_mesh
+from fans import local_ids, local_matrix, only_at_centre, options_for, patch
+from warp_subdiv import masks as M
+from warp_subdiv.rules import SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE
+
+KIND = {"crease": SECTOR_CREASE, "convex": SECTOR_CONVEX, "concave": SECTOR_CONCAVE}
+
+# RULES.md section 10: (scheme, configuration, k, alpha, Loop beta, leading eigenvalues by modulus at s = 0)
+TABLE_10 = [
+    ('loop', 'interior', 3, None, 'warren', [1.0, 0.25, 0.25, 0.0625]),
+    ('loop', 'interior', 4, None, 'warren', [1.0, 0.375, 0.375, 0.25, 0.125]),
+    ('loop', 'interior', 5, None, 'warren', [1.0, 0.4523, 0.4523, 0.25, 0.1727, 0.1727]),
+    ('loop', 'interior', 6, None, 'warren', [1.0, 0.5, 0.5, 0.25, 0.25, 0.25, 0.125]),
+    ('loop', 'interior', 3, None, 'loop', [1.0, 0.25, 0.25, 0.0625]),
+    ('loop', 'interior', 4, None, 'loop', [1.0, 0.375, 0.375, 0.1406, 0.125]),
+    ('loop', 'interior', 5, None, 'loop', [1.0, 0.4523, 0.4523, 0.2045, 0.1727, 0.1727]),
+    ('loop', 'interior', 6, None, 'loop', [1.0, 0.5, 0.5, 0.25, 0.25, 0.25, 0.125]),
+    ('catmull-clark', 'interior', 3, None, 'loop', [1.0, 0.4101, 0.4101, 0.1667, 0.1524, 0.1524, 0.0]),
+    ('catmull-clark', 'interior', 4, None, 'loop', [1.0, 0.5, 0.5, 0.25, 0.25, 0.25, 0.125]),
+    ('catmull-clark', 'interior', 5, None, 'loop', [1.0, 0.55, 0.55, 0.3401, 0.3401, 0.3225, 0.1838]),
+    ('catmull-clark', 'interior', 6, None, 'loop', [1.0, 0.5797, 0.5797, 0.4101, 0.4101, 0.375, 0.25]),
+    ('loop', 'crease', 1, None, 'loop', [1.0, 0.5, 0.25]),
+    ('loop', 'crease', 2, None, 'loop', [1.0, 0.5, 0.5, 0.25]),
+    ('loop', 'crease', 3, None, 'loop', [1.0, 0.5, 0.5, 0.25, 0.25]),
+    ('loop', 'crease', 4, None, 'loop', [1.0, 0.5, 0.5, 0.3232, 0.25, 0.1464]),
+    ('loop', 'crease', 5, None, 'loop', [1.0, 0.5, 0.5, 0.375, 0.25, 0.2205, 0.0955]),
+    ('loop', 'crease', 6, None, 'loop', [1.0, 0.5, 0.5, 0.4085, 0.2835, 0.25, 0.1585]),
+    ('loop', 'convex', 1, pi/2, 'loop', [1.0, 0.5, 0.5]),
+    ('loop', 'convex', 2, pi/2, 'loop', [1.0, 0.5, 0.5, 0.3232]),
+    ('loop', 'convex', 3, pi/2, 'loop', [1.0, 0.5, 0.5, 0.4085, 0.1585]),
+    ('loop', 'convex', 4, pi/2, 'loop', [1.0, 0.5, 0.5, 0.4458, 0.269, 0.0923]),
+    ('loop', 'convex', 5, pi/2, 'loop', [1.0, 0.5, 0.5, 0.4645, 0.3395, 0.185, 0.06]),
+    ('loop', 'convex', 6, pi/2, 'loop', [1.0, 0.5, 0.5, 0.475, 0.3835, 0.2585, 0.1335]),
+    ('loop', 'convex', 2, 0.9*pi, 'loop', [1.0, 0.5, 0.5, 0.4609]),
+    ('loop', 'convex', 4, 0.9*pi, 'loop', [1.0, 0.5, 0.5, 0.4867, 0.3099, 0.1331]),
+    ('loop', 'convex', 6, 0.9*pi, 'loop', [1.0, 0.5, 0.5, 0.4938, 0.4022, 0.2772, 0.1522]),
+    ('loop', 'concave', 2, pi/2, 'loop', [1.0, 0.6768, 0.5, 0.5]),
+    ('loop', 'concave', 3, pi/2, 'loop', [1.0, 0.625, 0.5, 0.5, 0.375]),
+    ('loop', 'concave', 4, pi/2, 'loop', [1.0, 0.5811, 0.5, 0.5, 0.4043, 0.2276]),
+    ('loop', 'concave', 5, pi/2, 'loop', [1.0, 0.5553, 0.5, 0.5, 0.4303, 0.2758, 0.1508]),
+    ('loop', 'concave', 6, pi/2, 'loop', [1.0, 0.5397, 0.5, 0.5, 0.4482, 0.3232, 0.1982]),
+    ('loop', 'concave', 2, 0.9*pi, 'loop', [1.0, 0.5391, 0.5, 0.5]),
+    ('loop', 'concave', 4, 0.9*pi, 'loop', [1.0, 0.5144, 0.5, 0.5, 0.3376, 0.1609]),
+    ('loop', 'concave', 6, 0.9*pi, 'loop', [1.0, 0.5068, 0.5, 0.5, 0.4153, 0.2903, 0.1653]),
+    ('catmull-clark', 'crease', 1, None, 'loop', [1.0, 0.5, 0.25, 0.25]),
+    ('catmull-clark', 'crease', 2, None, 'loop', [1.0, 0.5, 0.5, 0.25, 0.25, 0.125]),
+    ('catmull-clark', 'crease', 3, None, 'loop', [1.0, 0.5, 0.5, 0.3476, 0.25, 0.25, 0.0899]),
+    ('catmull-clark', 'crease', 4, None, 'loop', [1.0, 0.5, 0.5, 0.4028, 0.2985, 0.25, 0.25]),
+    ('catmull-clark', 'crease', 5, None, 'loop', [1.0, 0.5, 0.5, 0.4339, 0.35, 0.2788, 0.25]),
+    ('catmull-clark', 'crease', 6, None, 'loop', [1.0, 0.5, 0.5, 0.4525, 0.3868, 0.3198, 0.2691]),
+    ('catmull-clark', 'convex', 1, pi/2, 'loop', [1.0, 0.5, 0.5, 0.25]),
+    ('catmull-clark', 'convex', 2, pi/2, 'loop', [1.0, 0.5, 0.5, 0.4028, 0.25, 0.0454]),
+    ('catmull-clark', 'convex', 3, pi/2, 'loop', [1.0, 0.5, 0.5, 0.4525, 0.3198, 0.25, 0.0262]),
+    ('catmull-clark', 'convex', 4, pi/2, 'loop', [1.0, 0.5, 0.5, 0.4723, 0.3816, 0.2892, 0.25]),
+    ('catmull-clark', 'convex', 5, pi/2, 'loop', [1.0, 0.5, 0.5, 0.482, 0.4186, 0.3396, 0.275]),
+    ('catmull-clark', 'convex', 6, pi/2, 'loop', [1.0, 0.5, 0.5, 0.4874, 0.4412, 0.3779, 0.3142]),
+    ('catmull-clark', 'convex', 2, 0.9*pi, 'loop', [1.0, 0.5, 0.5, 0.4749, 0.25, 0.111]),
+    ('catmull-clark', 'convex', 4, 0.9*pi, 'loop', [1.0, 0.5, 0.5, 0.4929, 0.3972, 0.2959, 0.25]),
+    ('catmull-clark', 'convex', 6, 0.9*pi, 'loop', [1.0, 0.5, 0.5, 0.4968, 0.4496, 0.3845, 0.3184]),
+    ('catmull-clark', 'concave', 2, pi/2, 'loop', [1.0, 0.6333, 0.5, 0.5, 0.25, 0.1685]),
+    ('catmull-clark', 'concave', 3, pi/2, 'loop', [1.0, 0.5797, 0.5, 0.5, 0.4101, 0.25, 0.1524]),
+    ('catmull-clark', 'concave', 4, pi/2, 'loop', [1.0, 0.5472, 0.5, 0.5, 0.442, 0.3206, 0.25]),
+    ('catmull-clark', 'concave', 5, pi/2, 'loop', [1.0, 0.5306, 0.5, 0.5, 0.4608, 0.3697, 0.2872]),
+    ('catmull-clark', 'concave', 6, pi/2, 'loop', [1.0, 0.5214, 0.5, 0.5, 0.4719, 0.4028, 0.3303]),
+    ('catmull-clark', 'concave', 2, 0.9*pi, 'loop', [1.0, 0.5269, 0.5, 0.5, 0.25, 0.1372]),
+    ('catmull-clark', 'concave', 4, 0.9*pi, 'loop', [1.0, 0.5079, 0.5, 0.5, 0.4091, 0.3016, 0.25]),
+    ('catmull-clark', 'concave', 6, 0.9*pi, 'loop', [1.0, 0.5036, 0.5, 0.5, 0.4557, 0.3894, 0.3215]),]
+
+
+def spectrum(S):
+    return np.sort(np.abs(np.linalg.eigvals(S)))[::-1]
+
+
+def theta_of(kind, k, alpha):
+    return {"crease": pi / k, "convex": alpha / k, "concave": (2 * pi - alpha) / k}[kind]
+
+
+def linear_matrix(scheme, mesh, kind, k, **options):
+    """The local matrix of the linear rules alone (s = 0), from the level's stencil table."""
+    options.update(options_for(kind, k))
+    r = ws.Refiner(mesh, 1, scheme=scheme, device="cpu", precision="float64", **options)
+    ids0, ids1 = local_ids(scheme, mesh, kind, k, **options)
+    return dense(r.tables[0])[np.ix_(ids1, ids0)]
+
+
+@pytest.mark.parametrize("scheme,kind,k,alpha,beta,expected", TABLE_10)
+def test_spectrum_at_s0_matches_rules_table(scheme, kind, k, alpha, beta, expected):
+    mesh = patch(scheme, k, kind, alpha=alpha or pi / 2)
+    S = linear_matrix(scheme, mesh, kind, k, loop_beta=beta)
+    got = spectrum(S)[: len(expected)]
+    np.testing.assert_allclose(got, expected, atol=6e-5)
+
+
+def sector_cases():
+    for scheme in ("loop", "catmull-clark"):
+        for k in range(1, 7):
+            yield scheme, "crease", k, pi / 2
+        for alpha in (pi / 2, 2 * pi / 3, 0.9 * pi):
+            for k in range(1, 7):
+                yield scheme, "convex", k, alpha
+            for k in range(2, 7):
+                yield scheme, "concave", k, alpha
+
+
+def kept_values(scheme, kind, k):
+    """Eigenvalues flatness leaves alone: 1, 1/2, 1/2 (only one 1/2 when k = 1) and a crease's B-spline 1/4."""
+    kept = [1.0, 0.5] if k == 1 and kind == "crease" else [1.0, 0.5, 0.5]
+    if kind == "crease":
+        kept.append(0.25)
+    return kept
+
+
+def remove_once(values, kept):
+    values = list(values)
+    for v in kept:
+        i = int(np.argmin(np.abs(np.array(values) - v)))
+        assert abs(values[i] - v) < 1e-6, (values, v)
+        values.pop(i)
+    return np.array(values)
+
+
+@pytest.mark.parametrize("scheme,kind,k,alpha", list(sector_cases()))
+def test_flatness_scales_the_other_eigenvalues_by_one_minus_s(scheme, kind, k, alpha):
+    mesh = patch(scheme, k, kind, alpha=alpha)
+    S0 = linear_matrix(scheme, mesh, kind, k)
+    theta = theta_of(kind, k, alpha)
+    s_star = float(M.optimal_flatness(scheme, KIND[kind], k, theta))
+    kept = kept_values(scheme, kind, k)
+    rest0 = remove_once(np.linalg.eigvals(S0).real if False else spectrum(S0), kept)
+    s_values = [s_star, 0.3, 1.0]
+    if kind == "concave":
+        s_min = float(M.concave_min_flatness(scheme, k, theta))
+        assert s_star > s_min
+        assert rest0.max() > 0.5  # 1/2 is not subdominant without flatness (RULES.md section 10)
+        s_values = [s_star, 1.0] + ([0.3] if 0.3 > s_min else [])
+    for s in s_values:
+        S = local_matrix(scheme, mesh, kind, k, flatness=only_at_centre(mesh, s))
+        got = spectrum(S)
+        expected = np.sort(np.concatenate([kept, (1 - s) * rest0]))[::-1]
+        np.testing.assert_allclose(got, expected, atol=1e-7, err_msg=f"s = {s}")
+        if s == s_star and rest0.size and (1 - s) * rest0.max() > 1e-12:
+            # s* bounds the curvature: the largest scaled eigenvalue becomes lambda^2 = 1/4, or stays below
+            assert (1 - s) * rest0.max() <= 0.25 + 1e-9
+            if s > 0:
+                np.testing.assert_allclose((1 - s) * rest0.max(), 0.25, atol=1e-9)
+
+
+@pytest.mark.parametrize("scheme,kind,k,alpha", [c for c in sector_cases() if c[2] >= 2])
+def test_sector_eigenvectors_and_masks(scheme, kind, k, alpha):
+    """l^m S = lambda l^m and S x^m = lambda x^m with biorthonormal masks, before and after flatness."""
+    mesh = patch(scheme, k, kind, alpha=alpha)
+    theta = theta_of(kind, k, alpha)
+    for s in (0.0, float(M.optimal_flatness(scheme, KIND[kind], k, theta)), 1.0):
+        if kind == "concave" and s == 0.0:
+            S = linear_matrix(scheme, mesh, kind, k)
+        else:
+            S = local_matrix(scheme, mesh, kind, k, flatness=only_at_centre(mesh, s))
+        m = M.sector_masks(scheme, np.array([KIND[kind]]), k, np.array([theta]), np.array([s]))
+        x0 = np.ones(S.shape[0])
+        for l, lam in ((m.l0[0], 1.0), (m.l1[0], 0.5), (m.l2[0], 0.5)):
+            np.testing.assert_allclose(l @ S, lam * l, atol=1e-10)
+        for x, lam in ((x0, 1.0), (m.x1[0], 0.5), (m.x2[0], 0.5)):
+            np.testing.assert_allclose(S @ x, lam * x, atol=1e-10)
+        L = np.stack([m.l0[0], m.l1[0], m.l2[0]])
+        X = np.stack([x0, m.x1[0], m.x2[0]], axis=1)
+        np.testing.assert_allclose(L @ X, np.eye(3), atol=1e-10)
+
+
+@pytest.mark.parametrize("scheme", ["loop", "catmull-clark"])
+@pytest.mark.parametrize("k", [3, 4, 5, 6, 7, 8])
+def test_interior_eigenvectors_and_masks(scheme, k):
+    mesh = patch(scheme, k, "interior")
+    S = local_matrix(scheme, mesh, "interior", k)
+    m = M.interior_masks(scheme, k, 1)
+    tk = pi / k
+    if scheme == "loop":
+        lam = 3 / 8 + np.cos(2 * tk) / 4
+    else:
+        lam = (5 + np.cos(2 * tk) + np.cos(tk) * np.sqrt(2 * (9 + np.cos(2 * tk)))) / 16
+    np.testing.assert_allclose(spectrum(S)[1:3], [lam, lam], atol=1e-10)
+    np.testing.assert_allclose(m.l0[0] @ S, m.l0[0], atol=1e-10)
+    for l, x in ((m.l1[0], m.x1[0]), (m.l2[0], m.x2[0])):
+        np.testing.assert_allclose(l @ S, lam * l, atol=1e-10)
+        np.testing.assert_allclose(S @ x, lam * x, atol=1e-10)
+    L = np.stack([m.l0[0], m.l1[0], m.l2[0]])
+    X = np.stack([np.ones(S.shape[0]), m.x1[0], m.x2[0]], axis=1)
+    np.testing.assert_allclose(L @ X, np.eye(3), atol=1e-10)
+
+
+def test_rules_table_11_s_values():
+    """s* and s_min against RULES.md section 11."""
+    cases = [
+        ("loop", "crease", 4, pi / 4, 0.22654, 0), ("loop", "crease", 6, pi / 6, 0.38800, 0),
+        ("loop", "convex", 4, pi / 8, 0.43922, 0), ("loop", "concave", 2, 3 * pi / 4, 0.63060, 0.26120),
+        ("loop", "concave", 3, pi / 2, 0.60000, 0.20000), ("loop", "concave", 6, (1.5 * pi) / 6, 0.53681, 0.07361),
+        ("catmull-clark", "crease", 2, pi / 2, 0.0, 0), ("catmull-clark", "crease", 3, pi / 3, 0.28078, 0),
+        ("catmull-clark", "crease", 6, pi / 6, 0.44750, 0), ("catmull-clark", "convex", 4, pi / 8, 0.47073, 0),
+        ("catmull-clark", "concave", 2, 0.75 * pi, 0.60525, 0.21049),
+        ("catmull-clark", "concave", 4, 1.5 * pi / 4, 0.54314, 0.08627),
+    ]
+    for scheme, kind, k, theta, s_star, s_min in cases:
+        np.testing.assert_allclose(M.optimal_flatness(scheme, KIND[kind], k, theta), s_star, atol=1e-5)
+        if kind == "concave":
+            np.testing.assert_allclose(M.concave_min_flatness(scheme, k, theta), s_min, atol=1e-5)
