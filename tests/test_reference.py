@@ -67,3 +67,17 @@ def test_stencil_tables_compose_to_opensubdiv_factorised_stencils(case):
     rows = np.repeat(np.arange(len(ref["stencil_sizes"])), ref["stencil_sizes"])
     np.add.at(expected, (rows, ref["stencil_indices"]), ref["stencil_weights"])
     np.testing.assert_allclose(product, expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_limit_points_and_normals_match_opensubdiv(case, device):
+    """Refined.limit_points() / limit_normals() against OpenSubdiv's limit positions and T1 x T2."""
+    name, scheme, boundary, top = parse(case)
+    ref = np.load(os.path.join(DATA, case + ".npz"))
+    out = ws.refine(load_mesh(name), top, scheme=scheme, rules="opensubdiv", boundary=boundary, device=device,
+                    precision="float64")
+    scale = np.abs(ref["limit_points"]).max()
+    np.testing.assert_allclose(out.limit_points(), ref["limit_points"], rtol=0, atol=1e-6 * scale)
+    normal = np.cross(ref["limit_tangent1"], ref["limit_tangent2"])
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    np.testing.assert_allclose(out.limit_normals(), normal, rtol=0, atol=1e-5)

@@ -17,7 +17,7 @@ import numpy as np
 
 from . import masks as M
 from .errors import SubdivInputError
-from .rules import CATMULL_CLARK, DART, SECTOR_CONCAVE, SMOOTH
+from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SMOOTH
 from .tables import StencilTable
 from .topology import Level, _offsets
 
@@ -43,7 +43,7 @@ def _group_by_target(targets, sources, weights, normal_ids=None, normals=None) -
 
     Lists of blocks: block b has targets (U_b,), sources and weights (U_b, n_b), and optionally normal ids
     (U_b,). One update moves one point."""
-    if not targets:
+    if not targets or sum(len(t) for t in targets) == 0:
         return None
     all_targets = np.concatenate(targets)
     uniq, hits = np.unique(all_targets, return_counts=True)
@@ -109,7 +109,13 @@ def resolve_flatness(level: Level) -> np.ndarray:
 
 
 def flatness_table(level: Level, flatness: np.ndarray) -> DisplacementTable | None:
-    """Flatness (RULES.md section 6) on ``level``: non-crease ring points move toward the tangent plane."""
+    """Flatness (RULES.md section 6) on ``level``: non-crease ring points move toward the tangent plane.
+
+    A ring point that lies on a crease itself (a crease or corner vertex, e.g. a q point of a sector next to
+    a corner) is never moved: every crease stays a B-spline of its own points, so meshes that share a
+    boundary still meet (RULES.md section 6 excludes c, p_0, p_k for the same reason).
+    """
+    on_crease = np.isin(level.vert_class, [CREASE, CORNER])
     k_all = level.sector_k()
     targets, sources, weights = [], [], []
     for k in np.unique(k_all):
@@ -119,14 +125,13 @@ def flatness_table(level: Level, flatness: np.ndarray) -> DisplacementTable | No
         local = sector_local_vectors(level, sel, int(k))
         m = M.sector_masks(level.scheme, level.sector_kind[sel], int(k), level.sector_theta[sel])
         s = flatness[sel][:, None]
-        n = local.shape[1]
         for r in M.flattened_points(level.scheme, int(k)):
             row = m.l0 + m.x1[:, r:r + 1] * m.l1 + m.x2[:, r:r + 1] * m.l2  # (P p)_r
             row[:, r] -= 1.0
-            targets.append(local[:, r])
-            sources.append(local)
-            weights.append(s * row)
-            assert row.shape[1] == n
+            free = ~on_crease[local[:, r]]
+            targets.append(local[free, r])
+            sources.append(local[free])
+            weights.append((s * row)[free])
     return _group_by_target(targets, sources, weights)
 
 

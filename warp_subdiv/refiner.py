@@ -10,6 +10,7 @@ import warp as wp
 from . import projections, rules
 from .errors import SubdivInputError
 from .mesh import Mesh
+from .rules import edge_gamma_shift
 from .tables import StencilTable, build_stencils
 from .topology import BOUNDARY_MODES, RULE_SETS, Level, base_level, refine_level
 
@@ -122,6 +123,9 @@ class Refiner:
         if len(normal_vertices):
             projections.check_normal_vertices(level, normal_vertices)
         # the last level needs its full topology only when a projection acts on it
+        # extraordinary crease/corner sectors: their edge rules move weight (gamma(theta) != 3/8)
+        shift = edge_gamma_shift(self.scheme, level.sector_theta)
+        self._modified_edge_rules = paper and bool(np.any((level.sector_k() >= 2) & (np.abs(shift) > 1e-15)))
         self._projecting = paper and (
             bool(np.any(base_s > 0)) or level.new_sector_flatness > 0 or len(normal_vertices) > 0
         )
@@ -145,6 +149,8 @@ class Refiner:
         self._final: Level = level
         self._penultimate: Level = penultimate
         self._limit = None
+        self._deeper = None
+        self._flatness = flatness
         self.num_vertices = level.num_vertices
         self._device_tables = None
         self._buffers: dict = {}
@@ -287,20 +293,31 @@ class Refiner:
         return self._limit
 
     def _final_points(self, points) -> wp.array:
+        return self._final_points_of(points, self.num_vertices)
+
+    def _final_points_of(self, points, count) -> wp.array:
         np_dtype, _, vec = PRECISIONS[self.precision]
         pts = np.ascontiguousarray(points, dtype=np_dtype)
-        if pts.shape != (self.num_vertices, 3):
-            raise SubdivInputError(f"refined points must have shape ({self.num_vertices}, 3), got {pts.shape}")
+        if pts.shape != (count, 3):
+            raise SubdivInputError(f"refined points must have shape ({count}, 3), got {pts.shape}")
         return wp.array(pts, dtype=vec, device=self.device)
 
     def _needs_extra_level(self) -> bool:
-        return self.levels == 0 and self.scheme == rules.CATMULL_CLARK and self._final.face_size != 4
+        """Limit masks are read one level deeper where this level's masks are not exact.
 
-    def limit_points(self, refined_points) -> np.ndarray:
+        Flatness and normal control move the ring points of their sectors on every level, and the crease- and
+        corner-neighbour edge rules differ from the smooth rule next to extraordinary crease and corner
+        vertices, so the standard masks of a vertex next to such a vertex are exact only one level later, once
+        its neighbourhood follows the standard rules; a control mesh with non-quads has no Catmull-Clark masks.
+        """
+        polygons = self.levels == 0 and self.scheme == rules.CATMULL_CLARK and self._final.face_size != 4
+        return polygons or self._projecting or self._modified_edge_rules
+
+    def limit_points(self, refined_points, _direct=False) -> np.ndarray:
         """Limit positions of the refined vertices (RULES.md section 9): l^0 applied to each vertex's ring."""
-        if self._needs_extra_level():
-            return self._one_more_level().limit_points(self._one_more_level().evaluate(refined_points))[
-                : self.num_vertices]
+        if not _direct and self._needs_extra_level():
+            extra = self._one_more_level()
+            return extra.limit_points(extra._evaluate_from_level(refined_points), True)[: self.num_vertices]
         lim = self._limit_tables()
         _, _, vec = PRECISIONS[self.precision]
         src = self._final_points(refined_points)
@@ -309,15 +326,15 @@ class Refiner:
                   device=self.device)
         return np.array(out.numpy(), copy=True)
 
-    def limit_normals(self, refined_points) -> np.ndarray:
+    def limit_normals(self, refined_points, _direct=False) -> np.ndarray:
         """Unit outward limit normals of the refined vertices (RULES.md section 9); prescribed normals as given.
 
         A crease or corner vertex has one tangent plane per sector; its normal is the normalised sum of the
         sectors' unit normals (exact where there is one sector, e.g. on a boundary).
         """
-        if self._needs_extra_level():
+        if not _direct and self._needs_extra_level():
             extra = self._one_more_level()
-            return extra.limit_normals(extra.evaluate(refined_points))[: self.num_vertices]
+            return extra.limit_normals(extra._evaluate_from_level(refined_points), True)[: self.num_vertices]
         lim = self._limit_tables()
         np_dtype, _, vec = PRECISIONS[self.precision]
         k = _kernels()
@@ -339,14 +356,32 @@ class Refiner:
         return np.array(out.numpy(), copy=True)
 
     def _one_more_level(self) -> "Refiner":
-        """A refiner one level deeper (limit masks of a polygon control mesh are read off its first level)."""
-        if not hasattr(self, "_deeper"):
+        """A refiner one level deeper, with the same options, for limit masks (see _needs_extra_level)."""
+        if self._deeper is None:
             self._deeper = Refiner(
                 self.mesh, self.levels + 1, scheme=self.scheme, rules=self.rules, boundary=self.boundary,
                 device=self.device, precision=self.precision, loop_beta=self.loop_beta,
-                normal_strength=self.normal_strength,
+                triangulate=True, flatness=self._flatness, normal_strength=self.normal_strength,
             )
         return self._deeper
+
+    def _evaluate_from_level(self, points_one_level_up) -> np.ndarray:
+        """Refine points of this refiner's second-to-last level through its last step only."""
+        np_dtype, _, vec = PRECISIONS[self.precision]
+        tables = self._upload()
+        step = tables[-1]
+        src = self._final_points_of(points_one_level_up, self.tables[-1].num_sources)
+        bufs, scratch = self._level_buffers(3)
+        dst, tmp = bufs[-1], scratch[-1]
+        k = _kernels()
+        dev = self.device
+        wp.launch(k.apply_stencils_vec, dim=dst.shape[0], inputs=[*step["stencil"], src, dst], device=dev)
+        for name, kernel in (("flatness", k.displace_rows), ("normals", k.project_rows)):
+            if name in step:
+                n = step[name][0].shape[0]
+                wp.launch(kernel, dim=n, inputs=[*step[name], dst, tmp], device=dev)
+                wp.launch(k.scatter_rows, dim=n, inputs=[step[name][0], tmp, dst], device=dev)
+        return np.array(dst.numpy(), copy=True)
 
     def refine(self, points=None) -> Refined:
         """The refined mesh of ``points`` (default: the mesh's own points)."""
