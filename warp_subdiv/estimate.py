@@ -95,22 +95,27 @@ def estimate(
     face_varying_width: int = 0,
     uniform_width: int = 0,
     extra_point_arrays: int = 0,
+    extra_level: bool = False,
 ) -> Estimate:
     """Bytes needed to refine one mesh ``levels`` times and hold ``samples`` written time samples.
 
     ``vertex_width``: floats per vertex of the refined vertex and varying primvars (all of them together);
     ``face_varying_width`` the same per face corner, ``uniform_width`` per face. ``extra_point_arrays``:
-    further 3-vectors per vertex and sample (velocities, accelerations, normals).
+    further 3-vectors per vertex and sample (velocities, accelerations, normals). ``extra_level``: the
+    refiner may build one level more (limit points and normals read their masks one level deeper where
+    flatness or normal control act), so its working set is counted for ``levels + 1``.
     """
-    counts = level_counts(num_vertices, face_sizes, num_edges, levels, scheme)
+    counts = level_counts(num_vertices, face_sizes, num_edges, levels + (1 if extra_level else 0), scheme)
+    work = counts
+    counts = counts[: levels + 1]
     last = counts[-1]
     real = 8 if precision == "float64" else 4
-    refined_vertices = sum(c.vertices for c in counts[1:])
-    all_vertices = refined_vertices + counts[0].vertices
+    refined_vertices = sum(c.vertices for c in work[1:])
+    all_vertices = refined_vertices + work[0].vertices
     items = {
         "stencil tables": TABLE_BYTES_PER_VERTEX * refined_vertices,
         "level buffers": real * all_vertices * (3 + vertex_width),
-        "topology": TOPOLOGY_BYTES_PER_VERTEX * last.vertices,
+        "topology": TOPOLOGY_BYTES_PER_VERTEX * work[-1].vertices,
         "faces": 4 * (last.faces + last.corners),
         "points": samples * last.vertices * 12 * (1 + extra_point_arrays),
         "primvars": samples * 4 * (last.vertices * vertex_width + last.corners * face_varying_width

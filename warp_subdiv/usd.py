@@ -1,0 +1,509 @@
+"""The USD pipeline: read the subdivision meshes of a stage, refine them, and write a layer that overrides them.
+
+:func:`refine_usd` is what ``warp-subdiv refine`` runs on USD files; :func:`plan` reads and predicts without
+refining (``warp-subdiv info`` and the memory guard). See the README's USD section for the attributes, the
+layer layout and what is supported.
+
+The output layer sublayers the input and holds an ``over`` of every refined mesh, at the mesh's own path:
+
+* ``subdivisionScheme = "none"``, ``points``, ``faceVertexCounts``, ``faceVertexIndices``, ``extent`` (per
+  time sample), ``velocities`` / ``accelerations`` (refined like points), ``normals`` (with ``--normals``);
+* every subdivision attribute (creases, corners, holes, boundary and face-varying interpolation, triangle
+  rule) and every ``subdiv:`` tag is blocked, and so are authored ``normals`` / ``primvars:normals`` when no
+  normals are written (they belong to the control mesh);
+* vertex, varying, uniform and face-varying primvars are rewritten for the refined faces (constant ones are
+  inherited as they are); primvars that cannot be refined are reported and blocked;
+* face GeomSubsets (material bindings) get their ``indices`` remapped to the refined faces.
+
+Transforms, materials, relationships and every other prim come from the input unchanged.
+"""
+from __future__ import annotations
+
+import inspect
+import os
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+from pxr import Sdf, Usd, Vt
+
+from . import __version__
+from .errors import SubdivInputError
+from .estimate import Estimate, estimate, format_bytes, total_bytes, MAX_CORNERS
+from .primvars import FaceMap, corners_to_vertices, vertices_used
+from .refiner import Refined, Refiner
+from .usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, mesh_prims, open_stage,
+                       read_mesh)
+from .usd_write import OutputLayer, check_output_path, extent_of, int_array, vec3f_array, vt_array
+
+T = Sdf.ValueTypeNames
+
+
+class MemoryGuardError(SubdivInputError):
+    """The predicted memory is above the limit."""
+
+
+class MissingFeatureError(SubdivInputError):
+    """The input asks for something this version of warp-subdiv cannot do yet."""
+
+
+@dataclass
+class PrimReport:
+    path: str
+    scheme: str
+    rules: str
+    faces_in: int
+    faces_out: int
+    vertices_in: int
+    vertices_out: int
+    samples: int
+    seconds: float = 0.0
+
+
+@dataclass
+class Plan:
+    """What a run will do: the stage, its subdivision meshes and their predicted sizes."""
+
+    input: str
+    stage: Usd.Stage
+    prims: list
+    estimates: list
+    left_alone: list = field(default_factory=list)  # (path, reason)
+    warnings: list = field(default_factory=list)  # "path: message"
+
+    @property
+    def predicted_bytes(self) -> int:
+        return total_bytes(self.estimates)
+
+
+@dataclass
+class Result:
+    output: str
+    reports: list
+    warnings: list
+    seconds: float
+    predicted_bytes: int
+
+
+def _sample_count(sp: SubdivPrim) -> int:
+    return max(1, len(sp.point_times)) + (1 if sp.point_times else 0)  # samples and the default
+
+
+def plan(
+    input_path: str,
+    levels: int,
+    *,
+    prims=None,
+    scheme: str = "auto",
+    rules: str | None = None,
+    boundary: str | None = None,
+    precision: str = "float32",
+    frames=None,
+    semi_sharp: str = "error",
+    normals: bool = False,
+    limit: bool = False,
+    require_meshes: bool = True,
+) -> Plan:
+    """Open ``input_path`` and read every subdivision mesh at or under ``prims``; predict output sizes."""
+    if not os.path.exists(input_path):
+        raise SubdivInputError(f"{input_path}: no such file")
+    stage = open_stage(input_path)
+    meshes, instanced = mesh_prims(stage, prims, where=input_path)
+    out = Plan(input_path, stage, [], [])
+    for prim in instanced:
+        out.left_alone.append((str(prim.GetPath()), "inside an instance (make it non-instanceable to refine it)"))
+    for prim in meshes:
+        sp = read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme, rules=rules, boundary=boundary)
+        if sp is None:
+            scheme_token = prim.GetAttribute("subdivisionScheme").Get()
+            out.left_alone.append((str(prim.GetPath()), "empty mesh" if scheme_token != "none"
+                                   else "subdivisionScheme none"))
+            continue
+        out.prims.append(sp)
+        out.warnings.extend(f"{sp.path}: {w}" for w in sp.warnings)
+        out.estimates.append(estimate_prim(sp, levels, precision, normals, limit))
+    if require_meshes and not out.prims:
+        where = f"under {', '.join(prims)}" if prims else "in the file"
+        why = "; ".join(f"{p} ({r})" for p, r in out.left_alone[:3])
+        if prims and not meshes and not instanced:
+            raise SubdivInputError(f"{input_path}: {', '.join(prims)} is not a mesh and holds no meshes")
+        raise SubdivInputError(f"{input_path}: no subdivision meshes {where}" + (f": {why}" if why else ""))
+    return out
+
+
+def estimate_prim(sp: SubdivPrim, levels: int, precision: str = "float32", normals: bool = False,
+                  limit: bool = False) -> Estimate:
+    """Predicted counts and bytes of refining one mesh (its samples, primvars and point arrays included)."""
+    widths = {"vertex": 0, "faceVarying": 0, "uniform": 0}
+    for pv in sp.primvars:
+        comps = _components(pv) * pv.element_size
+        key = "vertex" if pv.interpolation in ("vertex", "varying") else pv.interpolation
+        widths[key] += comps
+    return estimate(
+        sp.path, sp.mesh.num_vertices, sp.mesh.face_vertex_counts, sp.mesh.num_edges, levels,
+        "loop" if sp.scheme == "loop" else "catmull-clark", precision=precision, samples=_sample_count(sp),
+        vertex_width=widths["vertex"], face_varying_width=widths["faceVarying"], uniform_width=widths["uniform"],
+        extra_point_arrays=len(sp.point_arrays) + (1 if normals else 0), extra_level=limit or normals,
+    )
+
+
+def _components(pv) -> int:
+    """Scalars per value of the primvar's type (float3 -> 3, texCoord2f -> 2, float -> 1)."""
+    digits = [c for c in str(pv.type_name.scalarType) if c.isdigit()]
+    return int(digits[0]) if digits else 1
+
+
+def check_memory(p: Plan, max_memory: int | None, levels: int) -> None:
+    """The memory guard: refuse before any work when the prediction is above ``max_memory`` bytes."""
+    for e in p.estimates:
+        if e.final.corners > MAX_CORNERS:
+            raise MemoryGuardError(
+                f"{e.path}: {levels} levels make {e.final.faces:,} faces ({e.final.corners:,} face corners), more "
+                "than 32-bit tables can index; lower --levels"
+            )
+    need = p.predicted_bytes
+    if max_memory is not None and need > max_memory:
+        biggest = max(p.estimates, key=lambda e: e.output_bytes + e.working_bytes)
+        raise MemoryGuardError(
+            f"refining {len(p.estimates)} mesh(es) {levels} levels would need about {format_bytes(need)} "
+            f"({biggest.path}: {biggest.final.faces:,} faces, {biggest.final.vertices:,} vertices), more than "
+            f"--max-memory {format_bytes(max_memory)}; lower --levels, pick prims with --prim, or raise --max-memory"
+        )
+
+
+def _has_param(name: str) -> bool:
+    return name in inspect.signature(Refiner.__init__).parameters
+
+
+def _refiner_kwargs(sp: SubdivPrim, device, precision) -> dict:
+    kw = dict(scheme="catmull-clark" if sp.scheme == "bilinear" else sp.scheme, rules=sp.rules,
+              boundary="edge-and-corner" if sp.scheme == "bilinear" else sp.boundary, device=device,
+              precision=precision)
+    if sp.scheme != "bilinear":
+        for attr, param, value in (("subdiv:flatness", "flatness", sp.flatness),
+                                   ("subdiv:normalStrength", "normal_strength", sp.normal_strength)):
+            if value is None:
+                continue
+            if not _has_param(param):
+                raise MissingFeatureError(
+                    f"{sp.path}: {attr} needs the refiner's {param} option (normal control and flatness), which "
+                    "this version of warp-subdiv does not have yet"
+                )
+            kw[param] = value
+    return kw
+
+
+def _make_refiner(sp: SubdivPrim, levels: int, kw: dict) -> Refiner:
+    try:
+        return Refiner(sp.mesh, levels, **kw)
+    except NotImplementedError as exc:
+        text = str(exc)
+        if "normal" in text and len(sp.mesh.normal_vertices):
+            raise MissingFeatureError(
+                f"{sp.path}: prescribed normals (subdiv:normalIndices / subdiv:normals) need normal control, which "
+                "this version of warp-subdiv does not have yet"
+            ) from None
+        if "sharp" in text and sp.semi_sharp_detail:
+            raise MissingFeatureError(sp.semi_sharp_detail) from None
+        raise MissingFeatureError(f"{sp.path}: {text}") from None
+    except (SubdivInputError, ValueError) as exc:
+        raise SubdivInputError(f"{sp.path}: {exc}") from None
+
+
+def preflight(p: Plan, *, device=None, precision="float32", limit=False, normals=False) -> None:
+    """Fail early, before any refinement: features the input needs that this version lacks, bad options."""
+    if limit and not hasattr(Refined, "limit_points"):
+        raise MissingFeatureError("--limit needs limit points (Refined.limit_points), which this version of "
+                                  "warp-subdiv does not have yet")
+    if normals and not hasattr(Refined, "limit_normals"):
+        raise MissingFeatureError("--normals needs limit normals (Refined.limit_normals), which this version of "
+                                  "warp-subdiv does not have yet")
+    for sp in p.prims:
+        # level 0 runs the whole control-mesh analysis (tags, sectors, options) at the cost of the control mesh
+        _make_refiner(sp, 0, _refiner_kwargs(sp, device, precision))
+
+
+class _Work:
+    """Progress bookkeeping: units are predicted output vertices (tables once, then one per sample)."""
+
+    def __init__(self, p: Plan, callback):
+        self.callback = callback
+        self.weights = []
+        for sp, e in zip(p.prims, p.estimates):
+            tables = sum(c.vertices for c in e.counts[1:]) or 1
+            self.weights.append((tables, e.final.vertices or 1))
+        self.total = sum(t + s * _sample_count(sp) for (t, s), sp in zip(self.weights, p.prims)) or 1
+        self.done = 0
+
+    def step(self, units: float, label: str) -> None:
+        self.done += units
+        if self.callback is not None:
+            self.callback(min(1.0, self.done / self.total), label)
+
+
+def refine_usd(
+    input_path: str,
+    output_path: str,
+    levels: int,
+    *,
+    prims=None,
+    scheme: str = "auto",
+    rules: str | None = None,
+    boundary: str | None = None,
+    device=None,
+    precision: str = "float32",
+    frames=None,
+    limit: bool = False,
+    normals: bool = False,
+    max_memory: int | None = None,
+    flatten: bool = False,
+    semi_sharp: str = "error",
+    progress=None,
+    the_plan: Plan | None = None,
+) -> Result:
+    """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) ``levels`` times and
+    write the layer ``output_path`` (.usd, .usda or .usdc) that sublayers the input and overrides them.
+
+    ``frames``: (start, end) time codes (None for an open end) selecting the time samples to refine.
+    ``max_memory``: bytes; refuse (MemoryGuardError) when the prediction is larger; None for no limit.
+    ``semi_sharp``: "error" or "sharp" (treat semi-sharp creases and corners as infinitely sharp).
+    ``progress``: callable(fraction, label) or None. Errors in the input are SubdivInputError.
+    """
+    start = _time.perf_counter()
+    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
+        raise SubdivInputError(f"levels must be an integer >= 0, got {levels!r}")
+    if not os.path.exists(input_path):
+        raise SubdivInputError(f"{input_path}: no such file")
+    check_output_path(output_path)
+    p = the_plan or plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
+                         precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit)
+    out_abs = check_output_path(output_path, p.stage)
+    check_memory(p, max_memory, levels)
+    preflight(p, device=device, precision=precision, limit=limit, normals=normals)
+
+    custom = {"warpSubdiv": {
+        "version": __version__, "levels": int(levels), "source": os.path.basename(input_path),
+        "prims": Vt.StringArray([sp.path for sp in p.prims]),
+        "rules": Vt.StringArray(sorted({sp.rules for sp in p.prims})),
+        "schemes": Vt.StringArray(sorted({sp.scheme for sp in p.prims})), "limitPoints": bool(limit),
+        "normals": bool(normals), "flattened": bool(flatten),
+    }}
+    if frames is not None:
+        custom["warpSubdiv"]["frames"] = ":".join("" if v is None else f"{v:g}" for v in frames)
+    work = _Work(p, progress)
+    warnings = list(p.warnings)
+    layer = OutputLayer(out_abs, p.stage, custom)
+    reports = []
+    try:
+        for i, sp in enumerate(p.prims):
+            t0 = _time.perf_counter()
+            rep = _refine_prim(sp, layer, levels, device, precision, limit, normals, warnings, work,
+                               work.weights[i], f"[{i + 1}/{len(p.prims)}] {sp.path}")
+            rep.seconds = _time.perf_counter() - t0
+            reports.append(rep)
+        if progress is not None:
+            progress(1.0, "writing " + os.path.basename(out_abs))
+        layer.commit(flatten=flatten)
+    except BaseException:
+        layer.discard()
+        raise
+    return Result(out_abs, reports, warnings, _time.perf_counter() - start, p.predicted_bytes)
+
+
+def _refine_prim(sp: SubdivPrim, layer: OutputLayer, levels, device, precision, limit, normals, warnings, work,
+                 weights, label) -> PrimReport:
+    kw = _refiner_kwargs(sp, device, precision)
+    refiner = _make_refiner(sp, levels, kw)
+    counts, indices = refiner.topology()
+    fmap = FaceMap(sp.mesh, levels, sp.scheme, "edge-and-corner" if sp.scheme == "bilinear" else sp.boundary)
+    fmap.check(counts)
+    n_out = refiner.num_vertices
+    w_tables, w_sample = weights
+    work.step(w_tables, f"{label}: {levels} levels")
+    prim = layer.prim(sp.path)
+    mesh = sp.mesh
+    complete = vertices_used(indices, n_out)
+
+    def linear_field(values):
+        """Bilinear refinement of per-vertex data (varying primvars, bilinear meshes)."""
+        corners = fmap.refine_corners(np.asarray(values, dtype=np.float64)[mesh.face_vertex_indices])
+        fill = None if complete else refiner.evaluate(values)
+        return corners_to_vertices(corners, indices, n_out, fill)
+
+    def positions(pts):
+        """Refined (or limit) points and limit normals (or None) of control points ``pts``."""
+        if sp.scheme == "bilinear":
+            return linear_field(pts), None
+        refined = refiner.evaluate(pts)
+        nrm = refiner.limit_normals(refined) if normals else None
+        if nrm is not None and sp.orientation == "leftHanded":
+            nrm = -nrm  # refined as right-handed: the front of a left-handed mesh is the other side
+        return (refiner.limit_points(refined) if limit else refined), nrm
+
+    def vectors(data):
+        """Velocities / accelerations: the derivatives of the points, so the same linear maps."""
+        if sp.scheme == "bilinear":
+            return linear_field(data)
+        refined = refiner.evaluate(data)
+        return refiner.limit_points(refined) if limit else refined
+
+    # topology and subdivision attributes
+    layer.set(layer.attr(prim, "subdivisionScheme", T.Token, uniform=True), "none")
+    layer.set(layer.attr(prim, "faceVertexCounts", T.IntArray), int_array(counts))
+    layer.set(layer.attr(prim, "faceVertexIndices", T.IntArray), int_array(indices))
+    for name in SUBDIVISION_ATTRIBUTES:
+        attr = sp.prim.GetAttribute(name)
+        layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
+    for name in sp.subdiv_attributes:
+        attr = sp.prim.GetAttribute(name)
+        layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform, custom=True)
+
+    # points, extent, normals: the default, then every selected time sample
+    times = [DEFAULT] + list(sp.point_times)
+    pts_spec = layer.attr(prim, "points", T.Point3fArray)
+    ext_spec = layer.attr(prim, "extent", T.Float3Array)
+    nrm_spec = None
+    if normals and sp.scheme != "bilinear":
+        nrm_spec = layer.attr(prim, "normals", T.Normal3fArray)
+        nrm_spec.SetInfo("interpolation", "vertex")
+    elif normals:
+        warnings.append(f"{sp.path}: a bilinear mesh has no limit normals; none written")
+    for t in times:
+        pos, nrm = positions(sp.points_at(t))
+        value = vec3f_array(pos)
+        if t == DEFAULT:
+            layer.set(pts_spec, value)
+            layer.set(ext_spec, extent_of(pos))
+            if nrm_spec is not None:
+                layer.set(nrm_spec, vec3f_array(nrm))
+        else:
+            layer.set(pts_spec, samples=[(t, value)])
+            layer.set(ext_spec, samples=[(t, extent_of(pos))])
+            if nrm_spec is not None:
+                layer.set(nrm_spec, samples=[(t, vec3f_array(nrm))])
+            work.step(w_sample, f"{label}: time {t:g}")
+    if not sp.point_times:
+        work.step(w_sample, f"{label}: points")
+    for name in sp.authored_normals:
+        if name == "normals" and nrm_spec is not None:
+            continue
+        attr = sp.prim.GetAttribute(name)
+        layer.block(prim, name, attr.GetTypeName())
+        if name == "primvars:normals" and sp.prim.GetAttribute(name + ":indices"):
+            layer.block(prim, name + ":indices", T.IntArray)
+
+    # velocities and accelerations: derivatives of the points, refined by the same (linear) rules
+    for name, arr_times in sp.point_arrays.items():
+        spec = layer.attr(prim, name, sp.prim.GetAttribute(name).GetTypeName())
+        for t in [DEFAULT] + list(arr_times):
+            data = sp.vector_array_at(name, t)
+            value = vec3f_array(vectors(data))
+            layer.set(spec, value if t == DEFAULT else None, None if t == DEFAULT else [(t, value)])
+    for name, reason in sp.dropped:
+        _drop(sp, layer, prim, name, reason, warnings)
+
+    # primvars
+    fv_refined = []
+    for pv in sp.primvars:
+        try:
+            _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field)
+        except SubdivInputError as exc:
+            _drop(sp, layer, prim, pv.name, str(exc).split(": ", 1)[-1], warnings)
+            continue
+        if pv.interpolation == "faceVarying":
+            fv_refined.append(pv.name.split(":", 1)[1])
+    if fv_refined:
+        mode = sp.prim.GetAttribute("faceVaryingLinearInterpolation").Get() or "cornersPlus1"
+        if mode != "all":
+            warnings.append(
+                f"{sp.path}: face-varying primvars ({', '.join(fv_refined)}) are interpolated bilinearly per face "
+                f"(as faceVaryingLinearInterpolation 'all'); the mesh's {mode!r} is not supported yet"
+            )
+
+    # face subsets
+    for subset in sp.subsets:
+        _write_subset(sp, subset, layer, fmap, warnings)
+
+    return PrimReport(sp.path, sp.scheme, sp.rules if sp.scheme != "bilinear" else "-", mesh.num_faces, len(counts),
+                      mesh.num_vertices, n_out, len(sp.point_times) or 1)
+
+
+def _drop(sp, layer, prim, name, reason, warnings):
+    attr = sp.prim.GetAttribute(name)
+    layer.block(prim, name, attr.GetTypeName(), custom=attr.IsCustom())
+    if sp.prim.GetAttribute(name + ":indices").HasAuthoredValue():
+        layer.block(prim, name + ":indices", T.IntArray)
+    warnings.append(f"{sp.path}: {name} dropped ({reason})")
+
+
+def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field):
+    mesh = sp.mesh
+    where = sp.path
+    n_expected = {"vertex": mesh.num_vertices, "varying": mesh.num_vertices, "uniform": mesh.num_faces,
+                  "faceVarying": len(mesh.face_vertex_indices)}[pv.interpolation]
+    spec = layer.attr(prim, pv.name, pv.type_name, custom=pv.primvar.GetAttr().IsCustom())
+    for t in [DEFAULT] + list(pv.times):
+        raw, raw_idx = pv.raw(t)
+        if raw is None:
+            if t == DEFAULT:
+                continue
+            raise SubdivInputError(f"{where}: {pv.name} has no value at time {t:g}")
+        like = np.asarray(raw)
+        if pv.interpolation == "uniform" and pv.indexed:
+            idx = np.asarray(raw_idx, dtype=np.int64)
+            if len(idx) != n_expected * pv.element_size:
+                raise SubdivInputError(f"{where}: {pv.name}:indices has {len(idx)} entries for {n_expected} faces")
+            new_idx = idx.reshape(n_expected, -1)[fmap.parent].reshape(-1)
+            idx_spec = layer.attr(prim, pv.name + ":indices", T.IntArray)
+            layer.set(idx_spec, *_default_or_sample(t, int_array(new_idx)))
+            continue
+        rows = pv.flattened(t, where)
+        if len(rows) != n_expected:
+            raise SubdivInputError(f"{where}: {pv.name} has {len(rows)} {pv.interpolation} values, the mesh needs "
+                                   f"{n_expected}")
+        if pv.interpolation == "uniform":
+            out = rows[fmap.parent]
+        elif pv.interpolation == "faceVarying":
+            out = fmap.refine_corners(rows.astype(np.float64))
+        elif pv.interpolation == "varying" or sp.scheme == "bilinear":
+            out = linear_field(rows.astype(np.float64))
+        else:  # vertex: the subdivision rules (with flatness), but prescribed normals move positions only
+            out = _evaluate(refiner, rows.astype(np.float64), normal_control=False)
+        shaped = np.asarray(out).reshape((len(out) * pv.element_size,) + like.shape[1:])
+        layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))
+        if pv.indexed and t == DEFAULT:
+            layer.block(prim, pv.name + ":indices", T.IntArray)
+
+
+def _evaluate(refiner, data, normal_control):
+    if "normal_control" in inspect.signature(refiner.evaluate).parameters:
+        return refiner.evaluate(data, normal_control=normal_control)
+    return refiner.evaluate(data)
+
+
+def _default_or_sample(t, value):
+    return (value, None) if t == DEFAULT else (None, [(t, value)])
+
+
+def _write_subset(sp, subset, layer, fmap, warnings):
+    prim = layer.prim(subset.path)
+    spec = layer.attr(prim, "indices", T.IntArray)
+    n = sp.mesh.num_faces
+    for t in [DEFAULT] + list(subset.times):
+        value = subset.attr.Get(t)
+        if value is None:
+            continue
+        ids = np.asarray(value, dtype=np.int64)
+        bad = np.flatnonzero((ids < 0) | (ids >= n))
+        if len(bad):
+            layer.block(prim, "indices", T.IntArray)
+            warnings.append(f"{subset.path}: indices[{bad[0]}] = {ids[bad[0]]} is not a face of the mesh; the subset "
+                            "is dropped")
+            return
+        member = np.zeros(n, dtype=bool)
+        member[ids] = True
+        layer.set(spec, *_default_or_sample(t, int_array(np.flatnonzero(member[fmap.parent]))))
+
+
+__all__ = ["plan", "refine_usd", "check_memory", "preflight", "Plan", "Result", "PrimReport", "MemoryGuardError",
+           "MissingFeatureError", "SUBDIV_ATTRIBUTES"]

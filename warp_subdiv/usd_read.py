@@ -1,0 +1,636 @@
+"""Reading subdivision meshes from USD: every ``UsdGeom.Mesh`` with a subdivision scheme becomes a tagged
+:class:`warp_subdiv.Mesh`, with its options, time samples and primvars.
+
+USD attributes read (``UsdGeom.Mesh``): ``points``, ``faceVertexCounts``, ``faceVertexIndices``,
+``subdivisionScheme``, ``interpolateBoundary``, ``orientation``, ``holeIndices``, ``creaseIndices`` /
+``creaseLengths`` / ``creaseSharpnesses`` (one sharpness per crease or per crease edge), ``cornerIndices`` /
+``cornerSharpnesses``, ``triangleSubdivisionRule``, ``faceVaryingLinearInterpolation``, ``velocities``,
+``accelerations``, ``normals`` and the primvars; and warp-subdiv's own tags in the ``subdiv:`` namespace
+(see :data:`SUBDIV_ATTRIBUTES`). Errors are :class:`SubdivInputError` naming the prim and the attribute.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+from pxr import Sdf, Tf, Usd, UsdGeom
+
+from .errors import SubdivInputError
+from .mesh import INFINITE_SHARPNESS, Mesh
+
+#: USD subdivisionScheme -> the scheme warp-subdiv refines with ("none" meshes are left alone).
+USD_SCHEMES = {"catmullClark": "catmull-clark", "loop": "loop", "bilinear": "bilinear"}
+#: USD interpolateBoundary -> Refiner boundary option.
+USD_BOUNDARY = {"none": "none", "edgeOnly": "edge-only", "edgeAndCorner": "edge-and-corner"}
+RULE_SETS = ("piecewise-smooth", "opensubdiv")
+
+#: warp-subdiv's own per-mesh attributes: name -> (accepted USD types, meaning).
+SUBDIV_ATTRIBUTES = {
+    "subdiv:rules": (("token", "string"), "rule set: piecewise-smooth (default) or opensubdiv"),
+    "subdiv:concave": (("int2[]",), "concave sectors: (corner vertex, neighbour vertex) pairs; the sector of the "
+                                    "corner that contains the edge to the neighbour is concave"),
+    "subdiv:normalIndices": (("int[]",), "vertices with a prescribed normal"),
+    "subdiv:normals": (("normal3f[]", "vector3f[]", "float3[]"), "the prescribed unit normals, one per "
+                                                                 "subdiv:normalIndices entry"),
+    "subdiv:flatness": (("float", "double", "float[]", "double[]"), "flatness s in [0, 1] of the crease and "
+                        "corner sectors: one value for the mesh, or one per control point (NaN: the optimal s*); "
+                        "unset: s* everywhere"),
+    "subdiv:normalStrength": (("float", "double"), "normal control strength s in [0, 1]"),
+}
+
+#: Attributes whose values define the control mesh's topology and tags: they must not change over time.
+TOPOLOGY_ATTRIBUTES = ("faceVertexCounts", "faceVertexIndices", "holeIndices", "creaseIndices", "creaseLengths",
+                       "creaseSharpnesses", "cornerIndices", "cornerSharpnesses", "subdiv:concave",
+                       "subdiv:normalIndices", "subdiv:normals")
+
+#: Subdivision attributes of UsdGeom.Mesh: the writer blocks them all on the refined mesh.
+SUBDIVISION_ATTRIBUTES = ("interpolateBoundary", "faceVaryingLinearInterpolation", "triangleSubdivisionRule",
+                          "creaseIndices", "creaseLengths", "creaseSharpnesses", "cornerIndices",
+                          "cornerSharpnesses", "holeIndices")
+
+#: Value types that interpolate linearly (the primvar's scalar type name).
+_LINEAR_SCALARS = re.compile(r"^(half|float|double)[234]?$|^(color|normal|point|vector)[34][hfd]$|^texCoord[23][hfd]$")
+
+DEFAULT = Usd.TimeCode.Default()
+
+
+def tf_message(exc: BaseException) -> str:
+    """The useful part of a (multi-line) USD error: the first quoted message, without C++ namespaces."""
+    text = str(exc)
+    msgs = re.findall(r" : '(.*?)'(?:\n|$)", text, re.S)
+    msg = msgs[0] if msgs else text.strip()
+    msg = re.sub(r"pxrInternal_v\d+_\d+__pxrReserved__::", "", msg)
+    return " ".join(msg.split())
+
+
+@dataclass
+class Primvar:
+    """A primvar of a subdivision mesh that the refined mesh needs (its size depends on the topology)."""
+
+    name: str  # e.g. "primvars:st"
+    interpolation: str
+    type_name: Sdf.ValueTypeName
+    element_size: int
+    indexed: bool
+    times: list  # selected time samples of values and indices ([] = static)
+    primvar: UsdGeom.Primvar
+
+    @property
+    def linear(self) -> bool:
+        """Values that can be interpolated (floating point vectors; not ints, strings, quaternions, matrices)."""
+        return bool(_LINEAR_SCALARS.match(str(self.type_name.scalarType)))
+
+    def raw(self, time):
+        """(values, indices or None) at ``time``, as USD holds them."""
+        values = self.primvar.Get(time)
+        if values is None and time == DEFAULT and self.times:
+            values = self.primvar.Get(self.times[0])
+        indices = self.primvar.GetIndices(time) if self.indexed else None
+        if self.indexed and indices is None and time == DEFAULT and self.times:
+            indices = self.primvar.GetIndices(self.times[0])
+        return values, indices
+
+    def flattened(self, time, where: str) -> np.ndarray:
+        """Element rows (n, elementSize * components) with indices applied; SubdivInputError if malformed."""
+        values, indices = self.raw(time)
+        if values is None:
+            raise SubdivInputError(f"{where}: {self.name} has no value")
+        arr = np.asarray(values)
+        es = self.element_size
+        rows = arr.reshape(len(arr), -1)
+        if len(rows) % es:
+            raise SubdivInputError(f"{where}: {self.name} has {len(rows)} values, not a multiple of elementSize {es}")
+        rows = rows.reshape(len(rows) // es, -1)
+        if indices is not None:
+            idx = np.asarray(indices, dtype=np.int64)
+            bad = np.flatnonzero((idx < 0) | (idx >= len(rows)))
+            if len(bad):
+                raise SubdivInputError(
+                    f"{where}: {self.name}:indices[{bad[0]}] = {idx[bad[0]]} is outside the {len(rows)} values"
+                )
+            rows = rows[idx]
+        return rows
+
+
+@dataclass
+class FaceSubset:
+    """A GeomSubset of faces under the mesh (material bindings use them): its indices are remapped."""
+
+    path: str
+    attr: Usd.Attribute
+    times: list
+
+
+@dataclass
+class SubdivPrim:
+    """One subdivision mesh of the stage, read and validated."""
+
+    path: str
+    prim: Usd.Prim
+    usd_scheme: str
+    scheme: str  # "catmull-clark", "loop" or "bilinear"
+    mesh: Mesh
+    boundary: str
+    rules: str
+    flatness: object = None  # None, a float, or one float per control point
+    normal_strength: float | None = None
+    orientation: str = "rightHanded"
+    point_times: list = field(default_factory=list)  # selected time samples of points ([] = static)
+    points_default: np.ndarray | None = None
+    point_arrays: dict = field(default_factory=dict)  # "velocities"/"accelerations" -> times ([] = static)
+    primvars: list = field(default_factory=list)
+    dropped: list = field(default_factory=list)  # (attribute name, reason): blocked on the output
+    subsets: list = field(default_factory=list)
+    authored_normals: list = field(default_factory=list)  # "normals", "primvars:normals" when authored
+    subdiv_attributes: list = field(default_factory=list)  # authored subdiv:* attribute names
+    warnings: list = field(default_factory=list)
+    semi_sharp: int = 0  # finite sharpness tags left as they are (the refiner may refuse them)
+    semi_sharp_detail: str = ""  # the first of them, in USD terms
+
+    def points_at(self, time) -> np.ndarray:
+        """Control points at ``time`` (float64 (n, 3)), checked against the topology."""
+        if time == DEFAULT:
+            pts = self.points_default
+        else:
+            value = self.prim.GetAttribute("points").Get(time)
+            pts = None if value is None else np.asarray(value, dtype=np.float64)
+        return self._check_rows(pts, "points", time)
+
+    def vector_array_at(self, name: str, time) -> np.ndarray:
+        """velocities / accelerations at ``time`` (float64 (n, 3))."""
+        attr = self.prim.GetAttribute(name)
+        value = attr.Get(time)
+        if value is None and time == DEFAULT and self.point_arrays.get(name):
+            value = attr.Get(self.point_arrays[name][0])
+        pts = None if value is None else np.asarray(value, dtype=np.float64)
+        return self._check_rows(pts, name, time)
+
+    def _check_rows(self, pts, name, time):
+        when = "" if time == DEFAULT else f" at time {time:g}"
+        if pts is None:
+            raise SubdivInputError(f"{self.path}: {name} has no value{when}")
+        pts = pts.reshape(len(pts), -1)
+        if pts.shape != (self.mesh.num_vertices, 3):
+            raise SubdivInputError(
+                f"{self.path}: {name}{when} has {len(pts)} entries, the mesh has {self.mesh.num_vertices} points"
+            )
+        bad = np.flatnonzero(~np.all(np.isfinite(pts), axis=1))
+        if len(bad):
+            raise SubdivInputError(f"{self.path}: {name}[{bad[0]}]{when} is not finite")
+        return pts
+
+
+def parse_frames(text: str | None):
+    """'A:B', 'A:', ':B' or 'A' -> (start, end) with None for an open end; None -> None (all samples)."""
+    if text is None:
+        return None
+    parts = str(text).split(":")
+    try:
+        if len(parts) == 1:
+            a = b = float(parts[0])
+        elif len(parts) == 2:
+            a = float(parts[0]) if parts[0].strip() else None
+            b = float(parts[1]) if parts[1].strip() else None
+        else:
+            raise ValueError
+    except ValueError:
+        raise SubdivInputError(f"--frames {text!r}: give A:B, A:, :B or A (time codes)") from None
+    if a is not None and b is not None and a > b:
+        raise SubdivInputError(f"--frames {text!r}: the start is after the end")
+    return a, b
+
+
+def _in_frames(times, frames) -> list:
+    if frames is None:
+        return [float(t) for t in times]
+    a, b = frames
+    return [float(t) for t in times if (a is None or t >= a) and (b is None or t <= b)]
+
+
+def open_stage(path: str) -> Usd.Stage:
+    """Open a USD file with everything loaded; SubdivInputError with one line when it cannot be read."""
+    try:
+        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
+    except Tf.ErrorException as exc:
+        raise SubdivInputError(f"{path}: cannot open as USD: {tf_message(exc)}") from None
+    if stage is None:
+        raise SubdivInputError(f"{path}: cannot open as USD")
+    return stage
+
+
+def _get(attr: Usd.Attribute, time):
+    """The attribute's value at ``time``; at the default time, its first time sample if it has no default."""
+    if not attr or not attr.IsValid():
+        return None
+    value = attr.Get(time)
+    if value is None and time == DEFAULT and attr.GetNumTimeSamples() > 0:
+        value = attr.Get(attr.GetTimeSamples()[0])
+    return value
+
+
+def _ints(value) -> np.ndarray:
+    return np.zeros(0, dtype=np.int64) if value is None else np.asarray(value, dtype=np.int64).reshape(-1)
+
+
+def _floats(value) -> np.ndarray:
+    return np.zeros(0, dtype=np.float64) if value is None else np.asarray(value, dtype=np.float64).reshape(-1)
+
+
+def _type_of(attr: Usd.Attribute) -> str:
+    return str(attr.GetTypeName())
+
+
+def mesh_prims(stage: Usd.Stage, prim_paths=None, where: str = ""):
+    """(meshes, instanced): the UsdGeom.Mesh prims at or under ``prim_paths`` (default: the whole stage),
+    and the paths of meshes inside instances (which cannot be overridden per instance)."""
+    roots = []
+    if prim_paths:
+        for p in prim_paths:
+            if not Sdf.Path.IsValidPathString(p) or not Sdf.Path(p).IsAbsolutePath():
+                raise SubdivInputError(f"--prim {p!r}: not an absolute prim path such as /World/Mesh")
+            prim = stage.GetPrimAtPath(p)
+            if not prim or not prim.IsValid():
+                raise SubdivInputError(f"{where}: no prim at {p}")
+            roots.append(prim)
+    else:
+        roots.append(stage.GetPseudoRoot())
+    meshes, instanced, seen = [], [], set()
+    for root in roots:
+        for prim in Usd.PrimRange(root, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
+            if not prim.IsA(UsdGeom.Mesh) or prim.GetPath() in seen:
+                continue
+            seen.add(prim.GetPath())
+            (instanced if prim.IsInstanceProxy() else meshes).append(prim)
+    return meshes, instanced
+
+
+def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "error", scheme: str = "auto",
+              rules: str | None = None, boundary: str | None = None) -> SubdivPrim | None:
+    """Read one UsdGeom.Mesh; None when its subdivisionScheme is "none" (or it is empty).
+
+    ``scheme``: "auto" (the mesh's subdivisionScheme), "catmull-clark" or "loop" (forced); ``rules`` and
+    ``boundary`` override the mesh's ``subdiv:rules`` and ``interpolateBoundary`` when given.
+    ``semi_sharp``: "error" (raise NotImplementedError naming the tag) or "sharp" (treat finite sharpness as
+    infinite, with a warning).
+    """
+    path = str(prim.GetPath())
+    geom = UsdGeom.Mesh(prim)
+    warn: list = []
+    usd_scheme = geom.GetSubdivisionSchemeAttr().Get() or "catmullClark"
+    if usd_scheme == "none":
+        return None
+    if usd_scheme not in USD_SCHEMES:
+        raise SubdivInputError(
+            f"{path}: subdivisionScheme {usd_scheme!r} is not one of catmullClark, loop, bilinear, none"
+        )
+    chosen = USD_SCHEMES[usd_scheme] if scheme == "auto" else scheme
+
+    # times: points samples in the selected frames decide what is written
+    points_attr = geom.GetPointsAttr()
+    all_times = points_attr.GetTimeSamples()
+    point_times = _in_frames(all_times, frames)
+    if all_times and not point_times:
+        raise SubdivInputError(
+            f"{path}: points has {len(all_times)} time samples ({all_times[0]:g} to {all_times[-1]:g}), "
+            f"none in --frames {_frames_text(frames)}"
+        )
+    ref_time = point_times[0] if point_times else DEFAULT
+
+    counts = _get(geom.GetFaceVertexCountsAttr(), ref_time)
+    indices = _get(geom.GetFaceVertexIndicesAttr(), ref_time)
+    pts = _get(points_attr, ref_time) if point_times else _get(points_attr, DEFAULT)
+    if counts is None or indices is None or len(counts) == 0:
+        if pts is None or len(pts) == 0:
+            return None  # an empty mesh: nothing to refine
+        raise SubdivInputError(f"{path}: faceVertexCounts / faceVertexIndices have no value")
+    if pts is None:
+        raise SubdivInputError(f"{path}: points has no value")
+    counts = _ints(counts)
+    indices = _ints(indices)
+    points = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
+
+    # boundary, orientation, rules
+    if boundary is None:
+        ib = geom.GetInterpolateBoundaryAttr().Get() or "edgeAndCorner"
+        if ib not in USD_BOUNDARY:
+            raise SubdivInputError(f"{path}: interpolateBoundary {ib!r} is not one of none, edgeOnly, edgeAndCorner")
+        boundary = USD_BOUNDARY[ib]
+    orientation = geom.GetOrientationAttr().Get() or "rightHanded"
+    if orientation not in ("rightHanded", "leftHanded"):
+        raise SubdivInputError(f"{path}: orientation {orientation!r} is not rightHanded or leftHanded")
+
+    subdiv = _read_subdiv_attributes(prim, path, len(points), ref_time, warn)
+    if rules is None:
+        rules = subdiv.get("rules", "piecewise-smooth")
+
+    # creases: one sharpness per crease or per crease edge; sharpness <= 0 means smooth (not tagged)
+    c_idx = _ints(_get(geom.GetCreaseIndicesAttr(), ref_time))
+    c_len = _ints(_get(geom.GetCreaseLengthsAttr(), ref_time))
+    c_sharp = _floats(_get(geom.GetCreaseSharpnessesAttr(), ref_time))
+    pairs, pair_sharp, pair_crease = _crease_pairs(path, c_idx, c_len, c_sharp)
+    k_idx = _ints(_get(geom.GetCornerIndicesAttr(), ref_time))
+    k_sharp = _floats(_get(geom.GetCornerSharpnessesAttr(), ref_time))
+    if len(k_sharp) != len(k_idx):
+        raise SubdivInputError(
+            f"{path}: cornerSharpnesses has {len(k_sharp)} values for {len(k_idx)} cornerIndices"
+        )
+    holes = _ints(_get(geom.GetHoleIndicesAttr(), ref_time))
+    _check_range(path, "creaseIndices", c_idx, len(points))
+    _check_range(path, "cornerIndices", k_idx, len(points))
+    _check_range(path, "holeIndices", holes, len(counts), what="face")
+
+    semi = int(np.count_nonzero((pair_sharp > 0) & (pair_sharp < INFINITE_SHARPNESS))
+               + np.count_nonzero((k_sharp > 0) & (k_sharp < INFINITE_SHARPNESS)))
+    if semi and semi_sharp == "sharp":
+        pair_sharp = np.where(pair_sharp > 0, INFINITE_SHARPNESS, pair_sharp)
+        k_sharp = np.where(k_sharp > 0, INFINITE_SHARPNESS, k_sharp)
+        warn.append(f"{semi} semi-sharp crease edges / corners are treated as infinitely sharp (--semi-sharp-as-sharp)")
+    keep_c = pair_sharp > 0
+    keep_k = k_sharp > 0
+
+    normals = None
+    if "normalIndices" in subdiv:
+        ids, vecs = subdiv["normalIndices"], subdiv["normals"]
+        if orientation == "leftHanded":
+            vecs = -vecs  # the refiner's normals are right-handed; the writer flips its output back
+        normals = (ids, vecs)
+
+    kwargs = dict(
+        creases=pairs[keep_c] if np.any(keep_c) else None,
+        crease_sharpness=pair_sharp[keep_c] if np.any(keep_c) else None,
+        corners=k_idx[keep_k] if np.any(keep_k) else None,
+        corner_sharpness=k_sharp[keep_k] if np.any(keep_k) else None,
+        concave=subdiv.get("concave"),
+        normals=normals,
+        holes=holes if len(holes) else None,
+    )
+    if chosen == "bilinear":
+        kwargs.update(creases=None, crease_sharpness=None, corners=None, corner_sharpness=None, concave=None,
+                      normals=None)
+    try:
+        mesh = Mesh(points, counts, indices, **kwargs)
+    except SubdivInputError as exc:
+        raise SubdivInputError(_usd_terms(path, str(exc), pair_crease[keep_c])) from None
+
+    tri_rule = geom.GetTriangleSubdivisionRuleAttr().Get() or "catmullClark"
+    if chosen == "catmull-clark" and tri_rule == "smooth" and np.any(counts == 3):
+        warn.append("triangleSubdivisionRule 'smooth' is not supported yet: triangles get the plain "
+                    "Catmull-Clark rule")
+    if chosen == "loop" and not np.all(counts == 3):
+        warn.append(f"{int(np.count_nonzero(counts != 3))} non-triangle faces are fan-triangulated for Loop")
+
+    sp = SubdivPrim(
+        path=path, prim=prim, usd_scheme=usd_scheme, scheme=chosen, mesh=mesh, boundary=boundary, rules=rules,
+        flatness=subdiv.get("flatness"), normal_strength=subdiv.get("normalStrength"), orientation=orientation,
+        point_times=point_times, warnings=warn, semi_sharp=semi if semi_sharp != "sharp" else 0,
+        subdiv_attributes=subdiv.get("_names", []),
+    )
+    sp.points_default = np.asarray(_get(points_attr, DEFAULT), dtype=np.float64).reshape(-1, 3)
+    if semi and semi_sharp != "sharp":
+        sp.semi_sharp_detail = _semi_sharp_detail(path, pairs, pair_sharp, pair_crease, k_idx, k_sharp)
+    _check_topology_constant(sp, geom, ref_time, frames)
+    for name in ("velocities", "accelerations"):
+        attr = prim.GetAttribute(name)
+        if attr and attr.HasAuthoredValue():
+            times = _in_frames(attr.GetTimeSamples(), frames)
+            if attr.GetNumTimeSamples() and not times:
+                sp.dropped.append((name, "no time samples in --frames"))
+                continue
+            sp.point_arrays[name] = times
+    for name in ("normals", "primvars:normals"):
+        attr = prim.GetAttribute(name)
+        if attr and attr.HasAuthoredValue():
+            sp.authored_normals.append(name)
+    _read_primvars(sp, geom, frames)
+    _read_subsets(sp, geom, frames)
+    return sp
+
+
+def _frames_text(frames) -> str:
+    a, b = frames
+    return f"{'' if a is None else f'{a:g}'}:{'' if b is None else f'{b:g}'}"
+
+
+def _check_range(path, name, ids, n, what="vertex"):
+    bad = np.flatnonzero((ids < 0) | (ids >= n))
+    if len(bad):
+        raise SubdivInputError(f"{path}: {name}[{bad[0]}] = {ids[bad[0]]} is not a {what} of the mesh "
+                               f"(it has {n})")
+
+
+def _crease_pairs(path, idx, lengths, sharp):
+    """USD creases -> per-edge vertex pairs, their sharpness and the USD crease each came from."""
+    if len(lengths) == 0 and len(idx) == 0:
+        return np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0, np.int64)
+    bad = np.flatnonzero(lengths < 2)
+    if len(bad):
+        raise SubdivInputError(f"{path}: creaseLengths[{bad[0]}] = {lengths[bad[0]]}; a crease needs at least 2 vertices")
+    if int(lengths.sum()) != len(idx):
+        raise SubdivInputError(
+            f"{path}: creaseLengths add up to {int(lengths.sum())} but creaseIndices has {len(idx)} entries"
+        )
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    crease = np.repeat(np.arange(len(lengths)), lengths - 1)
+    rank = np.arange(len(crease)) - np.repeat(np.concatenate([[0], np.cumsum(lengths - 1)[:-1]]), lengths - 1)
+    first = starts[crease] + rank
+    pairs = np.stack([idx[first], idx[first + 1]], axis=1)
+    if len(sharp) == len(lengths):
+        per_edge = sharp[crease]
+    elif len(sharp) == len(pairs):
+        per_edge = sharp
+    else:
+        per_edge_text = f" or {len(pairs)} (one per crease edge)" if len(pairs) != len(lengths) else ""
+        raise SubdivInputError(
+            f"{path}: creaseSharpnesses has {len(sharp)} values; expected {len(lengths)} (one per crease)"
+            + per_edge_text
+        )
+    bad = np.flatnonzero(~np.isfinite(per_edge))
+    if len(bad):
+        raise SubdivInputError(f"{path}: creaseSharpnesses has a value that is not finite (crease {crease[bad[0]]})")
+    return pairs, per_edge, crease
+
+
+def _semi_sharp_detail(path, pairs, pair_sharp, pair_crease, k_idx, k_sharp) -> str:
+    finite = np.flatnonzero((pair_sharp > 0) & (pair_sharp < INFINITE_SHARPNESS))
+    if len(finite):
+        i = finite[0]
+        return (f"{path}: crease {pair_crease[i]} (edge {pairs[i, 0]}-{pairs[i, 1]}) has sharpness {pair_sharp[i]:g}; "
+                "semi-sharp creases are not supported yet (pass --semi-sharp-as-sharp to treat them as infinitely "
+                "sharp)")
+    i = np.flatnonzero((k_sharp > 0) & (k_sharp < INFINITE_SHARPNESS))[0]
+    return (f"{path}: corner vertex {k_idx[i]} has sharpness {k_sharp[i]:g}; semi-sharp corners are not "
+            "supported yet (pass --semi-sharp-as-sharp to treat them as infinitely sharp)")
+
+
+# Mesh's messages start with the name of the argument at fault: say which USD attribute that is.
+_MESH_ARGS = (
+    (r"^points|^point \d", "points"),
+    (r"^face_vertex_counts add up|^the mesh has no faces", "faceVertexCounts"),
+    (r"^face \d+ has \d+ vertices", "faceVertexCounts"),
+    (r"^face \d+ corner|^face \d+ uses vertex|^face_vertex_indices|entries? exceed", "faceVertexIndices"),
+    (r"^corner", "cornerIndices"),
+    (r"^hole", "holeIndices"),
+    (r"^concave", "subdiv:concave"),
+    (r"^normals|^prescribed normal|^vertex \d+ has more than one prescribed normal", "subdiv:normalIndices"),
+)
+
+
+def _usd_terms(path: str, message: str, pair_crease: np.ndarray) -> str:
+    m = re.match(r"^crease (\d+) (.*)$", message)
+    if m:
+        i = int(m.group(1))
+        crease = pair_crease[i] if i < len(pair_crease) else i
+        return f"{path}: creaseIndices: crease {crease} edge {m.group(2)}"
+    for pattern, attr in _MESH_ARGS:
+        if re.search(pattern, message):
+            return f"{path}: {attr}: {message}"
+    return f"{path}: {message}"
+
+
+def _read_subdiv_attributes(prim, path, num_points, time, warn) -> dict:
+    out: dict = {"_names": []}
+    for attr in prim.GetAuthoredPropertiesInNamespace("subdiv"):
+        if not isinstance(attr, Usd.Attribute):
+            continue
+        name = attr.GetName()
+        if not attr.HasAuthoredValue():
+            continue
+        out["_names"].append(name)
+        if name not in SUBDIV_ATTRIBUTES:
+            warn.append(f"unknown attribute {name} ignored (known: {', '.join(SUBDIV_ATTRIBUTES)})")
+            continue
+        types, _ = SUBDIV_ATTRIBUTES[name]
+        if _type_of(attr) not in types:
+            raise SubdivInputError(f"{path}: {name} must be {' or '.join(types)}, got {_type_of(attr)}")
+    attr = prim.GetAttribute("subdiv:rules")
+    if attr and attr.HasAuthoredValue():
+        value = str(_get(attr, time))
+        if value not in RULE_SETS:
+            raise SubdivInputError(f"{path}: subdiv:rules {value!r} is not piecewise-smooth or opensubdiv")
+        out["rules"] = value
+    attr = prim.GetAttribute("subdiv:concave")
+    if attr and attr.HasAuthoredValue():
+        out["concave"] = np.asarray(_get(attr, time), dtype=np.int64).reshape(-1, 2)
+        _check_range(path, "subdiv:concave", out["concave"].reshape(-1), num_points)
+    ids_attr, n_attr = prim.GetAttribute("subdiv:normalIndices"), prim.GetAttribute("subdiv:normals")
+    has_ids = bool(ids_attr and ids_attr.HasAuthoredValue())
+    has_n = bool(n_attr and n_attr.HasAuthoredValue())
+    if has_ids != has_n:
+        raise SubdivInputError(f"{path}: subdiv:normalIndices and subdiv:normals must be given together")
+    if has_ids:
+        ids = _ints(_get(ids_attr, time))
+        vecs = np.asarray(_get(n_attr, time), dtype=np.float64).reshape(-1, 3)
+        if len(ids) != len(vecs):
+            raise SubdivInputError(
+                f"{path}: subdiv:normals has {len(vecs)} normals for {len(ids)} subdiv:normalIndices"
+            )
+        _check_range(path, "subdiv:normalIndices", ids, num_points)
+        if len(ids):
+            out["normalIndices"], out["normals"] = ids, vecs
+    attr = prim.GetAttribute("subdiv:flatness")
+    if attr and attr.HasAuthoredValue():
+        value = np.asarray(_get(attr, time), dtype=np.float64)
+        if value.ndim == 1 and len(value) != num_points:
+            raise SubdivInputError(
+                f"{path}: subdiv:flatness has {len(value)} values; give one float, or one per point ({num_points})"
+            )
+        _check_unit_interval(path, "subdiv:flatness", value.reshape(-1), allow_nan=value.ndim == 1)
+        out["flatness"] = float(value) if value.ndim == 0 else value
+    attr = prim.GetAttribute("subdiv:normalStrength")
+    if attr and attr.HasAuthoredValue():
+        value = float(_get(attr, time))
+        _check_unit_interval(path, "subdiv:normalStrength", np.array([value]))
+        out["normalStrength"] = value
+    return out
+
+
+def _check_unit_interval(path, name, values, allow_nan=False):
+    """Values in [0, 1]; NaN (the optimal s* of that vertex's sectors) where ``allow_nan``."""
+    nan = np.isnan(values)
+    bad = np.flatnonzero((nan & (not allow_nan)) | np.isinf(values) | (~nan & ((values < 0) | (values > 1))))
+    if len(bad):
+        where = f"[{bad[0]}]" if len(values) > 1 else ""
+        raise SubdivInputError(f"{path}: {name}{where} = {values[bad[0]]:g} is not in [0, 1]")
+
+
+def _check_topology_constant(sp: SubdivPrim, geom: UsdGeom.Mesh, ref_time, frames) -> None:
+    """Refuse topology or tags that change over the selected frames (see the README: one topology per run)."""
+    for name in TOPOLOGY_ATTRIBUTES:
+        attr = sp.prim.GetAttribute(name)
+        if not attr or attr.GetNumTimeSamples() == 0:
+            continue
+        times = _in_frames(attr.GetTimeSamples(), frames)
+        if frames is not None and frames[0] is not None:
+            times = [frames[0]] + times  # the value held at the start of the range
+        ref = np.asarray(_get(attr, ref_time))
+        for t in times:
+            value = np.asarray(attr.Get(t))
+            if value.shape != ref.shape or not np.array_equal(value, ref):
+                at = "the default time" if ref_time == DEFAULT else f"time {ref_time:g}"
+                raise SubdivInputError(
+                    f"{sp.path}: {name} changes over time (its value at time {t:g} differs from {at}); "
+                    "time-varying topology is not supported: refine each stretch of frames with one topology "
+                    "separately (--frames)"
+                )
+
+
+def _read_primvars(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
+    api = UsdGeom.PrimvarsAPI(sp.prim)
+    for pv in api.GetPrimvarsWithAuthoredValues():
+        name = pv.GetAttr().GetName()
+        interp = pv.GetInterpolation()
+        if interp == UsdGeom.Tokens.constant or name == "primvars:normals":
+            continue  # constant: inherited as is; primvars:normals: see authored_normals
+        type_name = pv.GetTypeName()
+        if not type_name.isArray:
+            sp.dropped.append((name, f"a {interp} primvar must be an array, it is {type_name}"))
+            continue
+        times = set(pv.GetAttr().GetTimeSamples())
+        indexed = pv.IsIndexed()
+        if indexed:
+            times |= set(pv.GetIndicesAttr().GetTimeSamples())
+        all_times = sorted(times)
+        sel = _in_frames(all_times, frames)
+        if all_times and not sel:
+            sp.dropped.append((name, "no time samples in --frames"))
+            continue
+        es = pv.GetElementSize() or 1
+        p = Primvar(name, str(interp), type_name, int(es), bool(indexed), sel, pv)
+        if interp not in ("vertex", "varying", "uniform", "faceVarying"):
+            sp.dropped.append((name, f"unknown interpolation {interp!r}"))
+            continue
+        if interp != "uniform" and not p.linear:
+            sp.dropped.append((name, f"{interp} values of type {type_name} cannot be interpolated"))
+            continue
+        sp.primvars.append(p)
+
+
+def _read_subsets(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
+    for subset in UsdGeom.Subset.GetAllGeomSubsets(geom):
+        et = subset.GetElementTypeAttr().Get()
+        attr = subset.GetIndicesAttr()
+        path = str(subset.GetPath())
+        if et == UsdGeom.Tokens.face:
+            times = _in_frames(attr.GetTimeSamples(), frames)
+            sp.subsets.append(FaceSubset(path, attr, times))
+        elif et == "point":
+            continue  # refined vertex i is the child of control vertex i: point ids keep their meaning
+        else:
+            sp.warnings.append(f"GeomSubset {path} with elementType {et!r} is left as is (not remapped)")
+
+
+def summarize_tags(sp: SubdivPrim) -> str:
+    """One line: the tags a mesh carries (for `info`)."""
+    m = sp.mesh
+    parts = [f"{len(m.creases)} crease edges", f"{len(m.corners)} corners", f"{len(m.concave)} concave",
+             f"{len(m.holes)} holes", f"{len(m.normal_vertices)} normals"]
+    if sp.flatness is not None:
+        parts.append("flatness " + (f"{sp.flatness:g}" if isinstance(sp.flatness, float) else "per point"))
+    if sp.normal_strength is not None:
+        parts.append(f"normal strength {sp.normal_strength:g}")
+    return ", ".join(parts)
+
+
+__all__ = ["SubdivPrim", "Primvar", "FaceSubset", "read_mesh", "mesh_prims", "open_stage", "parse_frames",
+           "tf_message", "SUBDIV_ATTRIBUTES", "SUBDIVISION_ATTRIBUTES", "USD_SCHEMES", "USD_BOUNDARY"]

@@ -1,0 +1,196 @@
+"""Writing the refined meshes: a new layer that sublayers the input and overrides each refined mesh in place.
+
+The layer is authored with Sdf specs only (no second composition of the scene). It is created next to the
+output file under a temporary name, saved, and renamed over the output at the end, so a failure at any point
+leaves no partial file. The input file is only ever opened for reading.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+
+import numpy as np
+from pxr import Sdf, Usd, Vt
+
+from .errors import SubdivInputError
+
+USD_EXTENSIONS = (".usd", ".usda", ".usdc")
+#: Layer metadata that is the input's own business and is not copied to the output layer.
+_NOT_COPIED = {"subLayers", "subLayerOffsets", "primChildren", "comment", "documentation", "customLayerData",
+               "owner", "sessionOwner", "hasOwnedSubLayers"}
+
+
+def check_output_path(output: str, stage: Usd.Stage | None = None) -> str:
+    """Absolute output path; refuses unknown extensions and any file the input stage reads."""
+    ext = os.path.splitext(output)[1].lower()
+    if ext not in USD_EXTENSIONS:
+        raise SubdivInputError(f"{output}: the output of a USD refinement must end in .usd, .usda or .usdc")
+    out = os.path.realpath(os.path.abspath(output))
+    if os.path.isdir(out):
+        raise SubdivInputError(f"{output}: is a folder")
+    if stage is not None:
+        for layer in stage.GetUsedLayers():
+            real = layer.realPath
+            if real and os.path.realpath(real) == out:
+                raise SubdivInputError(f"{output}: the input reads this file ({layer.identifier}); "
+                                       "write the refined layer somewhere else")
+    return out
+
+
+def relative_asset_path(target: str, anchor_dir: str) -> str:
+    """``target`` relative to ``anchor_dir`` as an anchored USD asset path ("./x.usda", "../a/x.usd")."""
+    try:
+        rel = os.path.relpath(target, anchor_dir)
+    except ValueError:  # another drive (Windows)
+        return target.replace(os.sep, "/")
+    rel = rel.replace(os.sep, "/")
+    return rel if rel.startswith("../") else "./" + rel
+
+
+class OutputLayer:
+    """The refined layer under construction, at a temporary path in the output's folder."""
+
+    def __init__(self, output: str, input_stage: Usd.Stage, custom_data: dict | None = None):
+        self.output = output
+        folder = os.path.dirname(output)
+        try:
+            os.makedirs(folder, exist_ok=True)
+            fd, self.tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=os.path.splitext(output)[1], dir=folder)
+            os.close(fd)
+        except OSError as exc:
+            raise SubdivInputError(f"{output}: cannot write there: {exc.strerror or exc}") from None
+        try:
+            self.layer = Sdf.Layer.CreateNew(self.tmp)
+            if self.layer is None:
+                raise SubdivInputError(f"{output}: cannot create a USD layer there")
+            source = input_stage.GetRootLayer()
+            for key in source.pseudoRoot.ListInfoKeys():
+                if key not in _NOT_COPIED:
+                    self.layer.pseudoRoot.SetInfo(key, source.pseudoRoot.GetInfo(key))
+            src_path = source.realPath or source.identifier
+            self.layer.subLayerPaths.append(relative_asset_path(src_path, folder))
+            if custom_data:
+                self.layer.customLayerData = custom_data
+        except BaseException:
+            self.discard()
+            raise
+
+    # -- authoring -------------------------------------------------------------------------------------
+    def prim(self, path: str) -> Sdf.PrimSpec:
+        return Sdf.CreatePrimInLayer(self.layer, Sdf.Path(path))
+
+    def attr(self, prim: Sdf.PrimSpec, name: str, type_name, uniform: bool = False,
+             custom: bool = False) -> Sdf.AttributeSpec:
+        spec = prim.attributes.get(name) if name in prim.attributes else None
+        if spec is None:
+            variability = Sdf.VariabilityUniform if uniform else Sdf.VariabilityVarying
+            spec = Sdf.AttributeSpec(prim, name, type_name, variability, custom)
+        return spec
+
+    def set(self, spec: Sdf.AttributeSpec, default=None, samples=None) -> None:
+        """Author a default value and/or time samples ((time, value) pairs)."""
+        if default is not None:
+            spec.default = default
+        for time, value in samples or ():
+            self.layer.SetTimeSample(spec.path, time, value)
+
+    def block(self, prim: Sdf.PrimSpec, name: str, type_name, uniform: bool = False, custom: bool = False) -> None:
+        """Block the attribute: weaker layers' values (defaults and time samples) no longer show through."""
+        spec = self.attr(prim, name, type_name, uniform, custom)
+        spec.default = Sdf.ValueBlock()
+
+    # -- finishing -------------------------------------------------------------------------------------
+    def commit(self, flatten: bool = False) -> None:
+        """Save (or flatten) to the temporary file and rename it over the output."""
+        try:
+            if flatten:
+                stage = Usd.Stage.Open(self.layer)
+                flat = stage.Flatten()
+                del stage
+                if not flat.Export(self.tmp):
+                    raise SubdivInputError(f"{self.output}: could not write the flattened layer")
+            elif not self.layer.Save():
+                raise SubdivInputError(f"{self.output}: could not save the layer")
+            os.replace(self.tmp, self.output)
+        except OSError as exc:
+            self.discard()
+            raise SubdivInputError(f"{self.output}: cannot write: {exc.strerror or exc}") from None
+        except BaseException:
+            self.discard()
+            raise
+        self.layer = None
+        existing = Sdf.Layer.Find(self.output)
+        if existing is not None:
+            existing.Reload(force=True)  # a layer this process opened before now reads the new file
+
+    def discard(self) -> None:
+        self.layer = None
+        if getattr(self, "tmp", None) and os.path.exists(self.tmp):
+            os.unlink(self.tmp)
+
+
+def vt_array(type_name: Sdf.ValueTypeName, values: np.ndarray, like=None):
+    """A numpy array as the Vt array of ``type_name`` (rows of vectors, or scalars)."""
+    cls = type_name.type.pythonClass
+    arr = np.asarray(values)
+    dtype = np.asarray(like).dtype if like is not None and len(like) else None
+    if dtype is not None and dtype.kind in "fiub" and arr.dtype != dtype:
+        arr = arr.astype(dtype)
+    if arr.dtype.kind in "fiub":
+        try:
+            return cls.FromNumpy(np.ascontiguousarray(arr))
+        except (TypeError, ValueError, AttributeError, Exception):  # noqa: B014 (Boost.Python raises its own)
+            pass
+    return cls([v.tolist() if isinstance(v, np.ndarray) else v for v in arr])
+
+
+def int_array(values) -> Vt.IntArray:
+    return Vt.IntArray.FromNumpy(np.ascontiguousarray(np.asarray(values, dtype=np.int32)))
+
+
+def vec3f_array(values) -> Vt.Vec3fArray:
+    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(np.asarray(values, dtype=np.float32).reshape(-1, 3)))
+
+
+def extent_of(points: np.ndarray) -> Vt.Vec3fArray:
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) == 0:
+        return vec3f_array(np.zeros((2, 3)))
+    return vec3f_array(np.stack([pts.min(axis=0), pts.max(axis=0)]))
+
+
+def write_mesh_layer(output: str, name: str, points, face_vertex_counts, face_vertex_indices) -> None:
+    """A new layer with one refined mesh at /<name> (for OBJ input written as USD)."""
+    import re
+
+    from pxr import Sdf as _Sdf
+
+    prim_name = re.sub(r"[^A-Za-z0-9_]", "_", name) or "Mesh"
+    if prim_name[0].isdigit():
+        prim_name = "_" + prim_name
+    folder = os.path.dirname(output)
+    fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=os.path.splitext(output)[1], dir=folder)
+    os.close(fd)
+    try:
+        layer = _Sdf.Layer.CreateNew(tmp)
+        prim = _Sdf.CreatePrimInLayer(layer, "/" + prim_name)
+        prim.specifier = _Sdf.SpecifierDef
+        prim.typeName = "Mesh"
+        layer.defaultPrim = prim_name
+        T = _Sdf.ValueTypeNames
+        _Sdf.AttributeSpec(prim, "subdivisionScheme", T.Token, _Sdf.VariabilityUniform).default = "none"
+        _Sdf.AttributeSpec(prim, "points", T.Point3fArray).default = vec3f_array(points)
+        _Sdf.AttributeSpec(prim, "extent", T.Float3Array).default = extent_of(points)
+        _Sdf.AttributeSpec(prim, "faceVertexCounts", T.IntArray).default = int_array(face_vertex_counts)
+        _Sdf.AttributeSpec(prim, "faceVertexIndices", T.IntArray).default = int_array(face_vertex_indices)
+        if not layer.Save():
+            raise OSError(f"could not save {output}")
+        del layer
+        os.replace(tmp, output)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    existing = _Sdf.Layer.Find(output)
+    if existing is not None:
+        existing.Reload(force=True)
