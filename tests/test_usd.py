@@ -1,0 +1,450 @@
+"""The USD pipeline: round trip on every bundled scene, the output layer, time samples, primvars, subsets,
+the reader's tags and errors, orientation, bilinear meshes, failures that leave no file."""
+import os
+
+import numpy as np
+import pytest
+from pxr import Sdf, Usd, UsdGeom, Vt
+
+import warp_subdiv as ws
+from test_usd_support import SCENES_DIR, digest, grid, scene_module, write_mesh
+from warp_subdiv.errors import SubdivInputError
+from warp_subdiv.usd import MemoryGuardError, MissingFeatureError, refine_usd
+from warp_subdiv.usd_read import open_stage, read_mesh
+
+SCENES = scene_module().SCENES
+LEVELS = 2
+BLOCKED = ("creaseIndices", "creaseLengths", "creaseSharpnesses", "cornerIndices", "cornerSharpnesses",
+           "holeIndices", "interpolateBoundary", "faceVaryingLinearInterpolation", "triangleSubdivisionRule")
+
+
+def expected_refined(spec, points=None, levels=LEVELS, **kw):
+    """warp_subdiv.refine on the scene's own data (not on what the reader made of the file)."""
+    mesh = ws.Mesh(spec.points if points is None else points, spec.counts, spec.indices, **spec.tags())
+    scheme = "loop" if spec.scheme == "loop" else "catmull-clark"
+    return ws.refine(mesh, levels, scheme=scheme, rules=spec.rules or "piecewise-smooth", device="cpu", **kw)
+
+
+@pytest.fixture(scope="module")
+def refined_scenes(tmp_path_factory):
+    """Every bundled scene refined once (LEVELS levels): {name: (output path, input digest before)}."""
+    out = {}
+    folder = tmp_path_factory.mktemp("scenes")
+    for name in SCENES:
+        src = os.path.join(SCENES_DIR, name + ".usda")
+        before = digest(src)
+        dst = str(folder / f"{name}_L{LEVELS}.usda")
+        refine_usd(src, dst, LEVELS, device="cpu")
+        out[name] = (dst, before)
+    return out
+
+
+def opened(path):
+    """A stage kept alive for the rest of the test (prims do not keep their stage)."""
+    stage = Usd.Stage.Open(str(path))
+    _OPEN.append(stage)
+    return stage
+
+
+_OPEN = []
+
+
+@pytest.fixture(autouse=True)
+def _close_stages():
+    yield
+    _OPEN.clear()
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_round_trip(refined_scenes, name):
+    dst, before = refined_scenes[name]
+    assert digest(os.path.join(SCENES_DIR, name + ".usda")) == before  # the input is never modified
+    stage = opened(dst)
+    src = opened(os.path.join(SCENES_DIR, name + ".usda"))
+    for spec in SCENES[name].meshes:
+        path = "/World/" + spec.name
+        mesh = UsdGeom.Mesh(stage.GetPrimAtPath(path))
+        assert mesh.GetSubdivisionSchemeAttr().Get() == "none"
+        for attr in BLOCKED:
+            assert mesh.GetPrim().GetAttribute(attr).Get() in (None, "edgeAndCorner", "cornersPlus1", "catmullClark")
+            assert not mesh.GetPrim().GetAttribute(attr).HasAuthoredValue()
+        for attr in ("subdiv:rules", "subdiv:concave", "subdiv:normalIndices", "subdiv:normals"):
+            assert not mesh.GetPrim().GetAttribute(attr).HasAuthoredValue()
+        times = sorted(spec.time_points) or [Usd.TimeCode.Default()]
+        for t in times:
+            points = mesh.GetPointsAttr().Get(t)
+            counts = mesh.GetFaceVertexCountsAttr().Get(t)
+            indices = mesh.GetFaceVertexIndicesAttr().Get(t)
+            ok, why = UsdGeom.Mesh.ValidateTopology(indices, counts, len(points))
+            assert ok, why
+            expected = expected_refined(spec, spec.time_points.get(t) if spec.time_points else None)
+            assert len(counts) == expected.num_faces and len(points) == expected.num_vertices
+            np.testing.assert_array_equal(np.asarray(indices), expected.face_vertex_indices)
+            np.testing.assert_allclose(np.asarray(points), expected.points, atol=2e-6)
+            ext = np.asarray(mesh.GetExtentAttr().Get(t))
+            np.testing.assert_allclose(ext, [expected.points.min(0), expected.points.max(0)], atol=2e-6)
+        if spec.time_points:
+            assert mesh.GetPointsAttr().GetTimeSamples() == sorted(spec.time_points)
+        # transforms come from the input untouched
+        assert (UsdGeom.Xformable(stage.GetPrimAtPath(path)).ComputeLocalToWorldTransform(1.0)
+                == UsdGeom.Xformable(src.GetPrimAtPath(path)).ComputeLocalToWorldTransform(1.0))
+
+
+def test_output_layer_sublayers_the_input_and_keeps_stage_metadata(refined_scenes):
+    dst, _ = refined_scenes["animated"]
+    layer = Sdf.Layer.FindOrOpen(dst)
+    assert list(layer.subLayerPaths) == [os.path.relpath(os.path.join(SCENES_DIR, "animated.usda"),
+                                                         os.path.dirname(dst)).replace(os.sep, "/")]
+    assert layer.defaultPrim == "World"
+    assert (layer.startTimeCode, layer.endTimeCode, layer.timeCodesPerSecond) == (1, 24, 24)
+    assert layer.pseudoRoot.GetInfo("upAxis") == "Z"
+    info = layer.customLayerData["warpSubdiv"]
+    assert info["levels"] == LEVELS and list(info["prims"]) == ["/World/Animated/Plate"]
+    # only overrides: every prim spec of the layer is an over, and the scene's other prims come from the input
+    specs = []
+    layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: specs.append(p) if p.IsPrimPath() else None)
+    assert all(layer.GetPrimAtPath(p).specifier == Sdf.SpecifierOver for p in specs)
+    stage = opened(dst)
+    assert stage.GetPrimAtPath("/World/Looks/Red").IsValid()
+
+
+@pytest.mark.parametrize("ext,binary", [(".usdc", True), (".usd", True), (".usda", False)])
+def test_output_formats(tmp_path, ext, binary):
+    dst = tmp_path / ("out" + ext)
+    refine_usd(os.path.join(SCENES_DIR, "twisted_boundary.usda"), str(dst), 1, device="cpu")
+    head = dst.read_bytes()[:8]
+    assert head.startswith(b"PXR-USDC") == binary and head.startswith(b"#usda") != binary
+    stage = opened(str(dst))
+    assert UsdGeom.Mesh(stage.GetPrimAtPath("/World/OpenSubdiv/Fan")).GetSubdivisionSchemeAttr().Get() == "none"
+
+
+def test_flatten_writes_a_self_contained_layer(tmp_path):
+    dst = tmp_path / "flat.usda"
+    refine_usd(os.path.join(SCENES_DIR, "concave_corner.usda"), str(dst), 1, device="cpu", flatten=True)
+    layer = Sdf.Layer.FindOrOpen(str(dst))
+    assert list(layer.subLayerPaths) == []
+    prim = layer.GetPrimAtPath("/World/PiecewiseSmooth/LPlate")
+    assert prim.specifier == Sdf.SpecifierDef and prim.attributes["subdivisionScheme"].default == "none"
+    composed = opened(str(dst)).GetPrimAtPath("/World/PiecewiseSmooth/LPlate")
+    assert composed.GetAttribute("cornerIndices").Get() is None  # still blocked
+
+
+def test_frames_select_time_samples(tmp_path):
+    src = os.path.join(SCENES_DIR, "animated.usda")
+    dst = tmp_path / "frames.usda"
+    refine_usd(src, str(dst), 1, device="cpu", frames=(5.0, 8.0))
+    mesh = UsdGeom.Mesh(opened(str(dst)).GetPrimAtPath("/World/Animated/Plate"))
+    assert mesh.GetPointsAttr().GetTimeSamples() == [5.0, 6.0, 7.0, 8.0]
+    assert mesh.GetVelocitiesAttr().GetTimeSamples() == [5.0, 6.0, 7.0, 8.0]
+    spec = SCENES["animated"].meshes[0]
+    src_mesh = UsdGeom.Mesh(opened(src).GetPrimAtPath("/World/Animated/Plate"))
+    for t in (5.0, 8.0):
+        np.testing.assert_allclose(np.asarray(mesh.GetPointsAttr().Get(t)),
+                                   expected_refined(spec, spec.time_points[t], 1).points, atol=2e-6)
+        # velocities are derivatives of the points: refined by the same stencils
+        vel = np.asarray(src_mesh.GetVelocitiesAttr().Get(t), dtype=np.float64)
+        np.testing.assert_allclose(np.asarray(mesh.GetVelocitiesAttr().Get(t)),
+                                   expected_refined(spec, vel, 1).points, atol=2e-5)
+    with pytest.raises(SubdivInputError, match="none in --frames 30:40"):
+        refine_usd(src, str(tmp_path / "none.usda"), 1, device="cpu", frames=(30.0, 40.0))
+
+
+def test_time_varying_topology_is_refused_unless_the_frames_hold_one_topology(tmp_path):
+    pts, counts, idx = grid(2, 1)
+
+    def setup(stage, mesh):
+        attr = mesh.GetFaceVertexIndicesAttr()
+        attr.Set(Vt.IntArray(idx), 1.0)
+        attr.Set(Vt.IntArray(idx[4:] + idx[:4]), 3.0)  # faces swapped at time 3
+
+    src = write_mesh(tmp_path / "topo.usda", pts, counts, idx, time_points={t: pts + [0, 0, 0.1 * t] for t in
+                                                                          (1.0, 2.0, 3.0, 4.0)}, setup=setup)
+    with pytest.raises(SubdivInputError, match=r"/World/Mesh: faceVertexIndices changes over time.*--frames"):
+        refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
+    assert not (tmp_path / "out.usda").exists()
+    refine_usd(src, str(tmp_path / "first.usda"), 1, device="cpu", frames=(1.0, 2.0))
+    refine_usd(src, str(tmp_path / "last.usda"), 1, device="cpu", frames=(3.0, None))
+
+
+def bilinear_grid_scene(path, scheme="bilinear"):
+    """A 3x2 grid with primvars of every interpolation (values that are linear in x and y), a hole-free
+    face subset and authored normals."""
+    pts, counts, idx = grid(3, 2)
+
+    def setup(stage, mesh):
+        api = UsdGeom.PrimvarsAPI(mesh)
+        api.CreatePrimvar("f", Sdf.ValueTypeNames.FloatArray, "varying").Set(
+            Vt.FloatArray([float(p[0] * p[1] + 2 * p[0]) for p in pts]))
+        st = api.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, "faceVarying")
+        st.Set(Vt.Vec2fArray.FromNumpy(pts[:, :2].astype(np.float32)))
+        st.SetIndices(Vt.IntArray(idx))
+        api.CreatePrimvar("col", Sdf.ValueTypeNames.Color3fArray, "vertex").Set(
+            Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+        api.CreatePrimvar("face", Sdf.ValueTypeNames.IntArray, "uniform").Set(Vt.IntArray(list(range(6))))
+        tag = api.CreatePrimvar("tag", Sdf.ValueTypeNames.TokenArray, "uniform")
+        tag.Set(Vt.TokenArray(["a", "b"]))
+        tag.SetIndices(Vt.IntArray([0, 1, 0, 1, 0, 1]))
+        api.CreatePrimvar("name", Sdf.ValueTypeNames.String, "constant").Set("grid")
+        api.CreatePrimvar("rot", Sdf.ValueTypeNames.QuatfArray, "vertex").Set(Vt.QuatfArray(len(pts)))
+        api.CreatePrimvar("short", Sdf.ValueTypeNames.FloatArray, "vertex").Set(Vt.FloatArray([1.0, 2.0]))
+        mesh.CreateNormalsAttr(Vt.Vec3fArray([(0, 0, 1)] * len(pts)))
+        UsdGeom.Subset.CreateGeomSubset(mesh, "right", "face", Vt.IntArray([2, 5]), "materialBind")
+
+    return write_mesh(path, pts, counts, idx, scheme=scheme, setup=setup), pts
+
+
+def test_primvars_subsets_and_normals(tmp_path):
+    src, pts = bilinear_grid_scene(tmp_path / "grid.usda")
+    dst = tmp_path / "out.usda"
+    result = refine_usd(src, str(dst), 2, device="cpu")
+    prim = opened(str(dst)).GetPrimAtPath("/World/Mesh")
+    mesh = UsdGeom.Mesh(prim)
+    api = UsdGeom.PrimvarsAPI(prim)
+    p = np.asarray(mesh.GetPointsAttr().Get(), dtype=np.float64)
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get())
+    idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get())
+    assert len(counts) == 6 * 16
+    # bilinear points stay in the plane, on the control grid's bilinear map
+    assert np.all(p[:, 2] == 0) and p[:, 0].max() == 3 and p[:, 1].max() == 2
+    # varying: linear per face -> f(x, y) of the refined positions (f is bilinear in x, y)
+    f = np.asarray(api.GetPrimvar("f").ComputeFlattened())
+    np.testing.assert_allclose(f, p[:, 0] * p[:, 1] + 2 * p[:, 0], atol=1e-5)
+    # face-varying st (was indexed): per corner, equal to the corner's (x, y); no indices left
+    st = api.GetPrimvar("st")
+    assert not st.IsIndexed()
+    np.testing.assert_allclose(np.asarray(st.Get()), p[idx, :2], atol=1e-6)
+    # vertex colour on a bilinear mesh: bilinear too
+    np.testing.assert_allclose(np.asarray(api.GetPrimvar("col").Get()), p, atol=1e-5)
+    # uniform: every refined face carries its control face's value; the control face is the grid cell
+    centroid = np.add.reduceat(p[idx], np.concatenate([[0], np.cumsum(counts)[:-1]])) / 4
+    cell = np.floor(centroid[:, 0]).astype(int) + 3 * np.floor(centroid[:, 1]).astype(int)
+    np.testing.assert_array_equal(np.asarray(api.GetPrimvar("face").Get()), cell)
+    tags = np.asarray(api.GetPrimvar("tag").ComputeFlattened())  # indexed uniform: values kept, indices remapped
+    np.testing.assert_array_equal(tags, np.where(cell % 2 == 0, "a", "b"))
+    assert api.GetPrimvar("tag").IsIndexed() and len(api.GetPrimvar("tag").Get()) == 2
+    assert api.GetPrimvar("name").Get() == "grid"  # constant: inherited
+    # what cannot be refined is reported and blocked
+    assert not api.GetPrimvar("rot").HasAuthoredValue() and not api.GetPrimvar("short").HasAuthoredValue()
+    dropped = " ".join(result.warnings)
+    assert "primvars:rot dropped" in dropped and "primvars:short dropped" in dropped
+    # authored normals belong to the control mesh: blocked (no --normals)
+    assert not mesh.GetNormalsAttr().HasAuthoredValue()
+    # the face subset follows its faces
+    subset = UsdGeom.Subset(prim.GetChild("right"))
+    np.testing.assert_array_equal(np.asarray(subset.GetIndicesAttr().Get()), np.flatnonzero(np.isin(cell, [2, 5])))
+    ok, why = UsdGeom.Subset.ValidateSubsets([subset], len(counts), "face")
+    assert ok, why
+
+
+def test_vertex_primvars_follow_the_stencils_and_not_the_normal_projection(refined_scenes):
+    """Vertex primvars of a Catmull-Clark mesh: the refiner's stencils (no prescribed-normal projection)."""
+    dst, _ = refined_scenes["animated"]
+    spec = SCENES["animated"].meshes[0]
+    prim = opened(dst).GetPrimAtPath("/World/Animated/Plate")
+    src = opened(os.path.join(SCENES_DIR, "animated.usda")).GetPrimAtPath("/World/Animated/Plate")
+    col = np.asarray(UsdGeom.PrimvarsAPI(src).GetPrimvar("displayColor").Get(), dtype=np.float64)
+    mesh = ws.Mesh(spec.points, spec.counts, spec.indices, **spec.tags())
+    expected = ws.Refiner(mesh, LEVELS, device="cpu").evaluate(col, normal_control=False)
+    np.testing.assert_allclose(np.asarray(UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor").Get()), expected,
+                               atol=1e-6)
+    # time-sampled varying primvar keeps its samples
+    assert UsdGeom.PrimvarsAPI(prim).GetPrimvar("weight").GetAttr().GetTimeSamples() == [1.0, 12.0, 24.0]
+    # the material subset is remapped: 4 control faces -> 4 * 16 refined faces
+    subset = UsdGeom.Subset(prim.GetChild("FirstRow"))
+    assert len(subset.GetIndicesAttr().Get()) == 4 * 4 ** LEVELS
+
+
+def test_reader_reads_every_tag(tmp_path):
+    pts, counts, idx = grid(3, 3)
+    src = write_mesh(tmp_path / "tags.usda", pts, counts, idx, attrs={
+        "creaseIndices": Vt.IntArray([0, 1, 2, 5, 6]), "creaseLengths": Vt.IntArray([3, 2]),
+        "creaseSharpnesses": Vt.FloatArray([10.0, 2.5]),  # one per crease; the second is semi-sharp
+        "cornerIndices": Vt.IntArray([5, 15]), "cornerSharpnesses": Vt.FloatArray([10.0, 0.0]),
+        "holeIndices": Vt.IntArray([4]), "interpolateBoundary": "edgeOnly",
+    }, custom={
+        "subdiv:rules": ("Token", "opensubdiv"),
+        "subdiv:concave": ("Int2Array", Vt.Vec2iArray([(5, 6)])),
+        "subdiv:normalIndices": ("IntArray", Vt.IntArray([9])),
+        "subdiv:normals": ("Normal3fArray", Vt.Vec3fArray([(0, 0.6, 0.8)])),
+        "subdiv:flatness": ("Float", 0.25), "subdiv:normalStrength": ("Float", 0.5),
+    })
+    stage = open_stage(src)
+    prim = stage.GetPrimAtPath("/World/Mesh")
+    sp = read_mesh(prim)
+    m = sp.mesh
+    np.testing.assert_array_equal(m.creases, [[0, 1], [1, 2], [5, 6]])
+    np.testing.assert_array_equal(m.crease_sharpness, [10, 10, 2.5])
+    np.testing.assert_array_equal(m.corners, [5])  # sharpness 0 means not tagged
+    np.testing.assert_array_equal(m.holes, [4])
+    np.testing.assert_array_equal(m.concave, [[5, 6]])
+    np.testing.assert_array_equal(m.normal_vertices, [9])
+    np.testing.assert_allclose(m.normal_vectors, [[0, 0.6, 0.8]], atol=1e-6)
+    assert (sp.boundary, sp.rules, sp.flatness, sp.normal_strength) == ("edge-only", "opensubdiv", 0.25, 0.5)
+    assert sp.semi_sharp == 1 and "crease 1 (edge 5-6) has sharpness 2.5" in sp.semi_sharp_detail
+    # per-edge sharpness and the override of semi-sharp tags
+    sharp = read_mesh(prim, semi_sharp="sharp")
+    np.testing.assert_array_equal(sharp.mesh.crease_sharpness, [10, 10, 10])
+    assert any("treated as infinitely sharp" in w for w in sharp.warnings)
+
+
+def test_semi_sharp_creases_are_refused_cleanly_or_made_sharp(tmp_path):
+    pts, counts, idx = grid(2, 2)
+    src = write_mesh(tmp_path / "semi.usda", pts, counts, idx, attrs={
+        "creaseIndices": Vt.IntArray([1, 4, 7]), "creaseLengths": Vt.IntArray([3]),
+        "creaseSharpnesses": Vt.FloatArray([3.0, 10.0])})  # one per crease edge
+    try:
+        refine_usd(src, str(tmp_path / "a.usda"), 1, device="cpu")
+    except MissingFeatureError as exc:
+        assert "/World/Mesh: crease 0 (edge 1-4) has sharpness 3" in str(exc) and "--semi-sharp-as-sharp" in str(exc)
+        assert not (tmp_path / "a.usda").exists()
+    result = refine_usd(src, str(tmp_path / "b.usda"), 1, device="cpu", semi_sharp="sharp")
+    assert any("semi-sharp" in w for w in result.warnings)
+
+
+@pytest.mark.parametrize("attrs,custom,needle", [
+    ({"faceVertexIndices": Vt.IntArray([0, 1, 3, 9])}, {}, "/World/Mesh: faceVertexIndices: face 0 corner 3 refers to vertex 9"),
+    ({"faceVertexCounts": Vt.IntArray([3])}, {}, "/World/Mesh: faceVertexCounts"),
+    ({"creaseIndices": Vt.IntArray([0, 3]), "creaseLengths": Vt.IntArray([2]), "creaseSharpnesses": Vt.FloatArray([10])},
+     {}, "/World/Mesh: creaseIndices: crease 0 edge (0, 3) is not an edge of the mesh"),
+    ({"creaseIndices": Vt.IntArray([0, 4]), "creaseLengths": Vt.IntArray([2]), "creaseSharpnesses": Vt.FloatArray([10])}, {},
+     "/World/Mesh: creaseIndices[1] = 4 is not a vertex of the mesh"),
+    ({"creaseIndices": Vt.IntArray([0, 1]), "creaseLengths": Vt.IntArray([3])}, {}, "creaseLengths add up to 3"),
+    ({"creaseIndices": Vt.IntArray([0, 1]), "creaseLengths": Vt.IntArray([2]), "creaseSharpnesses": Vt.FloatArray([1, 2, 3])},
+     {}, "creaseSharpnesses has 3 values; expected 1 (one per crease)"),
+    ({"creaseIndices": Vt.IntArray([0, 1, 3]), "creaseLengths": Vt.IntArray([3]), "creaseSharpnesses": Vt.FloatArray([1, 2, 3])},
+     {}, "creaseSharpnesses has 3 values; expected 1 (one per crease) or 2 (one per crease edge)"),
+    ({"holeIndices": Vt.IntArray([7])}, {}, "/World/Mesh: holeIndices[0] = 7 is not a face of the mesh"),
+    ({"subdivisionScheme": "catmark"}, {}, "subdivisionScheme 'catmark' is not one of"),
+    ({}, {"subdiv:concave": ("FloatArray", Vt.FloatArray([1.0]))}, "subdiv:concave must be int2[], got float[]"),
+    ({}, {"subdiv:rules": ("Token", "hoppe")}, "subdiv:rules 'hoppe' is not"),
+    ({}, {"subdiv:normalIndices": ("IntArray", Vt.IntArray([0]))}, "must be given together"),
+    ({}, {"subdiv:flatness": ("Float", 1.5)}, "subdiv:flatness = 1.5 is not in [0, 1]"),
+])
+def test_reader_errors_name_the_prim_and_attribute(tmp_path, attrs, custom, needle):
+    pts, counts, idx = grid(1, 1)
+    src = write_mesh(tmp_path / "bad.usda", pts, counts, idx, attrs=attrs, custom=custom)
+    with pytest.raises(SubdivInputError) as info:
+        refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
+    assert needle in str(info.value)
+    assert not (tmp_path / "out.usda").exists() and sorted(os.listdir(tmp_path)) == ["bad.usda"]
+
+
+def test_unknown_subdiv_attribute_is_a_warning(tmp_path):
+    pts, counts, idx = grid(1, 1)
+    src = write_mesh(tmp_path / "typo.usda", pts, counts, idx, custom={"subdiv:flattness": ("Float", 0.5)})
+    result = refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
+    assert any("unknown attribute subdiv:flattness" in w for w in result.warnings)
+
+
+def test_left_handed_meshes_refine_to_the_same_surface(tmp_path):
+    """Subdivision stencils do not depend on the winding: a left-handed copy (every face reversed) refines to
+    the same points; its faces keep their winding and the orientation attribute stays leftHanded."""
+    spec = SCENES["concave_corner"].meshes[0]
+    counts = np.asarray(spec.counts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    flipped = np.concatenate([np.asarray(spec.indices)[s:s + c][::-1] for s, c in zip(starts, counts)])
+    concave = {"subdiv:concave": ("Int2Array", Vt.Vec2iArray([tuple(map(int, p)) for p in spec.concave]))}
+    corners = {"cornerIndices": Vt.IntArray(spec.corners), "cornerSharpnesses": Vt.FloatArray([10.0])}
+    right = write_mesh(tmp_path / "right.usda", spec.points, counts, spec.indices, attrs=corners, custom=concave)
+    left = write_mesh(tmp_path / "left.usda", spec.points, counts, flipped, custom=concave,
+                      attrs=dict(corners, orientation="leftHanded"))
+    kw = dict(device="cpu", normals=True)
+    refine_usd(right, str(tmp_path / "r.usda"), 2, **kw)
+    refine_usd(left, str(tmp_path / "l.usda"), 2, **kw)
+    r = UsdGeom.Mesh(opened(str(tmp_path / "r.usda")).GetPrimAtPath("/World/Mesh"))
+    lm = UsdGeom.Mesh(opened(str(tmp_path / "l.usda")).GetPrimAtPath("/World/Mesh"))
+    assert lm.GetOrientationAttr().Get() == "leftHanded"
+    rp, lp = np.asarray(r.GetPointsAttr().Get()), np.asarray(lm.GetPointsAttr().Get())
+    assert len(rp) == len(lp)
+    nearest = np.argmin(np.linalg.norm(rp[:, None] - lp[None], axis=2), axis=1)  # the same point in the other
+    np.testing.assert_allclose(rp, lp[nearest], atol=1e-6)
+    assert len(set(nearest.tolist())) == len(rp)
+    # normals point to the same side: the left-handed mesh's front is its clockwise side
+    rn, ln = np.asarray(r.GetNormalsAttr().Get()), np.asarray(lm.GetNormalsAttr().Get())
+    np.testing.assert_allclose(rn, ln[nearest], atol=1e-4)
+    assert np.mean(rn[:, 2]) > 0.5  # faces wound counter-clockwise seen from +z: up
+
+
+def test_limit_points_and_normals(tmp_path):
+    src = os.path.join(SCENES_DIR, "animated.usda")
+    dst = tmp_path / "limit.usda"
+    refine_usd(src, str(dst), 2, device="cpu", limit=True, normals=True, frames=(3.0, 4.0))
+    mesh = UsdGeom.Mesh(opened(str(dst)).GetPrimAtPath("/World/Animated/Plate"))
+    spec = SCENES["animated"].meshes[0]
+    for t in (3.0, 4.0):
+        expected = expected_refined(spec, spec.time_points[t])
+        np.testing.assert_allclose(np.asarray(mesh.GetPointsAttr().Get(t)), expected.limit_points(), atol=2e-6)
+        normals = np.asarray(mesh.GetNormalsAttr().Get(t))
+        np.testing.assert_allclose(normals, expected.limit_normals(), atol=2e-6)
+        np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+    assert mesh.GetNormalsInterpolation() == "vertex"
+
+
+def test_missing_refiner_features_fail_before_any_work(tmp_path, monkeypatch):
+    from warp_subdiv import refiner
+
+    monkeypatch.delattr(refiner.Refined, "limit_points")
+    with pytest.raises(MissingFeatureError, match="--limit needs limit points"):
+        refine_usd(os.path.join(SCENES_DIR, "animated.usda"), str(tmp_path / "x.usda"), 1, device="cpu", limit=True)
+    assert os.listdir(tmp_path) == []
+
+
+def test_memory_guard_refuses_before_any_work(tmp_path):
+    with pytest.raises(MemoryGuardError, match=r"would need about .* more than --max-memory 1\.0 MiB"):
+        refine_usd(os.path.join(SCENES_DIR, "complex_corner.usda"), str(tmp_path / "x.usda"), 5, device="cpu",
+                   max_memory=2**20)
+    with pytest.raises(MemoryGuardError, match="more than 32-bit tables can index"):
+        refine_usd(os.path.join(SCENES_DIR, "complex_corner.usda"), str(tmp_path / "x.usda"), 14, device="cpu")
+    assert os.listdir(tmp_path) == []
+
+
+def test_a_failure_while_writing_leaves_no_file(tmp_path, monkeypatch):
+    from warp_subdiv import usd
+
+    def boom(*args, **kw):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(usd, "_write_subset", boom)
+    dst = tmp_path / "out.usda"
+    (tmp_path / "keep.txt").write_text("x")
+    with pytest.raises(OSError):
+        refine_usd(os.path.join(SCENES_DIR, "animated.usda"), str(dst), 1, device="cpu")
+    assert sorted(os.listdir(tmp_path)) == ["keep.txt"]
+
+
+def test_output_may_not_overwrite_the_input(tmp_path):
+    src = tmp_path / "in.usda"
+    src.write_bytes(open(os.path.join(SCENES_DIR, "twisted_boundary.usda"), "rb").read())
+    before = digest(src)
+    with pytest.raises(SubdivInputError, match="the input reads this file"):
+        refine_usd(str(src), str(src), 1, device="cpu")
+    assert digest(src) == before and sorted(os.listdir(tmp_path)) == ["in.usda"]
+
+
+def test_meshes_with_scheme_none_are_left_alone(tmp_path):
+    pts, counts, idx = grid(1, 1)
+    src = write_mesh(tmp_path / "none.usda", pts, counts, idx, scheme="none")
+    with pytest.raises(SubdivInputError, match=r"no subdivision meshes in the file: /World/Mesh \(subdivisionScheme none\)"):
+        refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
+
+
+def test_the_scenes_are_what_make_scenes_writes(tmp_path):
+    """scenes/*.usda are generated: regenerating them gives the same files."""
+    for name, scene in SCENES.items():
+        path = tmp_path / (name + ".usda")
+        scene_module().write_scene(scene, str(path))
+        assert path.read_text() == open(os.path.join(SCENES_DIR, name + ".usda")).read(), name
+
+
+def test_shared_boundary_has_no_gap(refined_scenes):
+    """Fig. 10a: the two meshes' refined boundaries along x = 0 coincide, with both rule sets."""
+    stage = opened(refined_scenes["shared_boundary"][0])
+    for variant in ("PiecewiseSmooth", "OpenSubdiv"):
+        sides = []
+        for part in ("Left", "Right"):
+            p = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath(f"/World/{variant}/{part}")).GetPointsAttr().Get())
+            on = p[np.abs(p[:, 0]) < 1e-6]
+            sides.append(on[np.argsort(on[:, 1])])
+        assert len(sides[0]) == len(sides[1]) == 2 ** LEVELS * 2 + 1
+        np.testing.assert_allclose(sides[0], sides[1], atol=1e-6)
+
