@@ -11,4 +11,12 @@ from .projection import (  # noqa: F401
     scatter_rows_2d,
     vertex_normals,
 )
+from .regular import (  # noqa: F401
+    explicit_rows,
+    quad_edge_points,
+    quad_face_points,
+    quad_vertex_points,
+    tri_edge_points,
+    tri_vertex_points,
+)
 from .stencil import apply_stencils_rows, apply_stencils_vec  # noqa: F401

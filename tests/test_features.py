@@ -176,7 +176,37 @@ def test_evaluate_vertex_data(device):
 
 
 def test_table_bytes_reported():
-    r = ws.Refiner(load_mesh("cube"), 3, device="cpu")
-    entries = sum(len(t.weights) for t in r.tables)
-    rows = sum(t.num_rows + 1 for t in r.tables)
-    assert r.table_bytes() == entries * 8 + rows * 4
+    """Uniform levels keep index tables and explicit stencils for the irregular rows only."""
+    r = ws.Refiner(load_mesh("quad_lshape"), 3, device="cpu")
+    full = sum(len(t.weights) * 4 + t.offsets.nbytes + t.indices.nbytes for t in r.tables)
+    assert r.table_bytes() == sum(step.nbytes(4) for step in r.steps)
+    assert 0 < r.table_bytes() < full
+    regular = r.steps[-1]
+    assert regular.explicit.num_rows < 0.2 * regular.num_rows  # most rows come from the index tables
+
+
+CASES = [("cube", "catmull-clark"), ("cube_creased", "catmull-clark"), ("quad_lshape", "catmull-clark"),
+         ("quad_halffan", "catmull-clark"), ("mixed_prism", "catmull-clark"), ("grid3x3", "catmull-clark"),
+         ("icosahedron", "loop"), ("tri_halffan", "loop"), ("tri_hexfan", "loop"), ("mixed_prism", "loop"),
+         ("tri_grid3x3", "loop")]
+
+
+@pytest.mark.parametrize("name,scheme", CASES)
+@pytest.mark.parametrize("rules", ["piecewise-smooth", "opensubdiv"])
+def test_index_arithmetic_kernels_equal_the_full_stencil_tables(name, scheme, rules, device):
+    """The kernels that compute smooth rows from the index tables give exactly what the full tables give."""
+    mesh = load_mesh(name)
+    extra = {}
+    if name == "quad_lshape" and rules == "piecewise-smooth":
+        mesh = ws.Mesh(mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices, corners=[10, 0],
+                       creases=[[5, 6], [6, 10]])
+    if rules == "piecewise-smooth":
+        extra["flatness"] = 0.0  # linear rules only: compare with the plain stencil tables
+    r = ws.Refiner(mesh, 3, scheme=scheme, rules=rules, device=device, precision="float64", **extra)
+    expected = mesh.points
+    for table in r.tables:
+        rows = np.repeat(np.arange(table.num_rows), np.diff(table.offsets.astype(np.int64)))
+        step = np.zeros((table.num_rows, 3))
+        np.add.at(step, rows, table.weights[:, None] * expected[table.indices])
+        expected = step
+    np.testing.assert_allclose(r.evaluate(mesh.points), expected, atol=1e-12)

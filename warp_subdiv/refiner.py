@@ -11,7 +11,7 @@ from . import projections, rules
 from .errors import SubdivInputError
 from .mesh import Mesh
 from .rules import edge_gamma_shift
-from .tables import StencilTable, build_stencils
+from .tables import RegularTables, StencilTable, build_regular, build_stencils
 from .topology import BOUNDARY_MODES, RULE_SETS, Level, base_level, refine_level
 
 SCHEME_ALIASES = {"catmull-clark": rules.CATMULL_CLARK, "catmullclark": rules.CATMULL_CLARK,
@@ -129,12 +129,17 @@ class Refiner:
         self._projecting = paper and (
             bool(np.any(base_s > 0)) or level.new_sector_flatness > 0 or len(normal_vertices) > 0
         )
-        self.tables: list[StencilTable] = []
+        self.steps: list = []  # per step: RegularTables (uniform levels) or a full StencilTable
         self.flatness_tables: list = []
         self.normal_tables: list = []
+        self._triangulate = triangulate
+        self._full_tables = None
         penultimate = level
         for step in range(self.levels):
-            self.tables.append(build_stencils(level, rules, loop_beta))
+            if level.face_size in (3, 4):
+                self.steps.append(build_regular(level, rules, loop_beta))
+            else:
+                self.steps.append(build_stencils(level, rules, loop_beta))
             penultimate = level
             level = refine_level(level, faces_only=(step == self.levels - 1) and not self._projecting)
             flat = norm = None
@@ -153,7 +158,7 @@ class Refiner:
         self._flatness = flatness
         self.num_vertices = level.num_vertices
         self._device_tables = None
-        self._buffers: dict = {}
+        self._buffers = None
 
     # ---------------------------------------------------------------------------------------------
     def topology(self):
@@ -167,10 +172,25 @@ class Refiner:
             idx = lvl.corner_vert[np.repeat(keep, sizes)]
         return sizes[keep].astype(np.int32), np.ascontiguousarray(idx, dtype=np.int32)
 
+    @property
+    def tables(self) -> list[StencilTable]:
+        """Full stencil tables of every step (rows over the previous level), for inspection and tests.
+
+        Evaluation does not use them on uniform levels, where kernels compute the smooth rows from the index
+        tables; they are rebuilt here on first use."""
+        if self._full_tables is None:
+            level = base_level(self.mesh, self.scheme, self.boundary, self.rules, self._triangulate,
+                               flatness=self._flatness if self.rules == "piecewise-smooth" else None)
+            self._full_tables = []
+            for _ in range(self.levels):
+                self._full_tables.append(build_stencils(level, self.rules, self.loop_beta))
+                level = refine_level(level)
+        return self._full_tables
+
     def table_bytes(self) -> int:
-        """Bytes of all stencil tables on the device (weights at the evaluation precision)."""
+        """Bytes of everything a step keeps on the device (index tables, masks, explicit stencils)."""
         wbytes = np.dtype(PRECISIONS[self.precision][0]).itemsize
-        return sum(t.nbytes(wbytes) for t in self.tables)
+        return sum(t.nbytes(wbytes) for t in self.steps)
 
     def _array(self, values, dtype=None):
         return wp.array(np.ascontiguousarray(values, dtype=dtype), device=self.device)
@@ -180,9 +200,28 @@ class Refiner:
             np_dtype, _, vec = PRECISIONS[self.precision]
             i32 = np.int32
             steps = []
-            for t, flat, norm in zip(self.tables, self.flatness_tables, self.normal_tables):
-                step = {"stencil": (self._array(t.offsets, i32), self._array(t.indices, i32),
-                                    self._array(t.weights, np_dtype))}
+            for t, flat, norm in zip(self.steps, self.flatness_tables, self.normal_tables):
+                if isinstance(t, RegularTables):
+                    ex = t.explicit
+                    step = {
+                        "regular": t,
+                        "corner_vert": self._array(t.corner_vert, i32),
+                        "edge_verts": self._array(t.edge_verts, i32),
+                        "edge_corners": self._array(t.edge_corners, i32),
+                        "ring_offsets": self._array(t.vert_corner_offsets, i32),
+                        "ring": self._array(t.vert_corners, i32),
+                        "vertex_regular": self._array(t.vertex_regular, np.uint8),
+                        "edge_regular": self._array(t.edge_regular, np.uint8),
+                        "ring_weights": self._array(t.ring_weights, np_dtype),
+                        "edge_weights": self._array(t.edge_weights, np_dtype),
+                        "quarter": self._array([0.25], np_dtype),
+                        "explicit": (self._array(ex.rows, i32), self._array(ex.offsets, i32),
+                                     self._array(ex.indices, i32), self._array(ex.weights, np_dtype)),
+                        "num_explicit": ex.num_rows,
+                    }
+                else:
+                    step = {"stencil": (self._array(t.offsets, i32), self._array(t.indices, i32),
+                                        self._array(t.weights, np_dtype))}
                 if flat is not None:
                     step["flatness"] = (self._array(flat.targets, i32), self._array(flat.offsets, i32),
                                         self._array(flat.indices, i32), self._array(flat.weights, np_dtype))
@@ -195,27 +234,54 @@ class Refiner:
             self._device_tables = steps
         return self._device_tables
 
-    def _level_buffers(self, width: int):
-        """Per-level device arrays for data of the given width, created once and reused for every frame."""
-        if width not in self._buffers:
-            np_dtype, scalar, vec = PRECISIONS[self.precision]
-            sizes = [self.base_num_vertices] + [t.num_rows for t in self.tables]
+    def _level_buffers(self):
+        """Per-level device arrays of points, created once and reused for every frame and column triple."""
+        if self._buffers is None:
+            _, _, vec = PRECISIONS[self.precision]
+            sizes = [self.base_num_vertices] + [t.num_rows for t in self.steps]
             moved = [max([0] + [len(t.targets) for t in (f, n) if t is not None])
                      for f, n in zip(self.flatness_tables, self.normal_tables)]
-            if width == 3:
-                make = lambda n: wp.empty(n, dtype=vec, device=self.device)
+            make = lambda n: wp.empty(n, dtype=vec, device=self.device)
+            self._buffers = ([make(n) for n in sizes], [make(n) if n else None for n in moved])
+        return self._buffers
+
+    def _apply_step(self, step, src, dst, tmp, normal_control: bool):
+        """One refinement step on vec3 points: smooth rows by index arithmetic, the rest by explicit
+        stencils, then flatness and normal control."""
+        k = _kernels()
+        dev = self.device
+        if "regular" in step:
+            t = step["regular"]
+            V, F = t.num_vertices, t.num_faces
+            if t.face_size == 4:
+                wp.launch(k.quad_face_points, dim=F, inputs=[step["corner_vert"], src, dst, V, step["quarter"]],
+                          device=dev)
+                wp.launch(k.quad_edge_points, dim=len(t.edge_verts),
+                          inputs=[step["edge_verts"], step["edge_corners"], step["edge_regular"], src, dst, V,
+                                  V + F, step["edge_weights"]], device=dev)
+                wp.launch(k.quad_vertex_points, dim=V,
+                          inputs=[step["ring_offsets"], step["ring"], step["corner_vert"], step["vertex_regular"],
+                                  src, dst, V, step["ring_weights"]], device=dev)
             else:
-                make = lambda n: wp.empty((n, width), dtype=scalar, device=self.device)
-            self._buffers[width] = ([make(n) for n in sizes], [make(n) if n else None for n in moved])
-        return self._buffers[width]
+                wp.launch(k.tri_edge_points, dim=len(t.edge_verts),
+                          inputs=[step["edge_verts"], step["edge_corners"], step["corner_vert"],
+                                  step["edge_regular"], src, dst, V, step["edge_weights"]], device=dev)
+                wp.launch(k.tri_vertex_points, dim=V,
+                          inputs=[step["ring_offsets"], step["ring"], step["corner_vert"], step["vertex_regular"],
+                                  src, dst, step["ring_weights"]], device=dev)
+            if step["num_explicit"]:
+                wp.launch(k.explicit_rows, dim=step["num_explicit"], inputs=[*step["explicit"], src, dst],
+                          device=dev)
+        else:
+            wp.launch(k.apply_stencils_vec, dim=dst.shape[0], inputs=[*step["stencil"], src, dst], device=dev)
+        for name, kernel, active in (("flatness", k.displace_rows, True), ("normals", k.project_rows,
+                                                                            normal_control)):
+            if name in step and active:
+                n = step[name][0].shape[0]
+                wp.launch(kernel, dim=n, inputs=[*step[name], dst, tmp], device=dev)
+                wp.launch(k.scatter_rows, dim=n, inputs=[step[name][0], tmp, dst], device=dev)
 
-    def evaluate_device(self, data, normal_control=None) -> wp.array:
-        """Refine vertex data already in the right layout; returns the final level's device array.
-
-        ``normal_control``: apply prescribed normals (positions only); default: when the data is (n, 3).
-        """
-        tables = self._upload()
-        np_dtype, _, vec = PRECISIONS[self.precision]
+    def _check_data(self, data) -> np.ndarray:
         arr = np.asarray(data)
         if arr.ndim == 1:
             arr = arr[:, None]
@@ -226,48 +292,48 @@ class Refiner:
         if not np.all(np.isfinite(arr)):
             bad = int(np.flatnonzero(~np.all(np.isfinite(arr), axis=1))[0])
             raise SubdivInputError(f"vertex data row {bad} is not finite")
-        width = arr.shape[1]
-        if normal_control is None:
-            normal_control = width == 3
-        if normal_control and width != 3:
-            raise ValueError("normal control applies to (n, 3) positions only")
-        bufs, scratch = self._level_buffers(width)
-        host = np.ascontiguousarray(arr, dtype=np_dtype)
-        staged = wp.array(host, dtype=vec, device="cpu") if width == 3 else wp.array(host, device="cpu")
-        wp.copy(bufs[0], staged)
-        k = _kernels()
-        dev = self.device
+        return arr
+
+    def evaluate_device(self, points, normal_control: bool = True) -> wp.array:
+        """Refine (n, 3) positions; returns the final level's device array of vec3 (no copy to the host).
+
+        The array is reused by the next call."""
+        arr = self._check_data(points)
+        if arr.shape[1] != 3:
+            raise SubdivInputError(f"evaluate_device takes (n, 3) positions, got {arr.shape}")
+        return self._run(arr, normal_control)
+
+    def _run(self, triple: np.ndarray, normal_control: bool) -> wp.array:
+        tables = self._upload()
+        np_dtype, _, vec = PRECISIONS[self.precision]
+        bufs, scratch = self._level_buffers()
+        host = np.ascontiguousarray(triple, dtype=np_dtype)
+        wp.copy(bufs[0], wp.array(host, dtype=vec, device="cpu"))
         for step, src, dst, tmp in zip(tables, bufs[:-1], bufs[1:], scratch):
-            rows = dst.shape[0]
-            if width == 3:
-                wp.launch(k.apply_stencils_vec, dim=rows, inputs=[*step["stencil"], src, dst], device=dev)
-            else:
-                wp.launch(k.apply_stencils_rows, dim=(rows, width), inputs=[*step["stencil"], src, dst], device=dev)
-            if "flatness" in step:
-                targets = step["flatness"][0]
-                n = targets.shape[0]
-                if width == 3:
-                    wp.launch(k.displace_rows, dim=n, inputs=[*step["flatness"], dst, tmp], device=dev)
-                    wp.launch(k.scatter_rows, dim=n, inputs=[targets, tmp, dst], device=dev)
-                else:
-                    wp.launch(k.displace_rows_2d, dim=(n, width), inputs=[*step["flatness"], dst, tmp], device=dev)
-                    wp.launch(k.scatter_rows_2d, dim=(n, width), inputs=[targets, tmp, dst], device=dev)
-            if "normals" in step and normal_control:
-                targets = step["normals"][0]
-                n = targets.shape[0]
-                wp.launch(k.project_rows, dim=n, inputs=[*step["normals"], dst, tmp], device=dev)
-                wp.launch(k.scatter_rows, dim=n, inputs=[targets, tmp, dst], device=dev)
+            self._apply_step(step, src, dst, tmp, normal_control)
         return bufs[-1]
 
     def evaluate(self, points, normal_control=None) -> np.ndarray:
         """Refine (n, 3) or (n, d) vertex data (n = control vertices); returns a numpy array (N, d).
 
         Flatness applies to all data (it is part of the subdivision matrix); prescribed normals only to
-        positions, i.e. (n, 3) data unless ``normal_control=False``.
+        positions, i.e. (n, 3) data unless ``normal_control=False``. Data of other widths is refined three
+        columns at a time through the same kernels.
         """
-        # vec3 arrays come back as (N, 3), others as (N, d); copy, because on the CPU .numpy() is a view of
-        # a buffer that the next call overwrites
-        out = np.array(self.evaluate_device(points, normal_control).numpy(), copy=True)
+        arr = self._check_data(points)
+        width = arr.shape[1]
+        if normal_control is None:
+            normal_control = width == 3
+        if normal_control and width != 3:
+            raise ValueError("normal control applies to (n, 3) positions only")
+        if width == 3:
+            # copy: on the CPU .numpy() is a view of a buffer that the next call overwrites
+            out = np.array(self._run(arr, normal_control).numpy(), copy=True)
+        else:
+            padded = np.zeros((arr.shape[0], -(-width // 3) * 3))
+            padded[:, :width] = arr
+            out = np.concatenate([np.array(self._run(padded[:, c:c + 3], False).numpy(), copy=True)
+                                  for c in range(0, padded.shape[1], 3)], axis=1)[:, :width]
         return out[:, 0] if np.ndim(points) == 1 else out
 
     # ---------------------------------------------------------------------------------------------
@@ -361,27 +427,17 @@ class Refiner:
             self._deeper = Refiner(
                 self.mesh, self.levels + 1, scheme=self.scheme, rules=self.rules, boundary=self.boundary,
                 device=self.device, precision=self.precision, loop_beta=self.loop_beta,
-                triangulate=True, flatness=self._flatness, normal_strength=self.normal_strength,
+                triangulate=self._triangulate, flatness=self._flatness, normal_strength=self.normal_strength,
             )
         return self._deeper
 
     def _evaluate_from_level(self, points_one_level_up) -> np.ndarray:
         """Refine points of this refiner's second-to-last level through its last step only."""
-        np_dtype, _, vec = PRECISIONS[self.precision]
         tables = self._upload()
-        step = tables[-1]
-        src = self._final_points_of(points_one_level_up, self.tables[-1].num_sources)
-        bufs, scratch = self._level_buffers(3)
-        dst, tmp = bufs[-1], scratch[-1]
-        k = _kernels()
-        dev = self.device
-        wp.launch(k.apply_stencils_vec, dim=dst.shape[0], inputs=[*step["stencil"], src, dst], device=dev)
-        for name, kernel in (("flatness", k.displace_rows), ("normals", k.project_rows)):
-            if name in step:
-                n = step[name][0].shape[0]
-                wp.launch(kernel, dim=n, inputs=[*step[name], dst, tmp], device=dev)
-                wp.launch(k.scatter_rows, dim=n, inputs=[step[name][0], tmp, dst], device=dev)
-        return np.array(dst.numpy(), copy=True)
+        bufs, scratch = self._level_buffers()
+        src = self._final_points_of(points_one_level_up, bufs[-2].shape[0])
+        self._apply_step(tables[-1], src, bufs[-1], scratch[-1], True)
+        return np.array(bufs[-1].numpy(), copy=True)
 
     def refine(self, points=None) -> Refined:
         """The refined mesh of ``points`` (default: the mesh's own points)."""

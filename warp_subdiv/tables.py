@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import rules
-from .rules import CATMULL_CLARK, CORNER, CREASE, DART, LOOP, SMOOTH
+from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
 from .topology import Level, _offsets, _rows_of, expand_counts
 
 
@@ -23,6 +23,7 @@ class StencilTable:
     indices: np.ndarray  # (entries,) int32
     weights: np.ndarray  # (entries,) float64
     num_sources: int
+    rows: np.ndarray | None = None  # the child vertices the rows are for, when not all of them in order
 
     @property
     def num_rows(self) -> int:
@@ -30,7 +31,8 @@ class StencilTable:
 
     def nbytes(self, weight_bytes: int = 4) -> int:
         """Bytes of the table on the device with weights of ``weight_bytes`` each."""
-        return self.offsets.nbytes + self.indices.nbytes + len(self.weights) * weight_bytes
+        extra = 0 if self.rows is None else self.rows.nbytes
+        return self.offsets.nbytes + self.indices.nbytes + len(self.weights) * weight_bytes + extra
 
     def row(self, i: int) -> dict:
         """Row i as {parent vertex: total weight} (duplicates merged); for tests and debugging."""
@@ -78,8 +80,43 @@ def _crease_neighbours(level: Level) -> np.ndarray:
     return nb
 
 
-def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop") -> StencilTable:
-    """The stencil table that refines ``level`` to the next level."""
+def _edge_endpoint_weights(level: Level, rule_set: str, me: np.ndarray, h0: np.ndarray):
+    """Endpoint weights (w_a, w_b) of the non-crease edges ``me`` (RULES.md section 4, both rule sets)."""
+    scheme = level.scheme
+    corner_vert = level.corner_vert
+    vclass = level.vert_class
+    ev = level.edge_verts
+    a, b = ev[me, 0], ev[me, 1]
+    g0 = h0[me]
+    if rule_set == "opensubdiv":  # OpenSubdiv's smooth edge rule next to creases and corners too
+        w, _ = rules.smooth_edge_weights(scheme)
+        return np.full(len(me), w), np.full(len(me), w)
+    # theta of the sector of each endpoint that contains this edge: read at that endpoint's corner in face f0
+    at_a = np.where(corner_vert[g0] == a, g0, level.corner_next(g0))
+    at_b = np.where(corner_vert[g0] == b, g0, level.corner_next(g0))
+    tagged_a = (vclass[a] == CREASE) | (vclass[a] == CORNER)
+    tagged_b = (vclass[b] == CREASE) | (vclass[b] == CORNER)
+    theta = level.corner_theta()
+    shift_a = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_a]))
+    shift_b = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_b]))
+    return rules.tagged_edge_endpoint_weights(scheme, shift_a, shift_b, tagged_a, tagged_b)
+
+
+def _edge_corner_pairs(level: Level):
+    """(h0, h1): the first and second corner of every edge (h1 = h0 on boundary edges)."""
+    eoff = level.edge_corner_offsets
+    h0 = level.edge_corners[eoff[:-1]].astype(np.int64)
+    h1 = level.edge_corners[np.minimum(eoff[:-1] + 1, len(level.edge_corners) - 1)].astype(np.int64)
+    return h0, h1
+
+
+def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop",
+                   regular=None) -> StencilTable:
+    """The stencil table that refines ``level`` to the next level.
+
+    ``regular``: optional (vertex mask, edge mask) of the rows the regular kernels compute (see
+    :func:`build_regular`); those rows are left out, and the table lists the rows it holds in ``rows``.
+    """
     scheme = level.scheme
     V, F, E = level.num_vertices, level.num_faces, level.num_edges
     cc = scheme == CATMULL_CLARK
@@ -89,9 +126,11 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     face_sizes = level.face_sizes()
     face_starts = level.face_starts()
     corner_vert = level.corner_vert.astype(np.int64)
+    skip_vertex, skip_edge = regular if regular is not None else (np.zeros(V, bool), np.zeros(E, bool))
+    with_faces = cc and regular is None
 
     # ----- row sizes
-    smooth = (vclass == SMOOTH) | (vclass == DART)
+    smooth = ((vclass == SMOOTH) | (vclass == DART)) & ~skip_vertex
     slot_vertex = _rows_of(voff)
     slot_corner = level.vert_corners.astype(np.int64)
     slot_smooth = smooth[slot_vertex]
@@ -100,10 +139,9 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     per_slot = np.where(slot_smooth, per_slot, 0)
     vertex_sizes = np.where(smooth, 1 + np.bincount(slot_vertex, weights=per_slot, minlength=V).astype(np.int64),
                             np.where(vclass == CREASE, 3, 1))
+    vertex_sizes[skip_vertex] = 0
 
-    eoff = level.edge_corner_offsets
-    h0 = level.edge_corners[eoff[:-1]].astype(np.int64)
-    h1 = level.edge_corners[np.minimum(eoff[:-1] + 1, len(level.edge_corners) - 1)].astype(np.int64)
+    h0, h1 = _edge_corner_pairs(level)
     sharp = level.edge_sharp
     f0 = level.corner_face(h0)
     f1 = level.corner_face(h1)
@@ -111,7 +149,8 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
         edge_sizes = np.where(sharp, 2, face_sizes[f0] + face_sizes[f1] - 2)
     else:
         edge_sizes = np.where(sharp, 2, 4)
-    sizes = [vertex_sizes] + ([face_sizes] if cc else []) + [edge_sizes]
+    edge_sizes[skip_edge] = 0
+    sizes = [vertex_sizes] + ([face_sizes] if with_faces else ([np.zeros(F, np.int64)] if cc else [])) + [edge_sizes]
     out = _Layout(np.concatenate(sizes), V)
     face_row0 = V
     edge_row0 = V + (F if cc else 0)
@@ -161,7 +200,7 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
         out.put(sl_v, sl_pos, corner_vert[nxt], w_ring_sl)
 
     # ----- face rows (Catmull-Clark)
-    if cc:
+    if with_faces:
         c = np.arange(level.num_corners, dtype=np.int64)
         f_of_c = level.corner_face(c)
         out.put(face_row0 + f_of_c, c - face_starts[f_of_c], corner_vert, rules.face_point_weights(face_sizes[f_of_c]))
@@ -169,26 +208,15 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     # ----- edge rows
     e = np.arange(E, dtype=np.int64)
     ev = level.edge_verts.astype(np.int64)
-    se = e[sharp]
+    se = e[sharp & ~skip_edge]
     wa, wb = rules.crease_edge_weights()
     out.put(edge_row0 + se, 0, ev[se, 0], wa)
     out.put(edge_row0 + se, 1, ev[se, 1], wb)
 
-    me = e[~sharp]
+    me = e[~sharp & ~skip_edge]
     a, b = ev[me, 0], ev[me, 1]
     g0, g1 = h0[me], h1[me]
-    # theta of the sector of each endpoint that contains this edge: read at that endpoint's corner in face f0
-    at_a = np.where(corner_vert[g0] == a, g0, level.corner_next(g0))
-    at_b = np.where(corner_vert[g0] == b, g0, level.corner_next(g0))
-    tagged_a = (vclass[a] == CREASE) | (vclass[a] == CORNER)
-    tagged_b = (vclass[b] == CREASE) | (vclass[b] == CORNER)
-    theta = level.corner_theta()
-    if rule_set == "opensubdiv":  # OpenSubdiv's smooth edge rule next to creases and corners too
-        shift_a = shift_b = np.zeros(len(me))
-    else:
-        shift_a = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_a]))
-        shift_b = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_b]))
-    w_a, w_b = rules.tagged_edge_endpoint_weights(scheme, shift_a, shift_b, tagged_a, tagged_b)
+    w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
     _, w_wing = rules.smooth_edge_weights(scheme)
     rows = edge_row0 + me
     if cc:
@@ -197,19 +225,99 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
         # each new face point f weighs 1/4, i.e. 1/(4m) on each vertex of its face
         out.put(rows, 0, a, w_a + w_wing / m0 + w_wing / m1)
         out.put(rows, 1, b, w_b + w_wing / m0 + w_wing / m1)
-        pos = 2
-        for g, m, first in ((g0, m0, 2), (g1, m1, None)):
-            cnt = m - 2
-            rep, t = expand_counts(cnt)
+        for g, m, base_pos in ((g0, m0, np.full(len(me), 2)), (g1, m1, m0)):
+            rep, t = expand_counts(m - 2)
             walk = _advance(level, g[rep], t + 2)
-            base_pos = 2 if first else 2 + (m0 - 2)[rep]
-            out.put(rows[rep], base_pos + t, corner_vert[walk], w_wing / m[rep])
+            out.put(rows[rep], base_pos[rep] + t, corner_vert[walk], w_wing / m[rep])
     else:
         out.put(rows, 0, a, w_a)
         out.put(rows, 1, b, w_b)
         out.put(rows, 2, corner_vert[level.corner_prev(g0)], w_wing)
         out.put(rows, 3, corner_vert[level.corner_prev(g1)], w_wing)
-    return out.table()
+    table = out.table()
+    if regular is not None:  # keep the non-empty rows only
+        keep = np.flatnonzero(np.diff(table.offsets) > 0)
+        table.rows = keep.astype(np.int32)
+        table.offsets = np.concatenate([[0], np.cumsum(np.diff(table.offsets)[keep])]).astype(np.int32)
+    return table
+
+
+@dataclass
+class RegularTables:
+    """What the regular kernels need to compute the smooth rows of one step from the level's index tables.
+
+    Uniform levels only (all quads or all triangles). ``vertex_regular`` and ``edge_regular`` (uint8) mark
+    the rows they compute; every other row is in ``explicit``. ``ring_weights`` are per-valence weights
+    (centre, each ring term) from :mod:`warp_subdiv.rules`; ``edge_weights`` are the smooth edge weights
+    (each endpoint, each wing term).
+    """
+
+    face_size: int
+    num_vertices: int
+    num_faces: int
+    corner_vert: np.ndarray
+    edge_verts: np.ndarray  # (E, 2)
+    edge_corners: np.ndarray  # (E, 2) first and second corner
+    vert_corner_offsets: np.ndarray
+    vert_corners: np.ndarray
+    vertex_regular: np.ndarray
+    edge_regular: np.ndarray
+    ring_weights: np.ndarray  # (max valence + 1, 2)
+    edge_weights: np.ndarray  # (2,)
+    explicit: StencilTable
+    num_rows: int  # child vertices of the step
+
+    def nbytes(self, weight_bytes: int = 4) -> int:
+        arrays = (self.corner_vert, self.edge_verts, self.edge_corners, self.vert_corner_offsets,
+                  self.vert_corners, self.vertex_regular, self.edge_regular)
+        return sum(a.nbytes for a in arrays) + self.explicit.nbytes(weight_bytes)
+
+
+def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop") -> RegularTables:
+    """Split one step into rows the regular kernels compute from the index tables and explicit stencils.
+
+    Regular rows: interior and dart vertices (the smooth vertex rule of their valence) and non-crease edges
+    whose endpoint weights are the smooth ones (no gamma(theta) shift). Crease and corner vertices, crease
+    edges and the crease/corner-neighbour edges of extraordinary sectors get explicit stencils.
+    """
+    assert level.face_size in (3, 4), "regular kernels need a level of quads or triangles"
+    scheme = level.scheme
+    vclass = level.vert_class
+    vertex_regular = (vclass == SMOOTH) | (vclass == DART)
+    h0, h1 = _edge_corner_pairs(level)
+    edge_regular = ~level.edge_sharp
+    me = np.flatnonzero(edge_regular)
+    w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
+    w, w_wing = rules.smooth_edge_weights(scheme)
+    edge_regular[me[(np.abs(w_a - w) > 0) | (np.abs(w_b - w) > 0)]] = False
+    explicit = build_stencils(level, rule_set, loop_beta, regular=(vertex_regular, edge_regular))
+    valence = np.arange(np.diff(level.vert_corner_offsets).max() + 1, dtype=np.float64)
+    valence[valence < 3] = 3  # unused entries (valence < 3 is never a smooth vertex)
+    if scheme == CATMULL_CLARK:
+        centre, edge_w, face_w = rules.catmull_clark_interior_vertex_weights(valence)
+        assert np.allclose(edge_w, face_w)
+        ring = np.stack([centre, edge_w], axis=1)
+        edge_weights = np.array([w, w_wing])  # (a + b + f0 + f1) / 4
+    else:
+        centre, beta = rules.loop_interior_vertex_weights(valence, loop_beta)
+        ring = np.stack([centre, beta], axis=1)
+        edge_weights = np.array([w, w_wing])
+    return RegularTables(
+        face_size=level.face_size,
+        num_vertices=level.num_vertices,
+        num_faces=level.num_faces,
+        corner_vert=level.corner_vert,
+        edge_verts=level.edge_verts,
+        edge_corners=np.stack([h0, h1], axis=1).astype(np.int32),
+        vert_corner_offsets=level.vert_corner_offsets.astype(np.int32),
+        vert_corners=level.vert_corners,
+        vertex_regular=vertex_regular.astype(np.uint8),
+        edge_regular=edge_regular.astype(np.uint8),
+        ring_weights=ring,
+        edge_weights=edge_weights,
+        explicit=explicit,
+        num_rows=level.num_vertices + level.num_edges + (level.num_faces if scheme == CATMULL_CLARK else 0),
+    )
 
 
 def _advance(level: Level, h: np.ndarray, steps: np.ndarray) -> np.ndarray:
