@@ -1,48 +1,257 @@
 """The ``warp-subdiv`` command line.
 
-``warp-subdiv refine IN.obj -o OUT.obj --levels N`` refines a mesh (OBJ with OpenSubdiv ``t`` tags and
-``.creases``/``.corners`` side files) and writes the result. Exit codes: 0 success, 2 usage or input errors
-(one line on stderr, no traceback).
+    warp-subdiv refine IN -o OUT --levels N [options]   refine OBJ or USD (.usd/.usda/.usdc) meshes
+    warp-subdiv info IN [--levels N]                     the subdivision meshes of a file and predicted sizes
+    warp-subdiv render IN -o OUT.png [options]           a shaded preview, ray-cast with Warp
+
+Exit codes: 0 success, 2 usage or input errors (one line on stderr, no traceback), 1 internal errors,
+130 interrupted. Outputs are written to a temporary file and renamed, so a failed run leaves no file.
 """
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import sys
 import time
+import warnings
 
 from .errors import SubdivInputError
 
+USD_EXTENSIONS = (".usd", ".usda", ".usdc")
+PROG = "warp-subdiv"
+
+
+class UsageError(SubdivInputError):
+    """A bad command line (exit 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a usage error in one line (and exits 2), as every other user error."""
+
+    def error(self, message):  # noqa: D401 (argparse API)
+        raise UsageError(f"{message} (see {self.prog} --help)")
+
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="warp-subdiv", description=__doc__.split("\n\n")[0])
-    sub = p.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("refine", help="refine a mesh file and write the refined mesh")
-    r.add_argument("input", help="input mesh (.obj)")
-    r.add_argument("-o", "--output", required=True, help="output mesh (.obj)")
+    p = _Parser(prog=PROG, description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    r = sub.add_parser("refine", help="refine the subdivision meshes of an OBJ or USD file",
+                       description="Refine every subdivision mesh of IN (or those at or under --prim) and write OUT. "
+                                   "USD output is a layer that sublayers IN and overrides the refined meshes.")
+    r.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
+    r.add_argument("-o", "--output", required=True, help="output file (.obj for OBJ input; .usd/.usda/.usdc)")
     r.add_argument("--levels", type=int, required=True, help="number of refinement levels (>= 0)")
+    r.add_argument("--prim", action="append", metavar="PATH",
+                   help="refine only the meshes at or under this prim path (repeatable; USD only)")
     r.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
-                   help="auto: Loop for all-triangle meshes, else Catmull-Clark")
-    r.add_argument("--rules", default="piecewise-smooth", choices=["piecewise-smooth", "opensubdiv"])
+                   help="auto: each USD mesh's subdivisionScheme (OBJ: Loop for all-triangle meshes, else "
+                        "Catmull-Clark); otherwise force this scheme on every subdivision mesh")
+    r.add_argument("--rules", default=None, choices=["piecewise-smooth", "opensubdiv"],
+                   help="rule set for every mesh (default: each mesh's subdiv:rules, else piecewise-smooth)")
     r.add_argument("--boundary", default=None, choices=["edge-and-corner", "edge-only", "none"],
-                   help="boundary interpolation (default: the file's tag, else edge-and-corner)")
-    r.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
+                   help="boundary interpolation (default: the file's interpolateBoundary / tag)")
+    r.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
     r.add_argument("--precision", default="float32", choices=["float32", "float64"])
-    r.add_argument("--quiet", action="store_true", help="print nothing on success")
+    r.add_argument("--frames", default=None, metavar="A:B",
+                   help="refine only the time samples in [A, B] (A:, :B and A work too; USD only)")
+    r.add_argument("--limit", action="store_true", help="write limit points instead of refined control points")
+    r.add_argument("--normals", action="store_true", help="write limit normals (vertex interpolation)")
+    r.add_argument("--max-memory", default=None, metavar="SIZE",
+                   help="refuse when the predicted memory is larger (e.g. 512M, 8G; 'none': no limit; "
+                        "default: half of the physical memory)")
+    r.add_argument("--flatten", action="store_true",
+                   help="write one self-contained layer (the composed, flattened stage) instead of an "
+                        "override layer that sublayers the input")
+    r.add_argument("--semi-sharp-as-sharp", action="store_true",
+                   help="treat semi-sharp creases and corners (0 < sharpness < 10) as infinitely sharp, with "
+                        "a warning, instead of refusing them")
+    r.add_argument("--progress", default="auto", choices=["auto", "on", "off"],
+                   help="progress bar on stderr (auto: when stderr is a terminal)")
+    r.add_argument("--quiet", action="store_true", help="print nothing on success (warnings still go to stderr)")
+
+    i = sub.add_parser("info", help="list the subdivision meshes of a file with predicted output sizes")
+    i.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
+    i.add_argument("--levels", type=int, default=4, help="predict sizes for levels 1..N (default 4)")
+    i.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path")
+
+    g = sub.add_parser("render", help="render a shaded preview PNG (Warp ray casting, CPU or CUDA)")
+    g.add_argument("input", help="a USD file (or .obj)")
+    g.add_argument("-o", "--output", required=True, help="output .png")
+    g.add_argument("--prim", action="append", metavar="PATH", help="render only meshes at or under this path")
+    g.add_argument("--camera", default=None, metavar="PATH",
+                   help="a UsdGeom.Camera prim to look through (default: frame the meshes from --view)")
+    g.add_argument("--view", default="-60,30", metavar="AZ,EL",
+                   help="azimuth and elevation in degrees of the framing camera (default -60,30)")
+    g.add_argument("--size", default="800x600", metavar="WxH", help="image size in pixels (default 800x600)")
+    g.add_argument("--time", default=None, help="time code to render (default: the stage's start time)")
+    g.add_argument("--levels", type=int, default=0,
+                   help="refine subdivision meshes this many levels before rendering (default 0: as stored)")
+    g.add_argument("--cage", default=None, metavar="FILE",
+                   help="draw the control meshes of this USD file (e.g. the input of a refinement) as lines")
+    g.add_argument("--samples", type=int, default=2, help="samples per pixel along each axis (default 2)")
+    g.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
     return p
 
 
-def _refine(args) -> int:
+# -- progress and messages -------------------------------------------------------------------------------
+
+class ProgressBar:
+    """A one-line progress bar on stderr, redrawn at most ten times a second; cleared when done."""
+
+    def __init__(self, enabled: bool, stream=None):
+        self.stream = stream or sys.stderr
+        self.enabled = enabled
+        self.start = time.perf_counter()
+        self.last = 0.0
+        self.shown = False
+
+    def __call__(self, fraction: float, label: str) -> None:
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        if now - self.last < 0.1 and fraction < 1.0:
+            return
+        self.last = now
+        width = shutil.get_terminal_size((80, 20)).columns
+        bar = "#" * int(20 * fraction) + "-" * (20 - int(20 * fraction))
+        line = f"[{bar}] {100 * fraction:3.0f}% {now - self.start:5.1f}s {label}"
+        self.stream.write("\r" + line[: width - 1].ljust(width - 1))
+        self.stream.flush()
+        self.shown = True
+
+    def clear(self) -> None:
+        if self.shown:
+            width = shutil.get_terminal_size((80, 20)).columns
+            self.stream.write("\r" + " " * (width - 1) + "\r")
+            self.stream.flush()
+            self.shown = False
+
+
+def _warn(message: str) -> None:
+    print(f"{PROG}: warning: {message}", file=sys.stderr)
+
+
+def _quiet_warp():
     import warp as wp
 
     wp.config.log_level = 30  # warnings and errors only: no start-up banner, no module load lines
+    return wp
+
+
+def _max_memory(text):
+    from .estimate import default_max_memory, parse_size
+
+    if text is None:
+        return default_max_memory()
+    try:
+        return parse_size(text)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def _kind(path: str) -> str:
+    ext = os.path.splitext(path)[1].lower()
+    if ext == ".obj":
+        return "obj"
+    if ext in USD_EXTENSIONS:
+        return "usd"
+    raise SubdivInputError(f"{path}: only .obj, .usd, .usda and .usdc input is supported")
+
+
+def _check_input(path: str) -> str:
+    kind = _kind(path)
+    if not os.path.exists(path):
+        raise SubdivInputError(f"{path}: no such file")
+    if os.path.isdir(path):
+        raise SubdivInputError(f"{path}: is a folder, not a file")
+    return kind
+
+
+# -- refine --------------------------------------------------------------------------------------------
+
+def _table(rows, header, left=(0, 1, 2)) -> list:
+    widths = [max(len(str(r[i])) for r in rows + [header]) for i in range(len(header))]
+    fmt = lambda r: "  ".join(str(c).ljust(w) if i in left else str(c).rjust(w)  # noqa: E731
+                              for i, (c, w) in enumerate(zip(r, widths)))
+    return [fmt(header)] + [fmt(r) for r in rows]
+
+
+def _summary(source, output, levels, device, reports, seconds, predicted) -> None:
+    from .estimate import format_bytes
+
+    print(f"{source} -> {output}: {levels} levels on {device}")
+    header = ("prim", "scheme", "rules", "faces in", "faces out", "vertices out", "samples", "time")
+    rows = [(r.path, r.scheme, r.rules, f"{r.faces_in:,}", f"{r.faces_out:,}", f"{r.vertices_out:,}", r.samples,
+             f"{r.seconds:.2f} s") for r in reports]
+    for line in _table(rows, header):
+        print("  " + line)
+    fin = sum(r.faces_in for r in reports)
+    fout = sum(r.faces_out for r in reports)
+    vin = sum(r.vertices_in for r in reports)
+    vout = sum(r.vertices_out for r in reports)
+    print(f"  total: {len(reports)} mesh{'es' if len(reports) != 1 else ''}, faces {fin} -> {fout}, vertices {vin} -> "
+          f"{vout}, {seconds:.2f} s (predicted memory {format_bytes(predicted)}); wrote {output}")
+
+
+def _refine(args) -> int:
+    if args.levels < 0:
+        raise UsageError(f"--levels must be >= 0, got {args.levels}")
+    kind = _check_input(args.input)
+    out_kind = _kind(args.output) if os.path.splitext(args.output)[1] else None
+    if out_kind is None:
+        raise UsageError(f"{args.output}: give the output an extension (.obj, .usd, .usda or .usdc)")
+    max_memory = _max_memory(args.max_memory)
+    progress = ProgressBar(not args.quiet and (args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())))
+    try:
+        if kind == "obj":
+            return _refine_obj(args, out_kind, max_memory, progress)
+        if out_kind != "usd":
+            raise UsageError(f"{args.output}: USD input is written as .usd, .usda or .usdc")
+        return _refine_usd(args, max_memory, progress)
+    finally:
+        progress.clear()
+
+
+def _refine_usd(args, max_memory, progress) -> int:
+    _quiet_warp()
+    from .usd import refine_usd
+    from .usd_read import parse_frames
+
+    frames = parse_frames(args.frames)
+    result = refine_usd(
+        args.input, args.output, args.levels, prims=args.prim, scheme=args.scheme, rules=args.rules,
+        boundary=args.boundary, device=args.device, precision=args.precision, frames=frames, limit=args.limit,
+        normals=args.normals, max_memory=max_memory, flatten=args.flatten,
+        semi_sharp="sharp" if args.semi_sharp_as_sharp else "error", progress=progress,
+    )
+    progress.clear()
+    for w in result.warnings:
+        _warn(w)
+    if not args.quiet:
+        _summary(args.input, args.output, args.levels, _device_name(args.device), result.reports, result.seconds,
+                 result.predicted_bytes)
+    return 0
+
+
+def _device_name(device) -> str:
+    from .refiner import default_device
+
+    return str(device or default_device())
+
+
+def _refine_obj(args, out_kind, max_memory, progress) -> int:
+    _quiet_warp()
+    from .estimate import estimate, format_bytes, total_bytes, MAX_CORNERS
     from .objio import read_obj, write_obj
     from .refiner import Refiner
+    from .usd import PrimReport
 
-    if not args.input.lower().endswith(".obj"):
-        raise SubdivInputError(f"{args.input}: only .obj input is supported so far")
-    if not os.path.isfile(args.input):
-        raise SubdivInputError(f"{args.input}: no such file")
+    if args.prim or args.frames:
+        raise UsageError("--prim and --frames apply to USD input only")
+    if args.limit or args.normals or args.flatten:
+        raise UsageError("--limit, --normals and --flatten apply to USD input only")
     start = time.perf_counter()
     data = read_obj(args.input)
     mesh = data.mesh
@@ -50,30 +259,206 @@ def _refine(args) -> int:
     if scheme == "auto":
         scheme = "loop" if mesh.is_all(3) else "catmull-clark"
     boundary = args.boundary or data.options.get("boundary", "edge-and-corner")
-    refiner = Refiner(mesh, args.levels, scheme=scheme, rules=args.rules, boundary=boundary,
+    est = estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, args.levels, scheme,
+                   precision=args.precision)
+    if est.final.corners > MAX_CORNERS:
+        raise SubdivInputError(f"{args.input}: {args.levels} levels make {est.final.faces:,} faces, more than 32-bit "
+                               "tables can index; lower --levels")
+    need = total_bytes([est])
+    if max_memory is not None and need > max_memory:
+        raise SubdivInputError(
+            f"refining {args.input} {args.levels} levels would need about {format_bytes(need)} ({est.final.faces:,} "
+            f"faces), more than --max-memory {format_bytes(max_memory)}; lower --levels or raise --max-memory"
+        )
+    progress(0.0, f"{args.input}: {args.levels} levels")
+    refiner = Refiner(mesh, args.levels, scheme=scheme, rules=args.rules or "piecewise-smooth", boundary=boundary,
                       device=args.device, precision=args.precision)
+    progress(0.7, f"{args.input}: points")
     refined = refiner.refine()
+    progress(0.9, f"writing {args.output}")
     out_dir = os.path.dirname(os.path.abspath(args.output))
-    os.makedirs(out_dir, exist_ok=True)
-    write_obj(args.output, refined.points, refined.face_vertex_counts, refined.face_vertex_indices)
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+        if out_kind == "obj":
+            write_obj(args.output, refined.points, refined.face_vertex_counts, refined.face_vertex_indices)
+        else:
+            from .usd_write import write_mesh_layer
+
+            write_mesh_layer(os.path.abspath(args.output), os.path.splitext(os.path.basename(args.input))[0],
+                             refined.points, refined.face_vertex_counts, refined.face_vertex_indices)
+    except OSError as exc:
+        raise SubdivInputError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
+    progress.clear()
     if not args.quiet:
-        elapsed = time.perf_counter() - start
-        print(f"{args.input}: {scheme}, {args.rules} rules, {args.levels} levels on {refiner.device}")
+        rep = PrimReport(os.path.basename(args.input), scheme, args.rules or "piecewise-smooth", mesh.num_faces,
+                         refined.num_faces, mesh.num_vertices, refined.num_vertices, 1, time.perf_counter() - start)
+        print(f"{args.input}: {scheme}, {rep.rules} rules, {args.levels} levels on {refiner.device}")
         print(f"  faces {mesh.num_faces} -> {refined.num_faces}, vertices {mesh.num_vertices} -> "
-              f"{refined.num_vertices}, {elapsed:.2f} s; wrote {args.output}")
+              f"{refined.num_vertices}, {rep.seconds:.2f} s; wrote {args.output}")
     return 0
 
 
+# -- info ----------------------------------------------------------------------------------------------
+
+def _info(args) -> int:
+    from .estimate import estimate, format_bytes
+
+    kind = _check_input(args.input)
+    if args.levels < 0:
+        raise UsageError(f"--levels must be >= 0, got {args.levels}")
+    if kind == "obj":
+        _quiet_warp()
+        from .objio import read_obj
+
+        data = read_obj(args.input)
+        mesh = data.mesh
+        scheme = "loop" if mesh.is_all(3) else "catmull-clark"
+        print(f"{args.input}: 1 mesh (OBJ)")
+        print(f"{os.path.basename(args.input)}")
+        _print_control(mesh, scheme, data.options.get("boundary", "edge-and-corner"), "piecewise-smooth")
+        _print_levels(lambda lv: estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges,
+                                          lv, scheme), args.levels)
+        return 0
+    _quiet_warp()
+    from pxr import UsdGeom
+
+    from .usd import estimate_prim, plan
+    from .usd_read import summarize_tags
+
+    p = plan(args.input, args.levels, prims=args.prim, require_meshes=False)
+    stage = p.stage
+    times = ""
+    if stage.HasAuthoredTimeCodeRange():
+        times = f", time codes {stage.GetStartTimeCode():g} to {stage.GetEndTimeCode():g}"
+    print(f"{args.input}: {len(p.prims)} subdivision mesh{'es' if len(p.prims) != 1 else ''} (upAxis "
+          f"{UsdGeom.GetStageUpAxis(stage)}, metersPerUnit {UsdGeom.GetStageMetersPerUnit(stage):g}{times})")
+    for sp in p.prims:
+        print(sp.path)
+        _print_control(sp.mesh, sp.scheme, sp.boundary, sp.rules, sp.usd_scheme, sp.orientation)
+        print(f"  tags: {summarize_tags(sp)}")
+        if sp.point_times:
+            print(f"  time: points have {len(sp.point_times)} samples ({sp.point_times[0]:g} to {sp.point_times[-1]:g})")
+        else:
+            print("  time: static points")
+        for name, times in sp.point_arrays.items():
+            print(f"  {name}: " + (f"{len(times)} samples" if times else "static"))
+        if sp.primvars:
+            print("  primvars: " + ", ".join(
+                f"{pv.name.split(':', 1)[1]} ({pv.interpolation} {pv.type_name}{', indexed' if pv.indexed else ''})"
+                for pv in sp.primvars))
+        for name, reason in sp.dropped:
+            print(f"  not refinable: {name} ({reason})")
+        for w in sp.warnings:
+            print(f"  note: {w}")
+        _print_levels(lambda lv, sp=sp: estimate_prim(sp, lv), args.levels)
+    for path, reason in p.left_alone:
+        print(f"{path}: left alone ({reason})")
+    print(f"total predicted memory at {args.levels} levels: {format_bytes(p.predicted_bytes)}")
+    return 0
+
+
+def _print_control(mesh, scheme, boundary, rules, usd_scheme=None, orientation=None) -> None:
+    import numpy as np
+
+    sizes = mesh.face_vertex_counts
+    kinds = [f"{int(np.count_nonzero(sizes == 3))} triangles", f"{int(np.count_nonzero(sizes == 4))} quads"]
+    other = int(np.count_nonzero(sizes > 4))
+    if other:
+        kinds.append(f"{other} larger polygons")
+    head = f"  scheme {usd_scheme} -> {scheme}" if usd_scheme else f"  scheme {scheme}"
+    print(f"{head}, rules {rules if scheme != 'bilinear' else '-'}, boundary {boundary}"
+          + (f", {orientation}" if orientation else ""))
+    print(f"  control: {mesh.num_vertices} points, {mesh.num_faces} faces ({', '.join(kinds)}), {mesh.num_edges} edges")
+
+
+def _print_levels(estimate_at, levels: int) -> None:
+    """A table of predicted faces, vertices and memory for levels 1..levels."""
+    from .estimate import format_bytes
+
+    rows = []
+    for lv in range(1, levels + 1):
+        e = estimate_at(lv)
+        rows.append((lv, f"{e.final.faces:,}", f"{e.final.vertices:,}", format_bytes(e.working_bytes + e.output_bytes)))
+    if rows:
+        for line in _table(rows, ("level", "faces", "vertices", "memory"), left=()):
+            print("    " + line)
+
+
+# -- render --------------------------------------------------------------------------------------------
+
+def _render(args) -> int:
+    if os.path.splitext(args.output)[1].lower() != ".png":
+        raise UsageError(f"{args.output}: the preview is written as .png")
+    kind = _check_input(args.input)
+    _quiet_warp()
+    from .render import parse_size, parse_view, render_file
+
+    size = parse_size(args.size)
+    view = parse_view(args.view)
+    if args.samples < 1 or args.samples > 8:
+        raise UsageError(f"--samples must be 1 to 8, got {args.samples}")
+    if args.levels < 0:
+        raise UsageError(f"--levels must be >= 0, got {args.levels}")
+    if args.cage is not None:
+        _check_input(args.cage)
+    render_file(args.input, args.output, kind=kind, prims=args.prim, camera=args.camera, view=view, size=size,
+                time=args.time, levels=args.levels, cage=args.cage, samples=args.samples, device=args.device)
+    return 0
+
+
+# -- main ----------------------------------------------------------------------------------------------
+
 def main(argv=None) -> int:
-    parser = _parser()
-    args = parser.parse_args(argv)
+    from .errors import NonManifoldWarning  # noqa: F401 (imported so that the warning category is known)
+
     try:
-        if args.command == "refine":
-            return _refine(args)
-    except (SubdivInputError, NotImplementedError, ValueError, OSError) as exc:
-        print(f"warp-subdiv: error: {exc}", file=sys.stderr)
+        parser = _parser()
+        args = parser.parse_args(argv)
+        run = {"refine": _refine, "info": _info, "render": _render}[args.command]
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            code = run(args)
+        seen = set()
+        for w in caught:
+            text = str(w.message).splitlines()[0] if str(w.message) else w.category.__name__
+            if text not in seen:
+                seen.add(text)
+                _warn(text)
+        return code
+    except SystemExit as exc:  # --help
+        return int(exc.code or 0)
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+    except MemoryError:
+        print(f"{PROG}: error: out of memory; lower --levels (or --max-memory, whose prediction was too low)",
+              file=sys.stderr)
         return 2
-    return 2
+    except (SubdivInputError, NotImplementedError, ValueError, OSError) as exc:
+        print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # noqa: BLE001 (the last line of defence: no traceback for the user)
+        if _is_usd_error(exc):
+            from .usd_read import tf_message
+
+            print(f"{PROG}: error: {tf_message(exc)}", file=sys.stderr)
+            return 2
+        if os.environ.get("WARP_SUBDIV_DEBUG"):
+            raise
+        print(f"{PROG}: internal error: {type(exc).__name__}: {_one_line(exc)} (set WARP_SUBDIV_DEBUG=1 for a "
+              "traceback)", file=sys.stderr)
+        return 1
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    if isinstance(exc, OSError) and exc.strerror and exc.filename:
+        text = f"{exc.filename}: {exc.strerror}"
+    return text or type(exc).__name__
+
+
+def _is_usd_error(exc: BaseException) -> bool:
+    return type(exc).__module__.startswith("pxr") and type(exc).__name__ == "ErrorException"
 
 
 if __name__ == "__main__":

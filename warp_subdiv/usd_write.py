@@ -28,6 +28,13 @@ def check_output_path(output: str, stage: Usd.Stage | None = None) -> str:
     out = os.path.realpath(os.path.abspath(output))
     if os.path.isdir(out):
         raise SubdivInputError(f"{output}: is a folder")
+    folder = os.path.dirname(out)
+    while not os.path.exists(folder) and os.path.dirname(folder) != folder:
+        folder = os.path.dirname(folder)  # the nearest existing ancestor: the rest will be created
+    if not os.path.isdir(folder):
+        raise SubdivInputError(f"{output}: cannot write there: {folder} is not a folder")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise SubdivInputError(f"{output}: cannot write there: {folder} is not writable")
     if stage is not None:
         for layer in stage.GetUsedLayers():
             real = layer.realPath
