@@ -111,11 +111,12 @@ def _edge_corner_pairs(level: Level):
 
 
 def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop",
-                   regular=None) -> StencilTable:
+                   regular=None, endpoint_weights=None) -> StencilTable:
     """The stencil table that refines ``level`` to the next level.
 
     ``regular``: optional (vertex mask, edge mask) of the rows the regular kernels compute (see
     :func:`build_regular`); those rows are left out, and the table lists the rows it holds in ``rows``.
+    ``endpoint_weights``: the (w_a, w_b) of every non-crease edge, when the caller has them already.
     """
     scheme = level.scheme
     V, F, E = level.num_vertices, level.num_faces, level.num_edges
@@ -213,10 +214,14 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     out.put(edge_row0 + se, 0, ev[se, 0], wa)
     out.put(edge_row0 + se, 1, ev[se, 1], wb)
 
-    me = e[~sharp & ~skip_edge]
+    smooth_edges = np.flatnonzero(~sharp)
+    if endpoint_weights is None:
+        endpoint_weights = _edge_endpoint_weights(level, rule_set, smooth_edges, h0)
+    keep = ~skip_edge[smooth_edges]
+    me = smooth_edges[keep]
+    w_a, w_b = endpoint_weights[0][keep], endpoint_weights[1][keep]
     a, b = ev[me, 0], ev[me, 1]
     g0, g1 = h0[me], h1[me]
-    w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
     _, w_wing = rules.smooth_edge_weights(scheme)
     rows = edge_row0 + me
     if cc:
@@ -290,7 +295,8 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
     w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
     w, w_wing = rules.smooth_edge_weights(scheme)
     edge_regular[me[(np.abs(w_a - w) > 0) | (np.abs(w_b - w) > 0)]] = False
-    explicit = build_stencils(level, rule_set, loop_beta, regular=(vertex_regular, edge_regular))
+    explicit = build_stencils(level, rule_set, loop_beta, regular=(vertex_regular, edge_regular),
+                              endpoint_weights=(w_a, w_b))
     valence = np.arange(np.diff(level.vert_corner_offsets).max() + 1, dtype=np.float64)
     valence[valence < 3] = 3  # unused entries (valence < 3 is never a smooth vertex)
     if scheme == CATMULL_CLARK:

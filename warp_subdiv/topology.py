@@ -475,10 +475,14 @@ def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
     # Child face h (one per parent corner) holds, in this cyclic order: the child of v_h, the child of
     # edge h, the face child, the child of edge prev(h). As in OpenSubdiv, it is rotated so that the vertex
     # child sits at position (local index of h) mod 4: type t of corner h is child corner 4h + (t + r) % 4.
-    r = (h - level.face_starts()[face]) % 4
+    if level.face_size == 4:  # the local index of corner h is h % 4
+        def child(hh, t):
+            return 4 * hh + ((hh + t) & 3)
+    else:
+        r = (h - level.face_starts()[face]) % 4
 
-    def child(hh, t):
-        return 4 * hh + (t + r[hh]) % 4
+        def child(hh, t):
+            return 4 * hh + (t + r[hh]) % 4
 
     cv = np.empty(4 * C, dtype=np.int64)
     ce = np.empty(4 * C, dtype=np.int64)
