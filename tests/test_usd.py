@@ -114,6 +114,9 @@ def test_output_formats(tmp_path, ext, binary):
     refine_usd(os.path.join(SCENES_DIR, "twisted_boundary.usda"), str(dst), 1, device="cpu")
     head = dst.read_bytes()[:8]
     assert head.startswith(b"PXR-USDC") == binary and head.startswith(b"#usda") != binary
+    umask = os.umask(0)
+    os.umask(umask)
+    assert os.stat(dst).st_mode & 0o777 == 0o666 & ~umask  # readable like any new file, not 0600
     stage = opened(str(dst))
     assert UsdGeom.Mesh(stage.GetPrimAtPath("/World/OpenSubdiv/Fan")).GetSubdivisionSchemeAttr().Get() == "none"
 

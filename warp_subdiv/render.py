@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SubdivInputError
+from .usd_write import publish
 
 BACKGROUND_TOP = np.array([0.93, 0.94, 0.96])
 BACKGROUND_BOTTOM = np.array([0.78, 0.80, 0.84])
@@ -80,13 +81,11 @@ def parse_size(text: str):
     return w, h
 
 
-def parse_view(text: str):
-    try:
-        az, el = (float(v) for v in str(text).split(","))
-    except ValueError:
-        raise SubdivInputError(f"--view {text!r}: give AZIMUTH,ELEVATION in degrees, e.g. -60,30") from None
+def check_view(view):
+    """(azimuth, elevation) in degrees; the elevation strictly between -90 and 90."""
+    az, el = (float(v) for v in view)
     if not (-90.0 < el < 90.0) or not math.isfinite(az):
-        raise SubdivInputError(f"--view {text!r}: the elevation must lie strictly between -90 and 90 degrees")
+        raise SubdivInputError(f"--view {az:g} {el:g}: the elevation must lie strictly between -90 and 90 degrees")
     return az, el
 
 
@@ -534,7 +533,7 @@ def write_png(path: str, rgb: np.ndarray) -> None:
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(png_bytes(rgb))
-        os.replace(tmp, path)
+        publish(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

@@ -20,6 +20,19 @@ _NOT_COPIED = {"subLayers", "subLayerOffsets", "primChildren", "comment", "docum
                "owner", "sessionOwner", "hasOwnedSubLayers"}
 
 
+def publish(tmp: str, output: str) -> None:
+    """Rename the finished temporary file over ``output``, with the permissions a new file would get (mkstemp
+    makes files only their owner can read) or those of the file it replaces."""
+    try:
+        mode = os.stat(output).st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        mode = 0o666 & ~umask
+    os.chmod(tmp, mode)
+    os.replace(tmp, output)
+
+
 def check_output_path(output: str, stage: Usd.Stage | None = None) -> str:
     """Absolute output path; refuses unknown extensions and any file the input stage reads."""
     ext = os.path.splitext(output)[1].lower()
@@ -118,7 +131,7 @@ class OutputLayer:
                     raise SubdivInputError(f"{self.output}: could not write the flattened layer")
             elif not self.layer.Save():
                 raise SubdivInputError(f"{self.output}: could not save the layer")
-            os.replace(self.tmp, self.output)
+            publish(self.tmp, self.output)
         except OSError as exc:
             self.discard()
             raise SubdivInputError(f"{self.output}: cannot write: {exc.strerror or exc}") from None
@@ -193,7 +206,7 @@ def write_mesh_layer(output: str, name: str, points, face_vertex_counts, face_ve
         if not layer.Save():
             raise OSError(f"could not save {output}")
         del layer
-        os.replace(tmp, output)
+        publish(tmp, output)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
