@@ -465,7 +465,7 @@ def render_previews(root: str) -> None:
         code = cli.main(["refine", src, "-o", refined, "--levels", str(scene.levels), "--device", "cpu", "--quiet"])
         target = refined if code == 0 else src
         cli.main(["render", target, "-o", os.path.join(root, "docs", scene.name + ".png"), "--size", "640x360",
-                  "--view", f"{scene.view[0]:g},{scene.view[1]:g}", "--device", "cpu"]
+                  "--view", f"{scene.view[0]:g}", f"{scene.view[1]:g}", "--samples", "3", "--device", "cpu"]
                  + (["--cage", src] if code == 0 else []))
 
 

@@ -90,7 +90,7 @@ def test_render_command_with_cage_and_prim(tmp_path, capsys):
     src = os.path.join(SCENES_DIR, "concave_corner.usda")
     plain, caged = tmp_path / "plain.png", tmp_path / "caged.png"
     args = ["render", src, "--prim", "/World/PiecewiseSmooth/LPlate", "--size", "48x32", "--samples", "1",
-            "--levels", "1", "--device", "cpu", "--view=-90,60"]
+            "--levels", "1", "--device", "cpu", "--view", "-90", "60"]
     assert cli.main(args + ["-o", str(plain)]) == 0, capsys.readouterr().err
     assert cli.main(args + ["-o", str(caged), "--cage", src]) == 0, capsys.readouterr().err
     a, b = decode_png(plain.read_bytes()), decode_png(caged.read_bytes())

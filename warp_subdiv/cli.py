@@ -82,8 +82,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--prim", action="append", metavar="PATH", help="render only meshes at or under this path")
     g.add_argument("--camera", default=None, metavar="PATH",
                    help="a UsdGeom.Camera prim to look through (default: frame the meshes from --view)")
-    g.add_argument("--view", default="-60,30", metavar="AZ,EL",
-                   help="azimuth and elevation in degrees of the framing camera (default -60,30)")
+    g.add_argument("--view", nargs=2, type=float, default=(-60.0, 30.0), metavar=("AZ", "EL"),
+                   help="azimuth and elevation in degrees of the framing camera around the up axis "
+                        "(default -60 30)")
     g.add_argument("--size", default="800x600", metavar="WxH", help="image size in pixels (default 800x600)")
     g.add_argument("--time", default=None, help="time code to render (default: the stage's start time)")
     g.add_argument("--levels", type=int, default=0,
@@ -391,10 +392,10 @@ def _render(args) -> int:
         raise UsageError(f"{args.output}: the preview is written as .png")
     kind = _check_input(args.input)
     _quiet_warp()
-    from .render import parse_size, parse_view, render_file
+    from .render import check_view, parse_size, render_file
 
     size = parse_size(args.size)
-    view = parse_view(args.view)
+    view = check_view(args.view)
     if args.samples < 1 or args.samples > 8:
         raise UsageError(f"--samples must be 1 to 8, got {args.samples}")
     if args.levels < 0:
