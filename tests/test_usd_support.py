@@ -73,7 +73,7 @@ import pytest  # noqa: E402
 
 import warp_subdiv as ws  # noqa: E402
 from conftest import load_mesh  # noqa: E402
-from warp_subdiv.estimate import estimate, level_counts, parse_size, total_bytes  # noqa: E402
+from warp_subdiv.estimate import RUNTIME_BYTES, estimate, level_counts, parse_size, total_bytes  # noqa: E402
 from warp_subdiv.primvars import FaceMap  # noqa: E402
 
 
@@ -98,10 +98,12 @@ def test_estimate_grows_with_levels_and_samples():
     assert more.working_bytes > 3.5 * one.working_bytes
     assert frames.output_bytes > 9 * one.items["points"]
     # meshes are refined one after the other: outputs add up, working sets do not
-    assert total_bytes([one, more]) == one.output_bytes + more.output_bytes + more.working_bytes
-    # the prediction is in the measured range (450 + 60 + buffers per output vertex at this size)
+    assert total_bytes([one, more]) == one.output_bytes + more.output_bytes + more.working_bytes + RUNTIME_BYTES
+    # without projections: the measured range (450 + 60 + buffers per output vertex at this size)
     per_vertex = (more.working_bytes + more.output_bytes) / more.final.vertices
     assert 500 < per_vertex < 800
+    projecting = estimate("cube", 8, mesh.face_vertex_counts, 12, 4, "catmull-clark", projecting=True)
+    assert projecting.working_bytes - more.working_bytes == 750 * more.final.vertices
 
 
 @pytest.mark.parametrize("text,expected", [("512M", 512 * 2**20), ("8G", 8 * 2**30), ("1.5GiB", int(1.5 * 2**30)),

@@ -244,7 +244,7 @@ def _device_name(device) -> str:
 
 def _refine_obj(args, out_kind, max_memory, progress) -> int:
     _quiet_warp()
-    from .estimate import estimate, format_bytes, total_bytes, MAX_CORNERS
+    from .estimate import MAX_CORNERS, estimate, format_bytes, may_project, total_bytes
     from .objio import read_obj, write_obj
     from .refiner import Refiner
     from .usd import PrimReport
@@ -261,7 +261,7 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
         scheme = "loop" if mesh.is_all(3) else "catmull-clark"
     boundary = args.boundary or data.options.get("boundary", "edge-and-corner")
     est = estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, args.levels, scheme,
-                   precision=args.precision)
+                   precision=args.precision, projecting=may_project(mesh, args.rules or "piecewise-smooth"))
     if est.final.corners > MAX_CORNERS:
         raise SubdivInputError(f"{args.input}: {args.levels} levels make {est.final.faces:,} faces, more than 32-bit "
                                "tables can index; lower --levels")
@@ -302,7 +302,7 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
 # -- info ----------------------------------------------------------------------------------------------
 
 def _info(args) -> int:
-    from .estimate import estimate, format_bytes
+    from .estimate import estimate, format_bytes, may_project
 
     kind = _check_input(args.input)
     if args.levels < 0:
@@ -317,8 +317,9 @@ def _info(args) -> int:
         print(f"{args.input}: 1 mesh (OBJ)")
         print(f"{os.path.basename(args.input)}")
         _print_control(mesh, scheme, data.options.get("boundary", "edge-and-corner"), "piecewise-smooth")
+        projecting = may_project(mesh, "piecewise-smooth")
         _print_levels(lambda lv: estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges,
-                                          lv, scheme), args.levels)
+                                          lv, scheme, projecting=projecting), args.levels)
         return 0
     _quiet_warp()
     from pxr import UsdGeom

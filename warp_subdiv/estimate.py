@@ -13,14 +13,17 @@ Bytes (what the memory guard compares with ``--max-memory``) are the sum of
   56 to 72 bytes per vertex for float32 weights);
 * the Warp buffers, one array per vertex of every level and data width (3 for points, and each primvar's
   width), kept by the refiner for the next frame;
-* the topology working set of the refiner, 450 bytes per vertex of the last level (measured: peak RSS minus
-  the items above for Catmull-Clark cubes and Loop icosahedra at levels 7 to 9, 510 to 580 bytes per output
-  vertex in all);
+* the topology working set of the refiner, 450 bytes per vertex of the last level, and 750 more where the
+  piecewise-smooth rules project (flatness at crease and corner sectors, prescribed normals): measured as the
+  peak RSS of ``warp-subdiv refine`` (``/usr/bin/time -f %M``) minus that of importing warp_subdiv and pxr,
+  per output vertex, on the bundled scenes at 0.4 to 1.6 million output vertices: 390 (closed cube),
+  495 (OpenSubdiv rules with creases), 690 to 1170 (piecewise-smooth with creases, concave corners or
+  prescribed normals);
 * what the written layer holds until it is saved: face counts and indices once, and per written time sample
   the points (and extent), velocities, accelerations, normals and primvars.
 
 The tables and working set are freed after each mesh, the layer's data is not: the total is the sum of every
-mesh's output plus the largest working set.
+mesh's output plus the largest working set, plus 64 MiB for Warp's runtime and kernels.
 """
 from __future__ import annotations
 
@@ -31,6 +34,9 @@ import numpy as np
 
 TABLE_BYTES_PER_VERTEX = 60
 TOPOLOGY_BYTES_PER_VERTEX = 450
+PROJECTION_BYTES_PER_VERTEX = 750
+#: Warp's runtime and loaded kernel modules (measured: about 30 to 60 MiB on the CPU).
+RUNTIME_BYTES = 64 * 2**20
 #: The refiner's tables are int32: no level may hold this many face corners.
 MAX_CORNERS = 2**31 - 1
 
@@ -96,6 +102,7 @@ def estimate(
     uniform_width: int = 0,
     extra_point_arrays: int = 0,
     extra_level: bool = False,
+    projecting: bool = False,
 ) -> Estimate:
     """Bytes needed to refine one mesh ``levels`` times and hold ``samples`` written time samples.
 
@@ -103,7 +110,9 @@ def estimate(
     ``face_varying_width`` the same per face corner, ``uniform_width`` per face. ``extra_point_arrays``:
     further 3-vectors per vertex and sample (velocities, accelerations, normals). ``extra_level``: the
     refiner may build one level more (limit points and normals read their masks one level deeper where
-    flatness or normal control act), so its working set is counted for ``levels + 1``.
+    flatness or normal control act), so its working set is counted for ``levels + 1``. ``projecting``: the
+    refiner builds flatness or normal-control tables on every level (piecewise-smooth rules on a mesh with
+    a boundary, creases, corners or prescribed normals).
     """
     counts = level_counts(num_vertices, face_sizes, num_edges, levels + (1 if extra_level else 0), scheme)
     work = counts
@@ -115,7 +124,8 @@ def estimate(
     items = {
         "stencil tables": TABLE_BYTES_PER_VERTEX * refined_vertices,
         "level buffers": real * all_vertices * (3 + vertex_width),
-        "topology": TOPOLOGY_BYTES_PER_VERTEX * work[-1].vertices,
+        "topology": (TOPOLOGY_BYTES_PER_VERTEX + (PROJECTION_BYTES_PER_VERTEX if projecting else 0))
+        * work[-1].vertices,
         "faces": 4 * (last.faces + last.corners),
         "points": samples * last.vertices * 12 * (1 + extra_point_arrays),
         "primvars": samples * 4 * (last.vertices * vertex_width + last.corners * face_varying_width
@@ -126,12 +136,22 @@ def estimate(
     return Estimate(path, counts, working, output, items)
 
 
+def may_project(mesh, rules: str, flatness=None) -> bool:
+    """Whether the refiner may build projection tables for ``mesh``: piecewise-smooth rules on a mesh with
+    prescribed normals, explicit flatness, tags, or a boundary (whose extraordinary sectors get flatness s*)."""
+    if rules != "piecewise-smooth":
+        return False
+    if len(mesh.normal_vertices) or len(mesh.creases) or len(mesh.corners) or len(mesh.concave) or flatness is not None:
+        return True
+    return bool(np.any(np.bincount(mesh.edges.corner_edge, minlength=mesh.num_edges) == 1))
+
+
 def total_bytes(estimates) -> int:
     """Peak bytes of refining these meshes one after the other into one layer."""
     estimates = list(estimates)
     if not estimates:
         return 0
-    return sum(e.output_bytes for e in estimates) + max(e.working_bytes for e in estimates)
+    return sum(e.output_bytes for e in estimates) + max(e.working_bytes for e in estimates) + RUNTIME_BYTES
 
 
 def physical_memory() -> int | None:

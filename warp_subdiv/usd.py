@@ -29,7 +29,7 @@ from pxr import Sdf, Usd, Vt
 
 from . import __version__
 from .errors import SubdivInputError
-from .estimate import Estimate, estimate, format_bytes, total_bytes, MAX_CORNERS
+from .estimate import MAX_CORNERS, Estimate, estimate, format_bytes, may_project, total_bytes
 from .primvars import FaceMap, corners_to_vertices, vertices_used
 from .refiner import Refined, Refiner
 from .usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, mesh_prims, open_stage,
@@ -144,6 +144,7 @@ def estimate_prim(sp: SubdivPrim, levels: int, precision: str = "float32", norma
         "loop" if sp.scheme == "loop" else "catmull-clark", precision=precision, samples=_sample_count(sp),
         vertex_width=widths["vertex"], face_varying_width=widths["faceVarying"], uniform_width=widths["uniform"],
         extra_point_arrays=len(sp.point_arrays) + (1 if normals else 0), extra_level=limit or normals,
+        projecting=sp.scheme != "bilinear" and may_project(sp.mesh, sp.rules, sp.flatness),
     )
 
 
