@@ -4,9 +4,11 @@ refinement of per-face-corner data.
 Both follow the refiner's child order (OpenSubdiv's, see :mod:`warp_subdiv.topology`):
 
 * Catmull-Clark (and bilinear): control corner h of a face becomes child quad h. Its four corners hold, in
-  cyclic order starting at position ``local index of h mod 4``: the child of h's vertex, the child of the edge
-  from h to the next corner, the face child, the child of the edge from the previous corner to h. Every
-  later level splits quad f into quads 4f..4f+3 by the same rule.
+  cyclic order: the child of h's vertex, the child of the edge from h to the next corner, the face child, the
+  child of the edge from the previous corner to h; children of a quad start at position j (the local index
+  of h), as in OpenSubdiv, children of other polygons at 0 (OpenSubdiv) or at j mod 4 (earlier versions of
+  the refiner: :func:`rotates_non_quads` asks the refiner which). Every later level splits quad f into quads
+  4f..4f+3 by the same rule.
 * Loop: polygons are fan-triangulated from their first corner, triangle t becomes triangles 4t..4t+3: child
   j < 3 holds corner j, the midpoint of edge j, the midpoint of edge j-1 (at positions j, j+1, j+2); child 3
   holds the midpoint of edge m+1 at position m.
@@ -16,6 +18,8 @@ varying primvars, and the points of bilinear meshes) are refined with :meth:`Fac
 linearly inside every control face.
 """
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
@@ -121,13 +125,26 @@ def _split_polygons(vals: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     face_mean = np.add.reduceat(vals, offsets[:-1], axis=0) / sizes[:, None]
     corner_face = np.repeat(np.arange(len(sizes)), sizes)
     local = np.arange(len(vals)) - offsets[:-1][corner_face]
-    r = local % 4
+    r = local % 4 if rotates_non_quads() else np.where(sizes[corner_face] == 4, local, 0)
     by_type = (vals, 0.5 * (vals + vals[nxt]), face_mean[corner_face], 0.5 * (vals[prv] + vals))
     out = np.empty((4 * len(vals), vals.shape[1]))
     base = 4 * np.arange(len(vals))
     for t, value in enumerate(by_type):
         out[base + (t + r) % 4] = value
     return out
+
+
+@functools.lru_cache(maxsize=None)
+def rotates_non_quads() -> bool:
+    """Whether the refiner rotates the child quads of non-quad faces like those of quads (vertex child at
+    position j mod 4) or leaves them unrotated (vertex child first, as OpenSubdiv does): one pentagon, one
+    level, and where its corner 1's vertex child sits in child quad 1."""
+    from .refiner import Refiner
+
+    pentagon = Mesh(np.array([[np.cos(a), np.sin(a), 0.0] for a in np.linspace(0, 2 * np.pi, 5, endpoint=False)]),
+                    [5], [0, 1, 2, 3, 4])
+    _, indices = Refiner(pentagon, 1, device="cpu").topology()
+    return bool(indices.reshape(-1, 4)[1, 1] == 1)
 
 
 def _split_triangles(vals: np.ndarray) -> np.ndarray:
