@@ -288,14 +288,16 @@ def test_mesh_must_be_a_mesh():
         ws.Refiner((GRID_PTS, GRID_COUNTS, GRID_IDX), 1, device="cpu")
 
 
-def test_finite_sharpness_not_implemented():
-    with pytest.raises(NotImplementedError, match=r"crease 1 \(1, 4\).*2\.5"):
-        build(grid(creases=[[0, 1], [1, 4]], crease_sharpness=[10.0, 2.5]))
-    with pytest.raises(NotImplementedError, match=r"vertex 4\b.*2\.5"):
-        build(grid(corners=[4], corner_sharpness=[2.5]))
-    # sharpness >= 10 is infinitely sharp and accepted; 0 means untagged
+def test_sharpness_values():
+    """Finite sharpness is semi-sharp (supported); >= 10 infinitely sharp; 0 untagged; negative refused."""
+    build(grid(creases=[[0, 1], [1, 4]], crease_sharpness=[10.0, 2.5]))
+    build(grid(corners=[4], corner_sharpness=[2.5]))
     build(grid(creases=[[1, 4]], crease_sharpness=[12.0]))
     build(grid(creases=[[1, 4]], crease_sharpness=[0.0]))
+    with pytest.raises(SubdivInputError, match=r"crease_sharpness\[0\] = -1"):
+        grid(creases=[[1, 4]], crease_sharpness=[-1.0])
+    with pytest.raises(ValueError, match="crease_method"):
+        ws.Refiner(grid(), 1, device="cpu", crease_method="bspline")
 
 
 # --------------------------------------------------------------------------------------------------------

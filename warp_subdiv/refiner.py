@@ -81,6 +81,7 @@ class Refiner:
         triangulate: bool = True,
         flatness=None,
         normal_strength: float = 1.0,
+        crease_method: str = "uniform",
     ):
         if not isinstance(mesh, Mesh):
             raise TypeError(f"mesh must be a warp_subdiv.Mesh, got {type(mesh).__name__}")
@@ -115,7 +116,9 @@ class Refiner:
         self.normal_strength = strength
         self.device = wp.get_device(device if device is not None else default_device())
 
-        level = base_level(mesh, self.scheme, boundary, rules, triangulate, flatness=flatness if paper else None)
+        self.crease_method = crease_method
+        level = base_level(mesh, self.scheme, boundary, rules, triangulate, flatness=flatness if paper else None,
+                           crease_method=crease_method)
         self.base_num_vertices = level.num_vertices
         normal_vertices = mesh.normal_vertices.astype(np.int64)
         self._normals = (normal_vertices, mesh.normal_vectors)
@@ -180,7 +183,8 @@ class Refiner:
         tables; they are rebuilt here on first use."""
         if self._full_tables is None:
             level = base_level(self.mesh, self.scheme, self.boundary, self.rules, self._triangulate,
-                               flatness=self._flatness if self.rules == "piecewise-smooth" else None)
+                               flatness=self._flatness if self.rules == "piecewise-smooth" else None,
+                               crease_method=self.crease_method)
             self._full_tables = []
             for _ in range(self.levels):
                 self._full_tables.append(build_stencils(level, self.rules, self.loop_beta))
@@ -428,6 +432,7 @@ class Refiner:
                 self.mesh, self.levels + 1, scheme=self.scheme, rules=self.rules, boundary=self.boundary,
                 device=self.device, precision=self.precision, loop_beta=self.loop_beta,
                 triangulate=self._triangulate, flatness=self._flatness, normal_strength=self.normal_strength,
+                crease_method=self.crease_method,
             )
         return self._deeper
 
@@ -450,7 +455,8 @@ class Refiner:
             level=self.levels,
             scheme=self.scheme,
             rules=self.rules,
-            options={"boundary": self.boundary, "precision": self.precision, "loop_beta": self.loop_beta},
+            options={"boundary": self.boundary, "precision": self.precision, "loop_beta": self.loop_beta,
+                     "crease_method": self.crease_method},
             refiner=self,
         )
 
@@ -468,6 +474,7 @@ def refine(
     triangulate: bool = True,
     flatness=None,
     normal_strength: float = 1.0,
+    crease_method: str = "uniform",
 ) -> Refined:
     """Refine ``mesh`` uniformly ``levels`` times.
 
@@ -480,8 +487,11 @@ def refine(
     ``flatness`` (piecewise-smooth only): None for the optimal s* of every crease/corner sector, a number in
     [0, 1] for all sectors, or one value per control vertex (NaN: s*) for the sectors of that vertex.
     ``normal_strength``: s in [0, 1] of normal control at vertices with prescribed normals (``Mesh(normals=)``).
+    ``crease_method``: how semi-sharp creases (finite sharpness) decay per level: "uniform" (by 1, OpenSubdiv's
+    default) or "chaikin" (OpenSubdiv's CREASE_CHAIKIN).
     """
     return Refiner(
         mesh, levels, scheme=scheme, rules=rules, boundary=boundary, device=device, precision=precision,
         loop_beta=loop_beta, triangulate=triangulate, flatness=flatness, normal_strength=normal_strength,
+        crease_method=crease_method,
     ).refine()

@@ -12,7 +12,7 @@ import numpy as np
 
 from . import rules
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
-from .topology import Level, _offsets, _rows_of, expand_counts
+from .topology import Level, _offsets, _rows_of, child_rules, child_sharpness, expand_counts, fractional_weight
 
 
 @dataclass
@@ -68,11 +68,13 @@ class _Layout:
         )
 
 
-def _crease_neighbours(level: Level) -> np.ndarray:
-    """(V, 2) the two crease-edge neighbours of every vertex with exactly two sharp edges (-1 elsewhere)."""
-    ev = level.edge_verts[level.edge_sharp].astype(np.int64)
-    a = np.concatenate([ev[:, 0], ev[:, 1]])
-    b = np.concatenate([ev[:, 1], ev[:, 0]])
+def _crease_neighbours(level: Level, sharp_ends: np.ndarray) -> np.ndarray:
+    """(V, 2) the far ends of the (up to two) edges marked sharp at each vertex (-1 where missing).
+
+    ``sharp_ends`` (E, 2): whether edge e counts as sharp at its end j."""
+    ev = level.edge_verts.astype(np.int64)
+    a = np.concatenate([ev[sharp_ends[:, 0], 0], ev[sharp_ends[:, 1], 1]])
+    b = np.concatenate([ev[sharp_ends[:, 0], 1], ev[sharp_ends[:, 1], 0]])
     nb = np.full((level.num_vertices, 2), -1, dtype=np.int64)
     nb[a, 0] = b
     other = nb[a, 0] != b
@@ -111,94 +113,81 @@ def _edge_corner_pairs(level: Level):
 
 
 def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop",
-                   regular=None, endpoint_weights=None) -> StencilTable:
+                   regular=None) -> StencilTable:
     """The stencil table that refines ``level`` to the next level.
 
+    Semi-sharp features follow OpenSubdiv's Sdc::Crease rules: where a vertex's rule changes during the step
+    (its sharpness or its edges' decays to 0) its mask blends the parent and child rules with the fractional
+    weight; a semi-sharp edge whose children are smooth blends the crease and smooth rules with its sharpness.
     ``regular``: optional (vertex mask, edge mask) of the rows the regular kernels compute (see
     :func:`build_regular`); those rows are left out, and the table lists the rows it holds in ``rows``.
-    ``endpoint_weights``: the (w_a, w_b) of every non-crease edge, when the caller has them already.
     """
     scheme = level.scheme
     V, F, E = level.num_vertices, level.num_faces, level.num_edges
     cc = scheme == CATMULL_CLARK
-    vclass = level.vert_class
     voff = level.vert_corner_offsets
-    vcount = np.diff(voff)
     face_sizes = level.face_sizes()
     face_starts = level.face_starts()
     corner_vert = level.corner_vert.astype(np.int64)
     skip_vertex, skip_edge = regular if regular is not None else (np.zeros(V, bool), np.zeros(E, bool))
     with_faces = cc and regular is None
 
+    # ----- rules before and after the step
+    halves, child_vs = child_sharpness(level)
+    parent_rule = level.vert_class
+    child_rule, edge_child_rule = child_rules(level, halves, child_vs)
+    transition = np.isin(parent_rule, [CREASE, CORNER]) & (child_rule != parent_rule) & ~skip_vertex
+    parent_weight = np.where(transition, fractional_weight(level, halves, child_vs), 1.0)
+    sharp_now = np.repeat(level.edge_sharp[:, None], 2, axis=1)
+    pairs = {"parent": _crease_neighbours(level, sharp_now), "child": _crease_neighbours(level, halves > 0)}
+
     # ----- row sizes
-    smooth = ((vclass == SMOOTH) | (vclass == DART)) & ~skip_vertex
     slot_vertex = _rows_of(voff)
     slot_corner = level.vert_corners.astype(np.int64)
-    slot_smooth = smooth[slot_vertex]
     slot_face = level.corner_face(slot_corner)
     per_slot = (face_sizes[slot_face] - 2) if cc else np.ones(len(slot_corner), dtype=np.int64)
-    per_slot = np.where(slot_smooth, per_slot, 0)
-    vertex_sizes = np.where(smooth, 1 + np.bincount(slot_vertex, weights=per_slot, minlength=V).astype(np.int64),
-                            np.where(vclass == CREASE, 3, 1))
+    smooth_size = 1 + np.bincount(slot_vertex, weights=per_slot, minlength=V).astype(np.int64)
+
+    def rule_size(rule):
+        return np.where((rule == SMOOTH) | (rule == DART), smooth_size, np.where(rule == CREASE, 3, 1))
+
+    first_size = rule_size(parent_rule)
+    vertex_sizes = first_size + np.where(transition, rule_size(child_rule), 0)
     vertex_sizes[skip_vertex] = 0
 
     h0, h1 = _edge_corner_pairs(level)
     sharp = level.edge_sharp
     f0 = level.corner_face(h0)
     f1 = level.corner_face(h1)
-    if cc:
-        edge_sizes = np.where(sharp, 2, face_sizes[f0] + face_sizes[f1] - 2)
-    else:
-        edge_sizes = np.where(sharp, 2, 4)
+    smooth_edge_size = (face_sizes[f0] + face_sizes[f1] - 2) if cc else np.full(E, 4)
+    # a semi-sharp edge whose children are not both sharp blends the crease and smooth rules
+    edge_blend = sharp & (edge_child_rule != CREASE)
+    edge_sizes = np.where(sharp, 2 + np.where(edge_blend, smooth_edge_size, 0), smooth_edge_size)
     edge_sizes[skip_edge] = 0
     sizes = [vertex_sizes] + ([face_sizes] if with_faces else ([np.zeros(F, np.int64)] if cc else [])) + [edge_sizes]
     out = _Layout(np.concatenate(sizes), V)
     face_row0 = V
     edge_row0 = V + (F if cc else 0)
 
-    # ----- vertex rows
+    # ----- vertex rows: the parent rule's mask, then (where the rule changes) the child rule's mask
     v = np.arange(V, dtype=np.int64)
-    out.put(v[vclass == CORNER], 0, v[vclass == CORNER], rules.corner_vertex_weights())
-    crease_v = v[vclass == CREASE]
-    w_c, w_n = rules.crease_vertex_weights()
-    nb = _crease_neighbours(level)[crease_v]
-    out.put(crease_v, 0, crease_v, w_c)
-    out.put(crease_v, 1, nb[:, 0], w_n)
-    out.put(crease_v, 2, nb[:, 1], w_n)
-
-    sv = v[smooth]
-    n = vcount[sv].astype(np.float64)
-    slots = np.flatnonzero(slot_smooth)
-    sl_v = slot_vertex[slots]
-    sl_h = slot_corner[slots]
-    sl_n = vcount[sl_v].astype(np.float64)
-    # position of each slot's first entry inside its row: 1 + entries of the row's earlier slots
-    cum = np.concatenate([[0], np.cumsum(per_slot)])
-    sl_pos = 1 + cum[slots] - cum[voff[sl_v]]
-    nxt = level.corner_next(sl_h)
-    if cc:
-        w_self, w_edge, w_face = rules.catmull_clark_interior_vertex_weights(n)
-        m_f = face_sizes[slot_face[slots]].astype(np.float64)
-        # every face point gives 1/n^2 * (1/m) to each of its vertices; v itself collects one per face
-        self_faces = np.bincount(sl_v, weights=1.0 / (sl_n * sl_n * m_f), minlength=V)[sv]
-        out.put(sv, 0, sv, w_self + self_faces)
-        # the edge neighbour p: edge weight plus the face points on both sides of the edge
-        e_sl = level.corner_edge[sl_h].astype(np.int64)
-        other = h0[e_sl] + h1[e_sl] - sl_h
-        m_g = face_sizes[level.corner_face(other)].astype(np.float64)
-        _, w_edge_sl, w_face_sl = rules.catmull_clark_interior_vertex_weights(sl_n)
-        out.put(sl_v, sl_pos, corner_vert[nxt], w_edge_sl + w_face_sl / m_f + w_face_sl / m_g)
-        # the far vertices of the face (not v, not p, not the previous neighbour): face-point weight only
-        far_count = (m_f - 3).astype(np.int64)
-        rep, t = expand_counts(far_count)
-        walk = nxt[rep]
-        walk = _advance(level, walk, t + 1)
-        out.put(sl_v[rep], sl_pos[rep] + 1 + t, corner_vert[walk], (w_face_sl / m_f)[rep])
-    else:
-        w_self, w_ring = rules.loop_interior_vertex_weights(n, loop_beta)
-        out.put(sv, 0, sv, w_self)
-        _, w_ring_sl = rules.loop_interior_vertex_weights(sl_n, loop_beta)
-        out.put(sl_v, sl_pos, corner_vert[nxt], w_ring_sl)
+    keep_v = ~skip_vertex
+    for which, rule, verts, pos, scale in (
+        ("parent", parent_rule, v[keep_v], np.zeros(V, np.int64), parent_weight),
+        ("child", child_rule, v[transition], first_size, 1.0 - parent_weight),
+    ):
+        corner = verts[rule[verts] == CORNER]
+        out.put(corner, pos[corner], corner, scale[corner] * rules.corner_vertex_weights())
+        crease = verts[rule[verts] == CREASE]
+        w_c, w_n = rules.crease_vertex_weights()
+        nb = pairs[which][crease]
+        out.put(crease, pos[crease], crease, scale[crease] * w_c)
+        out.put(crease, pos[crease] + 1, nb[:, 0], scale[crease] * w_n)
+        out.put(crease, pos[crease] + 2, nb[:, 1], scale[crease] * w_n)
+        smooth = np.zeros(V, dtype=bool)
+        smooth[verts[np.isin(rule[verts], [SMOOTH, DART])]] = True
+        _put_smooth_vertices(level, out, smooth, pos, scale, loop_beta, slot_vertex, slot_corner, slot_face,
+                             per_slot, h0, h1)
 
     # ----- face rows (Catmull-Clark)
     if with_faces:
@@ -210,16 +199,15 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     e = np.arange(E, dtype=np.int64)
     ev = level.edge_verts.astype(np.int64)
     se = e[sharp & ~skip_edge]
+    crease_scale = np.where(edge_blend, level.edge_sharpness, 1.0)
     wa, wb = rules.crease_edge_weights()
-    out.put(edge_row0 + se, 0, ev[se, 0], wa)
-    out.put(edge_row0 + se, 1, ev[se, 1], wb)
+    out.put(edge_row0 + se, 0, ev[se, 0], wa * crease_scale[se])
+    out.put(edge_row0 + se, 1, ev[se, 1], wb * crease_scale[se])
 
-    smooth_edges = np.flatnonzero(~sharp)
-    if endpoint_weights is None:
-        endpoint_weights = _edge_endpoint_weights(level, rule_set, smooth_edges, h0)
-    keep = ~skip_edge[smooth_edges]
-    me = smooth_edges[keep]
-    w_a, w_b = endpoint_weights[0][keep], endpoint_weights[1][keep]
+    me = np.flatnonzero((~sharp | edge_blend) & ~skip_edge)
+    w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
+    scale = np.where(edge_blend[me], 1.0 - level.edge_sharpness[me], 1.0)
+    pos0 = np.where(edge_blend[me], 2, 0)
     a, b = ev[me, 0], ev[me, 1]
     g0, g1 = h0[me], h1[me]
     _, w_wing = rules.smooth_edge_weights(scheme)
@@ -228,23 +216,69 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
         m0 = face_sizes[level.corner_face(g0)].astype(np.int64)
         m1 = face_sizes[level.corner_face(g1)].astype(np.int64)
         # each new face point f weighs 1/4, i.e. 1/(4m) on each vertex of its face
-        out.put(rows, 0, a, w_a + w_wing / m0 + w_wing / m1)
-        out.put(rows, 1, b, w_b + w_wing / m0 + w_wing / m1)
-        for g, m, base_pos in ((g0, m0, np.full(len(me), 2)), (g1, m1, m0)):
+        out.put(rows, pos0, a, scale * (w_a + w_wing / m0 + w_wing / m1))
+        out.put(rows, pos0 + 1, b, scale * (w_b + w_wing / m0 + w_wing / m1))
+        for g, m, base_pos in ((g0, m0, pos0 + 2), (g1, m1, pos0 + m0)):
             rep, t = expand_counts(m - 2)
             walk = _advance(level, g[rep], t + 2)
-            out.put(rows[rep], base_pos[rep] + t, corner_vert[walk], w_wing / m[rep])
+            out.put(rows[rep], base_pos[rep] + t, corner_vert[walk], scale[rep] * w_wing / m[rep])
     else:
-        out.put(rows, 0, a, w_a)
-        out.put(rows, 1, b, w_b)
-        out.put(rows, 2, corner_vert[level.corner_prev(g0)], w_wing)
-        out.put(rows, 3, corner_vert[level.corner_prev(g1)], w_wing)
+        out.put(rows, pos0, a, scale * w_a)
+        out.put(rows, pos0 + 1, b, scale * w_b)
+        out.put(rows, pos0 + 2, corner_vert[level.corner_prev(g0)], scale * w_wing)
+        out.put(rows, pos0 + 3, corner_vert[level.corner_prev(g1)], scale * w_wing)
     table = out.table()
     if regular is not None:  # keep the non-empty rows only
         keep = np.flatnonzero(np.diff(table.offsets) > 0)
         table.rows = keep.astype(np.int32)
         table.offsets = np.concatenate([[0], np.cumsum(np.diff(table.offsets)[keep])]).astype(np.int32)
     return table
+
+
+def _put_smooth_vertices(level, out, selected, pos, scale, loop_beta, slot_vertex, slot_corner, slot_face,
+                         per_slot, h0, h1):
+    """The smooth (interior) vertex rule for the ``selected`` vertices, at row position ``pos``, times ``scale``."""
+    V = level.num_vertices
+    cc = level.scheme == CATMULL_CLARK
+    voff = level.vert_corner_offsets
+    vcount = np.diff(voff)
+    face_sizes = level.face_sizes()
+    corner_vert = level.corner_vert.astype(np.int64)
+    sv = np.flatnonzero(selected)
+    if len(sv) == 0:
+        return
+    n = vcount[sv].astype(np.float64)
+    slots = np.flatnonzero(selected[slot_vertex])
+    sl_v = slot_vertex[slots]
+    sl_h = slot_corner[slots]
+    sl_n = vcount[sl_v].astype(np.float64)
+    # position of each slot's first entry inside its row: 1 + entries of the row's earlier slots
+    cum = np.concatenate([[0], np.cumsum(np.where(selected[slot_vertex], per_slot, 0))])
+    sl_pos = pos[sl_v] + 1 + cum[slots] - cum[voff[sl_v]]
+    sl_scale = scale[sl_v]
+    nxt = level.corner_next(sl_h)
+    if cc:
+        w_self, w_edge, w_face = rules.catmull_clark_interior_vertex_weights(n)
+        m_f = face_sizes[slot_face[slots]].astype(np.float64)
+        # every face point gives 1/n^2 * (1/m) to each of its vertices; v itself collects one per face
+        self_faces = np.bincount(sl_v, weights=1.0 / (sl_n * sl_n * m_f), minlength=V)[sv]
+        out.put(sv, pos[sv], sv, scale[sv] * (w_self + self_faces))
+        # the edge neighbour p: edge weight plus the face points on both sides of the edge
+        e_sl = level.corner_edge[sl_h].astype(np.int64)
+        other = h0[e_sl] + h1[e_sl] - sl_h
+        m_g = face_sizes[level.corner_face(other)].astype(np.float64)
+        _, w_edge_sl, w_face_sl = rules.catmull_clark_interior_vertex_weights(sl_n)
+        out.put(sl_v, sl_pos, corner_vert[nxt], sl_scale * (w_edge_sl + w_face_sl / m_f + w_face_sl / m_g))
+        # the far vertices of the face (not v, not p, not the previous neighbour): face-point weight only
+        far_count = (m_f - 3).astype(np.int64)
+        rep, t = expand_counts(far_count)
+        walk = _advance(level, nxt[rep], t + 1)
+        out.put(sl_v[rep], sl_pos[rep] + 1 + t, corner_vert[walk], (sl_scale * w_face_sl / m_f)[rep])
+    else:
+        w_self, w_ring = rules.loop_interior_vertex_weights(n, loop_beta)
+        out.put(sv, pos[sv], sv, scale[sv] * w_self)
+        _, w_ring_sl = rules.loop_interior_vertex_weights(sl_n, loop_beta)
+        out.put(sl_v, sl_pos, corner_vert[nxt], sl_scale * w_ring_sl)
 
 
 @dataclass
@@ -295,8 +329,7 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
     w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
     w, w_wing = rules.smooth_edge_weights(scheme)
     edge_regular[me[(np.abs(w_a - w) > 0) | (np.abs(w_b - w) > 0)]] = False
-    explicit = build_stencils(level, rule_set, loop_beta, regular=(vertex_regular, edge_regular),
-                              endpoint_weights=(w_a, w_b))
+    explicit = build_stencils(level, rule_set, loop_beta, regular=(vertex_regular, edge_regular))
     valence = np.arange(np.diff(level.vert_corner_offsets).max() + 1, dtype=np.float64)
     valence[valence < 3] = 3  # unused entries (valence < 3 is never a smooth vertex)
     if scheme == CATMULL_CLARK:

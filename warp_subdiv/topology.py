@@ -23,6 +23,7 @@ from .rules import CATMULL_CLARK, CORNER, CREASE, DART, LOOP, SMOOTH
 
 BOUNDARY_MODES = ("edge-and-corner", "edge-only", "none")
 RULE_SETS = ("piecewise-smooth", "opensubdiv")
+CREASE_METHODS = ("uniform", "chaikin")
 
 
 def _offsets(counts: np.ndarray) -> np.ndarray:
@@ -67,8 +68,11 @@ class Level:
     edge_corners: np.ndarray | None = None  # (C,) corners whose edge is e
     vert_corner_offsets: np.ndarray | None = None  # (V+1,) int64
     vert_corners: np.ndarray | None = None  # (C,) corners at v
-    edge_sharp: np.ndarray | None = None  # (E,) bool
+    edge_sharp: np.ndarray | None = None  # (E,) bool: sharpness > 0
     vert_class: np.ndarray | None = None  # (V,) int8, rules.SMOOTH/DART/CREASE/CORNER
+    edge_sharpness: np.ndarray | None = None  # (E,) float64: 0 smooth, >= 10 infinitely sharp
+    vert_sharpness: np.ndarray | None = None  # (V,) float64
+    crease_method: str = "uniform"  # how semi-sharp edges decay: "uniform" (by 1) or "chaikin"
     # sectors of crease and corner vertices (RULES.md section 0): corners listed counter-clockwise from the
     # face after the first crease edge; theta and kind per RULES.md section 2; flatness s (NaN: optimal s*)
     sector_vertex: np.ndarray | None = None  # (S,)
@@ -145,6 +149,87 @@ class Level:
 
 
 # --------------------------------------------------------------------------------------------------------
+# sharpness (OpenSubdiv's Sdc::Crease semantics; DeRose, Kass, Truong 1998)
+
+
+def vertex_rule(vert_sharpness: np.ndarray, sharp_count: np.ndarray) -> np.ndarray:
+    """Vertex class from its sharpness and its number of sharp edges: a sharp vertex or more than two sharp
+    edges is a corner, two a crease, one a dart, none interior."""
+    out = np.choose(np.minimum(sharp_count, 3), [SMOOTH, DART, CREASE, CORNER]).astype(np.int8)
+    out[vert_sharpness > 0] = CORNER
+    return out
+
+
+def decrement_sharpness(s: np.ndarray) -> np.ndarray:
+    """One level of uniform decay: infinite stays infinite, s > 1 becomes s - 1, the rest 0."""
+    return np.where(s >= INFINITE_SHARPNESS, INFINITE_SHARPNESS, np.where(s > 1.0, s - 1.0, 0.0))
+
+
+def semi_sharp_vertices(edge_verts, edge_sharpness, vert_sharpness) -> np.ndarray:
+    """Vertices with a semi-sharp (finite, non-zero) sharpness or a semi-sharp incident edge."""
+    semi_edge = (edge_sharpness > 0) & (edge_sharpness < INFINITE_SHARPNESS)
+    out = (vert_sharpness > 0) & (vert_sharpness < INFINITE_SHARPNESS)
+    out[edge_verts[semi_edge].reshape(-1)] = True
+    return out
+
+
+def child_sharpness(level: Level):
+    """Sharpness after one step: (halves (E, 2) -- the child of edge e at its end j --, vertex children (V,)).
+
+    Uniform creasing decrements by one. Chaikin creasing (OpenSubdiv's CREASE_CHAIKIN) gives the child at
+    vertex v 3/4 of the edge's sharpness plus 1/4 of the mean of v's other semi-sharp edges, minus one."""
+    es = level.edge_sharpness
+    ev = level.edge_verts.astype(np.int64)
+    decremented = decrement_sharpness(es)
+    halves = np.stack([decremented, decremented], axis=1)
+    semi = (es > 0) & (es < INFINITE_SHARPNESS)
+    if level.crease_method == "chaikin" and np.any(semi):
+        V = level.num_vertices
+        ends = ev.reshape(-1)
+        valence = np.bincount(ends, minlength=V)
+        semi_sum = np.bincount(ends, weights=np.repeat(np.where(semi, es, 0.0), 2), minlength=V)
+        semi_count = np.bincount(ends, weights=np.repeat(semi.astype(np.float64), 2), minlength=V)
+        for j in (0, 1):
+            v = ev[:, j]
+            others = semi_count[v] - 1
+            chaikin = semi & (valence[v] >= 2) & (others >= 1)
+            mean_other = (semi_sum[v] - es) / np.maximum(others, 1)
+            value = 0.75 * es + 0.25 * mean_other - 1.0
+            halves[:, j] = np.where(chaikin, np.where(value > 0, value, 0.0), halves[:, j])
+    return halves, decrement_sharpness(level.vert_sharpness)
+
+
+def child_rules(level: Level, halves: np.ndarray, child_vertex_sharpness: np.ndarray):
+    """Classes of the vertex children (V,) and edge children (E,) after one step."""
+    V = level.num_vertices
+    ev = level.edge_verts.astype(np.int64)
+    count = np.bincount(ev[:, 0], weights=(halves[:, 0] > 0), minlength=V) + np.bincount(
+        ev[:, 1], weights=(halves[:, 1] > 0), minlength=V)
+    vertex_children = vertex_rule(child_vertex_sharpness, count.astype(np.int64))
+    edge_children = vertex_rule(np.zeros(len(ev)), (halves > 0).sum(axis=1))
+    return vertex_children, edge_children
+
+
+def fractional_weight(level: Level, halves: np.ndarray, child_vertex_sharpness: np.ndarray) -> np.ndarray:
+    """Weight of the parent rule where a vertex's rule changes during this step (Sdc ComputeFractionalWeight):
+    the mean sharpness of the features that become smooth, at most 1."""
+    V = level.num_vertices
+    es = level.edge_sharpness
+    ev = level.edge_verts.astype(np.int64)
+    pv = level.vert_sharpness
+    total = np.where((pv > 0) & (child_vertex_sharpness <= 0), pv, 0.0)
+    count = ((pv > 0) & (child_vertex_sharpness <= 0)).astype(np.float64)
+    for j in (0, 1):
+        if level.crease_method == "uniform":
+            ending = (es > 0) & (es <= 1.0)
+        else:
+            ending = (es > 0) & (halves[:, j] <= 0)
+        total = total + np.bincount(ev[:, j], weights=np.where(ending, es, 0.0), minlength=V)
+        count = count + np.bincount(ev[:, j], weights=ending.astype(np.float64), minlength=V)
+    return np.where(count > 0, np.minimum(total / np.maximum(count, 1), 1.0), 0.0)
+
+
+# --------------------------------------------------------------------------------------------------------
 # level 0
 
 
@@ -192,6 +277,7 @@ def base_level(
     rule_set: str = "piecewise-smooth",
     triangulate_polygons: bool = True,
     flatness=None,
+    crease_method: str = "uniform",
 ) -> Level:
     """Analyse the control mesh: edges, fans, manifoldness, vertex classes and sectors."""
     if scheme not in rules.SCHEMES:
@@ -200,6 +286,8 @@ def base_level(
         raise ValueError(f"boundary must be one of {BOUNDARY_MODES}, got {boundary!r}")
     if rule_set not in RULE_SETS:
         raise ValueError(f"rules must be one of {RULE_SETS}, got {rule_set!r}")
+    if crease_method not in CREASE_METHODS:
+        raise ValueError(f"crease_method must be one of {CREASE_METHODS}, got {crease_method!r}")
 
     nv = mesh.num_vertices
     counts = mesh.face_vertex_counts
@@ -264,19 +352,12 @@ def base_level(
     nonmanifold_vert = fans > 1
     nonmanifold_vert[edge_verts[nonmanifold_edge].reshape(-1)] = True
 
-    # sharp edges: boundary, non-manifold, tagged creases
-    finite = (mesh.crease_sharpness > 0) & (mesh.crease_sharpness < INFINITE_SHARPNESS)
-    if np.any(finite):
-        i = int(np.flatnonzero(finite)[0])
-        raise NotImplementedError(
-            f"crease {i} ({mesh.creases[i, 0]}, {mesh.creases[i, 1]}) has finite sharpness "
-            f"{mesh.crease_sharpness[i]}; semi-sharp creases are not supported yet (use >= 10 for infinitely sharp)"
-        )
-    edge_sharp = boundary_edge | nonmanifold_edge
+    # edge sharpness: boundary and non-manifold edges are infinitely sharp, tagged creases as given
+    edge_sharpness = np.zeros(E, dtype=np.float64)
+    edge_sharpness[boundary_edge | nonmanifold_edge] = INFINITE_SHARPNESS
     if len(mesh.creases):
         tagged = edges.find(mesh.creases, nv) if edges is not mesh.edges else mesh.crease_edges
-        edge_sharp[tagged[mesh.crease_sharpness > 0]] = True
-
+        np.maximum.at(edge_sharpness, tagged, mesh.crease_sharpness)
     if np.any(nonmanifold_edge) or np.any(fans > 1):
         ne = np.flatnonzero(nonmanifold_edge)
         nmv = np.flatnonzero(fans > 1)
@@ -292,35 +373,31 @@ def base_level(
             stacklevel=3,
         )
 
-    # vertex classes
-    sharp_count = np.bincount(edge_verts[edge_sharp].reshape(-1), minlength=nv)
+    # vertex sharpness: tagged corners as given; one-face boundary vertices (edge-and-corner), non-manifold
+    # vertices that are not creases and unused vertices are infinitely sharp, as in OpenSubdiv
     on_boundary = np.zeros(nv, dtype=bool)
     on_boundary[edge_verts[boundary_edge].reshape(-1)] = True
-    vclass = np.full(nv, SMOOTH, dtype=np.int8)
-    vclass[sharp_count == 1] = DART
-    vclass[sharp_count == 2] = CREASE
-    vclass[sharp_count >= 3] = CORNER
-    vclass[nonmanifold_vert & (sharp_count != 2)] = CORNER
-    finite = (mesh.corner_sharpness > 0) & (mesh.corner_sharpness < INFINITE_SHARPNESS)
-    if np.any(finite):
-        i = int(np.flatnonzero(finite)[0])
-        raise NotImplementedError(
-            f"corner vertex {mesh.corners[i]} has finite sharpness {mesh.corner_sharpness[i]}; semi-sharp corners "
-            "are not supported yet (use >= 10 for infinitely sharp)"
-        )
-    vclass[mesh.corners[mesh.corner_sharpness > 0]] = CORNER
+    vert_sharpness = np.zeros(nv, dtype=np.float64)
+    np.maximum.at(vert_sharpness, mesh.corners.astype(np.int64), mesh.corner_sharpness)
+    sharp_count = np.bincount(edge_verts[edge_sharpness > 0].reshape(-1), minlength=nv)
+    forced = nonmanifold_vert & (sharp_count != 2)
     if boundary == "edge-and-corner":
-        vclass[on_boundary & (vcount == 1)] = CORNER
-    vclass[vcount == 0] = CORNER  # unused vertices keep their position
+        forced |= on_boundary & (vcount == 1)
+    forced |= vcount == 0  # unused vertices keep their position
+    vert_sharpness[forced] = INFINITE_SHARPNESS
+    vclass = vertex_rule(vert_sharpness, sharp_count)
+    edge_sharp = edge_sharpness > 0
     if boundary == "none":
         # OpenSubdiv's VTX_BOUNDARY_NONE: faces touching the boundary have no limit surface
         touches = on_boundary[corner_vert]
         face_hole |= np.bincount(np.repeat(np.arange(F), counts)[touches], minlength=F) > 0
 
-    # sectors and their angles
+    # sectors and their angles: at crease and corner vertices whose sharp edges and own sharpness are all
+    # infinite (semi-sharp features follow OpenSubdiv's rules in both rule sets)
+    semi_vertex = semi_sharp_vertices(edge_verts, edge_sharpness, vert_sharpness)
     sectors = _sectors(
         mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, edge_sharp, ecount, eoff, ecorners,
-        edges, vclass, sharp_count, max_valence,
+        edges, vclass, np.where(semi_vertex, 0, sharp_count), max_valence,
     )
     sector_flatness, new_flatness = _sector_flatness(flatness, sectors[0], nv)
 
@@ -342,6 +419,9 @@ def base_level(
         vert_corners=_i32(vcorners),
         edge_sharp=edge_sharp,
         vert_class=vclass,
+        edge_sharpness=edge_sharpness,
+        vert_sharpness=vert_sharpness,
+        crease_method=crease_method,
         sector_vertex=_i32(sectors[0]),
         sector_offsets=sectors[1],
         sector_corners=_i32(sectors[2]),
@@ -473,13 +553,14 @@ def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
     e_h = level.corner_edge.astype(np.int64)
     e_prev = e_h[prev]
     # Child face h (one per parent corner) holds, in this cyclic order: the child of v_h, the child of
-    # edge h, the face child, the child of edge prev(h). As in OpenSubdiv, it is rotated so that the vertex
-    # child sits at position (local index of h) mod 4: type t of corner h is child corner 4h + (t + r) % 4.
+    # edge h, the face child, the child of edge prev(h). As in OpenSubdiv, children of a quad are rotated
+    # so that the vertex child sits at the parent corner's position j (children of other polygons are not):
+    # type t of corner h is child corner 4h + (t + r) % 4, r = j for quads and 0 otherwise.
     if level.face_size == 4:  # the local index of corner h is h % 4
         def child(hh, t):
             return 4 * hh + ((hh + t) & 3)
     else:
-        r = (h - level.face_starts()[face]) % 4
+        r = np.where(level.face_sizes()[face] == 4, h - level.face_starts()[face], 0)
 
         def child(hh, t):
             return 4 * hh + (t + r[hh]) % 4
@@ -606,14 +687,18 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
     child_voff = _offsets(np.concatenate(count_blocks))
     child_vcorners = np.concatenate(corner_blocks)
 
-    # sharpness and classes: halves inherit, edges inside faces are smooth; a sharp edge's child is a crease
-    child_sharp = np.concatenate([np.zeros(nI, dtype=bool), np.repeat(level.edge_sharp, 2)])
+    # sharpness and classes: halves decay (uniform or Chaikin), edges inside faces are smooth; vertex children
+    # decay; classes follow from the decayed sharpness
+    halves_sharpness, vertex_sharpness = child_sharpness(level)
+    vertex_children_class, edge_child_class = child_rules(level, halves_sharpness, vertex_sharpness)
+    child_edge_sharpness = np.concatenate([np.zeros(nI), halves_sharpness.reshape(-1)])
     n_face_children = nV - V - E
-    edge_child_class = np.where(level.edge_sharp, CREASE, SMOOTH).astype(np.int8)
-    child_class = np.concatenate([level.vert_class, np.full(n_face_children, SMOOTH, np.int8), edge_child_class])
+    child_vert_sharpness = np.concatenate([vertex_sharpness, np.zeros(nV - V)])
+    child_class = np.concatenate([vertex_children_class, np.full(n_face_children, SMOOTH, np.int8),
+                                  edge_child_class])
     # sectors: a vertex child keeps its sectors (theta is fixed on all levels); every corner of a parent
     # edge that is sharp makes one regular crease sector at the edge's child, its corners counter-clockwise
-    sharp_slots = level.edge_sharp[slot_edge]
+    sharp_slots = level.edge_sharpness[slot_edge] >= INFINITE_SHARPNESS
     new_corners = edge_child_corners[slot_corner[sharp_slots]]
     k_new = new_corners.shape[1]
     n_new = len(new_corners)
@@ -638,8 +723,11 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
         edge_corners=_i32(child_ecorners),
         vert_corner_offsets=child_voff,
         vert_corners=_i32(child_vcorners),
-        edge_sharp=child_sharp,
+        edge_sharp=child_edge_sharpness > 0,
         vert_class=child_class,
+        edge_sharpness=child_edge_sharpness,
+        vert_sharpness=child_vert_sharpness,
+        crease_method=level.crease_method,
         sector_vertex=_i32(sector_vertex),
         sector_offsets=sector_offsets,
         sector_corners=_i32(sector_corners),
