@@ -34,7 +34,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog=PROG, description=__doc__.split("\n\n")[0])
+    p = _Parser(prog=PROG, description="Loop and Catmull-Clark subdivision of OBJ and USD meshes, with the "
+                "piecewise-smooth rules of Biermann, Levin and Zorin (2000) or OpenSubdiv's; exit codes: 0 "
+                "success, 2 usage or input errors, 1 internal errors.")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     r = sub.add_parser("refine", help="refine the subdivision meshes of an OBJ or USD file",

@@ -111,7 +111,9 @@ def plan(
     meshes, instanced = mesh_prims(stage, prims, where=input_path)
     out = Plan(input_path, stage, [], [])
     for prim in instanced:
-        out.left_alone.append((str(prim.GetPath()), "inside an instance (make it non-instanceable to refine it)"))
+        reason = "inside an instance (make it non-instanceable to refine it)"
+        out.left_alone.append((str(prim.GetPath()), reason))
+        out.warnings.append(f"{prim.GetPath()}: not refined: {reason}")
     for prim in meshes:
         sp = read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme, rules=rules, boundary=boundary)
         if sp is None:
