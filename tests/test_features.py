@@ -188,7 +188,7 @@ def test_table_bytes_reported():
 CASES = [("cube", "catmull-clark"), ("cube_creased", "catmull-clark"), ("quad_lshape", "catmull-clark"),
          ("quad_halffan", "catmull-clark"), ("mixed_prism", "catmull-clark"), ("grid3x3", "catmull-clark"),
          ("icosahedron", "loop"), ("tri_halffan", "loop"), ("tri_hexfan", "loop"), ("mixed_prism", "loop"),
-         ("tri_grid3x3", "loop")]
+         ("tri_grid3x3", "loop"), ("icosahedron", "catmull-clark"), ("tri_hexfan", "catmull-clark")]
 
 
 @pytest.mark.parametrize("name,scheme", CASES)

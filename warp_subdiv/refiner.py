@@ -8,6 +8,7 @@ import numpy as np
 import warp as wp
 
 from . import projections, rules
+from . import rules as rules_module
 from .errors import SubdivInputError
 from .mesh import Mesh
 from .rules import edge_gamma_shift
@@ -139,7 +140,7 @@ class Refiner:
         self._full_tables = None
         penultimate = level
         for step in range(self.levels):
-            if level.face_size in (3, 4):
+            if level.face_size == (4 if self.scheme == rules_module.CATMULL_CLARK else 3):
                 self.steps.append(build_regular(level, rules, loop_beta))
             else:
                 self.steps.append(build_stencils(level, rules, loop_beta))

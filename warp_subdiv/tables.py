@@ -319,7 +319,8 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
     whose endpoint weights are the smooth ones (no gamma(theta) shift). Crease and corner vertices, crease
     edges and the crease/corner-neighbour edges of extraordinary sectors get explicit stencils.
     """
-    assert level.face_size in (3, 4), "regular kernels need a level of quads or triangles"
+    assert level.face_size == (4 if level.scheme == CATMULL_CLARK else 3), \
+        "regular kernels need a level of quads (Catmull-Clark) or triangles (Loop)"
     scheme = level.scheme
     vclass = level.vert_class
     vertex_regular = (vclass == SMOOTH) | (vclass == DART)
