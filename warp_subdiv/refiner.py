@@ -83,6 +83,7 @@ class Refiner:
         flatness=None,
         normal_strength: float = 1.0,
         crease_method: str = "uniform",
+        triangle_subdivision: str = "catmark",
     ):
         if not isinstance(mesh, Mesh):
             raise TypeError(f"mesh must be a warp_subdiv.Mesh, got {type(mesh).__name__}")
@@ -99,6 +100,8 @@ class Refiner:
             raise ValueError(f"precision must be 'float32' or 'float64', got {precision!r}")
         if loop_beta not in ("loop", "warren"):
             raise ValueError(f"loop_beta must be 'loop' or 'warren', got {loop_beta!r}")
+        if triangle_subdivision not in ("catmark", "smooth"):
+            raise ValueError(f"triangle_subdivision must be 'catmark' or 'smooth', got {triangle_subdivision!r}")
         strength = float(normal_strength)
         if not 0.0 <= strength <= 1.0:
             raise ValueError(f"normal_strength must lie in [0, 1], got {normal_strength!r}")
@@ -118,6 +121,8 @@ class Refiner:
         self.device = wp.get_device(device if device is not None else default_device())
 
         self.crease_method = crease_method
+        self.triangle_subdivision = triangle_subdivision
+        smooth_triangles = triangle_subdivision == "smooth" and SCHEME_ALIASES[key] == rules_module.CATMULL_CLARK
         level = base_level(mesh, self.scheme, boundary, rules, triangulate, flatness=flatness if paper else None,
                            crease_method=crease_method)
         self.base_num_vertices = level.num_vertices
@@ -143,7 +148,7 @@ class Refiner:
             if level.face_size == (4 if self.scheme == rules_module.CATMULL_CLARK else 3):
                 self.steps.append(build_regular(level, rules, loop_beta))
             else:
-                self.steps.append(build_stencils(level, rules, loop_beta))
+                self.steps.append(build_stencils(level, rules, loop_beta, smooth_triangles=smooth_triangles))
             penultimate = level
             level = refine_level(level, faces_only=(step == self.levels - 1) and not self._projecting)
             flat = norm = None
@@ -187,8 +192,10 @@ class Refiner:
                                flatness=self._flatness if self.rules == "piecewise-smooth" else None,
                                crease_method=self.crease_method)
             self._full_tables = []
+            smooth_triangles = self.triangle_subdivision == "smooth" and self.scheme == rules_module.CATMULL_CLARK
             for _ in range(self.levels):
-                self._full_tables.append(build_stencils(level, self.rules, self.loop_beta))
+                self._full_tables.append(build_stencils(level, self.rules, self.loop_beta,
+                                                        smooth_triangles=smooth_triangles))
                 level = refine_level(level)
         return self._full_tables
 
@@ -433,7 +440,7 @@ class Refiner:
                 self.mesh, self.levels + 1, scheme=self.scheme, rules=self.rules, boundary=self.boundary,
                 device=self.device, precision=self.precision, loop_beta=self.loop_beta,
                 triangulate=self._triangulate, flatness=self._flatness, normal_strength=self.normal_strength,
-                crease_method=self.crease_method,
+                crease_method=self.crease_method, triangle_subdivision=self.triangle_subdivision,
             )
         return self._deeper
 
@@ -457,7 +464,7 @@ class Refiner:
             scheme=self.scheme,
             rules=self.rules,
             options={"boundary": self.boundary, "precision": self.precision, "loop_beta": self.loop_beta,
-                     "crease_method": self.crease_method},
+                     "crease_method": self.crease_method, "triangle_subdivision": self.triangle_subdivision},
             refiner=self,
         )
 
@@ -476,6 +483,7 @@ def refine(
     flatness=None,
     normal_strength: float = 1.0,
     crease_method: str = "uniform",
+    triangle_subdivision: str = "catmark",
 ) -> Refined:
     """Refine ``mesh`` uniformly ``levels`` times.
 
@@ -490,9 +498,11 @@ def refine(
     ``normal_strength``: s in [0, 1] of normal control at vertices with prescribed normals (``Mesh(normals=)``).
     ``crease_method``: how semi-sharp creases (finite sharpness) decay per level: "uniform" (by 1, OpenSubdiv's
     default) or "chaikin" (OpenSubdiv's CREASE_CHAIKIN).
+    ``triangle_subdivision``: "catmark" (default) or "smooth" (OpenSubdiv's TRI_SUB_SMOOTH, USD's
+    triangleSubdivisionRule "smooth": Catmull-Clark edge weights next to triangles of the control mesh).
     """
     return Refiner(
         mesh, levels, scheme=scheme, rules=rules, boundary=boundary, device=device, precision=precision,
         loop_beta=loop_beta, triangulate=triangulate, flatness=flatness, normal_strength=normal_strength,
-        crease_method=crease_method,
+        crease_method=crease_method, triangle_subdivision=triangle_subdivision,
     ).refine()

@@ -81,6 +81,27 @@ def smooth_edge_weights(scheme: str):
     raise ValueError(f"unknown scheme {scheme!r}")
 
 
+#: OpenSubdiv's TRI_SUB_SMOOTH face-point weight for a triangle next to a smooth Catmull-Clark edge.
+SMOOTH_TRIANGLE_FACE_WEIGHT = 0.470
+
+
+def catmull_clark_edge_weights(face_size_0, face_size_1, smooth_triangles: bool = False):
+    """(each endpoint, each of the two face points) of the smooth Catmull-Clark edge rule.
+
+    Plain: 1/4 and 1/4. With "smooth triangles" (OpenSubdiv's TRI_SUB_SMOOTH, USD's
+    triangleSubdivisionRule = "smooth") and a triangle on either side, both face points weigh the mean of
+    0.470 per triangle and 1/4 per other face, and the endpoints share what is left."""
+    m0 = np.asarray(face_size_0)
+    m1 = np.asarray(face_size_1)
+    if not smooth_triangles:
+        shape = np.broadcast(m0, m1).shape
+        return np.full(shape, 0.25), np.full(shape, 0.25)
+    w0 = np.where(m0 == 3, SMOOTH_TRIANGLE_FACE_WEIGHT, 0.25)
+    w1 = np.where(m1 == 3, SMOOTH_TRIANGLE_FACE_WEIGHT, 0.25)
+    face = 0.5 * (w0 + w1)
+    return 0.5 * (1.0 - 2.0 * face), face
+
+
 def face_point_weights(num_vertices):
     """Each vertex of an n-gon weighs 1/n in its face point (the centroid)."""
     return 1.0 / np.asarray(num_vertices, dtype=np.float64)

@@ -113,7 +113,7 @@ def _edge_corner_pairs(level: Level):
 
 
 def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop",
-                   regular=None) -> StencilTable:
+                   regular=None, smooth_triangles: bool = False) -> StencilTable:
     """The stencil table that refines ``level`` to the next level.
 
     Semi-sharp features follow OpenSubdiv's Sdc::Crease rules: where a vertex's rule changes during the step
@@ -121,6 +121,7 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     weight; a semi-sharp edge whose children are smooth blends the crease and smooth rules with its sharpness.
     ``regular``: optional (vertex mask, edge mask) of the rows the regular kernels compute (see
     :func:`build_regular`); those rows are left out, and the table lists the rows it holds in ``rows``.
+    ``smooth_triangles``: OpenSubdiv's TRI_SUB_SMOOTH edge weights next to triangles (Catmull-Clark).
     """
     scheme = level.scheme
     V, F, E = level.num_vertices, level.num_faces, level.num_edges
@@ -215,13 +216,17 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     if cc:
         m0 = face_sizes[level.corner_face(g0)].astype(np.int64)
         m1 = face_sizes[level.corner_face(g1)].astype(np.int64)
-        # each new face point f weighs 1/4, i.e. 1/(4m) on each vertex of its face
-        out.put(rows, pos0, a, scale * (w_a + w_wing / m0 + w_wing / m1))
-        out.put(rows, pos0 + 1, b, scale * (w_b + w_wing / m0 + w_wing / m1))
+        # endpoints and the two new face points (weight w_face each, i.e. w_face/m on each face vertex);
+        # "smooth triangles" re-weights them where a triangle touches the edge
+        w_end, w_face = rules.catmull_clark_edge_weights(m0, m1, smooth_triangles)
+        w_a = w_a - w_wing + w_end
+        w_b = w_b - w_wing + w_end
+        out.put(rows, pos0, a, scale * (w_a + w_face / m0 + w_face / m1))
+        out.put(rows, pos0 + 1, b, scale * (w_b + w_face / m0 + w_face / m1))
         for g, m, base_pos in ((g0, m0, pos0 + 2), (g1, m1, pos0 + m0)):
             rep, t = expand_counts(m - 2)
             walk = _advance(level, g[rep], t + 2)
-            out.put(rows[rep], base_pos[rep] + t, corner_vert[walk], scale[rep] * w_wing / m[rep])
+            out.put(rows[rep], base_pos[rep] + t, corner_vert[walk], (scale * w_face / m)[rep])
     else:
         out.put(rows, pos0, a, scale * w_a)
         out.put(rows, pos0 + 1, b, scale * w_b)
