@@ -1,5 +1,6 @@
 """The USD pipeline: round trip on every bundled scene, the output layer, time samples, primvars, subsets,
 the reader's tags and errors, orientation, bilinear meshes, failures that leave no file."""
+import inspect
 import os
 
 import numpy as np
@@ -330,6 +331,24 @@ def test_reader_errors_name_the_prim_and_attribute(tmp_path, attrs, custom, need
         refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
     assert needle in str(info.value)
     assert not (tmp_path / "out.usda").exists() and sorted(os.listdir(tmp_path)) == ["bad.usda"]
+
+
+def test_smooth_triangle_rule(tmp_path):
+    """triangleSubdivisionRule = smooth reaches the refiner (OpenSubdiv's TRI_SUB_SMOOTH) where it has it."""
+    spec = SCENES["icosahedron_normals"].meshes[0]
+    src = write_mesh(tmp_path / "tri.usda", spec.points, spec.counts, spec.indices,
+                     attrs={"triangleSubdivisionRule": "smooth"})
+    result = refine_usd(src, str(tmp_path / "out.usda"), 2, device="cpu")
+    points = np.asarray(opened(tmp_path / "out.usda").GetPrimAtPath("/World/Mesh").GetAttribute("points").Get())
+    mesh = ws.Mesh(spec.points, spec.counts, spec.indices)
+    if "triangle_subdivision" in inspect.signature(ws.Refiner.__init__).parameters:
+        expected = ws.refine(mesh, 2, device="cpu", triangle_subdivision="smooth").points
+        assert not any("triangleSubdivisionRule" in w for w in result.warnings)
+        assert np.abs(expected - ws.refine(mesh, 2, device="cpu").points).max() > 1e-3  # it makes a difference
+    else:
+        expected = ws.refine(mesh, 2, device="cpu").points
+        assert any("triangleSubdivisionRule 'smooth' is not supported" in w for w in result.warnings)
+    np.testing.assert_allclose(points, expected, atol=2e-6)
 
 
 def test_unknown_subdiv_attribute_is_a_warning(tmp_path):

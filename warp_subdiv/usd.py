@@ -122,6 +122,9 @@ def plan(
                                    else "subdivisionScheme none"))
             continue
         out.prims.append(sp)
+        if sp.smooth_triangles and not _has_param("triangle_subdivision"):
+            sp.warnings.append("triangleSubdivisionRule 'smooth' is not supported by this refiner: triangles get "
+                               "the plain Catmull-Clark rule")
         out.warnings.extend(f"{sp.path}: {w}" for w in sp.warnings)
         out.estimates.append(estimate_prim(sp, levels, precision, normals, limit))
     if require_meshes and not out.prims:
@@ -182,6 +185,8 @@ def _refiner_kwargs(sp: SubdivPrim, device, precision) -> dict:
     kw = dict(scheme="catmull-clark" if sp.scheme == "bilinear" else sp.scheme, rules=sp.rules,
               boundary="edge-and-corner" if sp.scheme == "bilinear" else sp.boundary, device=device,
               precision=precision)
+    if sp.smooth_triangles and _has_param("triangle_subdivision"):
+        kw["triangle_subdivision"] = "smooth"  # OpenSubdiv's TRI_SUB_SMOOTH
     if sp.scheme != "bilinear":
         for attr, param, value in (("subdiv:flatness", "flatness", sp.flatness),
                                    ("subdiv:normalStrength", "normal_strength", sp.normal_strength)):

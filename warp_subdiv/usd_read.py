@@ -147,6 +147,7 @@ class SubdivPrim:
     warnings: list = field(default_factory=list)
     semi_sharp: int = 0  # finite sharpness tags left as they are (the refiner may refuse them)
     semi_sharp_detail: str = ""  # the first of them, in USD terms
+    smooth_triangles: bool = False  # triangleSubdivisionRule "smooth" on a Catmull-Clark mesh with triangles
 
     def points_at(self, time) -> np.ndarray:
         """Control points at ``time`` (float64 (n, 3)), checked against the topology."""
@@ -374,9 +375,8 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "error", scheme:
         raise SubdivInputError(_usd_terms(path, str(exc), pair_crease[keep_c])) from None
 
     tri_rule = geom.GetTriangleSubdivisionRuleAttr().Get() or "catmullClark"
-    if chosen == "catmull-clark" and tri_rule == "smooth" and np.any(counts == 3):
-        warn.append("triangleSubdivisionRule 'smooth' is not supported yet: triangles get the plain "
-                    "Catmull-Clark rule")
+    if tri_rule not in ("catmullClark", "smooth"):
+        raise SubdivInputError(f"{path}: triangleSubdivisionRule {tri_rule!r} is not catmullClark or smooth")
     if chosen == "loop" and not np.all(counts == 3):
         warn.append(f"{int(np.count_nonzero(counts != 3))} non-triangle faces are fan-triangulated for Loop")
 
@@ -385,6 +385,7 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "error", scheme:
         flatness=subdiv.get("flatness"), normal_strength=subdiv.get("normalStrength"), orientation=orientation,
         point_times=point_times, warnings=warn, semi_sharp=semi if semi_sharp != "sharp" else 0,
         subdiv_attributes=subdiv.get("_names", []),
+        smooth_triangles=chosen == "catmull-clark" and tri_rule == "smooth" and bool(np.any(counts == 3)),
     )
     sp.points_default = np.asarray(_get(points_attr, DEFAULT), dtype=np.float64).reshape(-1, 3)
     if semi and semi_sharp != "sharp":
