@@ -1,9 +1,13 @@
 """Benchmark of the core engine: topology + stencil-table build, Warp evaluation, end-to-end refine, memory.
 
     python bench/bench_core.py                    # both bench meshes, levels 1-5, Markdown table on stdout
-    python bench/bench_core.py --quick            # levels 1-2 only (CI smoke test, a few seconds)
+    python bench/bench_core.py --quick            # levels 1-2 only (CI smoke test, about 10 s)
     python bench/bench_core.py --levels 3-4 --frames 9 --device cpu --json out/bench.json
     python bench/bench_core.py --profile catmull-clark:4   # cProfile of one Refiner build (top functions)
+    python bench/bench_core.py --commit HEAD      # measure a commit's library (git archive), not the work tree
+
+Exit status 1 when a worker crashed (a library error); a level stopped by the timeout or memory guard is
+reported in the output but is not a failure.
 
 Every (mesh, level) runs in a fresh subprocess so that its peak memory is its own: the worker reads VmHWM
 (peak resident set) from /proc/self/status after imports + mesh load (baseline) and again at the end, and
@@ -14,7 +18,8 @@ stops a mesh at the highest level that worked, saying why in the output. Within 
 * build      ``Refiner(mesh, L, ...)``: topology of all levels + CSR stencil tables (numpy, CPU);
 * warm-up    the first ``evaluate``: table upload, buffer allocation, Warp module load (compiled once into
              Warp's kernel cache; the compile from an empty cache is timed once, separately);
-* eval       median over ``--frames`` further ``evaluate`` calls (each with different points), numpy in and out;
+* eval       median over ``--frames`` further ``evaluate`` calls (each with different points), numpy in and out
+             (the JSON also holds the median process CPU time per frame, steadier on a busy machine);
 * refine     ``ws.refine(mesh, L, ...)`` end to end (build + topology + first evaluate), after the Refiner
              above was freed.
 """
@@ -26,6 +31,7 @@ import json
 import os
 import platform
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -89,10 +95,6 @@ def _quiet_warp():
 
 def worker(args) -> dict:
     """One (mesh, level) configuration; returns a dict of measurements (printed as JSON by main)."""
-    if args.kernel_cache:
-        import warp as wp
-
-        wp.config.kernel_cache_dir = args.kernel_cache
     import numpy as np
 
     wp = _quiet_warp()
@@ -113,12 +115,16 @@ def worker(args) -> dict:
            "base_vertices": int(len(base)), "base_faces": int(len(mesh.face_vertex_counts)),
            "baseline_peak_rss": peak_rss_bytes(), "baseline_rss": _proc_status().get("VmRSS")}
 
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
     t = time.perf_counter()
     r = ws.Refiner(mesh, level, **opts)
     res["build_s"] = time.perf_counter() - t
+    ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    # kernel time of the build: mostly page faults (zeroing fresh pages) of numpy temporaries
+    res["build_user_s"] = ru1.ru_utime - ru0.ru_utime
+    res["build_sys_s"] = ru1.ru_stime - ru0.ru_stime
     res["num_vertices"] = int(r.num_vertices)
     res["table_bytes"] = int(r.table_bytes())
-    res["table_entries"] = int(sum(len(tb.indices) for tb in r.tables))
     t = time.perf_counter()
     counts, _ = r.topology()
     res["topology_s"] = time.perf_counter() - t
@@ -129,13 +135,18 @@ def worker(args) -> dict:
     out = r.evaluate(base)
     res["warmup_s"] = time.perf_counter() - t
     assert out.shape == (r.num_vertices, 3) and np.all(np.isfinite(out))
-    times = []
+    times, cpu = [], []
     for pts in frames:
+        c = time.process_time()
         t = time.perf_counter()
         r.evaluate(pts)
         times.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
     res["eval_s"] = statistics.median(times)
     res["eval_s_all"] = times
+    # CPU time of this process per frame: less sensitive than wall time to other jobs on a shared machine
+    # (on the CPU device; with CUDA it leaves out the GPU's time)
+    res["eval_cpu_s"] = statistics.median(cpu)
     res["peak_rss_refiner"] = peak_rss_bytes()
     del r, out
     gc.collect()
@@ -159,18 +170,18 @@ def compile_worker(args) -> dict:
     wp.config.kernel_cache_dir = cache
     import warp_subdiv as ws
 
-    wp.init()
-    mesh = ws.Mesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float), [4], [0, 1, 2, 3])
-    r = ws.Refiner(mesh, 1, device=args.device, precision=args.precision)
-    t = time.perf_counter()
-    r.evaluate(mesh.points)
-    res = {"compile_s": time.perf_counter() - t}
-    t = time.perf_counter()
-    r.evaluate(mesh.points)
-    res["second_s"] = time.perf_counter() - t
-    import shutil
-
-    shutil.rmtree(cache, ignore_errors=True)
+    try:
+        wp.init()
+        mesh = ws.Mesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float), [4], [0, 1, 2, 3])
+        r = ws.Refiner(mesh, 1, device=args.device, precision=args.precision)
+        t = time.perf_counter()
+        r.evaluate(mesh.points)
+        res = {"compile_s": time.perf_counter() - t}
+        t = time.perf_counter()
+        r.evaluate(mesh.points)
+        res["second_s"] = time.perf_counter() - t
+    finally:
+        shutil.rmtree(cache, ignore_errors=True)
     return res
 
 
@@ -182,8 +193,12 @@ def profile_build(args):
     import warp_subdiv as ws
     from warp_subdiv.objio import read_obj
 
-    scheme, level = args.profile.split(":")
-    name = next(n for n, (_, s) in MESHES.items() if s == scheme)
+    scheme, _, level = args.profile.partition(":")
+    names = [n for n, (_, s) in MESHES.items() if s == scheme]
+    if not names or not level.isdigit():
+        sys.exit(f"--profile wants SCHEME:LEVEL with SCHEME one of "
+                 f"{', '.join(s for _, s in MESHES.values())}, got {args.profile!r}")
+    name = names[0]
     mesh = read_obj(os.path.join(MESH_DIR, MESHES[name][0])).mesh
     prof = cProfile.Profile()
     t = time.perf_counter()
@@ -198,10 +213,11 @@ def profile_build(args):
 
 
 # ------------------------------------------------------------------------------------------------ parent
-def run_child(cmd, timeout_s, mem_limit):
+def run_child(cmd, timeout_s, mem_limit, lib_root=ROOT):
     """Run a worker; returns (result dict | None, reason). Kills it on timeout or when over mem_limit."""
     env = dict(os.environ)
-    env["PYTHONPATH"] = ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env["PYTHONPATH"] = lib_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    cmd = cmd + ["--lib-root", lib_root]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     killed = {}
     max_rss = [0]
@@ -241,6 +257,43 @@ def parse_levels(text: str) -> list[int]:
     return [int(x) for x in text.split(",")]
 
 
+def export_commit(rev: str) -> tuple[str, str]:
+    """Extract warp_subdiv/ and kernels/ of commit ``rev`` into a temporary folder; (folder, full sha)."""
+    sha = subprocess.run(["git", "rev-parse", "--verify", rev + "^{commit}"], cwd=ROOT, capture_output=True,
+                         text=True, check=True).stdout.strip()
+    dest = tempfile.mkdtemp(prefix="wsbench_lib_")
+    archive = subprocess.run(["git", "archive", sha, "warp_subdiv", "kernels"], cwd=ROOT, capture_output=True,
+                             check=True).stdout
+    subprocess.run(["tar", "-x", "-C", dest], input=archive, check=True)
+    return dest, sha
+
+
+def library_state(lib_root: str = ROOT, commit: str | None = None) -> str:
+    """Which library code is measured: git commit, whether warp_subdiv/ or kernels/ differ from it, and a
+    digest of their sources (compared at the start and the end of a run to catch edits made meanwhile)."""
+    import hashlib
+
+    digest = hashlib.sha1()
+    for folder in ("warp_subdiv", "kernels"):
+        for dirpath, dirnames, files in sorted(os.walk(os.path.join(lib_root, folder))):
+            dirnames.sort()
+            for name in sorted(files):
+                if name.endswith(".py"):
+                    with open(os.path.join(dirpath, name), "rb") as fh:
+                        digest.update(name.encode() + fh.read())
+    if commit:
+        return f"git {commit[:7]}, exported snapshot of that commit (sources {digest.hexdigest()[:10]})"
+    try:
+        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                             check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "warp_subdiv", "kernels"], cwd=ROOT,
+                               capture_output=True, text=True, check=True).stdout.strip()
+        head = f"git {sha}" + (" + uncommitted changes" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        head = "not a git checkout"
+    return f"{head} (sources {digest.hexdigest()[:10]})"
+
+
 def machine_info() -> dict:
     import numpy
     import warp
@@ -268,7 +321,7 @@ def machine_info() -> dict:
 
 
 def fmt_table(rows) -> str:
-    head = ["mesh (scheme)", "level", "output verts", "build s", "warm-up s", "eval ms/frame",
+    head = ["mesh (scheme)", "level", "output verts", "build s", "build sys %", "warm-up s", "eval ms/frame",
             "refine s", "table B/vert", "eval Mverts/s", "peak RSS MiB", "Δ peak MiB"]
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] + ["---:"] * (len(head) - 1)) + "|"]
     mib = 2**20
@@ -276,6 +329,7 @@ def fmt_table(rows) -> str:
         refine = f"{r['refine_s']:.3f}" if "refine_s" in r else "–"
         lines.append("| " + " | ".join([
             f"{r['mesh']} ({r['scheme']})", str(r["level"]), f"{r['num_vertices']:,}", f"{r['build_s']:.3f}",
+            f"{100 * r['build_sys_s'] / max(r['build_user_s'] + r['build_sys_s'], 1e-9):.0f}",
             f"{r['warmup_s']:.3f}", f"{r['eval_s'] * 1e3:.2f}", refine,
             f"{r['table_bytes'] / r['num_vertices']:.1f}", f"{r['num_vertices'] / r['eval_s'] / 1e6:.1f}",
             f"{r['peak_rss'] / mib:,.0f}", f"{(r['peak_rss'] - r['baseline_peak_rss']) / mib:,.0f}",
@@ -292,23 +346,34 @@ def main(argv=None):
     p.add_argument("--rules", default="piecewise-smooth", choices=["piecewise-smooth", "opensubdiv"])
     p.add_argument("--meshes", default=",".join(MESHES), help="comma-separated subset of " + ",".join(MESHES))
     p.add_argument("--frames", type=int, default=5, help="timed evaluate calls after warm-up (median)")
-    p.add_argument("--timeout", type=float, default=600.0, help="seconds per (mesh, level) subprocess")
+    p.add_argument("--timeout", type=float, default=300.0, help="seconds per (mesh, level) subprocess")
     p.add_argument("--mem-limit-gib", type=float, default=None,
                    help="kill a worker above this resident size (default: 90%% of MemAvailable at start)")
     p.add_argument("--skip-refine", action="store_true", help="do not time ws.refine end to end")
     p.add_argument("--json", help="also write all measurements to this JSON file")
     p.add_argument("--profile", metavar="SCHEME:LEVEL", help="cProfile one Refiner build and exit")
+    p.add_argument("--commit", metavar="REV",
+                   help="benchmark warp_subdiv/ and kernels/ of this git commit (exported to a temporary folder) "
+                        "instead of the working tree")
     # internal
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--compile-worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--mesh", help=argparse.SUPPRESS)
     p.add_argument("--level", type=int, help=argparse.SUPPRESS)
-    p.add_argument("--kernel-cache", help=argparse.SUPPRESS)
+    p.add_argument("--lib-root", default=ROOT, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
 
+    commit = None
+    if args.commit and not (args.worker or args.compile_worker):
+        args.lib_root, commit = export_commit(args.commit)
     if args.worker or args.compile_worker or args.profile:
-        if ROOT not in sys.path:
-            sys.path.insert(0, ROOT)
+        sys.path.insert(0, args.lib_root)
+        _quiet_warp()
+        import warp_subdiv
+
+        assert os.path.abspath(warp_subdiv.__file__).startswith(os.path.abspath(args.lib_root)), \
+            f"imported {warp_subdiv.__file__}, not the library under {args.lib_root}"
     if args.worker:
         print(MARK + json.dumps(worker(args)), flush=True)
         return 0
@@ -316,8 +381,20 @@ def main(argv=None):
         print(MARK + json.dumps(compile_worker(args)), flush=True)
         return 0
     if args.profile:
-        profile_build(args)
+        try:
+            profile_build(args)
+        finally:
+            if commit:
+                shutil.rmtree(args.lib_root, ignore_errors=True)
         return 0
+    try:
+        return run_benchmark(p, args, commit)
+    finally:
+        if commit:
+            shutil.rmtree(args.lib_root, ignore_errors=True)
+
+
+def run_benchmark(p, args, commit) -> int:
 
     levels = [1, 2] if args.quick else parse_levels(args.levels)
     if args.quick:
@@ -330,34 +407,37 @@ def main(argv=None):
     mem_limit = int(args.mem_limit_gib * 2**30) if args.mem_limit_gib else (int(0.9 * avail) if avail else None)
 
     info = machine_info()
+    lib = library_state(args.lib_root, commit)
     started = time.perf_counter()
-    cmdline = "python bench/bench_core.py" + ("" if argv is None and len(sys.argv) <= 1 else " " + " ".join(
-        sys.argv[1:] if argv is None else argv))
+    cmdline = "python bench/bench_core.py" + "".join(" " + a for a in args.argv)
     print(f"# warp-subdiv core benchmark\n\ncommand: `{cmdline}`\n")
     ram = f"{info['ram_bytes'] / 2**30:.1f} GiB" if info["ram_bytes"] else "?"
     print(f"machine: {info['cpu']}, {info['cores']} cores, {ram} RAM; {info['os']}; "
           f"Python {info['python']}, numpy {info['numpy']}, warp {info['warp']}; Warp device {args.device}, "
           f"{args.precision}, rules {args.rules}")
+    print(f"library: warp_subdiv {lib}")
+    load0 = os.getloadavg() if hasattr(os, "getloadavg") else None
     if mem_limit:
         print(f"guards: {args.timeout:.0f} s and {mem_limit / 2**30:.1f} GiB resident per (mesh, level) subprocess")
     sys.stdout.flush()
 
     common = ["--device", args.device, "--precision", args.precision, "--rules", args.rules]
     comp, why = run_child([sys.executable, os.path.abspath(__file__), "--compile-worker"] + common,
-                          args.timeout, mem_limit)
+                          args.timeout, mem_limit, args.lib_root)
     compile_note = (f"Warp module build from an empty kernel cache (first evaluate of a 1-quad mesh): "
                     f"{comp['compile_s']:.2f} s; the rows below load it from Warp's kernel cache."
                     if comp else f"Warp module compile could not be timed: {why}")
 
-    rows, notes = [], []
+    rows, notes, crashed = [], [], False
     for m in meshes:
         for lv in levels:
             cmd = [sys.executable, os.path.abspath(__file__), "--worker", "--mesh", m, "--level", str(lv),
                    "--frames", str(args.frames)] + common + (["--skip-refine"] if args.skip_refine else [])
             t = time.perf_counter()
-            res, why = run_child(cmd, args.timeout, mem_limit)
+            res, why = run_child(cmd, args.timeout, mem_limit, args.lib_root)
             wall = time.perf_counter() - t
             if res is None:
+                crashed = crashed or why.startswith("exit code")
                 higher = [x for x in levels if x > lv]
                 msg = f"{m} level {lv}: stopped ({why}); highest level that worked: " \
                       f"{max([r['level'] for r in rows if r['mesh'] == m], default='none')}"
@@ -372,10 +452,15 @@ def main(argv=None):
                   f"eval {res['eval_s'] * 1e3:.1f} ms, subprocess {wall:.1f} s", file=sys.stderr, flush=True)
 
     total = time.perf_counter() - started
+    lib_end = library_state(args.lib_root, commit)
+    load1 = os.getloadavg() if hasattr(os, "getloadavg") else None
+    if lib_end != lib:
+        notes.append(f"the library changed during this run (start: {lib}; end: {lib_end}): rerun")
     print()
     print(fmt_table(rows))
     print()
-    print("build = Refiner(): topology + stencil tables of all levels (numpy, CPU); warm-up = first evaluate "
+    print("build = Refiner(): topology + stencil tables of all levels (numpy, CPU); build sys % = kernel share "
+          "of the build's CPU time (getrusage; page faults of fresh memory); warm-up = first evaluate "
           "(table upload + Warp module load); eval = median of "
           f"{args.frames} further evaluate calls (numpy in, numpy out); refine = ws.refine end to end; "
           "table B/vert = Refiner.table_bytes() / output vertices; peak RSS = VmHWM of the fresh subprocess "
@@ -384,15 +469,18 @@ def main(argv=None):
     print(compile_note)
     for n in notes:
         print(f"\n**{n}**")
-    if not notes:
-        print(f"\nAll requested levels ({levels[0]}-{levels[-1]}) completed.")
-    print(f"\nTotal benchmark wall time: {total:.1f} s")
+    if len(rows) == len(meshes) * len(levels):
+        print(f"\nAll requested levels ({', '.join(map(str, levels))}) completed for every mesh.")
+    load = (f" (1-minute load average {load0[0]:.2f} at the start, {load1[0]:.2f} at the end, on "
+            f"{info['cores']} cores: other work on the machine slows the timings)") if load0 and load1 else ""
+    print(f"\nTotal benchmark wall time: {total:.1f} s{load}")
     if args.json:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump({"command": cmdline, "machine": info, "rows": rows, "notes": notes,
-                       "compile": comp, "total_s": total}, fh, indent=1)
-    return 0
+            json.dump({"command": cmdline, "machine": info, "library": lib, "rows": rows, "notes": notes,
+                       "compile": comp, "total_s": total,
+                       "loadavg_start": load0, "loadavg_end": load1}, fh, indent=1)
+    return 1 if crashed else 0
 
 
 if __name__ == "__main__":
