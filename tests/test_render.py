@@ -118,3 +118,24 @@ def test_bad_sizes_are_usage_errors(text):
 
     with pytest.raises(SubdivInputError, match="--size"):
         parse_size(text)
+
+
+def test_render_through_a_usd_camera(tmp_path):
+    from pxr import Gf, Usd, UsdGeom
+
+    path = tmp_path / "cam.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    stage.GetRootLayer().subLayerPaths.append(os.path.join(SCENES_DIR, "twisted_boundary.usda"))
+    cam = UsdGeom.Camera.Define(stage, "/Cam")
+    UsdGeom.XformCommonAPI(cam).SetTranslate(Gf.Vec3d(1.5, -6.0, 3.0))
+    UsdGeom.XformCommonAPI(cam).SetRotate(Gf.Vec3f(65.0, 0.0, 0.0))
+    stage.GetRootLayer().Save()
+    out = tmp_path / "cam.png"
+    img = render_file(str(path), str(out), camera="/Cam", size=(64, 36), samples=1, device="cpu")
+    shown = ~is_background(img)
+    assert 0.05 < shown.mean() < 0.9
+    # looking up from below instead: the camera turned away sees nothing
+    UsdGeom.XformCommonAPI(cam).SetRotate(Gf.Vec3f(-90.0, 0.0, 0.0))
+    stage.GetRootLayer().Save()
+    img = render_file(str(path), str(tmp_path / "away.png"), camera="/Cam", size=(64, 36), samples=1, device="cpu")
+    assert is_background(img).all()
