@@ -246,7 +246,7 @@ def _device_name(device) -> str:
 
 def _refine_obj(args, out_kind, max_memory, progress) -> int:
     _quiet_warp()
-    from .estimate import MAX_CORNERS, estimate, format_bytes, may_project, total_bytes
+    from .estimate import check_memory, estimate, may_project
     from .objio import read_obj, write_obj
     from .refiner import Refiner
     from .usd import PrimReport
@@ -264,15 +264,7 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     boundary = args.boundary or data.options.get("boundary", "edge-and-corner")
     est = estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, args.levels, scheme,
                    precision=args.precision, projecting=may_project(mesh, args.rules or "piecewise-smooth"))
-    if est.final.corners > MAX_CORNERS:
-        raise SubdivInputError(f"{args.input}: {args.levels} levels make {est.final.faces:,} faces, more than 32-bit "
-                               "tables can index; lower --levels")
-    need = total_bytes([est])
-    if max_memory is not None and need > max_memory:
-        raise SubdivInputError(
-            f"refining {args.input} {args.levels} levels would need about {format_bytes(need)} ({est.final.faces:,} "
-            f"faces), more than --max-memory {format_bytes(max_memory)}; lower --levels or raise --max-memory"
-        )
+    check_memory([est], max_memory, args.levels)
     progress(0.0, f"{args.input}: {args.levels} levels")
     refiner = Refiner(mesh, args.levels, scheme=scheme, rules=args.rules or "piecewise-smooth", boundary=boundary,
                       device=args.device, precision=args.precision)
@@ -413,8 +405,6 @@ def _render(args) -> int:
 # -- main ----------------------------------------------------------------------------------------------
 
 def main(argv=None) -> int:
-    from .errors import NonManifoldWarning  # noqa: F401 (imported so that the warning category is known)
-
     try:
         parser = _parser()
         args = parser.parse_args(argv)

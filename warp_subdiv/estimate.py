@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import SubdivInputError
+
 TABLE_BYTES_PER_VERTEX = 60
 TOPOLOGY_BYTES_PER_VERTEX = 450
 PROJECTION_BYTES_PER_VERTEX = 750
@@ -152,6 +154,30 @@ def total_bytes(estimates) -> int:
     if not estimates:
         return 0
     return sum(e.output_bytes for e in estimates) + max(e.working_bytes for e in estimates) + RUNTIME_BYTES
+
+
+class MemoryGuardError(SubdivInputError):
+    """The predicted memory is above the limit (or the output would not fit 32-bit indices)."""
+
+
+def check_memory(estimates, max_memory: int | None, levels: int) -> None:
+    """The memory guard: refuse, before any work, when the prediction is above ``max_memory`` bytes."""
+    estimates = list(estimates)
+    for e in estimates:
+        if e.final.corners > MAX_CORNERS:
+            raise MemoryGuardError(
+                f"{e.path}: {levels} levels make {e.final.faces:,} faces ({e.final.corners:,} face corners), more "
+                "than 32-bit tables can index; lower --levels"
+            )
+    need = total_bytes(estimates)
+    if max_memory is not None and need > max_memory:
+        biggest = max(estimates, key=lambda e: e.output_bytes + e.working_bytes)
+        raise MemoryGuardError(
+            f"refining {len(estimates)} mesh(es) {levels} levels would need about {format_bytes(need)} "
+            f"({biggest.path}: {biggest.final.faces:,} faces, {biggest.final.vertices:,} vertices), more than "
+            f"--max-memory {format_bytes(max_memory)}; lower --levels"
+            + (", pick meshes with --prim," if len(estimates) > 1 else "") + " or raise --max-memory"
+        )
 
 
 def physical_memory() -> int | None:

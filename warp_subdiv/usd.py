@@ -29,7 +29,7 @@ from pxr import Sdf, Usd, Vt
 
 from . import __version__
 from .errors import SubdivInputError
-from .estimate import MAX_CORNERS, Estimate, estimate, format_bytes, may_project, total_bytes
+from .estimate import Estimate, MemoryGuardError, check_memory, estimate, may_project, total_bytes
 from .primvars import FaceMap, corners_to_vertices, vertices_used
 from .refiner import Refined, Refiner
 from .usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, mesh_prims, open_stage,
@@ -37,10 +37,6 @@ from .usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, Subdi
 from .usd_write import OutputLayer, check_output_path, extent_of, int_array, vec3f_array, vt_array
 
 T = Sdf.ValueTypeNames
-
-
-class MemoryGuardError(SubdivInputError):
-    """The predicted memory is above the limit."""
 
 
 class MissingFeatureError(SubdivInputError):
@@ -159,24 +155,6 @@ def _components(pv) -> int:
     return int(digits[0]) if digits else 1
 
 
-def check_memory(p: Plan, max_memory: int | None, levels: int) -> None:
-    """The memory guard: refuse before any work when the prediction is above ``max_memory`` bytes."""
-    for e in p.estimates:
-        if e.final.corners > MAX_CORNERS:
-            raise MemoryGuardError(
-                f"{e.path}: {levels} levels make {e.final.faces:,} faces ({e.final.corners:,} face corners), more "
-                "than 32-bit tables can index; lower --levels"
-            )
-    need = p.predicted_bytes
-    if max_memory is not None and need > max_memory:
-        biggest = max(p.estimates, key=lambda e: e.output_bytes + e.working_bytes)
-        raise MemoryGuardError(
-            f"refining {len(p.estimates)} mesh(es) {levels} levels would need about {format_bytes(need)} "
-            f"({biggest.path}: {biggest.final.faces:,} faces, {biggest.final.vertices:,} vertices), more than "
-            f"--max-memory {format_bytes(max_memory)}; lower --levels, pick prims with --prim, or raise --max-memory"
-        )
-
-
 def _has_param(name: str) -> bool:
     return name in inspect.signature(Refiner.__init__).parameters
 
@@ -286,7 +264,7 @@ def refine_usd(
     p = the_plan or plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
                          precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit)
     out_abs = check_output_path(output_path, p.stage)
-    check_memory(p, max_memory, levels)
+    check_memory(p.estimates, max_memory, levels)
     preflight(p, device=device, precision=precision, limit=limit, normals=normals)
 
     custom = {"warpSubdiv": {
