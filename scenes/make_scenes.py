@@ -334,7 +334,7 @@ SCENES = {s.name: s for s in (
 # -- USD ------------------------------------------------------------------------------------------------
 
 def write_scene(scene: Scene, path: str) -> None:
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
+    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
     layer = Sdf.Layer.CreateAnonymous(".usda")
     stage = Usd.Stage.Open(layer)

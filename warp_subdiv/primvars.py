@@ -24,6 +24,7 @@ import functools
 import numpy as np
 
 from .mesh import Mesh, face_offsets_of, next_corner_of
+from .topology import triangulate
 
 
 class FaceMap:
@@ -39,20 +40,17 @@ class FaceMap:
         counts = mesh.face_vertex_counts.astype(np.int64)
         indices = mesh.face_vertex_indices.astype(np.int64)
         self.control_counts = counts
-        offsets = face_offsets_of(counts)
         hole = np.zeros(len(counts), dtype=bool)
         hole[mesh.holes] = True
 
         # level 0 as the refiner sees it: Loop fan-triangulates polygons
         if scheme == "loop" and not np.all(counts == 3):
-            parent0 = np.repeat(np.arange(len(counts)), counts - 2)
-            rank = np.arange(len(parent0)) - face_offsets_of(counts - 2)[:-1][parent0]
-            start = offsets[parent0]
-            self._tri_corners = np.stack([start, start + rank + 1, start + rank + 2], axis=1).reshape(-1)
+            # the refiner's fan triangulation, applied to corner ids instead of vertex ids
+            _, tri_corners, parent0 = triangulate(counts, np.arange(len(indices)))
+            self._tri_corners = tri_corners.astype(np.int64)
         else:
             parent0 = np.arange(len(counts))
             self._tri_corners = None
-        self._level0_parent = parent0
         level0_verts = indices if self._tri_corners is None else indices[self._tri_corners]
         level0_sizes = counts if self._tri_corners is None else np.full(len(parent0), 3, dtype=np.int64)
         drop0 = hole[parent0]
@@ -65,7 +63,6 @@ class FaceMap:
             touches = np.bincount(level0_face[on_boundary[level0_verts]], minlength=len(level0_sizes)) > 0
             drop0 |= touches
         self._level0_sizes = level0_sizes
-        self._drop0 = drop0
 
         # refined face -> level-0 face
         if self.levels == 0:

@@ -91,17 +91,6 @@ def check_view(view):
 
 # -- geometry ------------------------------------------------------------------------------------------
 
-def _fan(counts: np.ndarray):
-    """Fan triangulation: (face of each triangle, corner ids (T, 3) into the face-vertex list)."""
-    counts = np.asarray(counts, dtype=np.int64)
-    offsets = np.concatenate([[0], np.cumsum(counts)])
-    tri_face = np.repeat(np.arange(len(counts)), np.maximum(counts - 2, 0))
-    rank = np.arange(len(tri_face)) - np.repeat(np.concatenate([[0], np.cumsum(np.maximum(counts - 2, 0))[:-1]]),
-                                                 np.maximum(counts - 2, 0))
-    start = offsets[:-1][tri_face]
-    return tri_face, np.stack([start, start + rank + 1, start + rank + 2], axis=1)
-
-
 def face_normals(points, counts, indices) -> np.ndarray:
     """Unit face normals of polygons (Newell's method), (F, 3); zero for degenerate faces."""
     counts = np.asarray(counts, dtype=np.int64)
@@ -176,8 +165,6 @@ def _per_corner(values, interpolation, counts, indices):
 
 def _material_color(material):
     """diffuseColor of a material's UsdPreviewSurface (when it is a constant), else None."""
-    from pxr import UsdShade
-
     if not material:
         return None
     shader = material.ComputeSurfaceSource()[0] if material.GetSurfaceOutput() else None
@@ -220,8 +207,10 @@ def _mesh_colors(prim, mesh, counts, indices, time) -> np.ndarray:
 
 
 def _soup(points, counts, indices, normals_per_corner, colors_per_corner) -> Soup:
-    _, tri = _fan(counts)
-    corners = tri.reshape(-1)
+    from .topology import triangulate
+
+    _, corners, _ = triangulate(counts, np.arange(len(indices)))  # fan triangles as corner ids
+    corners = corners.astype(np.int64)
     return Soup(points[np.asarray(indices, dtype=np.int64)[corners]], normals_per_corner[corners],
                 colors_per_corner[corners])
 
