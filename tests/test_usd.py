@@ -240,6 +240,21 @@ def test_primvars_subsets_and_normals(tmp_path):
     assert ok, why
 
 
+def test_a_primvar_that_goes_bad_at_a_later_time_is_dropped_entirely(tmp_path):
+    pts, counts, idx = grid(2, 1)
+
+    def setup(stage, mesh):
+        pv = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("w", Sdf.ValueTypeNames.FloatArray, "vertex")
+        pv.Set(Vt.FloatArray([1.0] * len(pts)), 1.0)
+        pv.Set(Vt.FloatArray([1.0] * (len(pts) - 1)), 2.0)  # one value short at time 2
+
+    src = write_mesh(tmp_path / "w.usda", pts, counts, idx, setup=setup)
+    result = refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
+    pv = UsdGeom.PrimvarsAPI(opened(tmp_path / "out.usda").GetPrimAtPath("/World/Mesh")).GetPrimvar("w")
+    assert pv.Get(1.0) is None and pv.Get(2.0) is None and pv.GetAttr().GetTimeSamples() == []
+    assert any("primvars:w dropped" in w and "5 vertex values, the mesh needs 6" in w for w in result.warnings)
+
+
 def test_vertex_primvars_follow_the_stencils_and_not_the_normal_projection(refined_scenes):
     """Vertex primvars of a Catmull-Clark mesh: the refiner's stencils (no prescribed-normal projection)."""
     dst, _ = refined_scenes["animated"]

@@ -82,7 +82,8 @@ class Result:
 
 
 def _sample_count(sp: SubdivPrim) -> int:
-    return max(1, len(sp.point_times)) + (1 if sp.point_times else 0)  # samples and the default
+    """Point arrays written for a mesh: one per time sample, and the default value."""
+    return max(1, len(sp.point_times)) + (1 if sp.point_times else 0)
 
 
 def plan(
@@ -218,7 +219,7 @@ class _Work:
         for sp, e in zip(p.prims, p.estimates):
             tables = sum(c.vertices for c in e.counts[1:]) or 1
             self.weights.append((tables, e.final.vertices or 1))
-        self.total = sum(t + s * _sample_count(sp) for (t, s), sp in zip(self.weights, p.prims)) or 1
+        self.total = sum(t + s * max(1, len(sp.point_times)) for (t, s), sp in zip(self.weights, p.prims)) or 1
         self.done = 0
 
     def step(self, units: float, label: str) -> None:
@@ -245,7 +246,6 @@ def refine_usd(
     flatten: bool = False,
     semi_sharp: str = "error",
     progress=None,
-    the_plan: Plan | None = None,
 ) -> Result:
     """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) ``levels`` times and
     write the layer ``output_path`` (.usd, .usda or .usdc) that sublayers the input and overrides them.
@@ -261,7 +261,7 @@ def refine_usd(
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     check_output_path(output_path)
-    p = the_plan or plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
+    p = plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
                          precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit)
     out_abs = check_output_path(output_path, p.stage)
     check_memory(p.estimates, max_memory, levels)

@@ -115,8 +115,11 @@ class OutputLayer:
             self.layer.SetTimeSample(spec.path, time, value)
 
     def block(self, prim: Sdf.PrimSpec, name: str, type_name, uniform: bool = False, custom: bool = False) -> None:
-        """Block the attribute: weaker layers' values (defaults and time samples) no longer show through."""
+        """Block the attribute: weaker layers' values (defaults and time samples) no longer show through, and
+        neither do time samples this layer may already hold for it."""
         spec = self.attr(prim, name, type_name, uniform, custom)
+        for time in self.layer.ListTimeSamplesForPath(spec.path):
+            self.layer.EraseTimeSample(spec.path, time)
         spec.default = Sdf.ValueBlock()
 
     # -- finishing -------------------------------------------------------------------------------------
