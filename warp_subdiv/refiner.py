@@ -84,6 +84,7 @@ class Refiner:
         normal_strength: float = 1.0,
         crease_method: str = "uniform",
         triangle_subdivision: str = "catmark",
+        _linear: bool = False,
     ):
         if not isinstance(mesh, Mesh):
             raise TypeError(f"mesh must be a warp_subdiv.Mesh, got {type(mesh).__name__}")
@@ -123,8 +124,9 @@ class Refiner:
         self.crease_method = crease_method
         self.triangle_subdivision = triangle_subdivision
         smooth_triangles = triangle_subdivision == "smooth" and SCHEME_ALIASES[key] == rules_module.CATMULL_CLARK
+        self._linear = _linear  # bilinear refinement, for face-varying data in mode "all"
         level = base_level(mesh, self.scheme, boundary, rules, triangulate, flatness=flatness if paper else None,
-                           crease_method=crease_method)
+                           crease_method=crease_method, linear=_linear)
         self.base_num_vertices = level.num_vertices
         normal_vertices = mesh.normal_vertices.astype(np.int64)
         self._normals = (normal_vertices, mesh.normal_vectors)
@@ -165,6 +167,7 @@ class Refiner:
         self._limit = None
         self._deeper = None
         self._flatness = flatness
+        self._face_varying: dict = {}
         self.num_vertices = level.num_vertices
         self._device_tables = None
         self._buffers = None
@@ -190,7 +193,7 @@ class Refiner:
         if self._full_tables is None:
             level = base_level(self.mesh, self.scheme, self.boundary, self.rules, self._triangulate,
                                flatness=self._flatness if self.rules == "piecewise-smooth" else None,
-                               crease_method=self.crease_method)
+                               crease_method=self.crease_method, linear=self._linear)
             self._full_tables = []
             smooth_triangles = self.triangle_subdivision == "smooth" and self.scheme == rules_module.CATMULL_CLARK
             for _ in range(self.levels):
@@ -441,6 +444,7 @@ class Refiner:
                 device=self.device, precision=self.precision, loop_beta=self.loop_beta,
                 triangulate=self._triangulate, flatness=self._flatness, normal_strength=self.normal_strength,
                 crease_method=self.crease_method, triangle_subdivision=self.triangle_subdivision,
+                _linear=self._linear,
             )
         return self._deeper
 
@@ -451,6 +455,22 @@ class Refiner:
         src = self._final_points_of(points_one_level_up, bufs[-2].shape[0])
         self._apply_step(tables[-1], src, bufs[-1], scratch[-1], True)
         return np.array(bufs[-1].numpy(), copy=True)
+
+    def evaluate_face_varying(self, values, indices, mode: str = "corners-plus1"):
+        """Refine a face-varying channel (UVs): ``values`` (m,) or (m, d), ``indices`` one per face corner.
+
+        Returns (refined values, refined indices int32, one per corner of the refined faces as in
+        :meth:`topology`). ``mode``: OpenSubdiv's FVarLinearInterpolation ("none", "corners-only",
+        "corners-plus1" (USD's default), "corners-plus2", "boundaries", "all"); see
+        :mod:`warp_subdiv.facevarying`. The channel's topology is built on the first call for given indices
+        and mode and reused, so later frames cost one evaluation.
+        """
+        from .facevarying import FaceVaryingRefiner
+
+        key = (mode, np.asarray(indices).tobytes())
+        if self._face_varying.get("key") != key:
+            self._face_varying = {"key": key, "refiner": FaceVaryingRefiner(self, indices, mode)}
+        return self._face_varying["refiner"].evaluate(values)
 
     def refine(self, points=None) -> Refined:
         """The refined mesh of ``points`` (default: the mesh's own points)."""

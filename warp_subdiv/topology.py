@@ -73,6 +73,7 @@ class Level:
     edge_sharpness: np.ndarray | None = None  # (E,) float64: 0 smooth, >= 10 infinitely sharp
     vert_sharpness: np.ndarray | None = None  # (V,) float64
     crease_method: str = "uniform"  # how semi-sharp edges decay: "uniform" (by 1) or "chaikin"
+    linear: bool = False  # every vertex a corner and every edge sharp on every level: bilinear refinement
     # sectors of crease and corner vertices (RULES.md section 0): corners listed counter-clockwise from the
     # face after the first crease edge; theta and kind per RULES.md section 2; flatness s (NaN: optimal s*)
     sector_vertex: np.ndarray | None = None  # (S,)
@@ -278,6 +279,7 @@ def base_level(
     triangulate_polygons: bool = True,
     flatness=None,
     crease_method: str = "uniform",
+    linear: bool = False,
 ) -> Level:
     """Analyse the control mesh: edges, fans, manifoldness, vertex classes and sectors."""
     if scheme not in rules.SCHEMES:
@@ -385,6 +387,9 @@ def base_level(
         forced |= on_boundary & (vcount == 1)
     forced |= vcount == 0  # unused vertices keep their position
     vert_sharpness[forced] = INFINITE_SHARPNESS
+    if linear:  # bilinear refinement (face-varying "all"): corners and sharp edges everywhere
+        vert_sharpness[:] = INFINITE_SHARPNESS
+        edge_sharpness[:] = INFINITE_SHARPNESS
     vclass = vertex_rule(vert_sharpness, sharp_count)
     edge_sharp = edge_sharpness > 0
     if boundary == "none":
@@ -422,6 +427,7 @@ def base_level(
         edge_sharpness=edge_sharpness,
         vert_sharpness=vert_sharpness,
         crease_method=crease_method,
+        linear=linear,
         sector_vertex=_i32(sectors[0]),
         sector_offsets=sectors[1],
         sector_corners=_i32(sectors[2]),
@@ -696,6 +702,10 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
     child_vert_sharpness = np.concatenate([vertex_sharpness, np.zeros(nV - V)])
     child_class = np.concatenate([vertex_children_class, np.full(n_face_children, SMOOTH, np.int8),
                                   edge_child_class])
+    if level.linear:
+        child_edge_sharpness[:] = INFINITE_SHARPNESS
+        child_vert_sharpness[:] = INFINITE_SHARPNESS
+        child_class[:] = CORNER
     # sectors: a vertex child keeps its sectors (theta is fixed on all levels); every corner of a parent
     # edge that is sharp makes one regular crease sector at the edge's child, its corners counter-clockwise
     sharp_slots = level.edge_sharpness[slot_edge] >= INFINITE_SHARPNESS
@@ -728,6 +738,7 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
         edge_sharpness=child_edge_sharpness,
         vert_sharpness=child_vert_sharpness,
         crease_method=level.crease_method,
+        linear=level.linear,
         sector_vertex=_i32(sector_vertex),
         sector_offsets=sector_offsets,
         sector_corners=_i32(sector_corners),

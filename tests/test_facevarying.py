@@ -1,0 +1,128 @@
+"""Face-varying channels (UVs) with OpenSubdiv's FVarLinearInterpolation modes."""
+import os
+import sys
+
+import numpy as np
+import pytest
+
+import warp_subdiv as ws
+from conftest import load_mesh
+from warp_subdiv.facevarying import FVAR_MODES
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+try:
+    from peers import osd_peer
+
+    HAVE_PEER = osd_peer.available()
+except Exception:  # pragma: no cover - the peer is optional
+    HAVE_PEER = False
+
+
+def islands(mesh):
+    """Every face its own UV island: seams on every edge."""
+    return np.arange(len(mesh.face_vertex_indices))
+
+
+def test_continuous_channel_equals_vertex_refinement():
+    """Values indexed like the vertices, mode none (fully smooth): the channel refines like vertex data."""
+    cube = load_mesh("cube")
+    r = ws.Refiner(cube, 2, rules="opensubdiv", device="cpu", precision="float64")
+    vals = np.random.default_rng(0).random((8, 2))
+    fv, fi = r.evaluate_face_varying(vals, cube.face_vertex_indices, "none")
+    _, vi = r.topology()
+    np.testing.assert_allclose(fv[fi], r.evaluate(vals)[vi], atol=1e-12)
+
+
+def test_mode_all_is_bilinear():
+    cube = load_mesh("cube")
+    idx = islands(cube)
+    vals = np.random.default_rng(1).random((24, 2))
+    r = ws.Refiner(cube, 1, device="cpu", precision="float64")
+    fv, fi = r.evaluate_face_varying(vals, idx, "all")
+    corners = fv[fi].reshape(-1, 4, 2)  # child quad j of face f: (vertex, edge j, centre, edge j-1)
+    for f in range(6):
+        v = vals[idx[4 * f:4 * f + 4]]
+        for j in range(4):
+            child = corners[4 * f + j]
+            np.testing.assert_allclose(child[j], v[j], atol=1e-12)  # OpenSubdiv's rotation: vertex at j
+            np.testing.assert_allclose(child[(j + 2) % 4], v.mean(axis=0), atol=1e-12)
+            mids = {tuple(np.round((v[j] + v[(j + 1) % 4]) / 2, 12)), tuple(np.round((v[j] + v[j - 1]) / 2, 12))}
+            got = {tuple(np.round(child[(j + 1) % 4], 12)), tuple(np.round(child[(j + 3) % 4], 12))}
+            assert got == mids
+
+
+def test_seam_keeps_two_sides():
+    """A cube with one UV island per face keeps its seams: the two faces at an edge keep their own values."""
+    cube = load_mesh("cube")
+    idx = islands(cube)
+    vals = np.random.default_rng(2).random((24, 2)) + np.repeat(np.arange(6), 4)[:, None] * 10  # islands apart
+    r = ws.Refiner(cube, 3, device="cpu", precision="float64")
+    fv, fi = r.evaluate_face_varying(vals, idx, "corners-plus1")
+    counts, vi = r.topology()
+    parent_face = np.repeat(np.arange(6), len(counts) // 6)  # children follow parent faces
+    island = (fv[fi].reshape(-1, 4, 2)[:, :, 0] // 10).astype(int)
+    assert np.all(island == parent_face[:, None])
+    # a refined vertex on a seam has as many values as islands meeting there
+    assert len(np.unique(fi)) > len(np.unique(vi))
+
+
+def test_boundaries_mode_makes_island_boundaries_linear():
+    """Mode boundaries: boundary values are interpolated (corners kept, edges linear); mode none smooths them."""
+    grid = load_mesh("grid3x3")
+    uv = grid.points[:, :2] / 3.0 + np.random.default_rng(3).normal(0, 0.02, (16, 2))
+    r = ws.Refiner(grid, 2, device="cpu", precision="float64")
+    fv, fi = r.evaluate_face_varying(uv, grid.face_vertex_indices, "boundaries")
+    smooth, _ = r.evaluate_face_varying(uv, grid.face_vertex_indices, "none")
+    ring = [0, 1, 2, 3, 7, 11, 15, 14, 13, 12, 8, 4]
+    # every boundary value of the island stays, and the boundary is the polyline through them
+    for v in ring:
+        assert np.min(np.linalg.norm(fv - uv[v], axis=1)) < 1e-12
+        assert np.min(np.linalg.norm(smooth - uv[v], axis=1)) > 1e-6 or v in (0, 3, 12, 15)
+    a, b = uv[ring], uv[np.roll(ring, -1)]
+    mids = (a + b) / 2
+    for m in mids:
+        assert np.min(np.linalg.norm(fv - m, axis=1)) < 1e-12
+
+
+def test_face_varying_input_errors():
+    cube = load_mesh("cube")
+    r = ws.Refiner(cube, 1, device="cpu")
+    with pytest.raises(ws.SubdivInputError, match="one entry per face corner"):
+        r.evaluate_face_varying(np.zeros((4, 2)), np.zeros(5, dtype=int))
+    with pytest.raises(ws.SubdivInputError, match="refer to value 23"):
+        r.evaluate_face_varying(np.zeros((4, 2)), np.arange(24))
+    with pytest.raises(ValueError, match="face-varying mode"):
+        r.evaluate_face_varying(np.zeros((24, 2)), np.arange(24), "cornersPlus1")
+
+
+def random_seams(mesh, rng, p=0.35):
+    """Face-varying indices with random seams: each face corner keeps its vertex's value or gets its own."""
+    idx = mesh.face_vertex_indices.astype(np.int64).copy()
+    split = rng.random(len(idx)) < p
+    idx[split] = mesh.num_vertices + np.arange(split.sum())
+    return idx, mesh.num_vertices + int(split.sum())
+
+
+@pytest.mark.skipif(not HAVE_PEER, reason="OpenSubdiv peer (libosd-dev) not available")
+@pytest.mark.parametrize("mode", FVAR_MODES)
+@pytest.mark.parametrize("name,scheme", [("cube", "catmull-clark"), ("grid3x3", "catmull-clark"),
+                                         ("mixed_prism", "catmull-clark"), ("icosahedron", "loop"),
+                                         ("tri_grid3x3", "loop"), ("cube_creased", "catmull-clark")])
+def test_matches_opensubdiv(mode, name, scheme):
+    rng = np.random.default_rng(abs(hash((mode, name))) % 2**32)
+    mesh = load_mesh(name)
+    for trial in range(3):
+        idx, nvals = random_seams(mesh, rng) if trial else (islands(mesh), len(mesh.face_vertex_indices))
+        vals = rng.random((nvals, 2))
+        for level in (1, 2):
+            r = ws.Refiner(mesh, level, scheme=scheme, rules="opensubdiv", device="cpu", precision="float64")
+            fv, fi = r.evaluate_face_varying(vals, idx, mode)
+            ref = osd_peer.mesh_request  # noqa: F841 (documents the peer API used below)
+            out = osd_peer.refine(mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices, level,
+                                  scheme="catmark" if scheme == "catmull-clark" else "loop",
+                                  creases=mesh.creases, crease_sharpness=mesh.crease_sharpness,
+                                  corners=mesh.corners, corner_sharpness=mesh.corner_sharpness,
+                                  fvar_linear=mode, fvar=(vals, idx))
+            lv = out.levels[level]
+            np.testing.assert_allclose(fv[fi], lv.fvar_values[lv.fvar_indices], atol=1e-9,
+                                       err_msg=f"trial {trial} level {level}")

@@ -1,0 +1,169 @@
+"""Face-varying data (UVs): refinement on its own topology, with OpenSubdiv's FVarLinearInterpolation modes.
+
+A face-varying channel gives every face corner a value index. Its values form their own mesh (the "value
+mesh"): faces as in the vertex mesh, with the value indices as vertices, so a seam (an edge whose two faces
+use different values) is a boundary of the value mesh. The value mesh is refined by the same engine with
+OpenSubdiv's rules, edge-only boundaries, the vertex mesh's creases and corners, and extra corners chosen by
+the linear-interpolation mode, as OpenSubdiv's Vtr::FVarLevel chooses them:
+
+=================  ===================================================================================
+mode               values made sharp (interpolated) besides the vertex mesh's own corners
+=================  ===================================================================================
+``none``           none: seams and boundaries are smooth B-spline curves of their values
+``corners-only``   values whose faces around their vertex number one (corners of a UV island)
+``corners-plus1``  also every value of a vertex with more than two values (USD's default)
+``corners-plus2``  also seam ends inside the mesh (darts) and both values where one is a corner
+``boundaries``     every value on a seam or on the mesh boundary (boundaries are linear)
+``all``            everything: bilinear interpolation
+=================  ===================================================================================
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import SubdivInputError
+from .mesh import INFINITE_SHARPNESS, Mesh
+from .topology import base_level
+
+FVAR_MODES = ("none", "corners-only", "corners-plus1", "corners-plus2", "boundaries", "all")
+#: USD's faceVaryingLinearInterpolation tokens
+USD_FVAR_MODES = {"none": "none", "cornersOnly": "corners-only", "cornersPlus1": "corners-plus1",
+                  "cornersPlus2": "corners-plus2", "boundaries": "boundaries", "all": "all"}
+
+
+def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
+    """The value mesh of a face-varying channel and, for each of its vertices, the source value index.
+
+    Each (vertex, value) pair becomes one value-mesh vertex, so a value index used at two different vertices
+    is two vertices of the value mesh (as OpenSubdiv keeps values per vertex).
+    """
+    if mode not in FVAR_MODES:
+        raise ValueError(f"face-varying mode must be one of {FVAR_MODES}, got {mode!r}")
+    idx = np.asarray(indices)
+    if idx.ndim != 1 or len(idx) != len(mesh.face_vertex_indices):
+        raise SubdivInputError(
+            f"face-varying indices need one entry per face corner ({len(mesh.face_vertex_indices)}), got "
+            f"{np.shape(indices)}"
+        )
+    if idx.dtype.kind not in "iu":
+        raise SubdivInputError("face-varying indices must be integers")
+    if len(idx) and idx.min() < 0:
+        h = int(np.flatnonzero(idx < 0)[0])
+        raise SubdivInputError(f"face-varying index {idx[h]} at face corner {h} is negative")
+    idx = idx.astype(np.int64)
+    # vertex-level analysis of the control mesh (edges, fans, sharpness) with the geometry's options
+    level = base_level(mesh, "catmull-clark", boundary, "opensubdiv")
+    cv = mesh.face_vertex_indices.astype(np.int64)
+    nv = mesh.num_vertices
+    pairs, pid = np.unique(cv * (int(idx.max()) + 1 if len(idx) else 1) + idx, return_inverse=True)
+    pid = pid.reshape(-1)
+    source = pairs % (int(idx.max()) + 1 if len(idx) else 1)
+    pair_vertex = pairs // (int(idx.max()) + 1 if len(idx) else 1)
+    npairs = len(pairs)
+
+    nxt = mesh.edges.corner_next.astype(np.int64)
+    eoff = level.edge_corner_offsets
+    ecount = np.diff(eoff)
+    h0 = level.edge_corners[eoff[:-1]].astype(np.int64)
+    h1 = level.edge_corners[np.minimum(eoff[:-1] + 1, len(level.edge_corners) - 1)].astype(np.int64)
+    ev = level.edge_verts.astype(np.int64)
+    # seams: an interior edge whose two faces disagree on the value at either end
+    two = ecount == 2
+    same_dir = cv[h0] == cv[h1]
+    at_a0, at_b0 = pid[h0], pid[nxt[h0]]
+    at_a1 = np.where(same_dir, pid[h1], pid[nxt[h1]])
+    at_b1 = np.where(same_dir, pid[nxt[h1]], pid[h1])
+    seam = two & ((at_a0 != at_a1) | (at_b0 != at_b1))
+    boundary_edge = ecount == 1
+    vertex_boundary = np.zeros(nv, dtype=bool)
+    vertex_boundary[ev[boundary_edge].reshape(-1)] = True
+    faces_at = np.bincount(cv, minlength=nv)
+    values_at = np.bincount(pair_vertex, minlength=nv)
+    nonmanifold = np.zeros(nv, dtype=bool)
+    nonmanifold[ev[ecount > 2].reshape(-1)] = True
+
+    linear_boundaries = mode in ("boundaries", "all")
+    dependent = mode in ("corners-plus1", "corners-plus2")
+    corners_sharp = mode != "none"
+    smooth_geometry_corners = boundary != "edge-and-corner"
+    sharpen_darts = mode == "corners-plus2" or linear_boundaries
+
+    mismatch = np.zeros(nv, dtype=bool)
+    mismatch[ev[seam].reshape(-1)] = True
+    mismatch |= vertex_boundary & linear_boundaries & (faces_at > 0)
+    mismatch |= vertex_boundary & (faces_at == 1) & smooth_geometry_corners & corners_sharp
+
+    span = np.bincount(pid, minlength=npairs)  # faces of each value at its vertex
+    # a value whose faces around its vertex are not one fan ("disjoint"): the value mesh's fans
+    value_level = None
+    inf_sharp_vertex = level.vert_sharpness >= INFINITE_SHARPNESS
+    all_sharp = mismatch & (linear_boundaries | inf_sharp_vertex | nonmanifold | (dependent & (values_at > 2))
+                            | (sharpen_darts & (values_at == 1) & ~vertex_boundary))
+    pv = pair_vertex
+    value_sharp = all_sharp[pv] | (mismatch[pv] & (span == 1) & corners_sharp)
+    if dependent:
+        two_values = mismatch & (values_at == 2) & ~all_sharp
+        if mode == "corners-plus2":
+            one_face = np.bincount(pv, weights=(span == 1), minlength=nv) > 0
+            value_sharp |= (two_values & one_face)[pv]
+    if mode == "all":
+        value_sharp[:] = True
+
+    # the value mesh: the vertex mesh's creases on the corresponding value edges, its corners on all values
+    counts = mesh.face_vertex_counts
+    edge_of_corner = mesh.edges.corner_edge.astype(np.int64)
+    crease_pairs = np.stack([pid, pid[nxt]], axis=1)
+    crease_sharp = level.edge_sharpness[edge_of_corner]
+    keep = crease_sharp > 0
+    corner_ids = np.arange(npairs)
+    corner_sharp = np.maximum(level.vert_sharpness[pv], np.where(value_sharp, INFINITE_SHARPNESS, 0.0))
+    keep_c = corner_sharp > 0
+    holes = np.flatnonzero(level.face_hole) if level.face_hole is not None else None
+    if mode == "all":
+        crease_sharp = np.full(len(crease_pairs), INFINITE_SHARPNESS)
+        keep = np.ones(len(crease_pairs), dtype=bool)
+    vm = Mesh(
+        np.zeros((npairs, 3)), counts, pid,
+        creases=crease_pairs[keep], crease_sharpness=crease_sharp[keep],
+        corners=corner_ids[keep_c], corner_sharpness=corner_sharp[keep_c],
+        holes=holes if holes is not None and len(holes) else None,
+    )
+    del value_level
+    return vm, source
+
+
+class FaceVaryingRefiner:
+    """Refines one face-varying channel (its value indices fixed) with the options of a vertex Refiner."""
+
+    def __init__(self, refiner, indices, mode: str = "corners-plus1"):
+        import warnings
+
+        from .errors import NonManifoldWarning
+        from .refiner import Refiner
+
+        self.mode = mode
+        mesh, self.source = value_mesh(refiner.mesh, indices, mode, refiner.boundary)
+        with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
+            warnings.simplefilter("ignore", NonManifoldWarning)
+            self.refiner = Refiner(
+                mesh, refiner.levels, scheme=refiner.scheme, rules="opensubdiv", boundary="edge-only",
+                device=refiner.device, precision=refiner.precision, loop_beta=refiner.loop_beta,
+                triangulate=refiner._triangulate, crease_method=refiner.crease_method,
+                triangle_subdivision=refiner.triangle_subdivision, _linear=(mode == "all"),
+            )
+        self.num_source_values = int(self.source.max()) + 1 if len(self.source) else 0
+
+    def evaluate(self, values):
+        """(refined values (M, d), refined face-varying indices int32 aligned with the refined faces)."""
+        vals = np.asarray(values, dtype=np.float64)
+        squeeze = vals.ndim == 1
+        if squeeze:
+            vals = vals[:, None]
+        if len(vals) < self.num_source_values:
+            raise SubdivInputError(
+                f"face-varying indices refer to value {self.num_source_values - 1} but only {len(vals)} values "
+                "were given"
+            )
+        out = self.refiner.evaluate(vals[self.source], normal_control=False)
+        _, indices = self.refiner.topology()
+        return (out[:, 0] if squeeze else out), indices
