@@ -12,6 +12,7 @@ from pxr import Usd, UsdGeom, Vt
 from test_usd_support import ROOT, SCENES_DIR, digest, grid, write_mesh
 
 SCENE = os.path.join(SCENES_DIR, "concave_corner.usda")
+SCENE_DIGEST = digest(SCENE)  # the input, before any run: runs only ever read it
 ANIMATED = os.path.join(SCENES_DIR, "animated.usda")
 
 
@@ -70,13 +71,18 @@ IN_PROCESS = {
 }
 
 
+REFINED = "refined/concave_corner_L3.usdc"
+
+
 @pytest.fixture(scope="module")
 def error_runs(work):
+    """Every subprocess of this file, started at once: the error cases and one successful refinement."""
     broken, text, blocker = _bad_files(work)
     procs = {}
     for name, (args, _, _) in ERRORS.items():
         args = [a.format(work=work, broken=broken, text=text, blocker=blocker) for a in args]
         procs[name] = start(*args, cwd=work)
+    procs["success"] = start("refine", SCENE, "-o", work / REFINED, "--levels", "3", "--device", "cpu")
     return {name: finish(p) for name, p in procs.items()}
 
 
@@ -84,6 +90,7 @@ def error_runs(work):
 def test_user_errors_exit_2_with_one_line_and_no_output(work, error_runs, name):
     code, out, err = error_runs[name]
     _, needle, output = ERRORS[name]
+    assert digest(SCENE) == SCENE_DIGEST
     assert code == 2, (code, err)
     lines = [line for line in err.splitlines() if line.startswith("warp-subdiv")]
     assert len(lines) == 1 and lines[0].startswith("warp-subdiv: error: ") and needle in lines[0], err
@@ -116,9 +123,8 @@ def test_more_user_errors(work, capsys, name):
 
 
 def test_refine(work, error_runs):
-    before = digest(SCENE)
-    out = work / "refined" / "concave_corner_L3.usdc"
-    code, stdout, err = finish(start("refine", SCENE, "-o", out, "--levels", "3", "--device", "cpu"))
+    out = work / REFINED
+    code, stdout, err = error_runs["success"]
     assert code == 0, err
     assert "Traceback" not in err and not [line for line in err.splitlines() if "error" in line]
     # the summary table: one row per mesh, then the totals
@@ -126,7 +132,6 @@ def test_refine(work, error_runs):
                  "/World/OpenSubdiv/HoledPlate"):
         assert any(line.strip().startswith(prim) for line in stdout.splitlines()), stdout
     assert "total: 4 meshes, faces 72 -> 4608" in stdout
-    assert digest(SCENE) == before
     stage = Usd.Stage.Open(str(out))
     mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/OpenSubdiv/HoledPlate"))
     assert len(mesh.GetFaceVertexCountsAttr().Get()) == 24 * 64
