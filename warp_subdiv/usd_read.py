@@ -18,6 +18,7 @@ from pxr import Sdf, Tf, Usd, UsdGeom
 
 from .errors import SubdivInputError
 from .mesh import INFINITE_SHARPNESS, Mesh
+from .topology import expand_counts
 
 #: USD subdivisionScheme -> the scheme warp-subdiv refines with ("none" meshes are left alone).
 USD_SCHEMES = {"catmullClark": "catmull-clark", "loop": "loop", "bilinear": "bilinear"}
@@ -432,8 +433,7 @@ def _crease_pairs(path, idx, lengths, sharp):
             f"{path}: creaseLengths add up to {int(lengths.sum())} but creaseIndices has {len(idx)} entries"
         )
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    crease = np.repeat(np.arange(len(lengths)), lengths - 1)
-    rank = np.arange(len(crease)) - np.repeat(np.concatenate([[0], np.cumsum(lengths - 1)[:-1]]), lengths - 1)
+    crease, rank = expand_counts(lengths - 1)  # crease of each crease edge, and its place in the crease
     first = starts[crease] + rank
     pairs = np.stack([idx[first], idx[first + 1]], axis=1)
     if len(sharp) == len(lengths):
