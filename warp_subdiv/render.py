@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SubdivInputError
+from .mesh import face_offsets_of, next_corner_of
 from .usd_write import publish
 
 BACKGROUND_TOP = np.array([0.93, 0.94, 0.96])
@@ -94,12 +95,9 @@ def check_view(view):
 def face_normals(points, counts, indices) -> np.ndarray:
     """Unit face normals of polygons (Newell's method), (F, 3); zero for degenerate faces."""
     counts = np.asarray(counts, dtype=np.int64)
-    offsets = np.concatenate([[0], np.cumsum(counts)])
     p = points[indices]
     corner_face = np.repeat(np.arange(len(counts)), counts)
-    nxt = np.arange(1, len(indices) + 1)
-    nxt[offsets[1:] - 1] = offsets[:-1]
-    q = p[nxt]
+    q = p[next_corner_of(counts, face_offsets_of(counts))]
     terms = np.stack([(p[:, 1] - q[:, 1]) * (p[:, 2] + q[:, 2]), (p[:, 2] - q[:, 2]) * (p[:, 0] + q[:, 0]),
                       (p[:, 0] - q[:, 0]) * (p[:, 1] + q[:, 1])], axis=1)
     n = np.zeros((len(counts), 3))
@@ -327,9 +325,7 @@ def cage_edges(stage, time=None, prims=None) -> np.ndarray:
         idx = np.asarray(indices, dtype=np.int64)
         if len(idx) == 0 or idx.max() >= len(pts):
             continue
-        offsets = np.concatenate([[0], np.cumsum(counts)])
-        nxt = np.arange(1, len(idx) + 1)
-        nxt[offsets[1:] - 1] = offsets[:-1]
+        nxt = next_corner_of(counts, face_offsets_of(counts))
         pairs = np.unique(np.sort(np.stack([idx, idx[nxt]], axis=1), axis=1), axis=0)
         out.append(pts[pairs])
     return np.concatenate(out) if out else np.zeros((0, 2, 3))
