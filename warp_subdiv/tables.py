@@ -83,25 +83,41 @@ def _crease_neighbours(level: Level, sharp_ends: np.ndarray) -> np.ndarray:
 
 
 def _edge_endpoint_weights(level: Level, rule_set: str, me: np.ndarray, h0: np.ndarray):
-    """Endpoint weights (w_a, w_b) of the non-crease edges ``me`` (RULES.md section 4, both rule sets)."""
+    """Endpoint weights (w_a, w_b) of the non-crease edges ``me`` (RULES.md section 4, both rule sets).
+
+    Only edges with a crease or corner endpoint can differ from the smooth weights; the sector angle of
+    such an endpoint is read at its corner in the edge's first face."""
     scheme = level.scheme
-    corner_vert = level.corner_vert
-    vclass = level.vert_class
+    w, _ = rules.smooth_edge_weights(scheme)
+    w_a, w_b = np.full(len(me), w), np.full(len(me), w)
+    if rule_set == "opensubdiv" or level.num_sectors == 0:  # OpenSubdiv: the smooth rule next to creases too
+        return w_a, w_b
+    tagged = (level.vert_class == CREASE) | (level.vert_class == CORNER)
     ev = level.edge_verts
-    a, b = ev[me, 0], ev[me, 1]
-    g0 = h0[me]
-    if rule_set == "opensubdiv":  # OpenSubdiv's smooth edge rule next to creases and corners too
-        w, _ = rules.smooth_edge_weights(scheme)
-        return np.full(len(me), w), np.full(len(me), w)
-    # theta of the sector of each endpoint that contains this edge: read at that endpoint's corner in face f0
+    near = np.flatnonzero(tagged[ev[me, 0]] | tagged[ev[me, 1]])
+    if len(near) == 0:
+        return w_a, w_b
+    e = me[near]
+    a, b = ev[e, 0], ev[e, 1]
+    g0 = h0[e]
+    corner_vert = level.corner_vert
     at_a = np.where(corner_vert[g0] == a, g0, level.corner_next(g0))
     at_b = np.where(corner_vert[g0] == b, g0, level.corner_next(g0))
-    tagged_a = (vclass[a] == CREASE) | (vclass[a] == CORNER)
-    tagged_b = (vclass[b] == CREASE) | (vclass[b] == CORNER)
-    theta = level.corner_theta()
-    shift_a = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_a]))
-    shift_b = np.nan_to_num(rules.edge_gamma_shift(scheme, theta[at_b]))
-    return rules.tagged_edge_endpoint_weights(scheme, shift_a, shift_b, tagged_a, tagged_b)
+    # theta of the sector holding a corner: look the corner up among the (few) sector corners
+    sector_corners = level.sector_corners.astype(np.int64)
+    order = np.argsort(sector_corners)
+    sorted_corners = sector_corners[order]
+    theta_sorted = np.repeat(level.sector_theta, level.sector_k())[order]
+
+    def theta_at(h):
+        pos = np.minimum(np.searchsorted(sorted_corners, h), max(len(sorted_corners) - 1, 0))
+        hit = (sorted_corners[pos] == h) if len(sorted_corners) else np.zeros(len(h), bool)
+        return np.where(hit, theta_sorted[pos] if len(sorted_corners) else np.nan, np.nan)
+
+    shift_a = np.nan_to_num(rules.edge_gamma_shift(scheme, theta_at(at_a)))
+    shift_b = np.nan_to_num(rules.edge_gamma_shift(scheme, theta_at(at_b)))
+    w_a[near], w_b[near] = rules.tagged_edge_endpoint_weights(scheme, shift_a, shift_b, tagged[a], tagged[b])
+    return w_a, w_b
 
 
 def _edge_corner_pairs(level: Level):
@@ -138,16 +154,23 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     parent_rule = level.vert_class
     child_rule, edge_child_rule = child_rules(level, halves, child_vs)
     transition = np.isin(parent_rule, [CREASE, CORNER]) & (child_rule != parent_rule) & ~skip_vertex
-    parent_weight = np.where(transition, fractional_weight(level, halves, child_vs), 1.0)
+    parent_weight = (np.where(transition, fractional_weight(level, halves, child_vs), 1.0)
+                     if np.any(transition) else np.ones(V))
     sharp_now = np.repeat(level.edge_sharp[:, None], 2, axis=1)
     pairs = {"parent": _crease_neighbours(level, sharp_now), "child": _crease_neighbours(level, halves > 0)}
 
-    # ----- row sizes
-    slot_vertex = _rows_of(voff)
-    slot_corner = level.vert_corners.astype(np.int64)
-    slot_face = level.corner_face(slot_corner)
-    per_slot = (face_sizes[slot_face] - 2) if cc else np.ones(len(slot_corner), dtype=np.int64)
-    smooth_size = 1 + np.bincount(slot_vertex, weights=per_slot, minlength=V).astype(np.int64)
+    # ----- row sizes (the smooth rule's only where some row uses it)
+    needs_smooth = np.any(~skip_vertex & np.isin(parent_rule, [SMOOTH, DART])) or np.any(
+        transition & np.isin(child_rule, [SMOOTH, DART]))
+    if needs_smooth:
+        slot_vertex = _rows_of(voff)
+        slot_corner = level.vert_corners.astype(np.int64)
+        slot_face = level.corner_face(slot_corner)
+        per_slot = (face_sizes[slot_face] - 2) if cc else np.ones(len(slot_corner), dtype=np.int64)
+        smooth_size = 1 + np.bincount(slot_vertex, weights=per_slot, minlength=V).astype(np.int64)
+    else:
+        slot_vertex = slot_corner = slot_face = per_slot = None
+        smooth_size = np.zeros(V, dtype=np.int64)
 
     def rule_size(rule):
         return np.where((rule == SMOOTH) | (rule == DART), smooth_size, np.where(rule == CREASE, 3, 1))
@@ -187,6 +210,8 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
         out.put(crease, pos[crease] + 2, nb[:, 1], scale[crease] * w_n)
         smooth = np.zeros(V, dtype=bool)
         smooth[verts[np.isin(rule[verts], [SMOOTH, DART])]] = True
+        if not needs_smooth:
+            continue
         _put_smooth_vertices(level, out, smooth, pos, scale, loop_beta, slot_vertex, slot_corner, slot_face,
                              per_slot, h0, h1)
 

@@ -74,6 +74,7 @@ class Level:
     vert_sharpness: np.ndarray | None = None  # (V,) float64
     crease_method: str = "uniform"  # how semi-sharp edges decay: "uniform" (by 1) or "chaikin"
     linear: bool = False  # every vertex a corner and every edge sharp on every level: bilinear refinement
+    semi_sharp: bool | None = None  # cached: does any edge or vertex have a finite, non-zero sharpness?
     # sectors of crease and corner vertices (RULES.md section 0): corners listed counter-clockwise from the
     # face after the first crease edge; theta and kind per RULES.md section 2; flatness s (NaN: optimal s*)
     sector_vertex: np.ndarray | None = None  # (S,)
@@ -174,11 +175,23 @@ def semi_sharp_vertices(edge_verts, edge_sharpness, vert_sharpness) -> np.ndarra
     return out
 
 
+def has_semi_sharpness(level: Level) -> bool:
+    """True when some edge or vertex of the level has a finite, non-zero sharpness."""
+    if level.semi_sharp is None:
+        es, vs = level.edge_sharpness, level.vert_sharpness
+        level.semi_sharp = bool(np.any((es > 0) & (es < INFINITE_SHARPNESS)) or
+                                np.any((vs > 0) & (vs < INFINITE_SHARPNESS)))
+    return level.semi_sharp
+
+
 def child_sharpness(level: Level):
     """Sharpness after one step: (halves (E, 2) -- the child of edge e at its end j --, vertex children (V,)).
 
     Uniform creasing decrements by one. Chaikin creasing (OpenSubdiv's CREASE_CHAIKIN) gives the child at
-    vertex v 3/4 of the edge's sharpness plus 1/4 of the mean of v's other semi-sharp edges, minus one."""
+    vertex v 3/4 of the edge's sharpness plus 1/4 of the mean of v's other semi-sharp edges, minus one.
+    Without semi-sharp features nothing changes (0 stays 0, infinite stays infinite)."""
+    if not has_semi_sharpness(level):
+        return np.repeat(level.edge_sharpness[:, None], 2, axis=1), level.vert_sharpness
     es = level.edge_sharpness
     ev = level.edge_verts.astype(np.int64)
     decremented = decrement_sharpness(es)
@@ -202,6 +215,8 @@ def child_sharpness(level: Level):
 
 def child_rules(level: Level, halves: np.ndarray, child_vertex_sharpness: np.ndarray):
     """Classes of the vertex children (V,) and edge children (E,) after one step."""
+    if not has_semi_sharpness(level):  # rules do not change: vertex children keep theirs
+        return level.vert_class, np.where(level.edge_sharp, CREASE, SMOOTH).astype(np.int8)
     V = level.num_vertices
     ev = level.edge_verts.astype(np.int64)
     count = np.bincount(ev[:, 0], weights=(halves[:, 0] > 0), minlength=V) + np.bincount(
