@@ -266,6 +266,17 @@ def test_vertex_primvars_follow_the_stencils_and_not_the_normal_projection(refin
     expected = ws.Refiner(mesh, LEVELS, device="cpu").evaluate(col, normal_control=False)
     np.testing.assert_allclose(np.asarray(UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor").Get()), expected,
                                atol=1e-6)
+    # face-varying st: the refiner's face-varying channel with the mesh's mode (USD's default cornersPlus1),
+    # written indexed
+    st_in = UsdGeom.PrimvarsAPI(src).GetPrimvar("st")
+    st_out = UsdGeom.PrimvarsAPI(prim).GetPrimvar("st")
+    if hasattr(ws.Refiner, "evaluate_face_varying"):
+        values, indices = ws.Refiner(mesh, LEVELS, device="cpu").evaluate_face_varying(
+            np.asarray(st_in.Get(), dtype=np.float64), np.asarray(st_in.GetIndices()), mode="corners-plus1")
+        assert st_out.IsIndexed()
+        np.testing.assert_allclose(np.asarray(st_out.Get()), values, atol=1e-6)
+        np.testing.assert_array_equal(np.asarray(st_out.GetIndices()), indices)
+    assert len(st_out.ComputeFlattened()) == 4 * len(spec.counts) * 4 ** LEVELS
     # time-sampled varying primvar keeps its samples
     assert UsdGeom.PrimvarsAPI(prim).GetPrimvar("weight").GetAttr().GetTimeSamples() == [1.0, 12.0, 24.0]
     # the material subset is remapped: 4 control faces -> 4 * 16 refined faces

@@ -160,3 +160,17 @@ def test_face_map_parent_at_level_one_is_the_face_point():
     fmap = FaceMap(m, 1, "catmull-clark")
     quads = indices.reshape(-1, 4)
     assert np.all(np.any(quads == (m.num_vertices + fmap.parent)[:, None], axis=1))
+
+
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+def test_face_map_agrees_with_the_refiners_linear_face_varying_channel(scheme):
+    """Two implementations of linear face-varying refinement: the face map (used for bilinear meshes and
+    varying primvars) and the refiner's face-varying channel in mode "all" on unshared corners."""
+    if not hasattr(ws.Refiner, "evaluate_face_varying"):
+        pytest.skip("this refiner has no face-varying channels")
+    m = load_mesh("mixed_prism")
+    m = ws.Mesh(m.points, m.face_vertex_counts, m.face_vertex_indices, holes=[1])
+    values = np.random.default_rng(3).normal(size=(len(m.face_vertex_indices), 2))
+    r = ws.Refiner(m, 2, scheme=scheme, device="cpu", precision="float64")
+    refined, indices = r.evaluate_face_varying(values, np.arange(len(values)), mode="all")
+    np.testing.assert_allclose(np.asarray(refined)[indices], FaceMap(m, 2, scheme).refine_corners(values), atol=1e-12)

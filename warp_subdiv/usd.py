@@ -388,18 +388,23 @@ def _refine_prim(sp: SubdivPrim, layer: OutputLayer, levels, device, precision, 
     for name, reason in sp.dropped:
         _drop(sp, layer, prim, name, reason, warnings)
 
-    # primvars
+    # primvars; face-varying ones by the refiner's face-varying channels where it has them (OpenSubdiv's
+    # FVarLinearInterpolation modes), else linearly per face
+    mode = sp.prim.GetAttribute("faceVaryingLinearInterpolation").Get() or "cornersPlus1"
+    if mode not in FVAR_MODES:
+        raise SubdivInputError(f"{sp.path}: faceVaryingLinearInterpolation {mode!r} is not one of "
+                               f"{', '.join(FVAR_MODES)}")
+    fvar_mode = FVAR_MODES[mode] if sp.scheme != "bilinear" and hasattr(refiner, "evaluate_face_varying") else None
     fv_refined = []
     for pv in sp.primvars:
         try:
-            _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field)
+            _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode)
         except SubdivInputError as exc:
             _drop(sp, layer, prim, pv.name, str(exc).split(": ", 1)[-1], warnings)
             continue
         if pv.interpolation == "faceVarying":
             fv_refined.append(pv.name.split(":", 1)[1])
-    if fv_refined:
-        mode = sp.prim.GetAttribute("faceVaryingLinearInterpolation").Get() or "cornersPlus1"
+    if fv_refined and fvar_mode is None and sp.scheme != "bilinear":
         if mode != "all":
             warnings.append(
                 f"{sp.path}: face-varying primvars ({', '.join(fv_refined)}) are interpolated bilinearly per face "
@@ -417,12 +422,17 @@ def _refine_prim(sp: SubdivPrim, layer: OutputLayer, levels, device, precision, 
 def _drop(sp, layer, prim, name, reason, warnings):
     attr = sp.prim.GetAttribute(name)
     layer.block(prim, name, attr.GetTypeName(), custom=attr.IsCustom())
-    if sp.prim.GetAttribute(name + ":indices").HasAuthoredValue():
+    if sp.prim.GetAttribute(name + ":indices").HasAuthoredValue() or name + ":indices" in prim.attributes:
         layer.block(prim, name + ":indices", T.IntArray)
     warnings.append(f"{sp.path}: {name} dropped ({reason})")
 
 
-def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field):
+#: USD faceVaryingLinearInterpolation -> Refiner.evaluate_face_varying mode.
+FVAR_MODES = {"none": "none", "cornersOnly": "corners-only", "cornersPlus1": "corners-plus1",
+              "cornersPlus2": "corners-plus2", "boundaries": "boundaries", "all": "all"}
+
+
+def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=None):
     mesh = sp.mesh
     where = sp.path
     n_expected = {"vertex": mesh.num_vertices, "varying": mesh.num_vertices, "uniform": mesh.num_faces,
@@ -440,6 +450,19 @@ def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field):
             if len(idx) != n_expected * pv.element_size:
                 raise SubdivInputError(f"{where}: {pv.name}:indices has {len(idx)} entries for {n_expected} faces")
             new_idx = idx.reshape(n_expected, -1)[fmap.parent].reshape(-1)
+            idx_spec = layer.attr(prim, pv.name + ":indices", T.IntArray)
+            layer.set(idx_spec, *_default_or_sample(t, int_array(new_idx)))
+            continue
+        if pv.interpolation == "faceVarying" and fvar_mode is not None:
+            rows, idx = pv.elements(t, where)
+            idx = np.arange(len(rows)) if idx is None else idx
+            if len(idx) != n_expected:
+                raise SubdivInputError(f"{where}: {pv.name} has {len(idx)} faceVarying values, the mesh needs "
+                                       f"{n_expected}")
+            values, new_idx = refiner.evaluate_face_varying(rows.astype(np.float64), idx, mode=fvar_mode)
+            values = np.asarray(values).reshape(len(values), -1)
+            shaped = values.reshape((len(values) * pv.element_size,) + like.shape[1:])
+            layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))
             idx_spec = layer.attr(prim, pv.name + ":indices", T.IntArray)
             layer.set(idx_spec, *_default_or_sample(t, int_array(new_idx)))
             continue

@@ -92,8 +92,9 @@ class Primvar:
             indices = self.primvar.GetIndices(self.times[0])
         return values, indices
 
-    def flattened(self, time, where: str) -> np.ndarray:
-        """Element rows (n, elementSize * components) with indices applied; SubdivInputError if malformed."""
+    def elements(self, time, where: str):
+        """(element rows (n, elementSize * components), indices or None) at ``time``, checked; SubdivInputError
+        if malformed."""
         values, indices = self.raw(time)
         if values is None:
             raise SubdivInputError(f"{where}: {self.name} has no value")
@@ -103,15 +104,18 @@ class Primvar:
         if len(rows) % es:
             raise SubdivInputError(f"{where}: {self.name} has {len(rows)} values, not a multiple of elementSize {es}")
         rows = rows.reshape(len(rows) // es, -1)
-        if indices is not None:
-            idx = np.asarray(indices, dtype=np.int64)
-            bad = np.flatnonzero((idx < 0) | (idx >= len(rows)))
-            if len(bad):
-                raise SubdivInputError(
-                    f"{where}: {self.name}:indices[{bad[0]}] = {idx[bad[0]]} is outside the {len(rows)} values"
-                )
-            rows = rows[idx]
-        return rows
+        if indices is None:
+            return rows, None
+        idx = np.asarray(indices, dtype=np.int64)
+        bad = np.flatnonzero((idx < 0) | (idx >= len(rows)))
+        if len(bad):
+            raise SubdivInputError(f"{where}: {self.name}:indices[{bad[0]}] = {idx[bad[0]]} is outside the {len(rows)} values")
+        return rows, idx
+
+    def flattened(self, time, where: str) -> np.ndarray:
+        """Element rows (n, elementSize * components) with indices applied; SubdivInputError if malformed."""
+        rows, idx = self.elements(time, where)
+        return rows if idx is None else rows[idx]
 
 
 @dataclass
