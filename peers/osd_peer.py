@@ -170,8 +170,16 @@ class PeerLevel:
     face_holes: np.ndarray
     vertex_rules: np.ndarray
     vertex_boundary: np.ndarray
+    vertex_nonmanifold: np.ndarray
+    vertex_sharpness: np.ndarray
+    edge_vertices: np.ndarray  # (E, 2)
+    edge_sharpness: np.ndarray
     fvar_values: Optional[np.ndarray] = None
     fvar_indices: Optional[np.ndarray] = None
+
+    def __repr__(self) -> str:  # short: test reports print their arguments
+        return (f"PeerLevel({len(self.points)} vertices, {len(self.face_counts)} faces, "
+                f"{int(np.count_nonzero(self.face_holes))} holes)")
 
     def faces(self, drop_holes: bool = True):
         """(counts, indices) int32, hole faces left out unless ``drop_holes=False``."""
@@ -179,6 +187,23 @@ class PeerLevel:
             return self.face_counts, self.face_indices
         keep = self.face_holes == 0
         return self.face_counts[keep], self.face_indices[np.repeat(keep, self.face_counts)]
+
+    def sharp_edge_counts(self) -> np.ndarray:
+        """Infinitely sharp edges (sharpness >= 10, boundary edges included) at each vertex."""
+        sharp = self.edge_vertices[self.edge_sharpness >= 10.0].reshape(-1)
+        return np.bincount(sharp, minlength=len(self.points))
+
+    def single_sector(self) -> np.ndarray:
+        """Vertices whose neighbourhood is one smooth sector, where ``T1 x T2`` is the surface normal: interior
+        vertices with at most one infinitely sharp edge and no corner rule, and manifold boundary vertices
+        with no infinitely sharp edge besides their two boundary edges that are not corners, or corners of
+        one face. (A corner of several faces is a point where several face patches meet at an angle.)"""
+        s = self.sharp_edge_counts()
+        faces = np.bincount(self.face_indices, minlength=len(self.points))
+        corner = self.vertex_rules == RULE_CORNER
+        interior = (self.vertex_boundary == 0) & (s <= 1) & ~corner
+        boundary = (self.vertex_boundary == 1) & (s == 2) & (~corner | (faces == 1))
+        return (interior | boundary) & (self.vertex_nonmanifold == 0)
 
 
 @dataclass
@@ -190,6 +215,9 @@ class PeerResult:
     limit_tan1: Optional[np.ndarray] = None
     limit_tan2: Optional[np.ndarray] = None
     records: dict = field(default_factory=dict, repr=False)
+
+    def __repr__(self) -> str:
+        return f"PeerResult(levels 0..{len(self.levels) - 1}, {self.last!r}, limit={self.limit_points is not None})"
 
     @property
     def last(self) -> PeerLevel:
@@ -209,7 +237,9 @@ def _result(rec: dict) -> PeerResult:
         levels.append(PeerLevel(
             points=rec[p + "points"], face_counts=rec[p + "face_counts"], face_indices=rec[p + "face_indices"],
             face_holes=rec[p + "face_holes"], vertex_rules=rec[p + "vertex_rules"],
-            vertex_boundary=rec[p + "vertex_boundary"], fvar_values=rec.get(p + "fvar_values"),
+            vertex_boundary=rec[p + "vertex_boundary"], vertex_nonmanifold=rec[p + "vertex_nonmanifold"],
+            vertex_sharpness=rec[p + "vertex_sharpness"], edge_vertices=rec[p + "edge_vertices"],
+            edge_sharpness=rec[p + "edge_sharpness"], fvar_values=rec.get(p + "fvar_values"),
             fvar_indices=rec.get(p + "fvar_indices"),
         ))
     return PeerResult(levels, rec.get("limit/points"), rec.get("limit/tan1"), rec.get("limit/tan2"), rec)

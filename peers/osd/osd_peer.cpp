@@ -49,16 +49,22 @@
 // Output records of refine (L = 0..N; level 0 is the control mesh as OpenSubdiv sees it):
 //   num_levels            i ()      N + 1
 //   L<L>/points           f (nv, d) PrimvarRefinerReal<double>::Interpolate, level by level, in float64
+//                                   (RefineUniform with fullTopologyInLastLevel = true, other options default)
 //   L<L>/face_counts      i (F,)    all faces of the level, hole faces included ...
 //   L<L>/face_indices     i (sum,)
 //   L<L>/face_holes       i (F,)    ... flagged 1 here (TopologyLevel::IsFaceHole)
 //   L<L>/vertex_rules     i (nv,)   TopologyLevel::GetVertexRule (Sdc::Crease::Rule bits: 1 smooth, 2 dart,
 //                                   4 crease, 8 corner)
 //   L<L>/vertex_boundary  i (nv,)   TopologyLevel::IsVertexBoundary
+//   L<L>/vertex_nonmanifold i (nv,) TopologyLevel::IsVertexNonManifold
+//   L<L>/vertex_sharpness f (nv,)   TopologyLevel::GetVertexSharpness (10 = infinitely sharp)
+//   L<L>/edge_vertices    i (E, 2)  TopologyLevel::GetEdgeVertices, and ...
+//   L<L>/edge_sharpness   f (E,)    ... GetEdgeSharpness after OpenSubdiv's own sharpening (boundary and
+//                                   non-manifold edges 10)
 //   L<L>/fvar_values      f (k, e)  when a face-varying channel was given: InterpolateFaceVarying
 //   L<L>/fvar_indices     i (sum,)  TopologyLevel::GetFaceFVarValues, per face-vertex
 //   limit/points          f (nv, d) when limit = 1: PrimvarRefinerReal<double>::Limit(src, pos, tan1, tan2)
-//   limit/tan1            f (nv, d)   on level N (refined with fullTopologyInLastLevel); OpenSubdiv leaves
+//   limit/tan1            f (nv, d)   on level N; OpenSubdiv leaves
 //   limit/tan2            f (nv, d)   vertices without edges at their refined position with zero tangents
 //
 // ---------------------------------------------------------------------------------------------------------
@@ -403,7 +409,8 @@ void refineOne(const std::string &inPath, const std::string &outPath) {
     loadMesh(readRecords(inPath), m);
     std::unique_ptr<Far::TopologyRefiner> refiner(createRefiner(m));
     Far::TopologyRefiner::UniformOptions uopts(m.level);
-    uopts.fullTopologyInLastLevel = m.limit;  // PrimvarRefiner::Limit needs the last level's full topology
+    // the last level's full topology: PrimvarRefiner::Limit needs it, and so do the edge and vertex records
+    uopts.fullTopologyInLastLevel = true;
     refiner->RefineUniform(uopts);
     const int N = refiner->GetMaxLevel();
 
@@ -445,16 +452,32 @@ void refineOne(const std::string &inPath, const std::string &outPath) {
                 for (int k = 0; k < fvv.size(); ++k) fvIdx.push_back(fvv[k]);
             }
         }
-        std::vector<int32_t> rules(nv), boundary(nv);
+        std::vector<int32_t> rules(nv), boundary(nv), nonmanifold(nv);
+        std::vector<double> vsharp(nv);
         for (int v = 0; v < nv; ++v) {
             rules[v] = (int32_t)lvl.GetVertexRule(v);
             boundary[v] = lvl.IsVertexBoundary(v) ? 1 : 0;
+            nonmanifold[v] = lvl.IsVertexNonManifold(v) ? 1 : 0;
+            vsharp[v] = lvl.GetVertexSharpness(v);
+        }
+        const int ne = lvl.GetNumEdges();
+        std::vector<int32_t> edgeVerts(2 * (size_t)ne);
+        std::vector<double> esharp(ne);
+        for (int e = 0; e < ne; ++e) {
+            Far::ConstIndexArray ev = lvl.GetEdgeVertices(e);
+            edgeVerts[2 * e] = ev[0];
+            edgeVerts[2 * e + 1] = ev[1];
+            esharp[e] = lvl.GetEdgeSharpness(e);
         }
         out.ints(pre + "face_counts", {nf}, counts.data());
         out.ints(pre + "face_indices", {(int64_t)indices.size()}, indices.data());
         out.ints(pre + "face_holes", {nf}, holes.data());
         out.ints(pre + "vertex_rules", {nv}, rules.data());
         out.ints(pre + "vertex_boundary", {nv}, boundary.data());
+        out.ints(pre + "vertex_nonmanifold", {nv}, nonmanifold.data());
+        out.reals(pre + "vertex_sharpness", {nv}, vsharp.data());
+        out.ints(pre + "edge_vertices", {ne, 2}, edgeVerts.data());
+        out.reals(pre + "edge_sharpness", {ne}, esharp.data());
         if (m.hasFVar()) {
             out.reals(pre + "fvar_values", {lvl.GetNumFVarValues(0), m.fvarWidth}, fvar[L].data());
             out.ints(pre + "fvar_indices", {(int64_t)fvIdx.size()}, fvIdx.data());
