@@ -171,6 +171,34 @@ def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatn
     return LocalMasks(l0, l1, l2, x1, x2, tu, tv)
 
 
+def use_opensubdiv_tangents(m: LocalMasks, scheme: str, kind: np.ndarray, k: int) -> None:
+    """Replace the tangent masks (tu, tv) by OpenSubdiv's where their directions differ from the paper's.
+
+    Corners: tu = p_0 - c and tv = p_1 - c (OpenSubdiv's second corner tangent follows the vertex's second
+    edge, the first interior one when k >= 2). Loop crease sectors of k >= 4 faces: OpenSubdiv's cross
+    tangent, -sin(theta) on p_0 and p_k and -2 (cos(theta) - 1) sin(i theta) on p_i, theta = pi/k, oriented
+    into the surface, with the along tangent p_0 - p_k."""
+    corner = np.asarray(kind) != SECTOR_CREASE
+    n = m.tu.shape[1]
+    if np.any(corner):
+        tu = np.zeros(n)
+        tu[0], tu[1] = -1.0, 1.0
+        tv = np.zeros(n)
+        tv[0], tv[2] = -1.0, 1.0  # p_1 (= p_k when k = 1)
+        m.tu[corner] = tu
+        m.tv[corner] = tv
+    crease = ~corner
+    if scheme == LOOP and k >= 4 and np.any(crease):
+        theta = np.pi / k
+        along = np.zeros(n)
+        along[1], along[1 + k] = 1.0, -1.0
+        cross = np.zeros(n)
+        cross[1] = cross[1 + k] = -np.sin(theta)
+        cross[2:1 + k] = -2.0 * (np.cos(theta) - 1.0) * np.sin(np.arange(1, k) * theta)
+        m.tu[crease] = along
+        m.tv[crease] = cross
+
+
 def flattened_points(scheme: str, k: int) -> np.ndarray:
     """Local indices of the non-crease ring points that flatness moves: Loop p_1..p_{k-1}; CC also all q_i."""
     inner = np.arange(2, k + 1)

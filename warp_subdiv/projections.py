@@ -196,8 +196,13 @@ class LimitTables:
     vertex_offsets: np.ndarray  # (V+1,) int32: contributions of vertex v, contiguous
 
 
-def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str) -> LimitTables:
-    """Limit position and tangent masks of every vertex of ``level`` (RULES.md sections 8 and 9)."""
+def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
+                 rule_set: str = "piecewise-smooth") -> LimitTables:
+    """Limit position and tangent masks of every vertex of ``level`` (RULES.md sections 8 and 9).
+
+    With ``rule_set="opensubdiv"`` the tangent masks are OpenSubdiv's where they differ in direction from the
+    paper's (a corner's second tangent runs along its first interior edge; Loop's cross-crease tangent of a
+    sector of four or more faces), so that normals equal OpenSubdiv's T1 x T2."""
     V = level.num_vertices
     pos_rows, pos_local, pos_w = [], [], []
     tan_rows, tan_local, tan_u, tan_v = [], [], [], []
@@ -216,8 +221,8 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str) -> Limit
         vs = ring_vertices[valence[ring_vertices] == k]
         local = ring_local_vectors(level, vs, int(k))
         m = M.interior_masks(level.scheme, int(k), len(vs), beta_variant)
-        l0 = np.where(np.isin(cls[vs], [SMOOTH, DART])[:, None], m.l0, np.eye(local.shape[1])[0])
-        pos_rows.append(vs), pos_local.append(local), pos_w.append(l0)
+        smooth = np.isin(cls[vs], [SMOOTH, DART])
+        pos_rows.append(vs[smooth]), pos_local.append(local[smooth]), pos_w.append(m.l0[smooth])
         tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
 
     # sectors: crease and corner vertices
@@ -230,15 +235,30 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str) -> Limit
         sel = np.flatnonzero(k_all == k)
         local = sector_local_vectors(level, sel, int(k))
         m = M.sector_masks(level.scheme, level.sector_kind[sel], int(k), level.sector_theta[sel], flatness[sel])
+        if rule_set == "opensubdiv":
+            M.use_opensubdiv_tangents(m, level.scheme, level.sector_kind[sel], int(k))
         once = first_sector[sel]
         vs = level.sector_vertex[sel].astype(np.int64)
         pos_rows.append(vs[once]), pos_local.append(local[once]), pos_w.append(m.l0[once])
         tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
 
-    # everything else (isolated vertices, non-manifold leftovers) keeps its position and has no tangents
+    # crease vertices without sectors (semi-sharp features): the crease limit mask of their rule on this
+    # level, as OpenSubdiv's PrimvarRefiner::Limit
     covered = np.zeros(V, dtype=bool)
     for r in pos_rows:
         covered[r] = True
+    crease = np.flatnonzero(~sectored & (cls == CREASE))
+    if len(crease):
+        from .tables import _crease_neighbours
+
+        nb = _crease_neighbours(level, np.repeat(level.edge_sharp[:, None], 2, axis=1))[crease]
+        ok = np.all(nb >= 0, axis=1)
+        crease, nb = crease[ok], nb[ok]
+        pos_rows.append(crease)
+        pos_local.append(np.column_stack([crease, nb]))
+        pos_w.append(np.tile([2.0 / 3.0, 1.0 / 6.0, 1.0 / 6.0], (len(crease), 1)))
+        covered[crease] = True
+    # everything else (corners without sectors, isolated vertices, non-manifold leftovers) keeps its position
     rest = np.flatnonzero(~covered)
     pos_rows.append(rest), pos_local.append(rest[:, None]), pos_w.append(np.ones((len(rest), 1)))
 

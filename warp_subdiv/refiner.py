@@ -361,7 +361,7 @@ class Refiner:
                 raise NotImplementedError("limit masks need a level of quads (Catmull-Clark) or triangles")
             s = projections.resolve_flatness(level) if self.rules == "piecewise-smooth" else np.zeros(
                 level.num_sectors)
-            tables = projections.limit_tables(level, s, self.loop_beta)
+            tables = projections.limit_tables(level, s, self.loop_beta, self.rules)
             np_dtype, _, vec = PRECISIONS[self.precision]
             i32 = np.int32
             dev = {

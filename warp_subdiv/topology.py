@@ -371,10 +371,11 @@ def base_level(
 
     # edge sharpness: boundary and non-manifold edges are infinitely sharp, tagged creases as given
     edge_sharpness = np.zeros(E, dtype=np.float64)
-    edge_sharpness[boundary_edge | nonmanifold_edge] = INFINITE_SHARPNESS
     if len(mesh.creases):
         tagged = edges.find(mesh.creases, nv) if edges is not mesh.edges else mesh.crease_edges
         np.maximum.at(edge_sharpness, tagged, mesh.crease_sharpness)
+    untagged_boundary = boundary_edge & (edge_sharpness <= 0)
+    edge_sharpness[boundary_edge | nonmanifold_edge] = INFINITE_SHARPNESS
     if np.any(nonmanifold_edge) or np.any(fans > 1):
         ne = np.flatnonzero(nonmanifold_edge)
         nmv = np.flatnonzero(fans > 1)
@@ -408,8 +409,11 @@ def base_level(
     vclass = vertex_rule(vert_sharpness, sharp_count)
     edge_sharp = edge_sharpness > 0
     if boundary == "none":
-        # OpenSubdiv's VTX_BOUNDARY_NONE: faces touching the boundary have no limit surface
-        touches = on_boundary[corner_vert]
+        # OpenSubdiv's VTX_BOUNDARY_NONE: a face touching a vertex with an untagged boundary edge has no
+        # limit surface and is left out (boundaries tagged as creases keep their faces)
+        open_vertex = np.zeros(nv, dtype=bool)
+        open_vertex[edge_verts[untagged_boundary].reshape(-1)] = True
+        touches = open_vertex[corner_vert]
         face_hole |= np.bincount(np.repeat(np.arange(F), counts)[touches], minlength=F) > 0
 
     # sectors and their angles: at crease and corner vertices whose sharp edges and own sharpness are all
