@@ -188,21 +188,19 @@ class PeerLevel:
         keep = self.face_holes == 0
         return self.face_counts[keep], self.face_indices[np.repeat(keep, self.face_counts)]
 
-    def sharp_edge_counts(self) -> np.ndarray:
-        """Infinitely sharp edges (sharpness >= 10, boundary edges included) at each vertex."""
-        sharp = self.edge_vertices[self.edge_sharpness >= 10.0].reshape(-1)
-        return np.bincount(sharp, minlength=len(self.points))
+    def sharp_edge_counts(self, semi_sharp: bool = True) -> np.ndarray:
+        """Sharp edges at each vertex: sharpness > 0 (what OpenSubdiv's vertex rules count), or with
+        ``semi_sharp=False`` only infinitely sharp ones (>= 10); boundary edges included."""
+        sharp = self.edge_sharpness > 0 if semi_sharp else self.edge_sharpness >= 10.0
+        return np.bincount(self.edge_vertices[sharp].reshape(-1), minlength=len(self.points))
 
     def single_sector(self) -> np.ndarray:
-        """Vertices whose neighbourhood is one smooth sector, where ``T1 x T2`` is the surface normal: interior
-        vertices with at most one infinitely sharp edge and no corner rule, and manifold boundary vertices
-        with no infinitely sharp edge besides their two boundary edges that are not corners, or corners of
-        one face. (A corner of several faces is a point where several face patches meet at an angle.)"""
+        """Vertices with one sector (the faces between consecutive sharp edges), where ``T1 x T2`` is the
+        surface normal: manifold interior vertices with at most one sharp edge and no corner rule, and manifold
+        boundary vertices whose only sharp edges are their two boundary edges (corners included)."""
         s = self.sharp_edge_counts()
-        faces = np.bincount(self.face_indices, minlength=len(self.points))
-        corner = self.vertex_rules == RULE_CORNER
-        interior = (self.vertex_boundary == 0) & (s <= 1) & ~corner
-        boundary = (self.vertex_boundary == 1) & (s == 2) & (~corner | (faces == 1))
+        interior = (self.vertex_boundary == 0) & (s <= 1) & (self.vertex_rules != RULE_CORNER)
+        boundary = (self.vertex_boundary == 1) & (s == 2)
         return (interior | boundary) & (self.vertex_nonmanifold == 0)
 
 

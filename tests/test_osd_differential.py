@@ -8,9 +8,10 @@ coordinates' magnitude (unit normals to 1e-5), at levels 1 to 3, in OpenSubdiv's
 every basic mesh (tests/data/meshes: both schemes, three boundary modes, both triangle subdivisions), the ten
 OpenSubdiv regression shapes (tests/data/opensubdiv-shapes, with their tags and options) and a few hundred
 seeded random meshes (infinitely sharp and semi-sharp creases and corners, holes, uniform and Chaikin
-creasing). Limit points and normals are compared at level 2. Known disagreements are strict xfails in section 5
-whose reasons say exactly what differs, so that they flip when fixed; the main comparisons leave out only
-the vertices those tests cover.
+creasing, smooth triangles); limit points and T1 x T2 normals at level 2 (random meshes: at their level).
+Known disagreements are strict xfails in section 5 whose reasons say exactly what differs, so that they flip
+when fixed; the main comparisons leave out only what those tests cover (normals at multi-sector vertices and
+at semi-sharp boundary vertices, semi-sharp tags on boundary edges of random meshes).
 
 The peer's input is parsed from the OBJ files here, independently of warp_subdiv.objio. Loop with polygons:
 the peer gets the fan triangulation warp-subdiv documents, (v0, vi, vi+1) per polygon in face order.
@@ -48,25 +49,18 @@ LEVELS = (1, 2, 3)
 LIMIT_LEVEL = 2
 
 # ------------------------------------------------------------------------------------ known disagreements
-SEMI_SHARP_LIMIT = (
-    "limit_points()/limit_normals() at vertices that are or were semi-sharp (a semi-sharp vertex or incident "
-    "edge on any level): OpenSubdiv's PrimvarRefiner::Limit applies the mask of the vertex's rule on the last "
-    "level (e.g. the crease mask once a semi-sharp edge has decayed, or while it is still sharp), "
-    "warp_subdiv returns the refined point itself (a corner's mask)")
-LOOP_CREASE_TANGENT = (
-    "Loop limit normal at a boundary/crease vertex whose sector has 4 or more faces: OpenSubdiv's across "
-    "tangent is its general-valence formula (theta = pi / (interior edges + 1)), warp_subdiv's differs")
 MULTI_SECTOR_NORMAL = (
-    "limit normal at a vertex with several sectors (interior crease or corner) or at a corner of several "
-    "faces: OpenSubdiv's T1 x T2 comes from one sector's crease tangents, warp_subdiv's is the normalised sum "
-    "of the sectors' normals (as its README documents); they differ")
-REFLEX_CORNER_NORMAL = (
-    "limit normal at a boundary corner of two faces with a reflex (> 180 degree) angle: on a flat mesh whose "
-    "faces face +z warp_subdiv gives (0, 0, -1), into the surface; OpenSubdiv gives (0, 0, 1)")
-NONE_WITH_TAGGED_BOUNDARY = (
-    "boundary='none' where boundary edges are tagged infinitely sharp: OpenSubdiv makes a face a hole only "
-    "if it touches a boundary vertex with an untagged boundary edge; warp_subdiv makes every face touching "
-    "the boundary a hole")
+    "limit normal at a vertex with several sectors (an interior crease or corner): OpenSubdiv's T1 x T2 is one "
+    "sector's (its tangents follow the leading crease edge and the faces after it), warp_subdiv's is the "
+    "normalised sum of the sectors' normals (as its README documents)")
+SEMI_SHARP_BOUNDARY_NONE = (
+    "boundary='none' with semi-sharp tags on boundary edges: OpenSubdiv keeps a face at the boundary only "
+    "where every boundary edge at its boundary vertices is tagged infinitely sharp; warp_subdiv counts "
+    "semi-sharp tags too and keeps more faces")
+SEMI_SHARP_BOUNDARY_NORMAL = (
+    "limit_normals() is (0, 0, 0) at a boundary vertex that is or was semi-sharp (a semi-sharp corner tag or "
+    "interior crease edge there, on any level, even after it has decayed); OpenSubdiv gives its crease or "
+    "corner normal")
 REPEATED_VERTEX = (
     "a face that uses a vertex twice (catmark_nonman_edges face 24: 41 42 52 52, degenerate non-manifold "
     "topology OpenSubdiv accepts); warp_subdiv.Mesh refuses it with SubdivInputError")
@@ -190,7 +184,7 @@ def assert_faces(refined, peer_level, what=""):
 
 def semi_sharp_vertices(peer):
     """Level-N vertices that had a semi-sharp (0 < s < 10) sharpness or incident edge on any level (vertex v
-    of a level is vertex v of the next): where SEMI_SHARP_LIMIT applies."""
+    of a level is vertex v of the next)."""
     out = np.zeros(len(peer.last.points), bool)
     for lvl in peer.levels:
         semi = (lvl.vertex_sharpness > 0) & (lvl.vertex_sharpness < 10)
@@ -198,14 +192,6 @@ def semi_sharp_vertices(peer):
         semi[lvl.edge_vertices[semi_edges].reshape(-1)] = True
         out[:len(semi)] |= semi
     return out
-
-
-def loop_extraordinary_creases(peer_level, scheme):
-    """Loop boundary vertices of one sector with 4 or more faces (see LOOP_CREASE_TANGENT)."""
-    if scheme != "loop":
-        return np.zeros(len(peer_level.points), bool)
-    faces = np.bincount(peer_level.face_indices, minlength=len(peer_level.points))
-    return (peer_level.vertex_boundary == 1) & (peer_level.sharp_edge_counts() == 2) & (faces >= 4)
 
 
 def assert_normals(actual, expected, mask, what=""):
@@ -216,15 +202,12 @@ def assert_normals(actual, expected, mask, what=""):
                           f"{actual[bad[0]].tolist()} vs OpenSubdiv {expected[bad[0]].tolist()}")
 
 
-def assert_limit(refined, peer, scheme, what=""):
-    """Limit points everywhere but at SEMI_SHARP_LIMIT's vertices; T1 x T2 normals where there is one sector
-    (PeerLevel.single_sector: see MULTI_SECTOR_NORMAL), less LOOP_CREASE_TANGENT's and SEMI_SHARP_LIMIT's."""
+def assert_limit(refined, peer, what=""):
+    """Limit points everywhere; T1 x T2 normals at one-sector vertices (PeerLevel.single_sector; see
+    MULTI_SECTOR_NORMAL) but the boundary vertices of SEMI_SHARP_BOUNDARY_NORMAL."""
     __tracebackhide__ = True
-    semi = semi_sharp_vertices(peer)
-    keep = ~semi[:, None]
-    assert_points(np.where(keep, refined.limit_points(), 0), np.where(keep, peer.limit_points, 0),
-                  what + " limit points")
-    mask = peer.last.single_sector() & ~loop_extraordinary_creases(peer.last, scheme) & ~semi
+    assert_points(refined.limit_points(), peer.limit_points, what + " limit points")
+    mask = peer.last.single_sector() & ~(semi_sharp_vertices(peer) & (peer.last.vertex_boundary == 1))
     assert_normals(refined.limit_normals(), peer.limit_normals(), mask, what + " limit normals")
 
 
@@ -329,7 +312,7 @@ def test_basic_mesh(basic_peer, name, scheme, boundary, tri_sub, level):
 @pytest.mark.parametrize("name,scheme,boundary,tri_sub", [pytest.param(*c, id=case_id(*c)) for c in BASIC_CASES])
 def test_basic_mesh_limit(basic_peer, name, scheme, boundary, tri_sub):
     assert_limit(basic_ours(name, scheme, boundary, tri_sub, LIMIT_LEVEL),
-                 basic_peer[name, scheme, boundary, tri_sub, True], scheme, f"L{LIMIT_LEVEL}")
+                 basic_peer[name, scheme, boundary, tri_sub, True], f"L{LIMIT_LEVEL}")
 
 
 # ============================================================================ 3. OpenSubdiv's shapes
@@ -376,7 +359,7 @@ def test_shape(shapes_peer, name):
         out = shape_ours(name, level)
         assert_points(out.points, expected.points, f"{name} L{level}")
         assert_faces(out, expected, f"{name} L{level}")
-    assert_limit(shape_ours(name, LIMIT_LEVEL), shapes_peer[name, True], shape_options(name)[0], name)
+    assert_limit(shape_ours(name, LIMIT_LEVEL), shapes_peer[name, True], name)
 
 
 # ============================================================================ 4. random meshes
@@ -425,7 +408,7 @@ def random_case(seed):
     seed % 5 picks quads (Catmull-Clark), triangles (Loop) or triangles under Catmull-Clark, on an open grid
     or a closed box; (seed // 5) % 4 infinitely sharp tags, or semi-sharp ones (sharpness in multiples of
     1/16, exact in OpenSubdiv's float32) with uniform or Chaikin creasing; (seed // 20) % 3 the boundary mode;
-    1 + (seed // 60) % 3 the level. Creases are interior edges (tagged boundary edges: section 5)."""
+    1 + (seed // 60) % 3 the level."""
     rng = np.random.default_rng(seed)
     kind, flavour = seed % 5, (seed // 5) % 4
     if kind in (0, 1) or (kind == 4 and rng.random() < 0.5):
@@ -440,12 +423,12 @@ def random_case(seed):
     counts = np.array([len(f) for f in faces])
     indices = np.array(faces).reshape(-1)
     nxt = np.concatenate([f[1:] + f[:1] for f in faces])
-    uniq, count = np.unique(np.sort(np.stack([indices, nxt], axis=1), axis=1), axis=0, return_counts=True)
-    interior = uniq[count == 2]
-    creases = interior[rng.random(len(interior)) < 0.2]
+    edges, count = np.unique(np.sort(np.stack([indices, nxt], axis=1), axis=1), axis=0, return_counts=True)
+    tagged = rng.random(len(edges)) < 0.2  # boundary edges too: their tags matter to boundary="none"
+    creases, on_boundary = edges[tagged], count[tagged] == 1
     corners = np.flatnonzero(rng.random(len(pts)) < 0.08)
-    if flavour >= 2:
-        crease_sharpness = rng.integers(4, 65, len(creases)) / 16.0
+    if flavour >= 2:  # semi-sharp; boundary edges infinitely sharp (semi-sharp ones: SEMI_SHARP_BOUNDARY_NONE)
+        crease_sharpness = np.where(on_boundary, 10.0, rng.integers(4, 65, len(creases)) / 16.0)
         corner_sharpness = rng.integers(4, 65, len(corners)) / 16.0
     else:
         crease_sharpness, corner_sharpness = np.full(len(creases), 10.0), np.full(len(corners), 10.0)
@@ -476,14 +459,15 @@ def test_random_mesh(random_peer, seed):
     what = f"seed {seed}: {scheme} {boundary} L{level} {src['creasing']} creasing, {tri_sub} triangles"
     assert_points(out.points, peer.last.points, what)
     assert_faces(out, peer.last, what)
-    assert_limit(out, peer, scheme, what)
+    assert_limit(out, peer, what)
 
 
-# ============================================================================ 5. the disagreements, pinned
+# ============================================================================ 5. behaviours and disagreements
 def test_boundary_none_is_edge_only_with_boundary_faces_as_holes():
-    """What OpenSubdiv does with VTX_BOUNDARY_NONE (and warp_subdiv too, untagged boundaries): every vertex is
-    refined as under EDGE_ONLY (boundary edges sharp, one-face corners follow the crease rule) and every face
-    touching a boundary vertex is a hole face, kept in the vertex numbering but not output."""
+    """What OpenSubdiv does with VTX_BOUNDARY_NONE (and warp_subdiv too): every vertex is refined as under
+    EDGE_ONLY (boundary edges sharp, one-face corners follow the crease rule) and every face touching a
+    boundary vertex with an untagged boundary edge is a hole face, kept in the vertex numbering but not
+    output."""
     src = parse_obj(os.path.join(MESHES, "tri_grid3x3.obj"))
     none, edge = osd_peer.refine_many([peer_request(src, 2, "loop", b) for b in ("none", "edge-only")])
     for a, b in zip(none.levels, edge.levels):
@@ -495,8 +479,7 @@ def test_boundary_none_is_edge_only_with_boundary_faces_as_holes():
     assert_faces(out, none.levels[2])
 
 
-@pytest.mark.xfail(strict=True, reason=NONE_WITH_TAGGED_BOUNDARY)
-def test_boundary_none_with_tagged_boundary_edges():
+def test_boundary_none_keeps_faces_whose_boundary_edges_are_all_tagged():
     src = parse_obj(os.path.join(MESHES, "grid3x3.obj"))
     # the boundary edges at vertices 0, 1 and 4, all tagged: face 0 touches no untagged boundary edge
     src["creases"], src["crease_sharpness"] = [(0, 1), (1, 2), (0, 4), (4, 8)], [10.0] * 4
@@ -505,9 +488,20 @@ def test_boundary_none_with_tagged_boundary_edges():
     assert_faces(ours(mesh_of(src), 1, "catmull-clark", "none"), peer.levels[1], "L1")
 
 
-@pytest.mark.xfail(strict=True, reason=SEMI_SHARP_LIMIT)
+@pytest.mark.xfail(strict=True, reason=SEMI_SHARP_BOUNDARY_NONE)
+@pytest.mark.parametrize("sharpness", [5.0, 0.5])
+def test_boundary_none_with_semi_sharp_boundary_tags(sharpness):
+    src = parse_obj(os.path.join(MESHES, "grid3x3.obj"))
+    src["creases"], src["crease_sharpness"] = [(0, 1), (1, 2), (0, 4), (4, 8)], [sharpness] * 4
+    peer = osd_peer.refine_many([peer_request(src, 1, "catmull-clark", "none")])[0]
+    assert np.flatnonzero(peer.levels[0].face_holes).tolist() == [0, 1, 2, 3, 5, 6, 7, 8]
+    assert_faces(ours(mesh_of(src), 1, "catmull-clark", "none"), peer.levels[1], "L1")
+
+
 @pytest.mark.parametrize("name", ["catmark_cube_creases1", "loop_triangle_edgeonly"])
 def test_limit_points_at_semi_sharp_vertices(shapes_peer, name):
+    """PrimvarRefiner::Limit applies the mask of each vertex's rule on the last level, also where semi-sharp
+    features remain or have just decayed."""
     peer = shapes_peer[name, True]
     semi = semi_sharp_vertices(peer)
     assert semi.any()
@@ -515,26 +509,14 @@ def test_limit_points_at_semi_sharp_vertices(shapes_peer, name):
     assert_points(got[semi], peer.limit_points[semi], name)
 
 
-@pytest.mark.xfail(strict=True, reason=MULTI_SECTOR_NORMAL)
-def test_limit_normals_at_multi_sector_vertices():
-    src = parse_obj(os.path.join(MESHES, "cube_creased.obj"))
-    peer = osd_peer.refine_many([peer_request(src, 1, "catmull-clark", "edge-and-corner", limit=True)])[0]
-    multi = ~peer.last.single_sector()
-    assert multi[:8].all()  # the eight corners, three faces each
-    out = ours(mesh_of(src), 1, "catmull-clark", "edge-and-corner")
-    assert_normals(out.limit_normals(), peer.limit_normals(), multi, "multi-sector")
-
-
-@pytest.mark.xfail(strict=True, reason=LOOP_CREASE_TANGENT)
 def test_loop_limit_normal_at_a_boundary_vertex_with_four_faces():
+    """OpenSubdiv's Loop cross tangent at crease vertices with four or more faces (its general formula)."""
     src = parse_obj(os.path.join(MESHES, "tri_halffan.obj"))  # vertex 0: four faces on a straight boundary
     peer = osd_peer.refine_many([peer_request(src, 1, "loop", "edge-only", limit=True)])[0]
-    mask = loop_extraordinary_creases(peer.last, "loop")
-    assert mask[0]
-    assert_normals(ours(mesh_of(src), 1, "loop", "edge-only").limit_normals(), peer.limit_normals(), mask)
+    out = ours(mesh_of(src), 1, "loop", "edge-only")
+    np.testing.assert_allclose(out.limit_normals()[0], peer.limit_normals()[0], atol=NORMAL_TOL)
 
 
-@pytest.mark.xfail(strict=True, reason=REFLEX_CORNER_NORMAL)
 def test_limit_normal_at_a_reflex_boundary_corner_of_a_flat_mesh():
     # two quads in the plane z = 0 (counter-clockwise seen from +z); vertex 1, the middle of the bottom
     # boundary, is tagged a corner and pushed into the faces' side, so their angle there exceeds 180 degrees
@@ -544,3 +526,27 @@ def test_limit_normal_at_a_reflex_boundary_corner_of_a_flat_mesh():
     np.testing.assert_allclose(peer.limit_normals()[1], [0, 0, 1], atol=1e-12)
     out = ours(ws.Mesh(points, counts, indices, corners=[1]), 1, "catmull-clark", "edge-only")
     np.testing.assert_allclose(out.limit_normals()[1], [0, 0, 1], atol=NORMAL_TOL)
+
+
+@pytest.mark.xfail(strict=True, reason=MULTI_SECTOR_NORMAL)
+def test_limit_normals_at_multi_sector_vertices():
+    src = parse_obj(os.path.join(MESHES, "cube_creased.obj"))
+    peer = osd_peer.refine_many([peer_request(src, 1, "catmull-clark", "edge-and-corner", limit=True)])[0]
+    multi = ~peer.last.single_sector()
+    assert multi[:8].all()  # the eight corners, three sectors each
+    out = ours(mesh_of(src), 1, "catmull-clark", "edge-and-corner")
+    assert_normals(out.limit_normals(), peer.limit_normals(), multi, "multi-sector")
+
+
+@pytest.mark.xfail(strict=True, reason=SEMI_SHARP_BOUNDARY_NORMAL)
+@pytest.mark.parametrize("tags", [dict(corners=[1], corner_sharpness=[0.5]),
+                                  dict(creases=[[1, 4]], crease_sharpness=[0.5])], ids=["corner", "crease"])
+def test_limit_normal_at_a_semi_sharp_boundary_vertex(tags):
+    # 2 x 2 quads; vertex 1, the middle of the bottom boundary, gets a semi-sharp corner or interior crease
+    points = np.array([[0, 0, 1], [1, 0, 0], [2, 0, 1], [0, 1, 0], [1, 1, 1], [2, 1, 0], [0, 2, 0], [1, 2, 0],
+                       [2, 2, 0]], float)
+    counts, indices = [4] * 4, [0, 1, 4, 3, 1, 2, 5, 4, 3, 4, 7, 6, 4, 5, 8, 7]
+    peer = osd_peer.refine(points, counts, indices, 1, boundary="edge-only", limit=True, **tags)
+    np.testing.assert_allclose(peer.limit_normals()[1], [0, -1 / np.sqrt(5), 2 / np.sqrt(5)], atol=1e-12)
+    out = ours(ws.Mesh(points, counts, indices, **tags), 1, "catmull-clark", "edge-only")
+    np.testing.assert_allclose(out.limit_normals()[1], peer.limit_normals()[1], atol=NORMAL_TOL)
