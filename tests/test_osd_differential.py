@@ -61,6 +61,11 @@ SEMI_SHARP_BOUNDARY_NORMAL = (
     "limit_normals() is (0, 0, 0) at a boundary vertex that is or was semi-sharp (a semi-sharp corner tag or "
     "interior crease edge there, on any level, even after it has decayed); OpenSubdiv gives its crease or "
     "corner normal")
+NON_MANIFOLD_VERTEX = (
+    "a non-manifold vertex with exactly two sharp edges: warp_subdiv makes it a crease; OpenSubdiv makes every "
+    "non-manifold vertex infinitely sharp (a corner) except on an interior non-manifold crease with fins "
+    "(two non-manifold edges, no boundary edge, more faces than edges), so e.g. the centre of a 2 x 2 grid "
+    "with one face reversed stays at its control position in OpenSubdiv")
 REPEATED_VERTEX = (
     "a face that uses a vertex twice (catmark_nonman_edges face 24: 41 42 52 52, degenerate non-manifold "
     "topology OpenSubdiv accepts); warp_subdiv.Mesh refuses it with SubdivInputError")
@@ -550,3 +555,34 @@ def test_limit_normal_at_a_semi_sharp_boundary_vertex(tags):
     np.testing.assert_allclose(peer.limit_normals()[1], [0, -1 / np.sqrt(5), 2 / np.sqrt(5)], atol=1e-12)
     out = ours(ws.Mesh(points, counts, indices, **tags), 1, "catmull-clark", "edge-only")
     np.testing.assert_allclose(out.limit_normals()[1], peer.limit_normals()[1], atol=NORMAL_TOL)
+
+
+def test_non_manifold_fin_is_a_crease():
+    """Three sheets of two quads meeting along a spine a-b-c: b (two non-manifold edges, six faces, five
+    edges) follows the crease rule in both, a and c are corners."""
+    points, faces = [[0, 0, 0], [1, 0, 0], [2, 0, 0]], []
+    for sheet, angle in enumerate([0.0, 2.1, 4.2]):
+        out = np.array([0, np.cos(angle), np.sin(angle)]) * (1 + 0.1 * sheet)
+        x0 = len(points)
+        points += [(np.array([i, 0, 0]) + out).tolist() for i in range(3)]
+        pair = [[0, 1, x0 + 1, x0], [1, 2, x0 + 2, x0 + 1]]
+        faces += pair if sheet % 2 == 0 else [f[::-1] for f in pair]
+    points, counts, indices = np.array(points), [4] * len(faces), np.array(faces).reshape(-1)
+    peer = osd_peer.refine(points, counts, indices, 2, boundary="edge-only")
+    assert peer.levels[0].vertex_rules[:3].tolist() == [osd_peer.RULE_CORNER, osd_peer.RULE_CREASE,
+                                                        osd_peer.RULE_CORNER]
+    for level in (1, 2):
+        out = ours(ws.Mesh(points, counts, indices), level, "catmull-clark", "edge-only")
+        assert_points(out.points, peer.levels[level].points, f"L{level}")
+        assert_faces(out, peer.levels[level], f"L{level}")
+
+
+@pytest.mark.xfail(strict=True, reason=NON_MANIFOLD_VERTEX)
+def test_non_manifold_vertex_of_two_sharp_edges_is_a_corner():
+    points = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [1, 1, 0.5], [2, 1, 0], [0, 2, 0], [1, 2, 0],
+                       [2, 2, 0]], float)
+    counts, indices = [4] * 4, [0, 1, 4, 3, 1, 2, 5, 4, 3, 4, 7, 6, 4, 7, 8, 5]  # the last face reversed
+    peer = osd_peer.refine(points, counts, indices, 1, boundary="edge-only")
+    assert peer.levels[0].vertex_rules[4] == osd_peer.RULE_CORNER  # two non-manifold edges (4, 5), (4, 7)
+    out = ours(ws.Mesh(points, counts, indices), 1, "catmull-clark", "edge-only")
+    assert_points(out.points, peer.levels[1].points, "L1")
