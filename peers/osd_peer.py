@@ -6,11 +6,13 @@ built on demand with ``peers/osd/build.sh`` into ``peers/osd/build/osd_peer`` (i
 missing or older than its source and OpenSubdiv's headers are installed (``peers/install_osd.sh`` installs
 them with apt). ``OSD_PEER_BIN`` names a prebuilt binary instead.
 
->>> from peers import osd_peer
->>> if osd_peer.available():
-...     out = osd_peer.refine(points, counts, indices, 2, scheme="catmark", boundary="edge-and-corner",
-...                           creases=[[0, 1]], crease_sharpness=[10.0], limit=True)
-...     out.levels[2].points, out.levels[2].faces(), out.limit_points, out.limit_normals()
+Example (``points`` (n, 3), ``counts`` and ``indices`` as in USD)::
+
+    from peers import osd_peer
+    if osd_peer.available():
+        out = osd_peer.refine(points, counts, indices, 2, scheme="catmark", boundary="edge-and-corner",
+                              creases=[[0, 1]], crease_sharpness=[10.0], limit=True)
+        out.levels[2].points, out.levels[2].faces(), out.limit_points, out.limit_normals()
 
 ``refine`` runs one mesh; ``refine_many`` runs several in one process (one start-up); ``bench`` returns the
 benchmark's JSON as a dict. Option values (strings) map onto ``Sdc::Options``:
