@@ -5,10 +5,8 @@ Kernels know nothing about creases or schemes: they apply tables that :mod:`warp
 """
 from .projection import (  # noqa: F401
     displace_rows,
-    displace_rows_2d,
     project_rows,
     scatter_rows,
-    scatter_rows_2d,
     vertex_normals,
 )
 from .regular import (  # noqa: F401
@@ -19,4 +17,4 @@ from .regular import (  # noqa: F401
     tri_edge_points,
     tri_vertex_points,
 )
-from .stencil import apply_stencils_rows, apply_stencils_vec  # noqa: F401
+from .stencil import apply_stencils_vec  # noqa: F401

@@ -29,23 +29,6 @@ def displace_rows(
 
 
 @wp.kernel
-def displace_rows_2d(
-    targets: wp.array(dtype=wp.int32),
-    offsets: wp.array(dtype=wp.int32),
-    indices: wp.array(dtype=wp.int32),
-    weights: wp.array(dtype=Any),
-    src: wp.array2d(dtype=Any),
-    out: wp.array2d(dtype=Any),
-):
-    """One thread per (moved point, channel) for (n, d) vertex data."""
-    i, c = wp.tid()
-    acc = src[targets[i], c]
-    for j in range(offsets[i], offsets[i + 1]):
-        acc += weights[j] * src[indices[j], c]
-    out[i, c] = acc
-
-
-@wp.kernel
 def project_rows(
     targets: wp.array(dtype=wp.int32),
     offsets: wp.array(dtype=wp.int32),
@@ -73,13 +56,6 @@ def scatter_rows(targets: wp.array(dtype=wp.int32), values: wp.array(dtype=Any),
 
 
 @wp.kernel
-def scatter_rows_2d(targets: wp.array(dtype=wp.int32), values: wp.array2d(dtype=Any), dst: wp.array2d(dtype=Any)):
-    """dst[targets[i], c] = values[i, c]."""
-    i, c = wp.tid()
-    dst[targets[i], c] = values[i, c]
-
-
-@wp.kernel
 def vertex_normals(
     vertex_offsets: wp.array(dtype=wp.int32),
     tangent_u: wp.array(dtype=Any),
@@ -100,10 +76,8 @@ for _s, _v in ((wp.float32, wp.vec3f), (wp.float64, wp.vec3d)):
     _i = wp.array(dtype=wp.int32)
     PROJECTION_OVERLOADS += [
         wp.overload(displace_rows, [_i, _i, _i, wp.array(dtype=_s), wp.array(dtype=_v), wp.array(dtype=_v)]),
-        wp.overload(displace_rows_2d, [_i, _i, _i, wp.array(dtype=_s), wp.array2d(dtype=_s), wp.array2d(dtype=_s)]),
         wp.overload(project_rows, [_i, _i, _i, wp.array(dtype=_s), _i, wp.array(dtype=_v), wp.array(dtype=_v),
                                    wp.array(dtype=_v)]),
         wp.overload(scatter_rows, [_i, wp.array(dtype=_v), wp.array(dtype=_v)]),
-        wp.overload(scatter_rows_2d, [_i, wp.array2d(dtype=_s), wp.array2d(dtype=_s)]),
         wp.overload(vertex_normals, [_i, wp.array(dtype=_v), wp.array(dtype=_v), _v, wp.array(dtype=_v)]),
     ]

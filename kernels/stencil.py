@@ -25,24 +25,6 @@ def apply_stencils_vec(
     dst[i] = acc
 
 
-@wp.kernel
-def apply_stencils_rows(
-    offsets: wp.array(dtype=wp.int32),
-    indices: wp.array(dtype=wp.int32),
-    weights: wp.array(dtype=Any),
-    src: wp.array2d(dtype=Any),
-    dst: wp.array2d(dtype=Any),
-):
-    """One thread per (output row, channel): vertex data of any width d, stored as (n, d)."""
-    i, c = wp.tid()
-    start = offsets[i]
-    end = offsets[i + 1]
-    acc = weights[start] * src[indices[start], c]
-    for j in range(start + 1, end):
-        acc += weights[j] * src[indices[j], c]
-    dst[i, c] = acc
-
-
 # Explicit instantiations, so that ahead-of-time compilation (and the cache) holds every variant we launch.
 STENCIL_OVERLOADS = []
 for _scalar, _vec in ((wp.float32, wp.vec3f), (wp.float64, wp.vec3d)):
@@ -51,13 +33,5 @@ for _scalar, _vec in ((wp.float32, wp.vec3f), (wp.float64, wp.vec3d)):
             apply_stencils_vec,
             {"offsets": wp.array(dtype=wp.int32), "indices": wp.array(dtype=wp.int32),
              "weights": wp.array(dtype=_scalar), "src": wp.array(dtype=_vec), "dst": wp.array(dtype=_vec)},
-        )
-    )
-    STENCIL_OVERLOADS.append(
-        wp.overload(
-            apply_stencils_rows,
-            {"offsets": wp.array(dtype=wp.int32), "indices": wp.array(dtype=wp.int32),
-             "weights": wp.array(dtype=_scalar), "src": wp.array2d(dtype=_scalar),
-             "dst": wp.array2d(dtype=_scalar)},
         )
     )

@@ -117,7 +117,6 @@ def test_matches_opensubdiv(mode, name, scheme):
         for level in (1, 2):
             r = ws.Refiner(mesh, level, scheme=scheme, rules="opensubdiv", device="cpu", precision="float64")
             fv, fi = r.evaluate_face_varying(vals, idx, mode)
-            ref = osd_peer.mesh_request  # noqa: F841 (documents the peer API used below)
             out = osd_peer.refine(mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices, level,
                                   scheme="catmark" if scheme == "catmull-clark" else "loop",
                                   creases=mesh.creases, crease_sharpness=mesh.crease_sharpness,

@@ -10,8 +10,9 @@ OpenSubdiv regression shapes (tests/data/opensubdiv-shapes, with their tags and 
 seeded random meshes (infinitely sharp and semi-sharp creases and corners, holes, uniform and Chaikin
 creasing, smooth triangles); limit points and T1 x T2 normals at level 2 (random meshes: at their level).
 Known disagreements are strict xfails in section 5 whose reasons say exactly what differs, so that they flip
-when fixed; the main comparisons leave out only what those tests cover (normals at multi-sector vertices and
-at semi-sharp boundary vertices, semi-sharp tags on boundary edges of random meshes).
+when fixed (two remain: faces that repeat a vertex, which warp-subdiv refuses as bad input, and normals at
+vertices with several sectors, where warp-subdiv averages the sectors' normals); section 5 also pins cases
+that once differed.
 
 The peer's input is parsed from the OBJ files here, independently of warp_subdiv.objio. Loop with polygons:
 the peer gets the fan triangulation warp-subdiv documents, (v0, vi, vi+1) per polygon in face order.
@@ -61,11 +62,6 @@ SEMI_SHARP_BOUNDARY_NORMAL = (
     "limit_normals() is (0, 0, 0) at a boundary vertex that is or was semi-sharp (a semi-sharp corner tag or "
     "interior crease edge there, on any level, even after it has decayed); OpenSubdiv gives its crease or "
     "corner normal")
-NON_MANIFOLD_VERTEX = (
-    "a non-manifold vertex with exactly two sharp edges: warp_subdiv makes it a crease; OpenSubdiv makes every "
-    "non-manifold vertex infinitely sharp (a corner) except on an interior non-manifold crease with fins "
-    "(two non-manifold edges, no boundary edge, more faces than edges), so e.g. the centre of a 2 x 2 grid "
-    "with one face reversed stays at its control position in OpenSubdiv")
 REPEATED_VERTEX = (
     "a face that uses a vertex twice (catmark_nonman_edges face 24: 41 42 52 52, degenerate non-manifold "
     "topology OpenSubdiv accepts); warp_subdiv.Mesh refuses it with SubdivInputError")
@@ -493,7 +489,6 @@ def test_boundary_none_keeps_faces_whose_boundary_edges_are_all_tagged():
     assert_faces(ours(mesh_of(src), 1, "catmull-clark", "none"), peer.levels[1], "L1")
 
 
-@pytest.mark.xfail(strict=True, reason=SEMI_SHARP_BOUNDARY_NONE)
 @pytest.mark.parametrize("sharpness", [5.0, 0.5])
 def test_boundary_none_with_semi_sharp_boundary_tags(sharpness):
     src = parse_obj(os.path.join(MESHES, "grid3x3.obj"))
@@ -543,7 +538,6 @@ def test_limit_normals_at_multi_sector_vertices():
     assert_normals(out.limit_normals(), peer.limit_normals(), multi, "multi-sector")
 
 
-@pytest.mark.xfail(strict=True, reason=SEMI_SHARP_BOUNDARY_NORMAL)
 @pytest.mark.parametrize("tags", [dict(corners=[1], corner_sharpness=[0.5]),
                                   dict(creases=[[1, 4]], crease_sharpness=[0.5])], ids=["corner", "crease"])
 def test_limit_normal_at_a_semi_sharp_boundary_vertex(tags):
@@ -577,7 +571,6 @@ def test_non_manifold_fin_is_a_crease():
         assert_faces(out, peer.levels[level], f"L{level}")
 
 
-@pytest.mark.xfail(strict=True, reason=NON_MANIFOLD_VERTEX)
 def test_non_manifold_vertex_of_two_sharp_edges_is_a_corner():
     points = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [1, 1, 0.5], [2, 1, 0], [0, 2, 0], [1, 2, 0],
                        [2, 2, 0]], float)

@@ -17,7 +17,7 @@ import numpy as np
 
 from . import masks as M
 from .errors import SubdivInputError
-from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SMOOTH
+from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, SMOOTH
 from .tables import StencilTable
 from .topology import Level, _offsets
 
@@ -240,6 +240,23 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
         once = first_sector[sel]
         vs = level.sector_vertex[sel].astype(np.int64)
         pos_rows.append(vs[once]), pos_local.append(local[once]), pos_w.append(m.l0[once])
+        tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
+
+    # boundary crease/corner vertices without sectors (semi-sharp features): their one fan, from boundary to
+    # boundary, is their sector; tangents as OpenSubdiv's for that rule (the paper's tags are not involved)
+    sharp_count = np.bincount(level.edge_verts[level.edge_sharp].reshape(-1), minlength=V)
+    fan = np.flatnonzero(~sectored & boundary_vertex & np.isin(cls, [CREASE, CORNER]) & (sharp_count == 2)
+                         & (valence >= 1))
+    first = level.vert_corners[level.vert_corner_offsets[fan]].astype(np.int64) if len(fan) else fan
+    fan = fan[counts[level.corner_edge[first]] == 1] if len(fan) else fan  # the ring starts at the boundary
+    for k in np.unique(valence[fan]):
+        vs = fan[valence[fan] == k]
+        corners = level.vert_corners.astype(np.int64)[level.vert_corner_offsets[vs][:, None] + np.arange(k)]
+        local = _local_vector(level, vs, corners, sector=True)
+        kind = np.where(cls[vs] == CREASE, SECTOR_CREASE, SECTOR_CONVEX)
+        theta = np.where(kind == SECTOR_CREASE, np.pi / k, np.pi / (2 * k))
+        m = M.sector_masks(level.scheme, kind, int(k), theta)
+        M.use_opensubdiv_tangents(m, level.scheme, kind, int(k))
         tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
 
     # crease vertices without sectors (semi-sharp features): the crease limit mask of their rule on this

@@ -374,7 +374,7 @@ def base_level(
     if len(mesh.creases):
         tagged = edges.find(mesh.creases, nv) if edges is not mesh.edges else mesh.crease_edges
         np.maximum.at(edge_sharpness, tagged, mesh.crease_sharpness)
-    untagged_boundary = boundary_edge & (edge_sharpness <= 0)
+    untagged_boundary = boundary_edge & (edge_sharpness < INFINITE_SHARPNESS)  # not tagged infinitely sharp
     edge_sharpness[boundary_edge | nonmanifold_edge] = INFINITE_SHARPNESS
     if np.any(nonmanifold_edge) or np.any(fans > 1):
         ne = np.flatnonzero(nonmanifold_edge)
@@ -398,7 +398,14 @@ def base_level(
     vert_sharpness = np.zeros(nv, dtype=np.float64)
     np.maximum.at(vert_sharpness, mesh.corners.astype(np.int64), mesh.corner_sharpness)
     sharp_count = np.bincount(edge_verts[edge_sharpness > 0].reshape(-1), minlength=nv)
-    forced = nonmanifold_vert & (sharp_count != 2)
+    # non-manifold vertices are corners, except a "fin" inside the mesh (two non-manifold edges, no boundary
+    # edge, more faces than edges), which OpenSubdiv keeps a crease
+    ends = edge_verts.reshape(-1)
+    nonmanifold_edges_at = np.bincount(ends, weights=np.repeat(nonmanifold_edge, 2), minlength=nv)
+    boundary_edges_at = np.bincount(ends, weights=np.repeat(boundary_edge, 2), minlength=nv)
+    edges_at = np.bincount(ends, minlength=nv)
+    fin = (nonmanifold_edges_at == 2) & (boundary_edges_at == 0) & (vcount > edges_at)
+    forced = nonmanifold_vert & ~fin
     if boundary == "edge-and-corner":
         forced |= on_boundary & (vcount == 1)
     forced |= vcount == 0  # unused vertices keep their position
