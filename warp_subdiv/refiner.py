@@ -208,7 +208,12 @@ class Refiner:
         return sum(t.nbytes(wbytes) for t in self.steps)
 
     def _array(self, values, dtype=None):
-        return wp.array(np.ascontiguousarray(values, dtype=dtype), device=self.device)
+        """A device array of ``values``; on the CPU it shares the numpy array's memory instead of copying it
+        (the refiner keeps its tables, so the memory stays alive)."""
+        host = np.ascontiguousarray(values, dtype=dtype)
+        if self.device.is_cpu:
+            return wp.array(host, device=self.device, copy=False)
+        return wp.array(host, device=self.device)
 
     def _upload(self):
         if self._device_tables is None:
