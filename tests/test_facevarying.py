@@ -125,3 +125,29 @@ def test_matches_opensubdiv(mode, name, scheme):
             lv = out.levels[level]
             np.testing.assert_allclose(fv[fi], lv.fvar_values[lv.fvar_indices], atol=1e-9,
                                        err_msg=f"trial {trial} level {level}")
+
+
+def test_limit_of_a_continuous_channel_equals_the_vertex_limit():
+    """A channel indexed like the vertices (mode none) has the limit of vertex data."""
+    cube = load_mesh("cube")
+    r = ws.Refiner(cube, 2, rules="opensubdiv", device="cpu", precision="float64")
+    vals = np.random.default_rng(5).random((8, 2))
+    lv, li = r.limit_face_varying(vals, cube.face_vertex_indices, "none")
+    _, vi = r.topology()
+    refined = r.evaluate(np.column_stack([vals, np.zeros(8)]))
+    expected = r.limit_points(refined)[:, :2]
+    np.testing.assert_allclose(lv[li], expected[vi], atol=1e-12)
+
+
+def test_limit_of_linear_and_island_channels():
+    """Mode all: every value is a corner, so the limit values are the refined values; on islands with sharp
+    corners the island corners keep their values in the limit."""
+    cube = load_mesh("cube")
+    r = ws.Refiner(cube, 2, device="cpu", precision="float64")
+    vals = np.random.default_rng(6).random((24, 2))
+    fv, fi = r.evaluate_face_varying(vals, islands(cube), "all")
+    lv, li = r.limit_face_varying(vals, islands(cube), "all")
+    np.testing.assert_allclose(lv[li], fv[fi], atol=1e-12)
+    lv, li = r.limit_face_varying(vals, islands(cube), "corners-only")
+    for v in vals:  # each island corner value survives
+        assert np.min(np.linalg.norm(lv - v, axis=1)) < 1e-12

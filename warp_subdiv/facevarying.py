@@ -167,3 +167,16 @@ class FaceVaryingRefiner:
         out = self.refiner.evaluate(vals[self.source], normal_control=False)
         _, indices = self.refiner.topology()
         return (out[:, 0] if squeeze else out), indices
+
+    def limit(self, values):
+        """Limit values of the refined channel (OpenSubdiv's LimitFaceVarying): the limit masks of the value
+        mesh, whose sharp values and seams are the channel's. Returns (values (M, d), indices)."""
+        refined, indices = self.evaluate(values)
+        flat = refined[:, None] if refined.ndim == 1 else refined
+        columns = []
+        for c in range(0, flat.shape[1], 3):  # limit masks act on 3 columns at a time
+            block = np.zeros((len(flat), 3))
+            block[:, :min(3, flat.shape[1] - c)] = flat[:, c:c + 3]
+            columns.append(self.refiner.limit_points(block)[:, :min(3, flat.shape[1] - c)])
+        out = np.concatenate(columns, axis=1)
+        return (out[:, 0] if refined.ndim == 1 else out), indices

@@ -470,12 +470,20 @@ class Refiner:
         :mod:`warp_subdiv.facevarying`. The channel's topology is built on the first call for given indices
         and mode and reused, so later frames cost one evaluation.
         """
+        return self._face_varying_refiner(indices, mode).evaluate(values)
+
+    def limit_face_varying(self, values, indices, mode: str = "corners-plus1"):
+        """Limit values of a face-varying channel at the refined face corners (OpenSubdiv's
+        LimitFaceVarying); same arguments and results as :meth:`evaluate_face_varying`."""
+        return self._face_varying_refiner(indices, mode).limit(values)
+
+    def _face_varying_refiner(self, indices, mode):
         from .facevarying import FaceVaryingRefiner
 
         key = (mode, np.asarray(indices).tobytes())
         if self._face_varying.get("key") != key:
             self._face_varying = {"key": key, "refiner": FaceVaryingRefiner(self, indices, mode)}
-        return self._face_varying["refiner"].evaluate(values)
+        return self._face_varying["refiner"]
 
     def refine(self, points=None) -> Refined:
         """The refined mesh of ``points`` (default: the mesh's own points)."""
