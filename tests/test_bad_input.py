@@ -436,3 +436,20 @@ def test_obj_bad_lines_name_file_and_line(tmp_path):
         read_obj(str(tmp_path / "missing.obj"))
     # a good file still reads
     assert read_obj(mesh_path("cube")).mesh.num_faces == 6
+
+
+def test_size_guards_refuse_before_any_work():
+    """32-bit tables: a request whose last level has more than 2^31 - 1 face corners is refused at once; a
+    memory limit refuses predictions above it with the amount needed."""
+    import time
+
+    from warp_subdiv.estimate import MemoryGuardError
+
+    cube = load_mesh("cube")
+    start = time.perf_counter()
+    with pytest.raises(MemoryGuardError, match="32-bit"):
+        ws.Refiner(cube, 15, device="cpu")
+    with pytest.raises(MemoryGuardError, match=r"would need about .* more than"):
+        ws.refine(cube, 6, device="cpu", max_memory=1_000_000)
+    assert time.perf_counter() - start < 2.0
+    assert ws.refine(cube, 2, device="cpu", max_memory=10**9).num_faces == 96

@@ -84,6 +84,7 @@ class Refiner:
         normal_strength: float = 1.0,
         crease_method: str = "uniform",
         triangle_subdivision: str = "catmark",
+        max_memory: int | None = None,
         _linear: bool = False,
     ):
         if not isinstance(mesh, Mesh):
@@ -111,6 +112,7 @@ class Refiner:
             raise ValueError("flatness is a piecewise-smooth rule; rules='opensubdiv' has none")
         if not paper and len(mesh.normal_vertices):
             raise ValueError("prescribed normals need rules='piecewise-smooth' (OpenSubdiv has no normal control)")
+        self._check_size(mesh, int(levels), SCHEME_ALIASES[key], rules, flatness, precision, max_memory)
         self.mesh = mesh
         self.levels = int(levels)
         self.scheme = SCHEME_ALIASES[key]
@@ -171,6 +173,15 @@ class Refiner:
         self.num_vertices = level.num_vertices
         self._device_tables = None
         self._buffers = None
+
+    @staticmethod
+    def _check_size(mesh, levels, scheme, rule_set, flatness, precision, max_memory):
+        """Before any allocation: refuse outputs beyond 32-bit indices, and predictions above ``max_memory``."""
+        from . import estimate as est
+
+        guess = est.estimate("mesh", mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, levels, scheme,
+                             precision=precision, projecting=est.may_project(mesh, rule_set, flatness))
+        est.check_memory([guess], max_memory, levels)
 
     # ---------------------------------------------------------------------------------------------
     def topology(self):
@@ -517,6 +528,7 @@ def refine(
     normal_strength: float = 1.0,
     crease_method: str = "uniform",
     triangle_subdivision: str = "catmark",
+    max_memory: int | None = None,
 ) -> Refined:
     """Refine ``mesh`` uniformly ``levels`` times.
 
@@ -533,9 +545,11 @@ def refine(
     default) or "chaikin" (OpenSubdiv's CREASE_CHAIKIN).
     ``triangle_subdivision``: "catmark" (default) or "smooth" (OpenSubdiv's TRI_SUB_SMOOTH, USD's
     triangleSubdivisionRule "smooth": Catmull-Clark edge weights next to triangles of the control mesh).
+    ``max_memory``: bytes; refuse (``SubdivInputError``) before any work when the predicted memory is above it.
+    Requests whose last level would not fit 32-bit indices are always refused.
     """
     return Refiner(
         mesh, levels, scheme=scheme, rules=rules, boundary=boundary, device=device, precision=precision,
         loop_beta=loop_beta, triangulate=triangulate, flatness=flatness, normal_strength=normal_strength,
-        crease_method=crease_method, triangle_subdivision=triangle_subdivision,
+        crease_method=crease_method, triangle_subdivision=triangle_subdivision, max_memory=max_memory,
     ).refine()
