@@ -189,6 +189,10 @@ class Refiner:
         lvl = self._final
         sizes = lvl.face_sizes()
         keep = ~lvl.face_hole
+        if lvl.face_size and keep.all():  # no holes: the corner table is the face list (a read-only view)
+            view = lvl.corner_vert.view()
+            view.flags.writeable = False
+            return np.full(lvl.num_faces, lvl.face_size, dtype=np.int32), view
         if lvl.face_size:
             idx = lvl.corner_vert.reshape(-1, lvl.face_size)[keep].reshape(-1)
         else:

@@ -360,7 +360,11 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
     w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
     w, w_wing = rules.smooth_edge_weights(scheme)
     edge_regular[me[(np.abs(w_a - w) > 0) | (np.abs(w_b - w) > 0)]] = False
-    explicit = build_stencils(level, rule_set, loop_beta, regular=(vertex_regular, edge_regular))
+    if vertex_regular.all() and edge_regular.all():  # nothing irregular on this level (common on closed meshes)
+        explicit = StencilTable(np.zeros(1, np.int32), np.zeros(0, np.int32), np.zeros(0), level.num_vertices,
+                                rows=np.zeros(0, np.int32))
+    else:
+        explicit = build_stencils(level, rule_set, loop_beta, regular=(vertex_regular, edge_regular))
     valence = np.arange(np.diff(level.vert_corner_offsets).max() + 1, dtype=np.float64)
     valence[valence < 3] = 3  # unused entries (valence < 3 is never a smooth vertex)
     if scheme == CATMULL_CLARK:
