@@ -152,7 +152,7 @@ def test_info(capsys):
     assert [(row[0], row[1]) for row in table] == [("1", "48"), ("2", "192")]
 
 
-def test_semi_sharp_needs_the_flag(work, capsys):
+def test_semi_sharp_refines_and_the_flag_makes_it_sharp(work, capsys):
     from warp_subdiv import cli
 
     pts, counts, idx = grid(2, 2)
@@ -161,11 +161,7 @@ def test_semi_sharp_needs_the_flag(work, capsys):
         "creaseSharpnesses": Vt.FloatArray([2.0])})
     code_a = cli.main(["refine", src, "-o", str(work / "semi_a.usda"), "--levels", "1", "--device", "cpu"])
     err_a = capsys.readouterr().err
-    if code_a == 2:  # semi-sharp creases not supported by the refiner: a clean refusal naming the crease
-        assert "/World/Mesh: crease 0 (edge 1-4) has sharpness 2" in one_error_line(err_a)
-        assert "--semi-sharp-as-sharp" in err_a and not (work / "semi_a.usda").exists()
-    else:
-        assert code_a == 0, err_a
+    assert code_a == 0, err_a  # semi-sharp creases refine as such
     code_b = cli.main(["refine", src, "-o", str(work / "semi_b.usda"), "--levels", "1", "--device", "cpu",
                        "--semi-sharp-as-sharp", "--quiet"])
     captured = capsys.readouterr()

@@ -310,25 +310,30 @@ def test_reader_reads_every_tag(tmp_path):
     np.testing.assert_array_equal(m.normal_vertices, [9])
     np.testing.assert_allclose(m.normal_vectors, [[0, 0.6, 0.8]], atol=1e-6)
     assert (sp.boundary, sp.rules, sp.flatness, sp.normal_strength) == ("edge-only", "opensubdiv", 0.25, 0.5)
-    assert sp.semi_sharp == 1 and "crease 1 (edge 5-6) has sharpness 2.5" in sp.semi_sharp_detail
+    assert sp.semi_sharp == 1
     # per-edge sharpness and the override of semi-sharp tags
     sharp = read_mesh(prim, semi_sharp="sharp")
     np.testing.assert_array_equal(sharp.mesh.crease_sharpness, [10, 10, 10])
     assert any("treated as infinitely sharp" in w for w in sharp.warnings)
 
 
-def test_semi_sharp_creases_are_refused_cleanly_or_made_sharp(tmp_path):
+def test_semi_sharp_creases_refine_as_semi_sharp_or_are_made_sharp(tmp_path):
     pts, counts, idx = grid(2, 2)
+    pts = np.array(pts, dtype=float)
+    pts[4, 2] = 0.5  # lift the centre, on the crease
     src = write_mesh(tmp_path / "semi.usda", pts, counts, idx, attrs={
         "creaseIndices": Vt.IntArray([1, 4, 7]), "creaseLengths": Vt.IntArray([3]),
-        "creaseSharpnesses": Vt.FloatArray([3.0, 10.0])})  # one per crease edge
-    try:
-        refine_usd(src, str(tmp_path / "a.usda"), 1, device="cpu")
-    except MissingFeatureError as exc:
-        assert "/World/Mesh: crease 0 (edge 1-4) has sharpness 3" in str(exc) and "--semi-sharp-as-sharp" in str(exc)
-        assert not (tmp_path / "a.usda").exists()
-    result = refine_usd(src, str(tmp_path / "b.usda"), 1, device="cpu", semi_sharp="sharp")
+        "creaseSharpnesses": Vt.FloatArray([0.5, 10.0])})  # one per crease edge
+    refine_usd(src, str(tmp_path / "a.usda"), 2, device="cpu")
+    stage_a = Usd.Stage.Open(str(tmp_path / "a.usda"))
+    got = np.asarray(stage_a.GetPrimAtPath("/World/Mesh").GetAttribute("points").Get())
+    mesh = ws.Mesh(pts, counts, idx, creases=[[1, 4], [4, 7]], crease_sharpness=[0.5, 10.0])
+    np.testing.assert_allclose(got, ws.refine(mesh, 2, device="cpu").points, atol=1e-5)
+    result = refine_usd(src, str(tmp_path / "b.usda"), 2, device="cpu", semi_sharp="sharp")
     assert any("semi-sharp" in w for w in result.warnings)
+    stage_b = Usd.Stage.Open(str(tmp_path / "b.usda"))
+    sharp = np.asarray(stage_b.GetPrimAtPath("/World/Mesh").GetAttribute("points").Get())
+    assert np.abs(sharp - got).max() > 1e-4  # sharpness 0.5 blends at once; infinite does not
 
 
 @pytest.mark.parametrize("attrs,custom,needle", [

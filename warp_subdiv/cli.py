@@ -227,7 +227,7 @@ def _refine_usd(args, max_memory, progress) -> int:
         args.input, args.output, args.levels, prims=args.prim, scheme=args.scheme, rules=args.rules,
         boundary=args.boundary, device=args.device, precision=args.precision, frames=frames, limit=args.limit,
         normals=args.normals, max_memory=max_memory, flatten=args.flatten,
-        semi_sharp="sharp" if args.semi_sharp_as_sharp else "error", progress=progress,
+        semi_sharp="sharp" if args.semi_sharp_as_sharp else "keep", progress=progress,
     )
     progress.clear()
     for w in result.warnings:

@@ -96,7 +96,7 @@ def plan(
     boundary: str | None = None,
     precision: str = "float32",
     frames=None,
-    semi_sharp: str = "error",
+    semi_sharp: str = "keep",
     normals: bool = False,
     limit: bool = False,
     require_meshes: bool = True,
@@ -184,15 +184,7 @@ def _make_refiner(sp: SubdivPrim, levels: int, kw: dict) -> Refiner:
     try:
         return Refiner(sp.mesh, levels, **kw)
     except NotImplementedError as exc:
-        text = str(exc)
-        if "normal" in text and len(sp.mesh.normal_vertices):
-            raise MissingFeatureError(
-                f"{sp.path}: prescribed normals (subdiv:normalIndices / subdiv:normals) need normal control, which "
-                "this version of warp-subdiv does not have yet"
-            ) from None
-        if "sharp" in text and sp.semi_sharp_detail:
-            raise MissingFeatureError(sp.semi_sharp_detail) from None
-        raise MissingFeatureError(f"{sp.path}: {text}") from None
+        raise MissingFeatureError(f"{sp.path}: {exc}") from None
     except (SubdivInputError, ValueError) as exc:
         raise SubdivInputError(f"{sp.path}: {exc}") from None
 
@@ -244,7 +236,7 @@ def refine_usd(
     normals: bool = False,
     max_memory: int | None = None,
     flatten: bool = False,
-    semi_sharp: str = "error",
+    semi_sharp: str = "keep",
     progress=None,
 ) -> Result:
     """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) ``levels`` times and
@@ -252,7 +244,8 @@ def refine_usd(
 
     ``frames``: (start, end) time codes (None for an open end) selecting the time samples to refine.
     ``max_memory``: bytes; refuse (MemoryGuardError) when the prediction is larger; None for no limit.
-    ``semi_sharp``: "error" or "sharp" (treat semi-sharp creases and corners as infinitely sharp).
+    ``semi_sharp``: "keep" (refine semi-sharp creases and corners as such) or "sharp" (treat them as infinitely
+    sharp, with a warning).
     ``progress``: callable(fraction, label) or None. Errors in the input are SubdivInputError.
     """
     start = _time.perf_counter()
@@ -394,7 +387,7 @@ def _refine_prim(sp: SubdivPrim, layer: OutputLayer, levels, device, precision, 
     if mode not in FVAR_MODES:
         raise SubdivInputError(f"{sp.path}: faceVaryingLinearInterpolation {mode!r} is not one of "
                                f"{', '.join(FVAR_MODES)}")
-    fvar_mode = FVAR_MODES[mode] if sp.scheme != "bilinear" and hasattr(refiner, "evaluate_face_varying") else None
+    fvar_mode = FVAR_MODES[mode] if sp.scheme != "bilinear" else None
     fv_refined = []
     for pv in sp.primvars:
         try:
@@ -404,13 +397,6 @@ def _refine_prim(sp: SubdivPrim, layer: OutputLayer, levels, device, precision, 
             continue
         if pv.interpolation == "faceVarying":
             fv_refined.append(pv.name.split(":", 1)[1])
-    if fv_refined and fvar_mode is None and sp.scheme != "bilinear":
-        if mode != "all":
-            warnings.append(
-                f"{sp.path}: face-varying primvars ({', '.join(fv_refined)}) are interpolated bilinearly per face "
-                f"(as faceVaryingLinearInterpolation 'all'); the mesh's {mode!r} is not supported yet"
-            )
-
     # face subsets
     for subset in sp.subsets:
         _write_subset(sp, subset, layer, fmap, warnings)

@@ -151,7 +151,6 @@ class SubdivPrim:
     subdiv_attributes: list = field(default_factory=list)  # authored subdiv:* attribute names
     warnings: list = field(default_factory=list)
     semi_sharp: int = 0  # finite sharpness tags left as they are (the refiner may refuse them)
-    semi_sharp_detail: str = ""  # the first of them, in USD terms
     smooth_triangles: bool = False  # triangleSubdivisionRule "smooth" on a Catmull-Clark mesh with triangles
 
     def points_at(self, time) -> np.ndarray:
@@ -271,14 +270,14 @@ def mesh_prims(stage: Usd.Stage, prim_paths=None, where: str = ""):
     return meshes, instanced
 
 
-def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "error", scheme: str = "auto",
+def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: str = "auto",
               rules: str | None = None, boundary: str | None = None) -> SubdivPrim | None:
     """Read one UsdGeom.Mesh; None when its subdivisionScheme is "none" (or it is empty).
 
     ``scheme``: "auto" (the mesh's subdivisionScheme), "catmull-clark" or "loop" (forced); ``rules`` and
     ``boundary`` override the mesh's ``subdiv:rules`` and ``interpolateBoundary`` when given.
-    ``semi_sharp``: "error" (raise NotImplementedError naming the tag) or "sharp" (treat finite sharpness as
-    infinite, with a warning).
+    ``semi_sharp``: "keep" (finite sharpness is semi-sharp) or "sharp" (treat finite sharpness as infinite, with
+    a warning).
     """
     path = str(prim.GetPath())
     geom = UsdGeom.Mesh(prim)
@@ -393,8 +392,6 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "error", scheme:
         smooth_triangles=chosen == "catmull-clark" and tri_rule == "smooth" and bool(np.any(counts == 3)),
     )
     sp.points_default = np.asarray(_get(points_attr, DEFAULT), dtype=np.float64).reshape(-1, 3)
-    if semi and semi_sharp != "sharp":
-        sp.semi_sharp_detail = _semi_sharp_detail(path, pairs, pair_sharp, pair_crease, k_idx, k_sharp)
     _check_topology_constant(sp, geom, ref_time, frames)
     for name in ("velocities", "accelerations"):
         attr = prim.GetAttribute(name)
@@ -454,18 +451,6 @@ def _crease_pairs(path, idx, lengths, sharp):
     if len(bad):
         raise SubdivInputError(f"{path}: creaseSharpnesses has a value that is not finite (crease {crease[bad[0]]})")
     return pairs, per_edge, crease
-
-
-def _semi_sharp_detail(path, pairs, pair_sharp, pair_crease, k_idx, k_sharp) -> str:
-    finite = np.flatnonzero((pair_sharp > 0) & (pair_sharp < INFINITE_SHARPNESS))
-    if len(finite):
-        i = finite[0]
-        return (f"{path}: crease {pair_crease[i]} (edge {pairs[i, 0]}-{pairs[i, 1]}) has sharpness {pair_sharp[i]:g}; "
-                "semi-sharp creases are not supported yet (pass --semi-sharp-as-sharp to treat them as infinitely "
-                "sharp)")
-    i = np.flatnonzero((k_sharp > 0) & (k_sharp < INFINITE_SHARPNESS))[0]
-    return (f"{path}: corner vertex {k_idx[i]} has sharpness {k_sharp[i]:g}; semi-sharp corners are not "
-            "supported yet (pass --semi-sharp-as-sharp to treat them as infinitely sharp)")
 
 
 # Mesh's messages start with the name of the argument at fault: say which USD attribute that is.
