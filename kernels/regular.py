@@ -23,22 +23,22 @@ def quad_face_points(corner_vert: wp.array(dtype=wp.int32), src: wp.array(dtype=
 
 
 @wp.kernel
-def quad_edge_points(edge_verts: wp.array2d(dtype=wp.int32), edge_corners: wp.array2d(dtype=wp.int32),
-                     regular: wp.array(dtype=wp.uint8), src: wp.array(dtype=Any), dst: wp.array(dtype=Any),
-                     face_row: int, first_row: int, weights: wp.array(dtype=Any)):
-    """Smooth Catmull-Clark edge points: w0 (a + b) + w1 (f0 + f1), f the new face points already in dst."""
+def quad_edge_points(neighbours: wp.array2d(dtype=wp.int32), regular: wp.array(dtype=wp.uint8),
+                     src: wp.array(dtype=Any), dst: wp.array(dtype=Any), face_row: int, first_row: int,
+                     weights: wp.array(dtype=Any)):
+    """Smooth Catmull-Clark edge points: w0 (a + b) + w1 (f0 + f1), f the new face points already in dst.
+
+    ``neighbours[e]`` = (a, b, face 0, face 1)."""
     e = wp.tid()
     if regular[e] == wp.uint8(0):
         return
-    f0 = edge_corners[e, 0] // 4
-    f1 = edge_corners[e, 1] // 4
-    dst[first_row + e] = weights[0] * (src[edge_verts[e, 0]] + src[edge_verts[e, 1]]) + weights[1] * (
-        dst[face_row + f0] + dst[face_row + f1])
+    dst[first_row + e] = weights[0] * (src[neighbours[e, 0]] + src[neighbours[e, 1]]) + weights[1] * (
+        dst[face_row + neighbours[e, 2]] + dst[face_row + neighbours[e, 3]])
 
 
 @wp.kernel
 def quad_vertex_points(offsets: wp.array(dtype=wp.int32), ring: wp.array(dtype=wp.int32),
-                       corner_vert: wp.array(dtype=wp.int32), regular: wp.array(dtype=wp.uint8),
+                       ring_faces: wp.array(dtype=wp.int32), regular: wp.array(dtype=wp.uint8),
                        src: wp.array(dtype=Any), dst: wp.array(dtype=Any), face_row: int,
                        weights: wp.array2d(dtype=Any)):
     """Smooth Catmull-Clark vertex points: w0(n) v + w1(n) (sum of ring vertices + sum of new face points)."""
@@ -47,47 +47,39 @@ def quad_vertex_points(offsets: wp.array(dtype=wp.int32), ring: wp.array(dtype=w
         return
     start = offsets[v]
     end = offsets[v + 1]
-    h = ring[start]
-    acc = src[corner_vert[h - h % 4 + (h % 4 + 1) % 4]] + dst[face_row + h // 4]
+    acc = src[ring[start]] + dst[face_row + ring_faces[start]]
     for j in range(start + 1, end):
-        h = ring[j]
-        acc += src[corner_vert[h - h % 4 + (h % 4 + 1) % 4]] + dst[face_row + h // 4]
+        acc += src[ring[j]] + dst[face_row + ring_faces[j]]
     n = end - start
     dst[v] = weights[n, 0] * src[v] + weights[n, 1] * acc
 
 
 @wp.kernel
-def tri_edge_points(edge_verts: wp.array2d(dtype=wp.int32), edge_corners: wp.array2d(dtype=wp.int32),
-                    corner_vert: wp.array(dtype=wp.int32), regular: wp.array(dtype=wp.uint8),
+def tri_edge_points(neighbours: wp.array2d(dtype=wp.int32), regular: wp.array(dtype=wp.uint8),
                     src: wp.array(dtype=Any), dst: wp.array(dtype=Any), first_row: int,
                     weights: wp.array(dtype=Any)):
-    """Smooth Loop edge points: w0 (a + b) + w1 (o0 + o1), o the vertices opposite the edge."""
+    """Smooth Loop edge points: w0 (a + b) + w1 (o0 + o1). ``neighbours[e]`` = (a, b, o0, o1), o the vertices
+    opposite the edge."""
     e = wp.tid()
     if regular[e] == wp.uint8(0):
         return
-    h0 = edge_corners[e, 0]
-    h1 = edge_corners[e, 1]
-    o0 = corner_vert[h0 - h0 % 3 + (h0 % 3 + 2) % 3]
-    o1 = corner_vert[h1 - h1 % 3 + (h1 % 3 + 2) % 3]
-    dst[first_row + e] = weights[0] * (src[edge_verts[e, 0]] + src[edge_verts[e, 1]]) + weights[1] * (
-        src[o0] + src[o1])
+    dst[first_row + e] = weights[0] * (src[neighbours[e, 0]] + src[neighbours[e, 1]]) + weights[1] * (
+        src[neighbours[e, 2]] + src[neighbours[e, 3]])
 
 
 @wp.kernel
 def tri_vertex_points(offsets: wp.array(dtype=wp.int32), ring: wp.array(dtype=wp.int32),
-                      corner_vert: wp.array(dtype=wp.int32), regular: wp.array(dtype=wp.uint8),
-                      src: wp.array(dtype=Any), dst: wp.array(dtype=Any), weights: wp.array2d(dtype=Any)):
-    """Smooth Loop vertex points: (1 - n beta) v + beta (sum of ring vertices)."""
+                      regular: wp.array(dtype=wp.uint8), src: wp.array(dtype=Any), dst: wp.array(dtype=Any),
+                      weights: wp.array2d(dtype=Any)):
+    """Smooth Loop vertex points: (1 - n beta) v + beta (sum of ring vertices); ``ring`` lists the vertices."""
     v = wp.tid()
     if regular[v] == wp.uint8(0):
         return
     start = offsets[v]
     end = offsets[v + 1]
-    h = ring[start]
-    acc = src[corner_vert[h - h % 3 + (h % 3 + 1) % 3]]
+    acc = src[ring[start]]
     for j in range(start + 1, end):
-        h = ring[j]
-        acc += src[corner_vert[h - h % 3 + (h % 3 + 1) % 3]]
+        acc += src[ring[j]]
     n = end - start
     dst[v] = weights[n, 0] * src[v] + weights[n, 1] * acc
 
@@ -113,9 +105,9 @@ for _s, _v in ((wp.float32, wp.vec3f), (wp.float64, wp.vec3d)):
     _a = wp.array(dtype=_v)
     REGULAR_OVERLOADS += [
         wp.overload(quad_face_points, [_i, _a, _a, int, wp.array(dtype=_s)]),
-        wp.overload(quad_edge_points, [_i2, _i2, _u, _a, _a, int, int, wp.array(dtype=_s)]),
+        wp.overload(quad_edge_points, [_i2, _u, _a, _a, int, int, wp.array(dtype=_s)]),
         wp.overload(quad_vertex_points, [_i, _i, _i, _u, _a, _a, int, wp.array2d(dtype=_s)]),
-        wp.overload(tri_edge_points, [_i2, _i2, _i, _u, _a, _a, int, wp.array(dtype=_s)]),
-        wp.overload(tri_vertex_points, [_i, _i, _i, _u, _a, _a, wp.array2d(dtype=_s)]),
+        wp.overload(tri_edge_points, [_i2, _u, _a, _a, int, wp.array(dtype=_s)]),
+        wp.overload(tri_vertex_points, [_i, _i, _u, _a, _a, wp.array2d(dtype=_s)]),
         wp.overload(explicit_rows, [_i, _i, _i, wp.array(dtype=_s), _a, _a]),
     ]

@@ -241,10 +241,10 @@ class Refiner:
                     step = {
                         "regular": t,
                         "corner_vert": self._array(t.corner_vert, i32),
-                        "edge_verts": self._array(t.edge_verts, i32),
-                        "edge_corners": self._array(t.edge_corners, i32),
+                        "edge_neighbours": self._array(t.edge_neighbours, i32),
                         "ring_offsets": self._array(t.vert_corner_offsets, i32),
-                        "ring": self._array(t.vert_corners, i32),
+                        "ring": self._array(t.ring, i32),
+                        "ring_faces": self._array(t.ring_faces, i32),
                         "vertex_regular": self._array(t.vertex_regular, np.uint8),
                         "edge_regular": self._array(t.edge_regular, np.uint8),
                         "ring_weights": self._array(t.ring_weights, np_dtype),
@@ -291,19 +291,19 @@ class Refiner:
             if t.face_size == 4:
                 wp.launch(k.quad_face_points, dim=F, inputs=[step["corner_vert"], src, dst, V, step["quarter"]],
                           device=dev)
-                wp.launch(k.quad_edge_points, dim=len(t.edge_verts),
-                          inputs=[step["edge_verts"], step["edge_corners"], step["edge_regular"], src, dst, V,
-                                  V + F, step["edge_weights"]], device=dev)
+                wp.launch(k.quad_edge_points, dim=len(t.edge_neighbours),
+                          inputs=[step["edge_neighbours"], step["edge_regular"], src, dst, V, V + F,
+                                  step["edge_weights"]], device=dev)
                 wp.launch(k.quad_vertex_points, dim=V,
-                          inputs=[step["ring_offsets"], step["ring"], step["corner_vert"], step["vertex_regular"],
+                          inputs=[step["ring_offsets"], step["ring"], step["ring_faces"], step["vertex_regular"],
                                   src, dst, V, step["ring_weights"]], device=dev)
             else:
-                wp.launch(k.tri_edge_points, dim=len(t.edge_verts),
-                          inputs=[step["edge_verts"], step["edge_corners"], step["corner_vert"],
-                                  step["edge_regular"], src, dst, V, step["edge_weights"]], device=dev)
+                wp.launch(k.tri_edge_points, dim=len(t.edge_neighbours),
+                          inputs=[step["edge_neighbours"], step["edge_regular"], src, dst, V, step["edge_weights"]],
+                          device=dev)
                 wp.launch(k.tri_vertex_points, dim=V,
-                          inputs=[step["ring_offsets"], step["ring"], step["corner_vert"], step["vertex_regular"],
-                                  src, dst, step["ring_weights"]], device=dev)
+                          inputs=[step["ring_offsets"], step["ring"], step["vertex_regular"], src, dst,
+                                  step["ring_weights"]], device=dev)
             if step["num_explicit"]:
                 wp.launch(k.explicit_rows, dim=step["num_explicit"], inputs=[*step["explicit"], src, dst],
                           device=dev)

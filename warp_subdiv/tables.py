@@ -325,10 +325,10 @@ class RegularTables:
     num_vertices: int
     num_faces: int
     corner_vert: np.ndarray
-    edge_verts: np.ndarray  # (E, 2)
-    edge_corners: np.ndarray  # (E, 2) first and second corner
+    edge_neighbours: np.ndarray  # (E, 4): endpoints a, b, then the two face ids (quads) or opposite vertices
     vert_corner_offsets: np.ndarray
-    vert_corners: np.ndarray
+    ring: np.ndarray  # per vertex (CSR by vert_corner_offsets): its ring vertices
+    ring_faces: np.ndarray  # the faces around it, in the same order (quads; empty for triangles)
     vertex_regular: np.ndarray
     edge_regular: np.ndarray
     ring_weights: np.ndarray  # (max valence + 1, 2)
@@ -337,9 +337,22 @@ class RegularTables:
     num_rows: int  # child vertices of the step
 
     def nbytes(self, weight_bytes: int = 4) -> int:
-        arrays = (self.corner_vert, self.edge_verts, self.edge_corners, self.vert_corner_offsets,
-                  self.vert_corners, self.vertex_regular, self.edge_regular)
+        arrays = (self.corner_vert, self.edge_neighbours, self.vert_corner_offsets,
+                  self.ring, self.ring_faces, self.vertex_regular, self.edge_regular)
         return sum(a.nbytes for a in arrays) + self.explicit.nbytes(weight_bytes)
+
+
+def _edge_neighbours(level: Level, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
+    """(E, 4) int32 per edge: its endpoints, then the faces on its two sides (quads: their face points) or the
+    vertices opposite it (triangles), so the edge kernels read four indices in a row."""
+    out = np.empty((level.num_edges, 4), dtype=np.int32)
+    out[:, :2] = level.edge_verts
+    if level.face_size == 4:
+        out[:, 2], out[:, 3] = h0 // 4, h1 // 4
+    else:
+        out[:, 2] = level.corner_vert[level.corner_prev(h0)]
+        out[:, 3] = level.corner_vert[level.corner_prev(h1)]
+    return out
 
 
 def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop") -> RegularTables:
@@ -381,10 +394,10 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
         num_vertices=level.num_vertices,
         num_faces=level.num_faces,
         corner_vert=level.corner_vert,
-        edge_verts=level.edge_verts,
-        edge_corners=np.stack([h0, h1], axis=1).astype(np.int32),
+        edge_neighbours=_edge_neighbours(level, h0, h1),
         vert_corner_offsets=level.vert_corner_offsets.astype(np.int32),
-        vert_corners=level.vert_corners,
+        ring=level.corner_vert[level.corner_next(level.vert_corners.astype(np.int64))],
+        ring_faces=(level.vert_corners // 4 if level.face_size == 4 else np.zeros(0, np.int32)).astype(np.int32),
         vertex_regular=vertex_regular.astype(np.uint8),
         edge_regular=edge_regular.astype(np.uint8),
         ring_weights=ring,
