@@ -1,5 +1,4 @@
 """Semi-sharp creases and corners (DeRose, Kass, Truong 1998; OpenSubdiv's Sdc::Crease), hand-computed cases."""
-import math
 
 import numpy as np
 import pytest
@@ -90,8 +89,7 @@ def test_crease_vertex_transition_uses_the_fractional_weight():
     mesh = cube_with([[0, 1], [1, 2]], [1.5, 1.5])
     lv = levels(mesh, 2)
     r = ws.Refiner(mesh, 3, rules="opensubdiv", device="cpu", precision="float64")
-    t0, t1 = lv[0], lv[1]
-    p = mesh.points
+    t1 = lv[1]
     assert_rows_equal(r.tables[0].row(1), {1: 0.75, 0: 0.125, 2: 0.125})
     # level 1: the crease neighbours of vertex 1 are its two sharp half-edges
     nbs = [int(t1.edge_verts[e].sum() - 1) for e in np.flatnonzero(t1.edge_sharpness > 0) if 1 in t1.edge_verts[e]]
@@ -107,7 +105,6 @@ def test_crease_vertex_transition_uses_the_fractional_weight():
         smooth[q] = smooth.get(q, 0) + 1 / (4 * n * n)
     assert_rows_equal(r.tables[1].row(1), blend([crease, smooth], [0.5, 0.5]))
     assert t1.vert_class[1] == 2 and lv[2].vert_class[1] == 0  # crease, then interior
-    del t0, p
 
 
 def test_semi_sharp_corner():
