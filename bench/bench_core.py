@@ -41,6 +41,9 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
+sys.path.insert(0, HERE)
+from benchutil import (  # noqa: E402 (the scripts run as files; their folder holds the shared helpers)
+    proc_status, export_commit, mem_available_bytes, parse_levels, peak_rss_bytes, quiet_warp)
 MESH_DIR = os.path.join(HERE, "meshes")
 MESHES = {
     # name: (file, scheme)
@@ -51,53 +54,12 @@ MARK = "BENCH_RESULT "
 
 
 # ------------------------------------------------------------------------------------------------ memory
-def _proc_status(pid="self") -> dict:
-    out = {}
-    try:
-        with open(f"/proc/{pid}/status", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith(("VmHWM", "VmRSS")):
-                    key, value = line.split(":", 1)
-                    out[key] = int(value.split()[0]) * 1024  # kB -> bytes
-    except OSError:
-        pass
-    return out
-
-
-def peak_rss_bytes() -> int:
-    """Peak resident set of this process so far (VmHWM; ru_maxrss where /proc is absent)."""
-    hwm = _proc_status().get("VmHWM")
-    if hwm is not None:
-        return hwm
-    scale = 1 if sys.platform == "darwin" else 1024  # ru_maxrss is bytes on macOS, kB on Linux
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale
-
-
-def mem_available_bytes() -> int | None:
-    try:
-        with open("/proc/meminfo", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
-
-
 # ------------------------------------------------------------------------------------------------ worker
-def _quiet_warp():
-    import warp as wp
-
-    wp.config.log_level = 30
-    wp.config.quiet = True
-    return wp
-
-
 def worker(args) -> dict:
     """One (mesh, level) configuration; returns a dict of measurements (printed as JSON by main)."""
     import numpy as np
 
-    wp = _quiet_warp()
+    wp = quiet_warp()
     import warp_subdiv as ws
     from warp_subdiv.objio import read_obj
 
@@ -113,7 +75,7 @@ def worker(args) -> dict:
     gc.collect()
     res = {"mesh": args.mesh, "scheme": scheme, "level": level, "device": args.device,
            "base_vertices": int(len(base)), "base_faces": int(len(mesh.face_vertex_counts)),
-           "baseline_peak_rss": peak_rss_bytes(), "baseline_rss": _proc_status().get("VmRSS")}
+           "baseline_peak_rss": peak_rss_bytes(), "baseline_rss": proc_status().get("VmRSS")}
 
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
     t = time.perf_counter()
@@ -165,7 +127,7 @@ def compile_worker(args) -> dict:
     """Time the Warp module build from an empty kernel cache (one tiny evaluate)."""
     import numpy as np
 
-    wp = _quiet_warp()
+    wp = quiet_warp()
     cache = tempfile.mkdtemp(prefix="wsbench_kcache_")
     wp.config.kernel_cache_dir = cache
     import warp_subdiv as ws
@@ -189,7 +151,7 @@ def profile_build(args):
     import cProfile
     import pstats
 
-    _quiet_warp()
+    quiet_warp()
     import warp_subdiv as ws
     from warp_subdiv.objio import read_obj
 
@@ -224,7 +186,7 @@ def run_child(cmd, timeout_s, mem_limit, lib_root=ROOT):
 
     def watch():
         while proc.poll() is None:
-            rss = _proc_status(proc.pid).get("VmRSS", 0)
+            rss = proc_status(proc.pid).get("VmRSS", 0)
             max_rss[0] = max(max_rss[0], rss)
             if mem_limit and rss > mem_limit:
                 killed["why"] = f"killed at {rss / 2**30:.1f} GiB resident (limit {mem_limit / 2**30:.1f} GiB)"
@@ -248,24 +210,6 @@ def run_child(cmd, timeout_s, mem_limit, lib_root=ROOT):
             return json.loads(line[len(MARK):]), ""
     tail = (err or out).strip().splitlines()[-3:]
     return None, f"exit code {proc.returncode}: " + " | ".join(tail)
-
-
-def parse_levels(text: str) -> list[int]:
-    if "-" in text:
-        a, b = text.split("-")
-        return list(range(int(a), int(b) + 1))
-    return [int(x) for x in text.split(",")]
-
-
-def export_commit(rev: str) -> tuple[str, str]:
-    """Extract warp_subdiv/ and kernels/ of commit ``rev`` into a temporary folder; (folder, full sha)."""
-    sha = subprocess.run(["git", "rev-parse", "--verify", rev + "^{commit}"], cwd=ROOT, capture_output=True,
-                         text=True, check=True).stdout.strip()
-    dest = tempfile.mkdtemp(prefix="wsbench_lib_")
-    archive = subprocess.run(["git", "archive", sha, "warp_subdiv", "kernels"], cwd=ROOT, capture_output=True,
-                             check=True).stdout
-    subprocess.run(["tar", "-x", "-C", dest], input=archive, check=True)
-    return dest, sha
 
 
 def library_state(lib_root: str = ROOT, commit: str | None = None) -> str:
@@ -369,7 +313,7 @@ def main(argv=None):
         args.lib_root, commit = export_commit(args.commit)
     if args.worker or args.compile_worker or args.profile:
         sys.path.insert(0, args.lib_root)
-        _quiet_warp()
+        quiet_warp()
         import warp_subdiv
 
         assert os.path.abspath(warp_subdiv.__file__).startswith(os.path.abspath(args.lib_root)), \

@@ -70,7 +70,6 @@ import gc
 import json
 import os
 import platform
-import resource
 import shlex
 import subprocess
 import sys
@@ -79,6 +78,9 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
+sys.path.insert(0, HERE)
+from benchutil import (  # noqa: E402 (the scripts run as files; their folder holds the shared helpers)
+    proc_status, export_commit, mem_available_bytes, parse_levels, peak_rss_bytes, quiet_warp)
 MESH_DIR = os.path.join(HERE, "meshes")
 MARK = "PEERS_RESULT "
 MIB = 2**20
@@ -110,28 +112,6 @@ OSD_PATHS = [  # (key, label)
 
 
 # ------------------------------------------------------------------------------------------------ common
-def _proc_status(pid="self") -> dict:
-    out = {}
-    try:
-        with open(f"/proc/{pid}/status", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith(("VmHWM", "VmRSS")):
-                    key, value = line.split(":", 1)
-                    out[key] = int(value.split()[0]) * 1024
-    except OSError:
-        pass
-    return out
-
-
-def peak_rss_bytes() -> int:
-    """Peak resident set of this process so far (VmHWM; ru_maxrss where /proc is absent)."""
-    hwm = _proc_status().get("VmHWM")
-    if hwm is not None:
-        return hwm
-    scale = 1 if sys.platform == "darwin" else 1024
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale
-
-
 def _tree_rss(pid: int) -> int:
     """Resident bytes of a process and all its descendants (the OpenSubdiv worker runs a C++ child)."""
     total, todo, seen = 0, [pid], set()
@@ -140,7 +120,7 @@ def _tree_rss(pid: int) -> int:
         if p in seen:
             continue
         seen.add(p)
-        total += _proc_status(p).get("VmRSS", 0)
+        total += proc_status(p).get("VmRSS", 0)
         try:
             for tid in os.listdir(f"/proc/{p}/task"):
                 with open(f"/proc/{p}/task/{tid}/children", encoding="ascii") as fh:
@@ -148,17 +128,6 @@ def _tree_rss(pid: int) -> int:
         except OSError:
             pass
     return total
-
-
-def mem_available_bytes():
-    try:
-        with open("/proc/meminfo", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
 
 
 def load_obj(path):
@@ -349,14 +318,6 @@ def peer_worker(args) -> dict:
 
 
 # ------------------------------------------------------------------------------------------------ ours
-def _quiet_warp():
-    import warp as wp
-
-    wp.config.quiet = True
-    wp.config.log_level = 30
-    return wp
-
-
 def _tiny(scheme):
     import numpy as np
 
@@ -373,7 +334,7 @@ def _tiny(scheme):
 def ours_worker(args) -> dict:
     import numpy as np
 
-    wp = _quiet_warp()
+    wp = quiet_warp()
     import warp_subdiv as ws
 
     assert os.path.abspath(ws.__file__).startswith(os.path.abspath(args.lib_root) + os.sep), \
@@ -489,7 +450,7 @@ def profile_ours(spec: str, reps_note=True):
     if len(parts) != 3 or parts[1] not in MESHES or not parts[2].isdigit():
         sys.exit(f"--profile wants SCHEME:MESH:LEVEL (MESH one of {', '.join(MESHES)}), got {spec!r}")
     scheme, name, level = parts[0], parts[1], int(parts[2])
-    wp = _quiet_warp()
+    wp = quiet_warp()
     import warp_subdiv as ws
 
     wp.init()
@@ -587,19 +548,6 @@ def machine_info(ours_python) -> dict:
     except (OSError, IndexError, ValueError, subprocess.TimeoutExpired):
         ours = {}
     return {"cpu": cpu, "cores": cores, "ram_bytes": ram, "os": platform.platform(), "ours": ours}
-
-
-def export_commit(rev: str):
-    """warp_subdiv/ and kernels/ of commit ``rev``, extracted into a temporary folder: (folder, full sha)."""
-    import tempfile
-
-    sha = subprocess.run(["git", "rev-parse", "--verify", rev + "^{commit}"], cwd=ROOT, capture_output=True,
-                         text=True, check=True).stdout.strip()
-    dest = tempfile.mkdtemp(prefix="wspeers_lib_")
-    archive = subprocess.run(["git", "archive", sha, "warp_subdiv", "kernels"], cwd=ROOT, capture_output=True,
-                             check=True).stdout
-    subprocess.run(["tar", "-x", "-C", dest], input=archive, check=True)
-    return dest, sha
 
 
 def library_digest(lib_root: str) -> str:
@@ -801,15 +749,6 @@ def targets_table(cfg, results, bandwidth) -> str:
     return "\n".join(lines)
 
 
-def parse_levels(text):
-    if not text:
-        return []
-    if "-" in text:
-        a, b = text.split("-")
-        return list(range(int(a), int(b) + 1))
-    return [int(x) for x in text.split(",")]
-
-
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="levels 1-2 (cube 1), small bandwidth test, no "
@@ -868,7 +807,7 @@ def main(argv=None):
         return 0
     commit = None
     if args.commit:
-        args.lib_root, commit = export_commit(args.commit)
+        args.lib_root, commit = export_commit(args.commit, "wspeers_lib_")
     try:
         if args.profile:
             env = dict(os.environ)
