@@ -103,19 +103,8 @@ def _edge_endpoint_weights(level: Level, rule_set: str, me: np.ndarray, h0: np.n
     corner_vert = level.corner_vert
     at_a = np.where(corner_vert[g0] == a, g0, level.corner_next(g0))
     at_b = np.where(corner_vert[g0] == b, g0, level.corner_next(g0))
-    # theta of the sector holding a corner: look the corner up among the (few) sector corners
-    sector_corners = level.sector_corners.astype(np.int64)
-    order = np.argsort(sector_corners)
-    sorted_corners = sector_corners[order]
-    theta_sorted = np.repeat(level.sector_theta, level.sector_k())[order]
-
-    def theta_at(h):
-        pos = np.minimum(np.searchsorted(sorted_corners, h), max(len(sorted_corners) - 1, 0))
-        hit = (sorted_corners[pos] == h) if len(sorted_corners) else np.zeros(len(h), bool)
-        return np.where(hit, theta_sorted[pos] if len(sorted_corners) else np.nan, np.nan)
-
-    shift_a = np.nan_to_num(rules.edge_gamma_shift(scheme, theta_at(at_a)))
-    shift_b = np.nan_to_num(rules.edge_gamma_shift(scheme, theta_at(at_b)))
+    shift_a = np.nan_to_num(rules.edge_gamma_shift(scheme, level.corner_theta(at_a)))
+    shift_b = np.nan_to_num(rules.edge_gamma_shift(scheme, level.corner_theta(at_b)))
     w_a[near], w_b[near] = rules.tagged_edge_endpoint_weights(scheme, shift_a, shift_b, tagged[a], tagged[b])
     return w_a, w_b
 

@@ -133,11 +133,19 @@ class Level:
         """Crease degree k (number of faces) of every sector."""
         return np.diff(self.sector_offsets)
 
-    def corner_theta(self) -> np.ndarray:
-        """theta of the sector that holds each corner (NaN at corners of interior and dart vertices)."""
-        theta = np.full(self.num_corners, np.nan)
-        theta[self.sector_corners] = np.repeat(self.sector_theta, self.sector_k())
-        return theta
+    def corner_theta(self, corners=None) -> np.ndarray:
+        """theta of the sector that holds each of ``corners`` (default: all), NaN at corners outside sectors.
+
+        Looked up among the (few) sector corners, so asking for some corners costs no per-corner array."""
+        query = np.arange(self.num_corners) if corners is None else np.asarray(corners, dtype=np.int64)
+        members = self.sector_corners.astype(np.int64)
+        if len(members) == 0:
+            return np.full(len(query), np.nan)
+        order = np.argsort(members)
+        sorted_members = members[order]
+        theta = np.repeat(self.sector_theta, self.sector_k())[order]
+        pos = np.minimum(np.searchsorted(sorted_members, query), len(members) - 1)
+        return np.where(sorted_members[pos] == query, theta[pos], np.nan)
 
     def face_vertex_counts(self) -> np.ndarray:
         return self.face_sizes().astype(np.int32)
