@@ -62,10 +62,8 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
     npairs = len(pairs)
 
     nxt = mesh.edges.corner_next.astype(np.int64)
-    eoff = level.edge_corner_offsets
-    ecount = np.diff(eoff)
-    h0 = level.edge_corners[eoff[:-1]].astype(np.int64)
-    h1 = level.edge_corners[np.minimum(eoff[:-1] + 1, len(level.edge_corners) - 1)].astype(np.int64)
+    ecount = np.diff(level.edge_corner_offsets)
+    h0, h1 = level.edge_corner_pair()
     ev = level.edge_verts.astype(np.int64)
     # seams: an interior edge whose two faces disagree on the value at either end
     two = ecount == 2
@@ -94,8 +92,8 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
     mismatch |= vertex_boundary & (faces_at == 1) & smooth_geometry_corners & corners_sharp
 
     span = np.bincount(pid, minlength=npairs)  # faces of each value at its vertex
-    # a value whose faces around its vertex are not one fan ("disjoint"): the value mesh's fans
-    value_level = None
+    # (a value whose faces around its vertex are not one fan, "disjoint", is a non-manifold vertex of the
+    # value mesh, which the refiner makes a corner)
     inf_sharp_vertex = level.vert_sharpness >= INFINITE_SHARPNESS
     all_sharp = mismatch & (linear_boundaries | inf_sharp_vertex | nonmanifold | (dependent & (values_at > 2))
                             | (sharpen_darts & (values_at == 1) & ~vertex_boundary))
@@ -128,7 +126,6 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
         corners=corner_ids[keep_c], corner_sharpness=corner_sharp[keep_c],
         holes=holes if holes is not None and len(holes) else None,
     )
-    del value_level
     return vm, source
 
 

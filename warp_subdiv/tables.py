@@ -109,14 +109,6 @@ def _edge_endpoint_weights(level: Level, rule_set: str, me: np.ndarray, h0: np.n
     return w_a, w_b
 
 
-def _edge_corner_pairs(level: Level):
-    """(h0, h1): the first and second corner of every edge (h1 = h0 on boundary edges)."""
-    eoff = level.edge_corner_offsets
-    h0 = level.edge_corners[eoff[:-1]].astype(np.int64)
-    h1 = level.edge_corners[np.minimum(eoff[:-1] + 1, len(level.edge_corners) - 1)].astype(np.int64)
-    return h0, h1
-
-
 def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop",
                    regular=None, smooth_triangles: bool = False) -> StencilTable:
     """The stencil table that refines ``level`` to the next level.
@@ -168,7 +160,7 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     vertex_sizes = first_size + np.where(transition, rule_size(child_rule), 0)
     vertex_sizes[skip_vertex] = 0
 
-    h0, h1 = _edge_corner_pairs(level)
+    h0, h1 = level.edge_corner_pair()
     sharp = level.edge_sharp
     f0 = level.corner_face(h0)
     f1 = level.corner_face(h1)
@@ -356,7 +348,7 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
     scheme = level.scheme
     vclass = level.vert_class
     vertex_regular = (vclass == SMOOTH) | (vclass == DART)
-    h0, h1 = _edge_corner_pairs(level)
+    h0, h1 = level.edge_corner_pair()
     edge_regular = ~level.edge_sharp
     me = np.flatnonzero(edge_regular)
     w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
