@@ -55,10 +55,10 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
     level = base_level(mesh, "catmull-clark", boundary, "opensubdiv")
     cv = mesh.face_vertex_indices.astype(np.int64)
     nv = mesh.num_vertices
-    pairs, pid = np.unique(cv * (int(idx.max()) + 1 if len(idx) else 1) + idx, return_inverse=True)
+    base = int(idx.max()) + 1 if len(idx) else 1
+    pairs, pid = np.unique(cv * base + idx, return_inverse=True)
     pid = pid.reshape(-1)
-    source = pairs % (int(idx.max()) + 1 if len(idx) else 1)
-    pair_vertex = pairs // (int(idx.max()) + 1 if len(idx) else 1)
+    source, pair_vertex = pairs % base, pairs // base
     npairs = len(pairs)
 
     nxt = mesh.edges.corner_next.astype(np.int64)
