@@ -73,7 +73,7 @@ import pytest  # noqa: E402
 
 import warp_subdiv as ws  # noqa: E402
 from conftest import load_mesh  # noqa: E402
-from warp_subdiv.estimate import RUNTIME_BYTES, estimate, level_counts, parse_size, total_bytes  # noqa: E402
+from warp_subdiv.estimate import BUILD_PEAK, LIMIT_PEAK, RUNTIME_BYTES, estimate, level_counts, parse_size, total_bytes  # noqa: E402
 from warp_subdiv.primvars import FaceMap  # noqa: E402
 
 
@@ -99,11 +99,16 @@ def test_estimate_grows_with_levels_and_samples():
     assert frames.output_bytes > 9 * one.items["points"]
     # meshes are refined one after the other: outputs add up, working sets do not
     assert total_bytes([one, more]) == one.output_bytes + more.output_bytes + more.working_bytes + RUNTIME_BYTES
-    # without projections: the measured range (450 + 60 + buffers per output vertex at this size)
-    per_vertex = (more.working_bytes + more.output_bytes) / more.final.vertices
-    assert 500 < per_vertex < 800
+    # the working set is the build peak per output vertex (tests/test_memory.py checks it against measurements)
+    assert more.working_bytes == BUILD_PEAK["catmull-clark"][0] * more.final.vertices
     projecting = estimate("cube", 8, mesh.face_vertex_counts, 12, 4, "catmull-clark", projecting=True)
-    assert projecting.working_bytes - more.working_bytes == 750 * more.final.vertices
+    assert projecting.working_bytes == BUILD_PEAK["catmull-clark"][1] * more.final.vertices
+    # limit masks: on the last level, or one level deeper (4x the vertices)
+    limit = estimate("cube", 8, mesh.face_vertex_counts, 12, 4, "catmull-clark", limit=True)
+    deeper = estimate("cube", 8, mesh.face_vertex_counts, 12, 4, "catmull-clark", limit=True, limit_deeper=True)
+    assert limit.working_bytes - more.working_bytes == LIMIT_PEAK["catmull-clark"] * more.final.vertices
+    assert deeper.items["limit masks"] > 3.9 * limit.items["limit masks"]
+    assert deeper.final.vertices == more.final.vertices
 
 
 @pytest.mark.parametrize("text,expected", [("512M", 512 * 2**20), ("8G", 8 * 2**30), ("1.5GiB", int(1.5 * 2**30)),

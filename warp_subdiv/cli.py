@@ -246,7 +246,7 @@ def _device_name(device) -> str:
 
 def _refine_obj(args, out_kind, max_memory, progress) -> int:
     _quiet_warp()
-    from .estimate import check_memory, estimate, may_project
+    from .estimate import check_memory, estimate
     from .objio import read_obj, write_obj
     from .refiner import Refiner
     from .usd import PrimReport
@@ -262,12 +262,14 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     if scheme == "auto":
         scheme = "loop" if mesh.is_all(3) else "catmull-clark"
     boundary = args.boundary or data.options.get("boundary", "edge-and-corner")
+    options = dict(scheme=scheme, rules=args.rules or "piecewise-smooth", boundary=boundary, device=args.device,
+                   precision=args.precision)
+    control = Refiner(mesh, 0, **options)  # the control-mesh analysis: does the refiner project?
     est = estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, args.levels, scheme,
-                   precision=args.precision, projecting=may_project(mesh, args.rules or "piecewise-smooth"))
+                   precision=args.precision, projecting=control.projects)
     check_memory([est], max_memory, args.levels)
     progress(0.0, f"{args.input}: {args.levels} levels")
-    refiner = Refiner(mesh, args.levels, scheme=scheme, rules=args.rules or "piecewise-smooth", boundary=boundary,
-                      device=args.device, precision=args.precision)
+    refiner = Refiner(mesh, args.levels, **options)
     progress(0.7, f"{args.input}: points")
     refined = refiner.refine()
     progress(0.9, f"writing {args.output}")
@@ -296,7 +298,7 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
 # -- info ----------------------------------------------------------------------------------------------
 
 def _info(args) -> int:
-    from .estimate import estimate, format_bytes, may_project
+    from .estimate import estimate, format_bytes
 
     kind = _check_input(args.input)
     if args.levels < 0:
@@ -304,14 +306,16 @@ def _info(args) -> int:
     if kind == "obj":
         _quiet_warp()
         from .objio import read_obj
+        from .refiner import Refiner
 
         data = read_obj(args.input)
         mesh = data.mesh
         scheme = "loop" if mesh.is_all(3) else "catmull-clark"
+        boundary = data.options.get("boundary", "edge-and-corner")
         print(f"{args.input}: 1 mesh (OBJ)")
         print(f"{os.path.basename(args.input)}")
-        _print_control(mesh, scheme, data.options.get("boundary", "edge-and-corner"), "piecewise-smooth")
-        projecting = may_project(mesh, "piecewise-smooth")
+        _print_control(mesh, scheme, boundary, "piecewise-smooth")
+        projecting = Refiner(mesh, 0, scheme=scheme, boundary=boundary, device="cpu").projects
         _print_levels(lambda lv: estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges,
                                           lv, scheme, projecting=projecting), args.levels)
         return 0

@@ -7,23 +7,31 @@ Counts follow from the control mesh alone (V vertices, F faces, E edges, C face 
 * Loop: polygons are first fan-triangulated (F = C - 2F, E = E + C - 3F, C = 3F); then V' = V + E, F' = 4F,
   E' = 2E + 3F, C' = 3F'.
 
-Bytes (what the memory guard compares with ``--max-memory``) are the sum of
+Bytes (what the memory guard compares with ``--max-memory``) model the peak resident memory a refinement
+adds to the process, phase by phase, from per-vertex costs measured with ``python bench/bench_memory.py``
+(BENCHMARKS.md, "Memory estimate"; each configuration in a fresh process, peak RSS over the RSS before the
+call). Every cost is per vertex of the last level a phase builds, because every level is 4x the previous
+one and the last one dominates:
 
-* the stencil tables, about 60 bytes per vertex of every refined level (``Refiner.table_bytes()`` measures
-  56 to 72 bytes per vertex for float32 weights);
-* the Warp buffers, one array per vertex of every level and data width (3 for points, and each primvar's
-  width), kept by the refiner for the next frame;
-* the topology working set of the refiner, 450 bytes per vertex of the last level, and 750 more where the
-  piecewise-smooth rules project (flatness at crease and corner sectors, prescribed normals): measured as the
-  peak RSS of ``warp-subdiv refine`` (``/usr/bin/time -f %M``) minus that of importing warp_subdiv and pxr,
-  per output vertex, on the bundled scenes at 0.4 to 1.6 million output vertices: 390 (closed cube),
-  495 (OpenSubdiv rules with creases), 690 to 1170 (piecewise-smooth with creases, concave corners or
-  prescribed normals);
+* building the refiner (topology of every level, tables, numpy temporaries): 185 bytes per output vertex for
+  Catmull-Clark, 240 for Loop; where the piecewise-smooth rules project on every level (flatness at
+  extraordinary crease and corner sectors, prescribed normals) the last level is built with its full
+  topology: 620 and 950;
+* after the build the refiner keeps 110 / 160 bytes per output vertex (385 / 570 where it projects); a frame
+  adds one float buffer per vertex of every level and data width, and the returned points;
+* a face-varying primvar (UVs) is refined by a refiner of its own over the value mesh, built while the
+  vertex refiner is alive: the Catmull-Clark or Loop build peak once more (plus one kept refiner where
+  there are several channels);
+* limit points and normals (``--limit``, ``--normals``) build full topology and mask tables of the level they
+  read: 1330 (Catmull-Clark) or 1230 (Loop) bytes per vertex of that level, which is one level deeper where
+  the refiner projects or its edge rules differ next to extraordinary crease vertices;
+* writing a USD layer maps each refined face to its control face (8 bytes a face) and converts the
+  topology to USD arrays (4 bytes a face and a face corner) while the refiner is alive;
 * what the written layer holds until it is saved: face counts and indices once, and per written time sample
   the points (and extent), velocities, accelerations, normals and primvars.
 
-The tables and working set are freed after each mesh, the layer's data is not: the total is the sum of every
-mesh's output plus the largest working set, plus 64 MiB for Warp's runtime and kernels.
+The working set is freed after each mesh, the layer's data is not: the total is the sum of every mesh's
+output plus the largest working set, plus 64 MiB for Warp's runtime and kernels.
 """
 from __future__ import annotations
 
@@ -34,9 +42,12 @@ import numpy as np
 
 from .errors import SubdivInputError
 
-TABLE_BYTES_PER_VERTEX = 60
-TOPOLOGY_BYTES_PER_VERTEX = 450
-PROJECTION_BYTES_PER_VERTEX = 750
+#: Bytes per output vertex at the peak of building a refiner, without and with projections (see above).
+BUILD_PEAK = {"catmull-clark": (185, 620), "loop": (240, 950)}
+#: Bytes per output vertex a built refiner keeps (index tables, masks, the last level's topology).
+KEPT = {"catmull-clark": (110, 385), "loop": (160, 570)}
+#: Bytes per vertex of the level whose limit masks are built (its full topology, masks, temporaries).
+LIMIT_PEAK = {"catmull-clark": 1330, "loop": 1230}
 #: Warp's runtime and loaded kernel modules (measured: about 30 to 60 MiB on the CPU).
 RUNTIME_BYTES = 64 * 2**20
 #: The refiner's tables are int32: no level may hold this many face corners.
@@ -101,51 +112,54 @@ def estimate(
     samples: int = 1,
     vertex_width: int = 0,
     face_varying_width: int = 0,
+    face_varying_channels: int = 0,
     uniform_width: int = 0,
     extra_point_arrays: int = 0,
-    extra_level: bool = False,
     projecting: bool = False,
+    limit: bool = False,
+    limit_deeper: bool = False,
+    layer: bool = False,
 ) -> Estimate:
     """Bytes needed to refine one mesh ``levels`` times and hold ``samples`` written time samples.
 
     ``vertex_width``: floats per vertex of the refined vertex and varying primvars (all of them together);
-    ``face_varying_width`` the same per face corner, ``uniform_width`` per face. ``extra_point_arrays``:
-    further 3-vectors per vertex and sample (velocities, accelerations, normals). ``extra_level``: the
-    refiner may build one level more (limit points and normals read their masks one level deeper where
-    flatness or normal control act), so its working set is counted for ``levels + 1``. ``projecting``: the
-    refiner builds flatness or normal-control tables on every level (piecewise-smooth rules on a mesh with
-    a boundary, creases, corners or prescribed normals).
+    ``face_varying_width`` the same per face corner, ``uniform_width`` per face; ``face_varying_channels``:
+    face-varying primvars, each refined by a value-mesh refiner built while the vertex refiner is alive (the
+    previous channel's is dropped once the next one is built). ``extra_point_arrays``:
+    further 3-vectors per vertex and sample (velocities, accelerations, normals). ``projecting``: the refiner
+    builds flatness or normal-control tables on every level (``Refiner.projects``). ``limit``: limit points
+    or normals are computed; ``limit_deeper``: their masks are read one level deeper
+    (``Refiner.limit_reads_deeper``). ``layer``: the result is written to a USD layer (``refine_usd``), which
+    maps every refined face to its control face and converts the topology to USD arrays while the refiner
+    is alive.
     """
-    counts = level_counts(num_vertices, face_sizes, num_edges, levels + (1 if extra_level else 0), scheme)
-    work = counts
+    key = "loop" if scheme == "loop" else "catmull-clark"
+    counts = level_counts(num_vertices, face_sizes, num_edges, levels + (1 if limit and limit_deeper else 0), key)
+    limit_level = counts[-1]
     counts = counts[: levels + 1]
     last = counts[-1]
     real = 8 if precision == "float64" else 4
-    refined_vertices = sum(c.vertices for c in work[1:])
-    all_vertices = refined_vertices + work[0].vertices
+    all_vertices = sum(c.vertices for c in counts)
+    build = BUILD_PEAK[key][int(bool(projecting))] * last.vertices
+    kept = KEPT[key][int(bool(projecting))] * last.vertices
+    frame = real * (3 + vertex_width) * (all_vertices + last.vertices)
     items = {
-        "stencil tables": TABLE_BYTES_PER_VERTEX * refined_vertices,
-        "level buffers": real * all_vertices * (3 + vertex_width),
-        "topology": (TOPOLOGY_BYTES_PER_VERTEX + (PROJECTION_BYTES_PER_VERTEX if projecting else 0))
-        * work[-1].vertices,
+        "refiner build": build,
+        "refiner kept": kept,
+        "frame buffers": frame,
+        "face-varying refiners": (BUILD_PEAK[key][0] + (KEPT[key][0] if face_varying_channels > 1 else 0))
+        * last.vertices if face_varying_channels else 0,
+        "limit masks": LIMIT_PEAK[key] * limit_level.vertices if limit else 0,
+        "layer conversion": 8 * last.faces + 4 * (last.faces + last.corners) if layer else 0,
         "faces": 4 * (last.faces + last.corners),
         "points": samples * last.vertices * 12 * (1 + extra_point_arrays),
         "primvars": samples * 4 * (last.vertices * vertex_width + last.corners * face_varying_width
                                    + last.faces * uniform_width),
     }
-    working = items["stencil tables"] + items["level buffers"] + items["topology"]
+    evaluation = kept + frame + items["face-varying refiners"]
+    working = max(build, evaluation) + items["limit masks"] + items["layer conversion"]
     output = items["faces"] + items["points"] + items["primvars"]
     return Estimate(path, counts, working, output, items)
-
-
-def may_project(mesh, rules: str, flatness=None) -> bool:
-    """Whether the refiner may build projection tables for ``mesh``: piecewise-smooth rules on a mesh with
-    prescribed normals, explicit flatness, tags, or a boundary (whose extraordinary sectors get flatness s*)."""
-    if rules != "piecewise-smooth":
-        return False
-    if len(mesh.normal_vertices) or len(mesh.creases) or len(mesh.corners) or len(mesh.concave) or flatness is not None:
-        return True
-    return bool(np.any(np.bincount(mesh.edges.corner_edge, minlength=mesh.num_edges) == 1))
 
 
 def total_bytes(estimates) -> int:
@@ -160,15 +174,21 @@ class MemoryGuardError(SubdivInputError):
     """The predicted memory is above the limit (or the output would not fit 32-bit indices)."""
 
 
-def check_memory(estimates, max_memory: int | None, levels: int) -> None:
-    """The memory guard: refuse, before any work, when the prediction is above ``max_memory`` bytes."""
-    estimates = list(estimates)
+def check_indices(estimates, levels: int) -> None:
+    """Refuse outputs whose face corners would not fit the refiner's 32-bit index tables."""
     for e in estimates:
         if e.final.corners > MAX_CORNERS:
             raise MemoryGuardError(
                 f"{e.path}: {levels} levels make {e.final.faces:,} faces ({e.final.corners:,} face corners), more "
                 "than 32-bit tables can index; lower --levels"
             )
+
+
+def check_memory(estimates, max_memory: int | None, levels: int) -> None:
+    """The memory guard: refuse, before any work, when the prediction is above ``max_memory`` bytes (and
+    outputs beyond 32-bit indices)."""
+    estimates = list(estimates)
+    check_indices(estimates, levels)
     need = total_bytes(estimates)
     if max_memory is not None and need > max_memory:
         biggest = max(estimates, key=lambda e: e.output_bytes + e.working_bytes)

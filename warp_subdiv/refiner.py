@@ -112,7 +112,9 @@ class Refiner:
             raise ValueError("flatness is a piecewise-smooth rule; rules='opensubdiv' has none")
         if not paper and len(mesh.normal_vertices):
             raise ValueError("prescribed normals need rules='piecewise-smooth' (OpenSubdiv has no normal control)")
-        self._check_size(mesh, int(levels), SCHEME_ALIASES[key], rules, flatness, precision, max_memory)
+        from . import estimate as est
+
+        est.check_indices([self._estimate(mesh, int(levels), SCHEME_ALIASES[key], precision, False)], int(levels))
         self.mesh = mesh
         self.levels = int(levels)
         self.scheme = SCHEME_ALIASES[key]
@@ -130,6 +132,7 @@ class Refiner:
         level = base_level(mesh, self.scheme, boundary, rules, triangulate, flatness=flatness if paper else None,
                            crease_method=crease_method, linear=_linear)
         self.base_num_vertices = level.num_vertices
+        self._base_face_size = level.face_size
         normal_vertices = mesh.normal_vertices.astype(np.int64)
         self._normals = (normal_vertices, mesh.normal_vectors)
         base_s = projections.resolve_flatness(level) if paper else np.zeros(level.num_sectors)
@@ -142,6 +145,9 @@ class Refiner:
         self._projecting = paper and (
             bool(np.any(base_s > 0)) or level.new_sector_flatness > 0 or len(normal_vertices) > 0
         )
+        # before any refined level is allocated (the control-mesh analysis above is the size of the input)
+        est.check_memory([self._estimate(mesh, self.levels, self.scheme, precision, self._projecting)], max_memory,
+                         self.levels)
         self.steps: list = []  # per step: RegularTables (uniform levels) or a full StencilTable
         self.flatness_tables: list = []
         self.normal_tables: list = []
@@ -175,13 +181,30 @@ class Refiner:
         self._buffers = None
 
     @staticmethod
-    def _check_size(mesh, levels, scheme, rule_set, flatness, precision, max_memory):
-        """Before any allocation: refuse outputs beyond 32-bit indices, and predictions above ``max_memory``."""
+    def _estimate(mesh, levels, scheme, precision, projecting):
         from . import estimate as est
 
-        guess = est.estimate("mesh", mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, levels, scheme,
-                             precision=precision, projecting=est.may_project(mesh, rule_set, flatness))
-        est.check_memory([guess], max_memory, levels)
+        return est.estimate("mesh", mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, levels, scheme,
+                            precision=precision, projecting=projecting)
+
+    @property
+    def projects(self) -> bool:
+        """Whether flatness or normal control act on every level (piecewise-smooth rules at extraordinary crease
+        or corner sectors, explicit flatness, prescribed normals): the last level then keeps its full topology."""
+        return self._projecting
+
+    def limit_reads_deeper(self, levels: int | None = None) -> bool:
+        """Whether limit points and normals of ``levels`` (default: this refiner's) read their masks one level
+        deeper, because the masks of that level are not exact.
+
+        Flatness and normal control move the ring points of their sectors on every level, and the crease- and
+        corner-neighbour edge rules differ from the smooth rule next to extraordinary crease and corner
+        vertices, so the standard masks of a vertex next to such a vertex are exact only one level later, once
+        its neighbourhood follows the standard rules; a control mesh with non-quads has no Catmull-Clark masks.
+        """
+        levels = self.levels if levels is None else levels
+        polygons = levels == 0 and self.scheme == rules.CATMULL_CLARK and self._base_face_size != 4
+        return polygons or self._projecting or self._modified_edge_rules
 
     # ---------------------------------------------------------------------------------------------
     def topology(self):
@@ -403,20 +426,9 @@ class Refiner:
             raise SubdivInputError(f"refined points must have shape ({count}, 3), got {pts.shape}")
         return wp.array(pts, dtype=vec, device=self.device)
 
-    def _needs_extra_level(self) -> bool:
-        """Limit masks are read one level deeper where this level's masks are not exact.
-
-        Flatness and normal control move the ring points of their sectors on every level, and the crease- and
-        corner-neighbour edge rules differ from the smooth rule next to extraordinary crease and corner
-        vertices, so the standard masks of a vertex next to such a vertex are exact only one level later, once
-        its neighbourhood follows the standard rules; a control mesh with non-quads has no Catmull-Clark masks.
-        """
-        polygons = self.levels == 0 and self.scheme == rules.CATMULL_CLARK and self._final.face_size != 4
-        return polygons or self._projecting or self._modified_edge_rules
-
     def limit_points(self, refined_points, _direct=False) -> np.ndarray:
         """Limit positions of the refined vertices (RULES.md section 9): l^0 applied to each vertex's ring."""
-        if not _direct and self._needs_extra_level():
+        if not _direct and self.limit_reads_deeper():
             extra = self._one_more_level()
             return extra.limit_points(extra._evaluate_from_level(refined_points), True)[: self.num_vertices]
         lim = self._limit_tables()
@@ -433,7 +445,7 @@ class Refiner:
         A crease or corner vertex has one tangent plane per sector; its normal is the normalised sum of the
         sectors' unit normals (exact where there is one sector, e.g. on a boundary).
         """
-        if not _direct and self._needs_extra_level():
+        if not _direct and self.limit_reads_deeper():
             extra = self._one_more_level()
             return extra.limit_normals(extra._evaluate_from_level(refined_points), True)[: self.num_vertices]
         lim = self._limit_tables()
@@ -457,7 +469,7 @@ class Refiner:
         return np.array(out.numpy(), copy=True)
 
     def _one_more_level(self) -> "Refiner":
-        """A refiner one level deeper, with the same options, for limit masks (see _needs_extra_level)."""
+        """A refiner one level deeper, with the same options, for limit masks (see limit_reads_deeper)."""
         if self._deeper is None:
             self._deeper = Refiner(
                 self.mesh, self.levels + 1, scheme=self.scheme, rules=self.rules, boundary=self.boundary,

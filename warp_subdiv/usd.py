@@ -29,7 +29,7 @@ from pxr import Sdf, Usd, Vt
 
 from . import __version__
 from .errors import SubdivInputError
-from .estimate import Estimate, MemoryGuardError, check_memory, estimate, may_project, total_bytes
+from .estimate import Estimate, MemoryGuardError, check_memory, estimate, total_bytes
 from .primvars import FaceMap, corners_to_vertices, vertices_used
 from .refiner import Refined, Refiner
 from .usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, mesh_prims, open_stage,
@@ -135,8 +135,13 @@ def plan(
 
 def estimate_prim(sp: SubdivPrim, levels: int, precision: str = "float32", normals: bool = False,
                   limit: bool = False) -> Estimate:
-    """Predicted counts and bytes of refining one mesh (its samples, primvars and point arrays included)."""
+    """Predicted counts and bytes of refining one mesh (its samples, primvars and point arrays included).
+
+    The control mesh is analysed (a level-0 refiner, the size of the input) to know whether the refiner
+    projects on every level and where limit masks are read."""
+    control = _make_refiner(sp, 0, _refiner_kwargs(sp, "cpu", precision))
     widths = {"vertex": 0, "faceVarying": 0, "uniform": 0}
+    channels = sum(pv.interpolation == "faceVarying" for pv in sp.primvars) if sp.scheme != "bilinear" else 0
     for pv in sp.primvars:
         comps = _components(pv) * pv.element_size
         key = "vertex" if pv.interpolation in ("vertex", "varying") else pv.interpolation
@@ -144,9 +149,11 @@ def estimate_prim(sp: SubdivPrim, levels: int, precision: str = "float32", norma
     return estimate(
         sp.path, sp.mesh.num_vertices, sp.mesh.face_vertex_counts, sp.mesh.num_edges, levels,
         "loop" if sp.scheme == "loop" else "catmull-clark", precision=precision, samples=_sample_count(sp),
-        vertex_width=widths["vertex"], face_varying_width=widths["faceVarying"], uniform_width=widths["uniform"],
-        extra_point_arrays=len(sp.point_arrays) + (1 if normals else 0), extra_level=limit or normals,
-        projecting=sp.scheme != "bilinear" and may_project(sp.mesh, sp.rules, sp.flatness),
+        vertex_width=widths["vertex"], face_varying_width=widths["faceVarying"], face_varying_channels=channels,
+        uniform_width=widths["uniform"],
+        extra_point_arrays=len(sp.point_arrays) + (1 if normals else 0), projecting=control.projects,
+        limit=(limit or normals) and sp.scheme != "bilinear", limit_deeper=control.limit_reads_deeper(levels),
+        layer=True,
     )
 
 
