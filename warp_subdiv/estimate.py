@@ -13,20 +13,25 @@ adds to the process, phase by phase, from per-vertex costs measured with ``pytho
 call). Every cost is per vertex of the last level a phase builds, because every level is 4x the previous
 one and the last one dominates:
 
-* building the refiner (topology of every level, tables, numpy temporaries): 185 bytes per output vertex for
-  Catmull-Clark, 240 for Loop; where the piecewise-smooth rules project on every level (flatness at
+* the control-mesh analysis (edges, rings, sectors): 175 bytes per control face corner at its peak, 130 of
+  which stay while the later levels are built; this matters where few levels refine a large control mesh;
+* building the refiner (topology of every level, tables, numpy temporaries): 106 bytes per output vertex for
+  Catmull-Clark, 115 for Loop; where the piecewise-smooth rules project on every level (flatness at
   extraordinary crease and corner sectors, prescribed normals) the last level is built with its full
-  topology: 620 and 950;
-* after the build the refiner keeps 110 / 160 bytes per output vertex (385 / 570 where it projects); a frame
+  topology: 250 and 350; 55 of these are the second-to-last level's full topology, which for one level is
+  the control mesh, counted above;
+* after the build the refiner keeps 80 / 110 bytes per output vertex (250 / 350 where it projects); a frame
   adds one float buffer per vertex of every level and data width, and the returned points;
 * a face-varying primvar (UVs) is refined by a refiner of its own over the value mesh, built while the
-  vertex refiner is alive: the Catmull-Clark or Loop build peak once more (plus one kept refiner where
-  there are several channels);
+  vertex refiner is alive: 70 bytes per output vertex at the peak (it reuses memory the vertex refiner's
+  build released; measured 40 to 110 over repeated runs), plus one kept refiner where there are several
+  channels (the previous channel's is dropped once the next one is built);
 * limit points and normals (``--limit``, ``--normals``) build full topology and mask tables of the level they
-  read: 1330 (Catmull-Clark) or 1230 (Loop) bytes per vertex of that level, which is one level deeper where
+  read: 1350 (Catmull-Clark) or 1180 (Loop) bytes per vertex of that level, which is one level deeper where
   the refiner projects or its edge rules differ next to extraordinary crease vertices;
-* writing a USD layer maps each refined face to its control face (8 bytes a face) and converts the
-  topology to USD arrays (4 bytes a face and a face corner) while the refiner is alive;
+* writing a USD layer maps each refined face to its control face (24 bytes a face at the peak of building
+  the map) and converts the topology and points to USD arrays (4 bytes a face and a face corner; 36 a vertex:
+  refined points, their USD copy, extent and used-vertex temporaries) while the refiner is alive;
 * what the written layer holds until it is saved: face counts and indices once, and per written time sample
   the points (and extent), velocities, accelerations, normals and primvars.
 
@@ -42,12 +47,22 @@ import numpy as np
 
 from .errors import SubdivInputError
 
+#: Bytes per control face corner of the control-mesh analysis (edges, rings, sectors): at its own peak, and
+#: what stays (level 0 and the first step's tables) while the later levels are built.
+CONTROL_PEAK = 175
+CONTROL_KEPT = 130
+#: Part of BUILD_PEAK and KEPT that is the second-to-last level's full topology: with one level, that level is
+#: the control mesh, counted by CONTROL_KEPT already.
+PENULTIMATE = 55
 #: Bytes per output vertex at the peak of building a refiner, without and with projections (see above).
-BUILD_PEAK = {"catmull-clark": (185, 620), "loop": (240, 950)}
+BUILD_PEAK = {"catmull-clark": (106, 250), "loop": (115, 350)}
 #: Bytes per output vertex a built refiner keeps (index tables, masks, the last level's topology).
-KEPT = {"catmull-clark": (110, 385), "loop": (160, 570)}
+KEPT = {"catmull-clark": (80, 250), "loop": (110, 350)}
+#: Bytes per output vertex that refining one face-varying channel adds at the peak of a USD run (its value
+#: mesh refiner reuses memory the vertex refiner's build released; measured 40-110 over runs).
+FACE_VARYING = 70
 #: Bytes per vertex of the level whose limit masks are built (its full topology, masks, temporaries).
-LIMIT_PEAK = {"catmull-clark": 1330, "loop": 1230}
+LIMIT_PEAK = {"catmull-clark": 1350, "loop": 1180}
 #: Warp's runtime and loaded kernel modules (measured: about 30 to 60 MiB on the CPU).
 RUNTIME_BYTES = 64 * 2**20
 #: The refiner's tables are int32: no level may hold this many face corners.
@@ -140,24 +155,28 @@ def estimate(
     last = counts[-1]
     real = 8 if precision == "float64" else 4
     all_vertices = sum(c.vertices for c in counts)
-    build = BUILD_PEAK[key][int(bool(projecting))] * last.vertices
-    kept = KEPT[key][int(bool(projecting))] * last.vertices
+    control = CONTROL_KEPT * counts[0].corners
+    penultimate = PENULTIMATE if levels == 1 else 0
+    build = (BUILD_PEAK[key][int(bool(projecting))] - penultimate) * last.vertices
+    kept = (KEPT[key][int(bool(projecting))] - penultimate) * last.vertices
     frame = real * (3 + vertex_width) * (all_vertices + last.vertices)
     items = {
+        "control mesh analysis": control,
         "refiner build": build,
         "refiner kept": kept,
         "frame buffers": frame,
-        "face-varying refiners": (BUILD_PEAK[key][0] + (KEPT[key][0] if face_varying_channels > 1 else 0))
+        "face-varying refiners": (FACE_VARYING + (KEPT[key][0] if face_varying_channels > 1 else 0))
         * last.vertices if face_varying_channels else 0,
         "limit masks": LIMIT_PEAK[key] * limit_level.vertices if limit else 0,
-        "layer conversion": 8 * last.faces + 4 * (last.faces + last.corners) if layer else 0,
+        "layer conversion": 24 * last.faces + 4 * (last.faces + last.corners) + 36 * last.vertices if layer else 0,
         "faces": 4 * (last.faces + last.corners),
         "points": samples * last.vertices * 12 * (1 + extra_point_arrays),
         "primvars": samples * 4 * (last.vertices * vertex_width + last.corners * face_varying_width
                                    + last.faces * uniform_width),
     }
     evaluation = kept + frame + items["face-varying refiners"]
-    working = max(build, evaluation) + items["limit masks"] + items["layer conversion"]
+    working = max(CONTROL_PEAK * counts[0].corners, control + max(build, evaluation)) + items["limit masks"] \
+        + items["layer conversion"]
     output = items["faces"] + items["points"] + items["primvars"]
     return Estimate(path, counts, working, output, items)
 

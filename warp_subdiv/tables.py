@@ -350,10 +350,11 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
     vertex_regular = (vclass == SMOOTH) | (vclass == DART)
     h0, h1 = level.edge_corner_pair()
     edge_regular = ~level.edge_sharp
-    me = np.flatnonzero(edge_regular)
-    w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
     w, w_wing = rules.smooth_edge_weights(scheme)
-    edge_regular[me[(np.abs(w_a - w) > 0) | (np.abs(w_b - w) > 0)]] = False
+    if rule_set != "opensubdiv" and level.num_sectors:  # else every smooth edge has the smooth endpoint weights
+        me = np.flatnonzero(edge_regular)
+        w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
+        edge_regular[me[(w_a != w) | (w_b != w)]] = False
     if vertex_regular.all() and edge_regular.all():  # nothing irregular on this level (common on closed meshes)
         explicit = StencilTable(np.zeros(1, np.int32), np.zeros(0, np.int32), np.zeros(0), level.num_vertices,
                                 rows=np.zeros(0, np.int32))
@@ -377,8 +378,8 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
         corner_vert=level.corner_vert,
         edge_neighbours=_edge_neighbours(level, h0, h1),
         vert_corner_offsets=level.vert_corner_offsets.astype(np.int32),
-        ring=level.corner_vert[level.corner_next(level.vert_corners.astype(np.int64))],
-        ring_faces=(level.vert_corners // 4 if level.face_size == 4 else np.zeros(0, np.int32)).astype(np.int32),
+        ring=level.at_next(level.corner_vert)[level.vert_corners],
+        ring_faces=level.vert_corners // 4 if level.face_size == 4 else np.zeros(0, np.int32),
         vertex_regular=vertex_regular.astype(np.uint8),
         edge_regular=edge_regular.astype(np.uint8),
         ring_weights=ring,

@@ -11,6 +11,8 @@ child faces follow parent corners; child edges are [edges inside parent faces, t
 """
 from __future__ import annotations
 
+import contextlib
+
 import warnings
 from dataclasses import dataclass
 
@@ -113,17 +115,40 @@ class Level:
     def corner_next(self, h: np.ndarray) -> np.ndarray:
         if self.face_size:
             n = self.face_size
-            return h - h % n + (h % n + 1) % n
+            j = h % n
+            return h - j + (j + 1) % n
         return self.corner_next_table[h]
 
     def corner_prev(self, h: np.ndarray) -> np.ndarray:
         if self.face_size:
             n = self.face_size
-            return h - h % n + (h % n + n - 1) % n
+            j = h % n
+            return h - j + (j + n - 1) % n
         f = self.corner_face(h)
         start = self.face_offsets[f]
         end = self.face_offsets[f + 1]
         return np.where(h == start, end - 1, h - 1)
+
+    def at_next(self, values: np.ndarray) -> np.ndarray:
+        """``values[corner_next(h)]`` for every corner h (``values``: one per corner). On a level of one face
+        size this is a rotation inside each face: no index array, one output array."""
+        if self.face_size:
+            v = values.reshape(-1, self.face_size)
+            out = np.empty_like(v)
+            out[:, :-1] = v[:, 1:]
+            out[:, -1] = v[:, 0]
+            return out.reshape(-1)
+        return values[self.corner_next_table]
+
+    def at_prev(self, values: np.ndarray) -> np.ndarray:
+        """``values[corner_prev(h)]`` for every corner h, as :meth:`at_next`."""
+        if self.face_size:
+            v = values.reshape(-1, self.face_size)
+            out = np.empty_like(v)
+            out[:, 1:] = v[:, :-1]
+            out[:, 0] = v[:, -1]
+            return out.reshape(-1)
+        return values[self.corner_prev(np.arange(self.num_corners, dtype=np.int64))]
 
     @property
     def num_sectors(self) -> int:
@@ -148,10 +173,10 @@ class Level:
         return np.where(sorted_members[pos] == query, theta[pos], np.nan)
 
     def edge_corner_pair(self):
-        """(h0, h1): the first and second corner of every edge (h1 = h0 on boundary edges)."""
+        """(h0, h1): the first and second corner of every edge (h1 = h0 on boundary edges), int32."""
         eoff = self.edge_corner_offsets
-        h0 = self.edge_corners[eoff[:-1]].astype(np.int64)
-        h1 = self.edge_corners[np.minimum(eoff[:-1] + 1, len(self.edge_corners) - 1)].astype(np.int64)
+        h0 = self.edge_corners[eoff[:-1]]
+        h1 = self.edge_corners[np.minimum(eoff[:-1] + 1, len(self.edge_corners) - 1)]
         return h0, h1
 
     def face_vertex_counts(self) -> np.ndarray:
@@ -581,63 +606,80 @@ def refine_level(level: Level, faces_only: bool = False) -> Level:
 
     ``faces_only`` builds just the child faces (for the last level, which nothing refines further).
     """
-    if level.scheme == CATMULL_CLARK:
-        return _refine_catmull_clark(level, faces_only)
-    return _refine_loop(level, faces_only)
+    with _small_pages():
+        if level.scheme == CATMULL_CLARK:
+            return _refine_catmull_clark(level, faces_only)
+        return _refine_loop(level, faces_only)
+
+
+@contextlib.contextmanager
+def _small_pages():
+    """Let numpy skip its transparent-huge-page hint while a level is derived.
+
+    A refinement step writes many large temporaries once each; with the hint the kernel zeroes (and on a
+    fragmented machine first compacts) 2 MiB pages at every first touch, which measured 30-40% of a
+    Catmull-Clark level-5 build (bench/PEERS.md). Tables read by the kernels are allocated outside, with the
+    hint, where huge pages help their random reads. numpy's switch is private: without it, nothing changes.
+    """
+    switch = getattr(getattr(getattr(np, "_core", None), "multiarray", None), "_set_madvise_hugepage", None)
+    if switch is None:
+        yield
+        return
+    previous = switch(False)
+    try:
+        yield
+    finally:
+        switch(previous)
 
 
 def _side(level: Level, h: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """0 where corner h's vertex is edge e's first vertex, else 1."""
-    return (level.corner_vert[h] != level.edge_verts[e, 0]).astype(np.int64)
+    """0 where corner h's vertex is edge e's first vertex, else 1 (int32, like every index array below: the
+    refiner refuses levels whose corners do not fit int32, and half-width temporaries halve the fresh memory
+    a level touches, which is what a refinement step spends most of its time on)."""
+    return (level.corner_vert[h] != level.edge_verts[e, 0]).astype(np.int32)
 
 
 def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
     V, F, C, E = level.num_vertices, level.num_faces, level.num_corners, level.num_edges
-    h = np.arange(C, dtype=np.int64)
-    prev = level.corner_prev(h)
-    nxt = level.corner_next(h)
+    h = np.arange(C, dtype=np.int32)
     face = level.corner_face(h)
-    e_h = level.corner_edge.astype(np.int64)
-    e_prev = e_h[prev]
     # Child face h (one per parent corner) holds, in this cyclic order: the child of v_h, the child of
     # edge h, the face child, the child of edge prev(h). As in OpenSubdiv, children of a quad are rotated
     # so that the vertex child sits at the parent corner's position j (children of other polygons are not):
     # type t of corner h is child corner 4h + (t + r) % 4, r = j for quads and 0 otherwise.
     if level.face_size == 4:  # the local index of corner h is h % 4
-        def child(hh, t):
-            return 4 * hh + ((hh + t) & 3)
+        r = h & 3
     else:
-        r = np.where(level.face_sizes()[face] == 4, h - level.face_starts()[face], 0)
-
-        def child(hh, t):
-            return 4 * hh + (t + r[hh]) % 4
-
-    cv = np.empty(4 * C, dtype=np.int64)
-    ce = np.empty(4 * C, dtype=np.int64)
-    cv[child(h, 0)] = level.corner_vert
-    cv[child(h, 1)] = V + F + e_h
-    cv[child(h, 2)] = V + face
-    cv[child(h, 3)] = V + F + e_prev
+        r = np.where(level.face_sizes()[face] == 4, h - level.face_starts()[face], 0).astype(np.int32)
+    child = [4 * h + ((r + t) & 3) for t in range(4)]  # child corner of type t of every corner
+    del r
+    e_h = level.corner_edge
+    e_prev = level.at_prev(e_h)
+    cv = np.empty(4 * C, dtype=np.int32)
+    cv[child[0]] = level.corner_vert
+    cv[child[1]] = V + F + e_h
+    cv[child[2]] = V + face
+    cv[child[3]] = V + F + e_prev
     child_hole = level.face_hole[face]
     nV = V + F + E
     if faces_only:
-        return Level(level.scheme, nV, C, 4, _i32(cv), child_hole)
+        return Level(level.scheme, nV, C, 4, cv, child_hole)
 
-    ce[child(h, 0)] = C + 2 * e_h + _side(level, h, e_h)
-    ce[child(h, 1)] = h
-    ce[child(h, 2)] = prev
-    ce[child(h, 3)] = C + 2 * e_prev + _side(level, h, e_prev)
+    ce = np.empty(4 * C, dtype=np.int32)
+    ce[child[0]] = C + 2 * e_h + _side(level, h, e_h)
+    ce[child[1]] = h
+    ce[child[2]] = level.at_prev(h)
+    ce[child[3]] = C + 2 * e_prev + _side(level, h, e_prev)
     interior_verts = np.stack([V + face, V + F + e_h], axis=1)
-    interior_corners = np.stack([child(h, 1), child(nxt, 2)], axis=1)
-    near = child(h, 0)  # child corner on the half of edge h at v_h's side
-    far = child(nxt, 3)  # child corner on the half at v_next's side
-    vertex_child_corner = child(h, 0)
-    face_child_corners = child(h, 2)
+    del face
+    interior_corners = np.stack([child[1], level.at_next(child[2])], axis=1)
+    near = child[0]  # child corner on the half of edge h at v_h's side
+    far = level.at_next(child[3])  # child corner on the half at v_next's side
     # corners at the child of edge h, counter-clockwise: the face after the half at v_next, then the one
     # before the half at v_h
-    edge_child_corners = np.stack([child(nxt, 3), child(h, 1)], axis=1)
+    edge_child_corners = np.stack([far, child[1]], axis=1)
     return _assemble(level, nV, C, 4, cv, ce, interior_verts, interior_corners, near, far,
-                     vertex_child_corner, face_child_corners, edge_child_corners, child_hole, V + F)
+                     child[0], child[2], edge_child_corners, child_hole, V + F)
 
 
 def _refine_loop(level: Level, faces_only: bool) -> Level:
@@ -645,9 +687,9 @@ def _refine_loop(level: Level, faces_only: bool) -> Level:
     if level.face_size != 3:
         raise ValueError("Loop refinement needs a triangle level")
     vt = level.corner_vert.reshape(F, 3)
-    et = V + level.corner_edge.astype(np.int64).reshape(F, 3)
+    et = V + level.corner_edge.reshape(F, 3)
     # child 4f+j (j < 3): vertex child at position j, then edge j, then edge j-1; child 4f+3: edge m+1 at m
-    cv = np.empty((F, 4, 3), dtype=np.int64)
+    cv = np.empty((F, 4, 3), dtype=np.int32)
     for j in range(3):
         cv[:, j, j] = vt[:, j]
         cv[:, j, (j + 1) % 3] = et[:, j]
@@ -658,16 +700,16 @@ def _refine_loop(level: Level, faces_only: bool) -> Level:
     if faces_only:
         return Level(level.scheme, nV, 4 * F, 3, _i32(cv.reshape(-1)), child_hole)
 
-    h = np.arange(C, dtype=np.int64)
+    h = np.arange(C, dtype=np.int32)
     f = h // 3
     j = h % 3
     jn = (j + 1) % 3
     jp = (j + 2) % 3
-    e_h = level.corner_edge.astype(np.int64)
-    e_prev = e_h[3 * f + jp]
+    e_h = level.corner_edge
+    e_prev = level.at_prev(e_h)
     base = 12 * f
-    ce = np.empty((F, 4, 3), dtype=np.int64)
-    fr = np.arange(F)
+    ce = np.empty((F, 4, 3), dtype=np.int32)
+    fr = np.arange(F, dtype=np.int32)
     for jj in range(3):
         hj = 3 * fr + jj
         ep = e_h[3 * fr + (jj + 2) % 3]
@@ -692,16 +734,13 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
     """Shared tail of both schemes: child edges, edge->corner and vertex->corner tables, classes, thetas."""
     V, E, C = level.num_vertices, level.num_edges, level.num_corners
     nC = 4 * C
-    e = np.arange(E, dtype=np.int64)
-    ev = level.edge_verts.astype(np.int64)
-    echild = edge_child_base + e
+    ev = level.edge_verts
     # child edges: nI interior ones, then halves (child of v0, child of e) and (child of v1, child of e)
-    halves = np.empty((E, 2, 2), dtype=np.int64)
-    halves[:, 0, 0] = echild
-    halves[:, 0, 1] = ev[:, 0]
-    halves[:, 1, 0] = echild
-    halves[:, 1, 1] = ev[:, 1]
-    child_edge_verts = np.concatenate([interior_verts, halves.reshape(-1, 2)])
+    child_edge_verts = np.empty((nI + 2 * E, 2), dtype=np.int32)
+    child_edge_verts[:nI] = interior_verts
+    halves = child_edge_verts[nI:].reshape(E, 2, 2)
+    halves[:, :, 0] = (edge_child_base + np.arange(E, dtype=np.int32))[:, None]
+    halves[:, :, 1] = ev
 
     # edge -> corners: interior edges have two corners; each half has as many as its parent edge
     eoff = level.edge_corner_offsets
@@ -710,14 +749,15 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
     half_off[:, 0] = 2 * nI + 2 * eoff[:-1]
     half_off[:, 1] = half_off[:, 0] + ecount
     child_eoff = np.concatenate([2 * np.arange(nI, dtype=np.int64), half_off.reshape(-1), [nC]])
-    child_ecorners = np.empty(nC, dtype=np.int64)
+    child_ecorners = np.empty(nC, dtype=np.int32)
     child_ecorners[: 2 * nI] = interior_corners.reshape(-1)
-    slot_edge = _rows_of(eoff)
-    slot_corner = level.edge_corners.astype(np.int64)
+    slot_edge = np.repeat(np.arange(E, dtype=np.int32), ecount)
+    slot_corner = level.edge_corners
     t = np.arange(C, dtype=np.int64) - eoff[slot_edge]
     s0 = _side(level, slot_corner, slot_edge)
     child_ecorners[half_off[slot_edge, s0] + t] = near[slot_corner]
     child_ecorners[half_off[slot_edge, 1 - s0] + t] = far[slot_corner]
+    del t, s0, half_off
 
     # vertex -> corners: vertex children keep their ring, face children get their face's corners,
     # edge children get m corners per parent corner on the edge
@@ -725,7 +765,7 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
     vcount = np.diff(voff)
     m = edge_child_corners.shape[1]
     count_blocks = [vcount]
-    corner_blocks = [vertex_child_corner[level.vert_corners.astype(np.int64)]]
+    corner_blocks = [vertex_child_corner[level.vert_corners]]
     if face_child_corners is not None:
         count_blocks.append(level.face_sizes())
         corner_blocks.append(face_child_corners)
@@ -733,6 +773,7 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
     corner_blocks.append(edge_child_corners[slot_corner].reshape(-1))
     child_voff = _offsets(np.concatenate(count_blocks))
     child_vcorners = np.concatenate(corner_blocks)
+    del corner_blocks
 
     # sharpness and classes: halves decay (uniform or Chaikin), edges inside faces are smooth; vertex children
     # decay; classes follow from the decayed sharpness
@@ -755,8 +796,7 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
     n_new = len(new_corners)
     sector_vertex = np.concatenate([level.sector_vertex, edge_child_base + slot_edge[sharp_slots]])
     sector_offsets = np.concatenate([level.sector_offsets, level.sector_offsets[-1] + k_new * np.arange(1, n_new + 1)])
-    sector_corners = np.concatenate([vertex_child_corner[level.sector_corners.astype(np.int64)],
-                                     new_corners.reshape(-1)])
+    sector_corners = np.concatenate([vertex_child_corner[level.sector_corners], new_corners.reshape(-1)])
     regular = np.pi / k_new
     sector_theta = np.concatenate([level.sector_theta, np.full(n_new, regular)])
     sector_kind = np.concatenate([level.sector_kind, np.full(n_new, rules.SECTOR_CREASE, np.int8)])
