@@ -13,7 +13,7 @@ from .errors import SubdivInputError
 from .mesh import Mesh
 from .rules import edge_gamma_shift
 from .tables import RegularTables, StencilTable, build_regular, build_stencils
-from .topology import BOUNDARY_MODES, RULE_SETS, Level, base_level, refine_level
+from .topology import BOUNDARY_MODES, RULE_SETS, Level, base_level, refine_level, small_pages
 
 SCHEME_ALIASES = {"catmull-clark": rules.CATMULL_CLARK, "catmullclark": rules.CATMULL_CLARK,
                   "catmark": rules.CATMULL_CLARK, "loop": rules.LOOP}
@@ -210,12 +210,13 @@ class Refiner:
     def topology(self):
         """(face_vertex_counts, face_vertex_indices) of the refined mesh, int32, hole faces left out."""
         lvl = self._final
-        sizes = lvl.face_sizes()
-        keep = ~lvl.face_hole
-        if lvl.face_size and keep.all():  # no holes: the corner table is the face list (a read-only view)
+        if lvl.face_size and not lvl.face_hole.any():  # no holes: the corner table is the face list (a view)
             view = lvl.corner_vert.view()
             view.flags.writeable = False
-            return np.full(lvl.num_faces, lvl.face_size, dtype=np.int32), view
+            with small_pages():
+                return np.full(lvl.num_faces, lvl.face_size, dtype=np.int32), view
+        sizes = lvl.face_sizes()
+        keep = ~lvl.face_hole
         if lvl.face_size:
             idx = lvl.corner_vert.reshape(-1, lvl.face_size)[keep].reshape(-1)
         else:
@@ -384,14 +385,22 @@ class Refiner:
             normal_control = width == 3
         if normal_control and width != 3:
             raise ValueError("normal control applies to (n, 3) positions only")
+        # copies: on the CPU .numpy() is a view of a buffer that the next call overwrites; the copies are
+        # written once and read in order (small pages, see topology.small_pages)
         if width == 3:
-            # copy: on the CPU .numpy() is a view of a buffer that the next call overwrites
-            out = np.array(self._run(arr, normal_control).numpy(), copy=True)
+            result = self._run(arr, normal_control)
+            with small_pages():
+                out = np.array(result.numpy(), copy=True)
         else:
             padded = np.zeros((arr.shape[0], -(-width // 3) * 3))
             padded[:, :width] = arr
-            out = np.concatenate([np.array(self._run(padded[:, c:c + 3], False).numpy(), copy=True)
-                                  for c in range(0, padded.shape[1], 3)], axis=1)[:, :width]
+            blocks = []
+            for c in range(0, padded.shape[1], 3):
+                result = self._run(padded[:, c:c + 3], False)
+                with small_pages():
+                    blocks.append(np.array(result.numpy(), copy=True))
+            with small_pages():
+                out = np.concatenate(blocks, axis=1)[:, :width]
         return out[:, 0] if np.ndim(points) == 1 else out
 
     # ---------------------------------------------------------------------------------------------

@@ -606,20 +606,21 @@ def refine_level(level: Level, faces_only: bool = False) -> Level:
 
     ``faces_only`` builds just the child faces (for the last level, which nothing refines further).
     """
-    with _small_pages():
+    with small_pages():
         if level.scheme == CATMULL_CLARK:
             return _refine_catmull_clark(level, faces_only)
         return _refine_loop(level, faces_only)
 
 
 @contextlib.contextmanager
-def _small_pages():
-    """Let numpy skip its transparent-huge-page hint while a level is derived.
+def small_pages():
+    """Let numpy skip its transparent-huge-page hint for arrays written once and read in order.
 
     A refinement step writes many large temporaries once each; with the hint the kernel zeroes (and on a
     fragmented machine first compacts) 2 MiB pages at every first touch, which measured 30-40% of a
-    Catmull-Clark level-5 build (bench/PEERS.md). Tables read by the kernels are allocated outside, with the
-    hint, where huge pages help their random reads. numpy's switch is private: without it, nothing changes.
+    Catmull-Clark level-5 build. Used for topology steps and output copies; tables the kernels read at
+    random keep the hint (their reads measured 10-20% faster with it). numpy's switch is private: without
+    it, nothing changes.
     """
     switch = getattr(getattr(getattr(np, "_core", None), "multiarray", None), "_set_madvise_hugepage", None)
     if switch is None:
