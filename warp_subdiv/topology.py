@@ -640,6 +640,11 @@ def _side(level: Level, h: np.ndarray, e: np.ndarray) -> np.ndarray:
     return (level.corner_vert[h] != level.edge_verts[e, 0]).astype(np.int32)
 
 
+def _side_all(level: Level, e: np.ndarray) -> np.ndarray:
+    """``_side(level, h, e[h])`` for every corner h (no gather of the corners' own vertices)."""
+    return (level.corner_vert != level.edge_verts[e, 0]).astype(np.int32)
+
+
 def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
     V, F, C, E = level.num_vertices, level.num_faces, level.num_corners, level.num_edges
     h = np.arange(C, dtype=np.int32)
@@ -667,10 +672,10 @@ def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
         return Level(level.scheme, nV, C, 4, cv, child_hole)
 
     ce = np.empty(4 * C, dtype=np.int32)
-    ce[child[0]] = C + 2 * e_h + _side(level, h, e_h)
+    ce[child[0]] = C + 2 * e_h + _side_all(level, e_h)
     ce[child[1]] = h
     ce[child[2]] = level.at_prev(h)
-    ce[child[3]] = C + 2 * e_prev + _side(level, h, e_prev)
+    ce[child[3]] = C + 2 * e_prev + _side_all(level, e_prev)
     interior_verts = np.stack([V + face, V + F + e_h], axis=1)
     del face
     interior_corners = np.stack([child[1], level.at_next(child[2])], axis=1)
@@ -701,31 +706,36 @@ def _refine_loop(level: Level, faces_only: bool) -> Level:
     if faces_only:
         return Level(level.scheme, nV, 4 * F, 3, _i32(cv.reshape(-1)), child_hole)
 
-    h = np.arange(C, dtype=np.int32)
-    f = h // 3
-    j = h % 3
-    jn = (j + 1) % 3
-    jp = (j + 2) % 3
+    # corner h = 3f + j; every per-corner table below is a (F, 3) block of closed forms in f and j
     e_h = level.corner_edge
     e_prev = level.at_prev(e_h)
-    base = 12 * f
+    half_at_h = (C + 2 * e_h + _side_all(level, e_h)).reshape(F, 3)  # half of edge h at v_h
+    half_at_prev = (C + 2 * e_prev + _side_all(level, e_prev)).reshape(F, 3)  # half of edge prev(h) at v_h
+    h3 = np.arange(C, dtype=np.int32).reshape(F, 3)
     ce = np.empty((F, 4, 3), dtype=np.int32)
-    fr = np.arange(F, dtype=np.int32)
     for jj in range(3):
-        hj = 3 * fr + jj
-        ep = e_h[3 * fr + (jj + 2) % 3]
-        ce[:, jj, jj] = C + 2 * e_h[hj] + _side(level, hj, e_h[hj])
-        ce[:, jj, (jj + 1) % 3] = hj
-        ce[:, jj, (jj + 2) % 3] = C + 2 * ep + _side(level, hj, ep)
-        ce[:, 3, jj] = 3 * fr + (jj + 2) % 3
+        ce[:, jj, jj] = half_at_h[:, jj]
+        ce[:, jj, (jj + 1) % 3] = h3[:, jj]
+        ce[:, jj, (jj + 2) % 3] = half_at_prev[:, jj]
+        ce[:, 3, jj] = h3[:, (jj + 2) % 3]
+    del half_at_h, half_at_prev, h3
+    base = (12 * np.arange(F, dtype=np.int32))[:, None]  # first child corner of face f
+
+    def block(*columns_of_j):
+        """(C, n) array whose column i is base + columns_of_j[i][j] for corner 3f + j."""
+        offsets = np.array(columns_of_j, dtype=np.int32).T  # (3, n)
+        return (base[:, :, None] + offsets[None]).reshape(C, len(columns_of_j))
+
+    j = np.arange(3)
+    jn, jp = (j + 1) % 3, (j + 2) % 3
     # interior edge 3f+j joins the children of edges j and j-1
     interior_verts = np.stack([V + e_h, V + e_prev], axis=1)
-    interior_corners = np.stack([base + 3 * j + jn, base + 9 + jn], axis=1)
-    near = base + 4 * j
-    far = base + 3 * jn + j
-    vertex_child_corner = base + 4 * j
+    interior_corners = block(3 * j + jn, 9 + jn)
+    near = block(4 * j).reshape(-1)
+    far = block(3 * jn + j).reshape(-1)
+    vertex_child_corner = near
     # counter-clockwise around the child of edge j: child j+1, the middle child, child j
-    edge_child_corners = np.stack([base + 3 * jn + j, base + 9 + jp, base + 3 * j + jn], axis=1)
+    edge_child_corners = block(3 * jn + j, 9 + jp, 3 * j + jn)
     return _assemble(level, nV, C, 3, cv.reshape(-1, 3), ce.reshape(-1, 3), interior_verts, interior_corners,
                      near, far, vertex_child_corner, None, edge_child_corners, child_hole, V)
 
