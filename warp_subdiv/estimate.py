@@ -18,9 +18,9 @@ one and the last one dominates:
 * building the refiner (topology of every level, tables, numpy temporaries): 106 bytes per output vertex for
   Catmull-Clark, 115 for Loop; where the piecewise-smooth rules project on every level (flatness at
   extraordinary crease and corner sectors, prescribed normals) the last level is built with its full
-  topology: 250 and 350; 55 of these are the second-to-last level's full topology, which for one level is
+  topology: 250 and 310; 55 of these are the second-to-last level's full topology, which for one level is
   the control mesh, counted above;
-* after the build the refiner keeps 80 / 110 bytes per output vertex (250 / 350 where it projects); a frame
+* after the build the refiner keeps 80 / 110 bytes per output vertex (250 / 310 where it projects); a frame
   adds one float buffer per vertex of every level and data width, and the returned points;
 * a face-varying primvar (UVs) is refined by a refiner of its own over the value mesh, built while the
   vertex refiner is alive: 70 bytes per output vertex at the peak (it reuses memory the vertex refiner's
@@ -55,9 +55,9 @@ CONTROL_KEPT = 130
 #: the control mesh, counted by CONTROL_KEPT already.
 PENULTIMATE = 55
 #: Bytes per output vertex at the peak of building a refiner, without and with projections (see above).
-BUILD_PEAK = {"catmull-clark": (106, 250), "loop": (115, 350)}
+BUILD_PEAK = {"catmull-clark": (106, 250), "loop": (115, 310)}
 #: Bytes per output vertex a built refiner keeps (index tables, masks, the last level's topology).
-KEPT = {"catmull-clark": (80, 250), "loop": (110, 350)}
+KEPT = {"catmull-clark": (80, 250), "loop": (110, 310)}
 #: Bytes per output vertex that refining one face-varying channel adds at the peak of a USD run (its value
 #: mesh refiner reuses memory the vertex refiner's build released; measured 40-110 over runs).
 FACE_VARYING = 70
