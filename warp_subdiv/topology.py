@@ -645,47 +645,85 @@ def _side_all(level: Level, e: np.ndarray) -> np.ndarray:
     return (level.corner_vert != level.edge_verts[e, 0]).astype(np.int32)
 
 
+class _QuadChildren:
+    """Child corners of a Catmull-Clark step. Child face h (one per parent corner) holds, in this cyclic
+    order: the child of v_h, the child of edge h, the face child, the child of edge prev(h). As in
+    OpenSubdiv, children of a quad are rotated so that the vertex child sits at the parent corner's position
+    j (children of other polygons are not): type t of corner h is child corner 4h + (t + r) % 4, r = j for
+    quads and 0 otherwise. On a level of quads (h = 4f + j) that is 16f + 4j + (j + t) % 4: closed forms,
+    so the tables are built by broadcasting and strided copies instead of index arrays."""
+
+    def __init__(self, level: Level):
+        self.level = level
+        self.quads = level.face_size == 4
+        C = level.num_corners
+        if self.quads:
+            self.base = (16 * np.arange(level.num_faces, dtype=np.int32))[:, None]
+        else:
+            h = np.arange(C, dtype=np.int64)
+            face = level.corner_face(h)
+            r = np.where(level.face_sizes()[face] == 4, h - level.face_starts()[face], 0)
+            self.h, self.r = h, r
+
+    def index(self, t: int, of_next: bool = False) -> np.ndarray:
+        """Child corner of type t of every corner h (of corner_next(h) with ``of_next``), int32."""
+        if self.quads:
+            j = (np.arange(4) + (1 if of_next else 0)) & 3
+            return (self.base + (4 * j + ((j + t) & 3)).astype(np.int32)).reshape(-1)
+        out = (4 * self.h + (self.r + t) % 4).astype(np.int32)
+        return self.level.at_next(out) if of_next else out
+
+    def put(self, dst: np.ndarray, t: int, values) -> None:
+        """dst[child corner of type t of h] = values[h] for every corner h (values may be per face on quads)."""
+        if self.quads:
+            d = dst.reshape(-1, 4, 4)
+            v = np.asarray(values)
+            for j in range(4):
+                d[:, j, (j + t) & 3] = v[:, j] if v.ndim == 2 else v
+        else:
+            dst[self.index(t)] = values.reshape(-1) if np.ndim(values) == 2 else values
+
+
 def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
     V, F, C, E = level.num_vertices, level.num_faces, level.num_corners, level.num_edges
-    h = np.arange(C, dtype=np.int32)
-    face = level.corner_face(h)
-    # Child face h (one per parent corner) holds, in this cyclic order: the child of v_h, the child of
-    # edge h, the face child, the child of edge prev(h). As in OpenSubdiv, children of a quad are rotated
-    # so that the vertex child sits at the parent corner's position j (children of other polygons are not):
-    # type t of corner h is child corner 4h + (t + r) % 4, r = j for quads and 0 otherwise.
-    if level.face_size == 4:  # the local index of corner h is h % 4
-        r = h & 3
-    else:
-        r = np.where(level.face_sizes()[face] == 4, h - level.face_starts()[face], 0).astype(np.int32)
-    child = [4 * h + ((r + t) & 3) for t in range(4)]  # child corner of type t of every corner
-    del r
+    children = _QuadChildren(level)
+    quads = children.quads
+
+    def per_corner(values):  # a (C,) table as (F, 4) on quads, so that put() copies columns
+        return values.reshape(F, 4) if quads else values
+
+    face_ids = V + np.arange(F, dtype=np.int32)
+    face_child = face_ids if quads else face_ids[level.corner_face(np.arange(C))]  # V + face of every corner
     e_h = level.corner_edge
     e_prev = level.at_prev(e_h)
     cv = np.empty(4 * C, dtype=np.int32)
-    cv[child[0]] = level.corner_vert
-    cv[child[1]] = V + F + e_h
-    cv[child[2]] = V + face
-    cv[child[3]] = V + F + e_prev
-    child_hole = level.face_hole[face]
+    children.put(cv, 0, per_corner(level.corner_vert))
+    children.put(cv, 1, per_corner(V + F + e_h))
+    children.put(cv, 2, face_child)
+    children.put(cv, 3, per_corner(V + F + e_prev))
+    child_hole = np.repeat(level.face_hole, 4) if quads else level.face_hole[level.corner_face(np.arange(C))]
     nV = V + F + E
     if faces_only:
         return Level(level.scheme, nV, C, 4, cv, child_hole)
 
     ce = np.empty(4 * C, dtype=np.int32)
-    ce[child[0]] = C + 2 * e_h + _side_all(level, e_h)
-    ce[child[1]] = h
-    ce[child[2]] = level.at_prev(h)
-    ce[child[3]] = C + 2 * e_prev + _side_all(level, e_prev)
-    interior_verts = np.stack([V + face, V + F + e_h], axis=1)
-    del face
-    interior_corners = np.stack([child[1], level.at_next(child[2])], axis=1)
-    near = child[0]  # child corner on the half of edge h at v_h's side
-    far = level.at_next(child[3])  # child corner on the half at v_next's side
+    h = np.arange(C, dtype=np.int32)
+    children.put(ce, 0, per_corner(C + 2 * e_h + _side_all(level, e_h)))
+    children.put(ce, 1, per_corner(h))
+    children.put(ce, 2, per_corner(level.at_prev(h)))
+    children.put(ce, 3, per_corner(C + 2 * e_prev + _side_all(level, e_prev)))
+    interior_verts = np.empty((C, 2), dtype=np.int32)
+    interior_verts[:, 0] = np.repeat(face_ids, 4) if quads else face_child
+    interior_verts[:, 1] = V + F + e_h
+    child_of_edge = children.index(1)
+    interior_corners = np.stack([child_of_edge, children.index(2, of_next=True)], axis=1)
+    near = children.index(0)  # child corner on the half of edge h at v_h's side
+    far = children.index(3, of_next=True)  # child corner on the half at v_next's side
     # corners at the child of edge h, counter-clockwise: the face after the half at v_next, then the one
     # before the half at v_h
-    edge_child_corners = np.stack([far, child[1]], axis=1)
+    edge_child_corners = np.stack([far, child_of_edge], axis=1)
     return _assemble(level, nV, C, 4, cv, ce, interior_verts, interior_corners, near, far,
-                     child[0], child[2], edge_child_corners, child_hole, V + F)
+                     near, children.index(2), edge_child_corners, child_hole, V + F)
 
 
 def _refine_loop(level: Level, faces_only: bool) -> Level:
