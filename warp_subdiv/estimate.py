@@ -18,19 +18,20 @@ one and the last one dominates:
 * building the refiner (topology of every level, tables, numpy temporaries): 106 bytes per output vertex for
   Catmull-Clark, 115 for Loop; where the piecewise-smooth rules project on every level (flatness at
   extraordinary crease and corner sectors, prescribed normals) the last level is built with its full
-  topology: 250 and 310; 55 of these are the second-to-last level's full topology, which for one level is
+  topology: 245 and 310; 55 of these are the second-to-last level's full topology, which for one level is
   the control mesh, counted above;
-* after the build the refiner keeps 80 / 110 bytes per output vertex (250 / 310 where it projects); a frame
+* after the build the refiner keeps 80 / 110 bytes per output vertex (215 / 310 where it projects); a frame
   adds one float buffer per vertex of every level and data width, and the returned points;
 * a face-varying primvar (UVs) is refined by a refiner of its own over the value mesh, built while the
-  vertex refiner is alive: 70 bytes per output vertex at the peak (it reuses memory the vertex refiner's
+  vertex refiner is alive: 55 bytes per output vertex at the peak (it reuses memory the vertex refiner's
   build released; measured 40 to 110 over repeated runs), plus one kept refiner where there are several
   channels (the previous channel's is dropped once the next one is built);
 * limit points and normals (``--limit``, ``--normals``) build full topology and mask tables of the level they
-  read: 1350 (Catmull-Clark) or 1180 (Loop) bytes per vertex of that level, which is one level deeper where
-  the refiner projects or its edge rules differ next to extraordinary crease vertices;
+  read: 755 (Catmull-Clark) or 680 (Loop) bytes per vertex of that level; where the refiner projects or its
+  edge rules differ next to extraordinary crease vertices that level is one deeper, and a refiner is built
+  for it: 860 or 865 bytes per vertex of the deeper level;
 * writing a USD layer maps each refined face to its control face (24 bytes a face at the peak of building
-  the map) and converts the topology and points to USD arrays (4 bytes a face and a face corner; 36 a vertex:
+  the map) and converts the topology and points to USD arrays (4 bytes a face and a face corner; 30 a vertex:
   refined points, their USD copy, extent and used-vertex temporaries) while the refiner is alive;
 * what the written layer holds until it is saved: face counts and indices once, and per written time sample
   the points (and extent), velocities, accelerations, normals and primvars.
@@ -55,14 +56,15 @@ CONTROL_KEPT = 130
 #: the control mesh, counted by CONTROL_KEPT already.
 PENULTIMATE = 55
 #: Bytes per output vertex at the peak of building a refiner, without and with projections (see above).
-BUILD_PEAK = {"catmull-clark": (106, 250), "loop": (115, 310)}
+BUILD_PEAK = {"catmull-clark": (106, 245), "loop": (115, 310)}
 #: Bytes per output vertex a built refiner keeps (index tables, masks, the last level's topology).
-KEPT = {"catmull-clark": (80, 250), "loop": (110, 310)}
+KEPT = {"catmull-clark": (80, 215), "loop": (110, 310)}
 #: Bytes per output vertex that refining one face-varying channel adds at the peak of a USD run (its value
 #: mesh refiner reuses memory the vertex refiner's build released; measured 40-110 over runs).
-FACE_VARYING = 70
-#: Bytes per vertex of the level whose limit masks are built (its full topology, masks, temporaries).
-LIMIT_PEAK = {"catmull-clark": 1350, "loop": 1180}
+FACE_VARYING = 55
+#: Bytes per vertex of the level whose limit masks are built (its full topology, masks, temporaries): on the
+#: last level, and one level deeper (which also builds a refiner for that level).
+LIMIT_PEAK = {"catmull-clark": (755, 860), "loop": (680, 865)}
 #: Warp's runtime and loaded kernel modules (measured: about 30 to 60 MiB on the CPU).
 RUNTIME_BYTES = 64 * 2**20
 #: The refiner's tables are int32: no level may hold this many face corners.
@@ -167,8 +169,8 @@ def estimate(
         "frame buffers": frame,
         "face-varying refiners": (FACE_VARYING + (KEPT[key][0] if face_varying_channels > 1 else 0))
         * last.vertices if face_varying_channels else 0,
-        "limit masks": LIMIT_PEAK[key] * limit_level.vertices if limit else 0,
-        "layer conversion": 24 * last.faces + 4 * (last.faces + last.corners) + 36 * last.vertices if layer else 0,
+        "limit masks": LIMIT_PEAK[key][int(bool(limit_deeper))] * limit_level.vertices if limit else 0,
+        "layer conversion": 24 * last.faces + 4 * (last.faces + last.corners) + 30 * last.vertices if layer else 0,
         "faces": 4 * (last.faces + last.corners),
         "points": samples * last.vertices * 12 * (1 + extra_point_arrays),
         "primvars": samples * 4 * (last.vertices * vertex_width + last.corners * face_varying_width

@@ -43,12 +43,15 @@ def _col(a):
 
 
 def interior_masks(scheme: str, k: int, count: int, beta_variant: str = "loop") -> LocalMasks:
-    """Interior (and dart) vertex of valence k (RULES.md 8.1 and 8.4)."""
+    """Interior (and dart) vertex of valence k (RULES.md 8.1 and 8.4).
+
+    The masks depend on k only: the (count, n) results are read-only broadcasts of one row (a level's
+    interior vertices are most of its vertices; copies would cost 56 bytes per vertex and entry)."""
     n = local_size(scheme, k, sector=False)
     i = np.arange(k)
     tk = np.pi / k
     cos_i, sin_i = np.cos(2 * i * tk), np.sin(2 * i * tk)
-    z = lambda: np.zeros((count, n))
+    z = lambda: np.zeros((1, n))
     l0, l1, l2, x1, x2 = z(), z(), z(), z(), z()
     if scheme == LOOP:
         beta = float(loop_beta(k, beta_variant))
@@ -70,6 +73,7 @@ def interior_masks(scheme: str, k: int, count: int, beta_variant: str = "loop") 
         x2[:, 1:k + 1], x2[:, k + 1:] = sin_i, sin_q / f
         l1[:, 1:k + 1], l1[:, k + 1:] = a * cos_i, a * cos_q / (4.0 * f)
         l2[:, 1:k + 1], l2[:, k + 1:] = a * sin_i, a * sin_q / (4.0 * f)
+    l0, l1, l2, x1, x2 = (np.broadcast_to(m, (count, n)) for m in (l0, l1, l2, x1, x2))
     return LocalMasks(l0, l1, l2, x1, x2, tu=l1, tv=l2)
 
 

@@ -66,20 +66,21 @@ def _group_by_target(targets, sources, weights, normal_ids=None, normals=None) -
 
 def sector_local_vectors(level: Level, sectors: np.ndarray, k: int) -> np.ndarray:
     """(S, n) vertex ids of the local vectors [c, p_0..p_k, (q_0..q_{k-1})] of sectors with crease degree k."""
-    corners = level.sector_corners.astype(np.int64)[level.sector_offsets[sectors][:, None] + np.arange(k)]
+    corners = level.sector_corners[level.sector_offsets[sectors][:, None] + np.arange(k)]
     return _local_vector(level, level.sector_vertex[sectors], corners, sector=True)
 
 
 def ring_local_vectors(level: Level, vertices: np.ndarray, k: int) -> np.ndarray:
     """(V, n) vertex ids of the local vectors [c, p_0..p_{k-1}, (q_0..q_{k-1})] of closed rings of valence k."""
-    corners = level.vert_corners.astype(np.int64)[level.vert_corner_offsets[vertices][:, None] + np.arange(k)]
+    corners = level.vert_corners[level.vert_corner_offsets[vertices][:, None] + np.arange(k)]
     return _local_vector(level, vertices, corners, sector=False)
 
 
 def _local_vector(level, centre, corners, sector):
-    cv = level.corner_vert.astype(np.int64)
+    """(S, n) int32 vertex ids of the local vectors whose rings start at ``corners`` (S, k)."""
+    cv = level.corner_vert
     nxt = level.corner_next(corners)
-    parts = [np.asarray(centre, dtype=np.int64)[:, None], cv[nxt]]
+    parts = [np.asarray(centre, dtype=np.int32)[:, None], cv[nxt]]
     if sector:
         parts.append(cv[level.corner_prev(corners[:, -1:])])
     if level.scheme == CATMULL_CLARK:
@@ -295,12 +296,22 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
 
 
 def _merge_rows(rows_parts, local_parts, weight_parts, num_rows, num_sources) -> StencilTable:
-    """A CSR table from blocks of equal-width rows: block b gives row ids (S_b,), sources and weights (S_b, n_b)."""
-    flat_row = np.concatenate([np.repeat(np.asarray(r, dtype=np.int64), l.shape[1])
-                               for r, l in zip(rows_parts, local_parts)]) if rows_parts else np.zeros(0, np.int64)
-    flat_idx = np.concatenate([l.reshape(-1) for l in local_parts]) if local_parts else np.zeros(0, np.int64)
-    flat_w = np.concatenate([w.reshape(-1) for w in weight_parts]) if weight_parts else np.zeros(0)
-    order = np.argsort(flat_row, kind="stable")
-    counts = np.bincount(flat_row, minlength=num_rows)
-    return StencilTable(_offsets(counts).astype(np.int32), flat_idx[order].astype(np.int32), flat_w[order],
-                        num_sources)
+    """A CSR table from blocks of equal-width rows: block b gives row ids (S_b,), sources and weights (S_b, n_b).
+
+    Every row comes from at most one block, so each block is written straight to its rows' slots (no sort
+    over the entries: limit tables cover every vertex of a level, and a sort would hold several entry-sized
+    int64 arrays at once)."""
+    counts = np.zeros(num_rows, dtype=np.int64)
+    for r, l in zip(rows_parts, local_parts):
+        if np.any(counts[r]) or len(np.unique(r)) != len(r):
+            raise AssertionError("limit table rows must come from one block each")
+        counts[r] = l.shape[1]
+    offsets = _offsets(counts)
+    indices = np.empty(offsets[-1], dtype=np.int32)
+    weights = np.empty(offsets[-1], dtype=np.float64)
+    for r, l, w in zip(rows_parts, local_parts, weight_parts):
+        if len(r):
+            slots = offsets[np.asarray(r, dtype=np.int64)][:, None] + np.arange(l.shape[1])
+            indices[slots] = l
+            weights[slots] = w
+    return StencilTable(offsets.astype(np.int32), indices, weights, num_sources)
