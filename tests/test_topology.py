@@ -168,3 +168,26 @@ def test_fan_triangulation():
     assert list(counts) == [3] * 6
     assert idx.reshape(-1, 3).tolist() == [[0, 1, 2], [0, 2, 3], [0, 3, 4], [5, 6, 7], [5, 7, 8], [9, 10, 11]]
     assert parent.tolist() == [0, 0, 0, 1, 1, 2]
+
+
+def test_small_pages_restores_numpy_hint_after_nesting_and_errors():
+    """Topology steps switch numpy's huge-page hint off; the host's setting comes back afterwards, also when
+    uses nest (concurrent refiners) or a step raises."""
+    from warp_subdiv.topology import small_pages
+
+    switch = getattr(getattr(getattr(np, "_core", None), "multiarray", None), "_set_madvise_hugepage", None)
+    if switch is None:
+        pytest.skip("this numpy has no huge-page switch")
+    original = switch(True)
+    try:
+        with small_pages():
+            with small_pages():
+                assert switch(False) is False  # off inside
+            assert switch(False) is False  # still off: the outer use is active
+        assert switch(True) is True  # restored
+        with pytest.raises(RuntimeError):
+            with small_pages():
+                raise RuntimeError("a failing step")
+        assert switch(True) is True
+    finally:
+        switch(original)

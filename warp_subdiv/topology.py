@@ -12,6 +12,7 @@ child faces follow parent corners; child edges are [edges inside parent faces, t
 from __future__ import annotations
 
 import contextlib
+import threading
 
 import warnings
 from dataclasses import dataclass
@@ -612,6 +613,10 @@ def refine_level(level: Level, faces_only: bool = False) -> Level:
         return _refine_loop(level, faces_only)
 
 
+_pages_lock = threading.Lock()
+_pages_state = {"depth": 0, "previous": None}
+
+
 @contextlib.contextmanager
 def small_pages():
     """Let numpy skip its transparent-huge-page hint for arrays written once and read in order.
@@ -626,11 +631,17 @@ def small_pages():
     if switch is None:
         yield
         return
-    previous = switch(False)
+    with _pages_lock:  # nested or concurrent users: the first switches off, the last restores
+        if _pages_state["depth"] == 0:
+            _pages_state["previous"] = switch(False)
+        _pages_state["depth"] += 1
     try:
         yield
     finally:
-        switch(previous)
+        with _pages_lock:
+            _pages_state["depth"] -= 1
+            if _pages_state["depth"] == 0:
+                switch(_pages_state["previous"])
 
 
 def _side(level: Level, h: np.ndarray, e: np.ndarray) -> np.ndarray:
