@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import threading
-
 import warnings
 from dataclasses import dataclass
 
