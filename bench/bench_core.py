@@ -36,14 +36,13 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 from benchutil import (  # noqa: E402 (the scripts run as files; their folder holds the shared helpers)
-    proc_status, export_commit, mem_available_bytes, parse_levels, peak_rss_bytes, quiet_warp)
+    proc_status, export_commit, mem_available_bytes, parse_levels, peak_rss_bytes, quiet_warp, run_child)
 MESH_DIR = os.path.join(HERE, "meshes")
 MESHES = {
     # name: (file, scheme)
@@ -175,41 +174,10 @@ def profile_build(args):
 
 
 # ------------------------------------------------------------------------------------------------ parent
-def run_child(cmd, timeout_s, mem_limit, lib_root=ROOT):
-    """Run a worker; returns (result dict | None, reason). Kills it on timeout or when over mem_limit."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = lib_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    cmd = cmd + ["--lib-root", lib_root]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    killed = {}
-    max_rss = [0]
-
-    def watch():
-        while proc.poll() is None:
-            rss = proc_status(proc.pid).get("VmRSS", 0)
-            max_rss[0] = max(max_rss[0], rss)
-            if mem_limit and rss > mem_limit:
-                killed["why"] = f"killed at {rss / 2**30:.1f} GiB resident (limit {mem_limit / 2**30:.1f} GiB)"
-                proc.kill()
-                return
-            time.sleep(0.1)
-
-    watcher = threading.Thread(target=watch, daemon=True)
-    watcher.start()
-    try:
-        out, err = proc.communicate(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, err = proc.communicate()
-        killed.setdefault("why", f"timed out after {timeout_s:.0f} s")
-    watcher.join()
-    if "why" in killed:
-        return None, killed["why"]
-    for line in out.splitlines():
-        if line.startswith(MARK):
-            return json.loads(line[len(MARK):]), ""
-    tail = (err or out).strip().splitlines()[-3:]
-    return None, f"exit code {proc.returncode}: " + " | ".join(tail)
+def run_worker(cmd, timeout_s, mem_limit, lib_root=ROOT):
+    """run_child for this script's workers, with the measured library first on their path."""
+    pythonpath = lib_root + (os.pathsep + os.environ["PYTHONPATH"] if os.environ.get("PYTHONPATH") else "")
+    return run_child(cmd + ["--lib-root", lib_root], timeout_s, mem_limit, MARK, {"PYTHONPATH": pythonpath})
 
 
 def library_state(lib_root: str = ROOT, commit: str | None = None) -> str:
@@ -366,8 +334,8 @@ def run_benchmark(p, args, commit) -> int:
     sys.stdout.flush()
 
     common = ["--device", args.device, "--precision", args.precision, "--rules", args.rules]
-    comp, why = run_child([sys.executable, os.path.abspath(__file__), "--compile-worker"] + common,
-                          args.timeout, mem_limit, args.lib_root)
+    comp, why = run_worker([sys.executable, os.path.abspath(__file__), "--compile-worker"] + common,
+                           args.timeout, mem_limit, args.lib_root)
     compile_note = (f"Warp module build from an empty kernel cache (first evaluate of a 1-quad mesh): "
                     f"{comp['compile_s']:.2f} s; the rows below load it from Warp's kernel cache."
                     if comp else f"Warp module compile could not be timed: {why}")
@@ -378,7 +346,7 @@ def run_benchmark(p, args, commit) -> int:
             cmd = [sys.executable, os.path.abspath(__file__), "--worker", "--mesh", m, "--level", str(lv),
                    "--frames", str(args.frames)] + common + (["--skip-refine"] if args.skip_refine else [])
             t = time.perf_counter()
-            res, why = run_child(cmd, args.timeout, mem_limit, args.lib_root)
+            res, why = run_worker(cmd, args.timeout, mem_limit, args.lib_root)
             wall = time.perf_counter() - t
             if res is None:
                 crashed = crashed or why.startswith("exit code")

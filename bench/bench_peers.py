@@ -73,14 +73,13 @@ import platform
 import shlex
 import subprocess
 import sys
-import threading
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 from benchutil import (  # noqa: E402 (the scripts run as files; their folder holds the shared helpers)
-    proc_status, export_commit, mem_available_bytes, parse_levels, peak_rss_bytes, quiet_warp)
+    export_commit, mem_available_bytes, parse_levels, peak_rss_bytes, quiet_warp, run_child)
 MESH_DIR = os.path.join(HERE, "meshes")
 MARK = "PEERS_RESULT "
 MIB = 2**20
@@ -112,24 +111,6 @@ OSD_PATHS = [  # (key, label)
 
 
 # ------------------------------------------------------------------------------------------------ common
-def _tree_rss(pid: int) -> int:
-    """Resident bytes of a process and all its descendants (the OpenSubdiv worker runs a C++ child)."""
-    total, todo, seen = 0, [pid], set()
-    while todo:
-        p = todo.pop()
-        if p in seen:
-            continue
-        seen.add(p)
-        total += proc_status(p).get("VmRSS", 0)
-        try:
-            for tid in os.listdir(f"/proc/{p}/task"):
-                with open(f"/proc/{p}/task/{tid}/children", encoding="ascii") as fh:
-                    todo.extend(int(c) for c in fh.read().split())
-        except OSError:
-            pass
-    return total
-
-
 def load_obj(path):
     """(points (n, 3) float64, faces (F, k) int64) of an OBJ whose faces all have k vertices (no I/O timing)."""
     import numpy as np
@@ -473,55 +454,6 @@ def profile_ours(spec: str, reps_note=True):
 
 
 # ------------------------------------------------------------------------------------------------ parent
-def run_child(cmd, timeout_s, mem_limit, env_extra=None):
-    """Run a worker; (result dict | None, reason). Kills it on timeout or when its process tree is over
-    mem_limit; reports the largest tree RSS seen (sampled every 0.1 s) as ``sampled_peak_tree_rss``."""
-    env = dict(os.environ)
-    env.update(env_extra or {})
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            start_new_session=True)
-    killed, max_rss = {}, [0]
-
-    def kill():
-        try:
-            os.killpg(proc.pid, 9)  # the worker and its children (osd_peer) only: its own session
-        except OSError:
-            proc.kill()
-
-    def watch():
-        while proc.poll() is None:
-            rss = _tree_rss(proc.pid)
-            max_rss[0] = max(max_rss[0], rss)
-            if mem_limit and rss > mem_limit:
-                killed["why"] = (f"killed at {rss / 2**30:.1f} GiB resident (limit {mem_limit / 2**30:.1f} GiB)")
-                killed["rss"] = rss
-                kill()
-                return
-            time.sleep(0.1)
-
-    watcher = threading.Thread(target=watch, daemon=True)
-    watcher.start()
-    t = time.perf_counter()
-    try:
-        out, err = proc.communicate(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        kill()
-        out, err = proc.communicate()
-        killed.setdefault("why", f"timed out after {timeout_s:.0f} s")
-    wall = time.perf_counter() - t
-    watcher.join()
-    if "why" in killed:
-        return None, killed["why"] + f" (largest resident size seen {max_rss[0] / 2**30:.1f} GiB, {wall:.0f} s)"
-    for line in out.splitlines():
-        if line.startswith(MARK):
-            res = json.loads(line[len(MARK):])
-            res["subprocess_wall_s"] = wall
-            res["sampled_peak_tree_rss"] = max_rss[0]
-            return res, ""
-    tail = (err or out).strip().splitlines()[-3:]
-    return None, f"exit code {proc.returncode}: " + " | ".join(tail)
-
-
 def machine_info(ours_python) -> dict:
     cpu = platform.processor() or platform.machine()
     try:
@@ -856,7 +788,7 @@ def run_benchmark(p, args, commit=None) -> int:
         f" (sources {library_digest(args.lib_root)})"
     print(f"bench_peers: {cmdline}; measuring warp-subdiv {lib}", file=sys.stderr, flush=True)
 
-    probe, why = run_child([args.peers_python, me, "--worker", "probe"], 300, None)
+    probe, why = run_child([args.peers_python, me, "--worker", "probe"], 300, None, MARK)
     if probe is None:
         probe = {"peers": {}, "error": f"peers interpreter {args.peers_python} did not answer: {why}"}
     probe["executable"] = args.peers_python
@@ -876,7 +808,8 @@ def run_benchmark(p, args, commit=None) -> int:
             tools.remove("opensubdiv")
 
     bw_runs = []
-    bw, why = run_child([args.ours_python, me, "--worker", "bandwidth", "--bw-mib", str(args.bw_mib)], 300, None)
+    bw, why = run_child([args.ours_python, me, "--worker", "bandwidth", "--bw-mib", str(args.bw_mib)], 300,
+                        None, MARK)
     if bw:
         bw_runs.append(bw)
 
@@ -904,7 +837,7 @@ def run_benchmark(p, args, commit=None) -> int:
                 else:
                     cmd, env = [args.peers_python, me, "--worker", "peer", "--tool", tool], None
                 cmd += ["--mesh", mesh, "--level", str(L)] + common
-                res, why = run_child(cmd, args.timeout, mem_limit, env)
+                res, why = run_child(cmd, args.timeout, mem_limit, MARK, env)
                 if res is None:
                     short = "out of memory" if why.startswith("killed") else (
                         "timeout" if why.startswith("timed out") else "crashed")
@@ -929,12 +862,13 @@ def run_benchmark(p, args, commit=None) -> int:
         cmd = [args.ours_python, me, "--worker", "ours", "--e2e-only", "--mesh", "cube64_noisy", "--level",
                str(stress), "--reps", "1", "--rep-budget", "0", "--timeout", str(args.stress_timeout),
                "--lib-root", args.lib_root]
-        res, why = run_child(cmd, args.stress_timeout, mem_limit, ours_env)
+        res, why = run_child(cmd, args.stress_timeout, mem_limit, MARK, ours_env)
         stress_res = res if res is not None else {"failed": why}
         print(f"  stress cube64_noisy L{stress}: {stress_res.get('failed') or stress_res['e2e_s']}",
               file=sys.stderr, flush=True)
 
-    bw2, _ = run_child([args.ours_python, me, "--worker", "bandwidth", "--bw-mib", str(args.bw_mib)], 300, None)
+    bw2, _ = run_child([args.ours_python, me, "--worker", "bandwidth", "--bw-mib", str(args.bw_mib)], 300,
+                       None, MARK)
     if bw2:
         bw_runs.append(bw2)
     total = time.perf_counter() - started

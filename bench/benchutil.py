@@ -1,11 +1,15 @@
-"""Helpers shared by the benchmark scripts: memory readings, Warp quieting, commit export, level lists."""
+"""Helpers shared by the benchmark scripts: memory readings, guarded worker processes, Warp quieting, commit
+export, level lists."""
 from __future__ import annotations
 
+import json
 import os
 import resource
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -71,3 +75,72 @@ def parse_levels(text: str) -> list[int]:
         a, b = text.split("-")
         return list(range(int(a), int(b) + 1))
     return [int(x) for x in text.split(",")]
+
+
+def _tree_rss(pid: int) -> int:
+    """Resident bytes of a process and all its descendants (the OpenSubdiv worker runs a C++ child)."""
+    total, todo, seen = 0, [pid], set()
+    while todo:
+        p = todo.pop()
+        if p in seen:
+            continue
+        seen.add(p)
+        total += proc_status(p).get("VmRSS", 0)
+        try:
+            for tid in os.listdir(f"/proc/{p}/task"):
+                with open(f"/proc/{p}/task/{tid}/children", encoding="ascii") as fh:
+                    todo.extend(int(c) for c in fh.read().split())
+        except OSError:
+            pass
+    return total
+
+
+def run_child(cmd, timeout_s, mem_limit, mark, env_extra=None):
+    """Run a worker that prints its result as one JSON line after ``mark``; (result dict | None, reason).
+
+    Kills it on timeout or when its process tree is over mem_limit; reports the largest tree RSS seen
+    (sampled every 0.1 s) as ``sampled_peak_tree_rss`` and its wall time as ``subprocess_wall_s``."""
+    env = dict(os.environ)
+    env.update(env_extra or {})
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True)
+    killed, max_rss = {}, [0]
+
+    def kill():
+        try:
+            os.killpg(proc.pid, 9)  # the worker and its children (osd_peer) only: its own session
+        except OSError:
+            proc.kill()
+
+    def watch():
+        while proc.poll() is None:
+            rss = _tree_rss(proc.pid)
+            max_rss[0] = max(max_rss[0], rss)
+            if mem_limit and rss > mem_limit:
+                killed["why"] = (f"killed at {rss / 2**30:.1f} GiB resident (limit {mem_limit / 2**30:.1f} GiB)")
+                killed["rss"] = rss
+                kill()
+                return
+            time.sleep(0.1)
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    t = time.perf_counter()
+    try:
+        out, err = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        kill()
+        out, err = proc.communicate()
+        killed.setdefault("why", f"timed out after {timeout_s:.0f} s")
+    wall = time.perf_counter() - t
+    watcher.join()
+    if "why" in killed:
+        return None, killed["why"] + f" (largest resident size seen {max_rss[0] / 2**30:.1f} GiB, {wall:.0f} s)"
+    for line in out.splitlines():
+        if line.startswith(mark):
+            res = json.loads(line[len(mark):])
+            res["subprocess_wall_s"] = wall
+            res["sampled_peak_tree_rss"] = max_rss[0]
+            return res, ""
+    tail = (err or out).strip().splitlines()[-3:]
+    return None, f"exit code {proc.returncode}: " + " | ".join(tail)
