@@ -15,12 +15,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchutil import ROOT, proc_status, quiet_warp  # noqa: E402
+from benchutil import ROOT, proc_status, quiet_warp, run_child  # noqa: E402
+
+MARK = "MEMORY_RESULT "
 
 #: name -> (mesh, scheme, levels, options); "limit" computes limit points and normals, "usd" runs refine_usd.
 CONFIGS = {
@@ -146,14 +147,14 @@ def worker(name: str) -> dict:
 
 
 def run(names, python=sys.executable) -> list[dict]:
-    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    pythonpath = ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")
     rows = []
     for name in names:
-        res = subprocess.run([python, os.path.abspath(__file__), "--worker", name], capture_output=True, text=True,
-                             env=env, cwd=ROOT, timeout=600)
-        if res.returncode != 0:
-            raise RuntimeError(f"{name}: worker failed:\n{res.stdout[-2000:]}{res.stderr[-2000:]}")
-        rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
+        res, why = run_child([python, os.path.abspath(__file__), "--worker", name], 600, None, MARK,
+                             {"PYTHONPATH": pythonpath})
+        if res is None:
+            raise RuntimeError(f"{name}: worker failed: {why}")
+        rows.append(res)
     return rows
 
 
@@ -177,7 +178,7 @@ def main(argv=None) -> int:
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker:
-        print(json.dumps(worker(args.worker)))
+        print(MARK + json.dumps(worker(args.worker)))
         return 0
     if not os.path.exists("/proc/self/clear_refs"):
         print("needs Linux's /proc/self/clear_refs to reset the peak-RSS counter", file=sys.stderr)
