@@ -322,7 +322,7 @@ def _info(args) -> int:
     _quiet_warp()
     from pxr import UsdGeom
 
-    from .usd import estimate_prim, plan
+    from .usd import control_refiner, estimate_prim, plan
     from .usd_read import summarize_tags
 
     p = plan(args.input, args.levels, prims=args.prim, require_meshes=False)
@@ -350,7 +350,8 @@ def _info(args) -> int:
             print(f"  not refinable: {name} ({reason})")
         for w in sp.warnings:
             print(f"  note: {w}")
-        _print_levels(lambda lv, sp=sp: estimate_prim(sp, lv), args.levels)
+        control = control_refiner(sp)
+        _print_levels(lambda lv, sp=sp, control=control: estimate_prim(sp, lv, control=control), args.levels)
     for path, reason in p.left_alone:
         print(f"{path}: left alone ({reason})")
     print(f"total predicted memory at {args.levels} levels: {format_bytes(p.predicted_bytes)}")

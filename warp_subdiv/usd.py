@@ -100,8 +100,12 @@ def plan(
     normals: bool = False,
     limit: bool = False,
     require_meshes: bool = True,
+    device=None,
 ) -> Plan:
-    """Open ``input_path`` and read every subdivision mesh at or under ``prims``; predict output sizes."""
+    """Open ``input_path`` and read every subdivision mesh at or under ``prims``; predict output sizes.
+
+    Every control mesh is analysed with the run's options (``control_refiner``), so bad tags, options or
+    devices fail here, before any refinement."""
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     stage = open_stage(input_path)
@@ -123,7 +127,8 @@ def plan(
             sp.warnings.append("triangleSubdivisionRule 'smooth' is not supported by this refiner: triangles get "
                                "the plain Catmull-Clark rule")
         out.warnings.extend(f"{sp.path}: {w}" for w in sp.warnings)
-        out.estimates.append(estimate_prim(sp, levels, precision, normals, limit))
+        out.estimates.append(estimate_prim(sp, levels, precision, normals, limit,
+                                           control_refiner(sp, device, precision)))
     if require_meshes and not out.prims:
         where = f"under {', '.join(prims)}" if prims else "in the file"
         why = "; ".join(f"{p} ({r})" for p, r in out.left_alone[:3])
@@ -133,13 +138,20 @@ def plan(
     return out
 
 
+def control_refiner(sp: SubdivPrim, device=None, precision: str = "float32") -> Refiner:
+    """The prim's level-0 refiner: its whole control-mesh analysis (tags, sectors, options), at the cost of
+    the control mesh."""
+    return _make_refiner(sp, 0, _refiner_kwargs(sp, device, precision))
+
+
 def estimate_prim(sp: SubdivPrim, levels: int, precision: str = "float32", normals: bool = False,
-                  limit: bool = False) -> Estimate:
+                  limit: bool = False, control: Refiner | None = None) -> Estimate:
     """Predicted counts and bytes of refining one mesh (its samples, primvars and point arrays included).
 
-    The control mesh is analysed (a level-0 refiner, the size of the input) to know whether the refiner
+    ``control`` (the prim's ``control_refiner``, analysed here when not given) says whether the refiner
     projects on every level and where limit masks are read."""
-    control = _make_refiner(sp, 0, _refiner_kwargs(sp, "cpu", precision))
+    if control is None:
+        control = control_refiner(sp, "cpu", precision)
     widths = {"vertex": 0, "faceVarying": 0, "uniform": 0}
     channels = sum(pv.interpolation == "faceVarying" for pv in sp.primvars) if sp.scheme != "bilinear" else 0
     for pv in sp.primvars:
@@ -196,17 +208,15 @@ def _make_refiner(sp: SubdivPrim, levels: int, kw: dict) -> Refiner:
         raise SubdivInputError(f"{sp.path}: {exc}") from None
 
 
-def preflight(p: Plan, *, device=None, precision="float32", limit=False, normals=False) -> None:
-    """Fail early, before any refinement: features the input needs that this version lacks, bad options."""
+def preflight(p: Plan, *, limit=False, normals=False) -> None:
+    """Fail early, before any refinement: features the run needs that this version lacks (``plan`` has
+    analysed every control mesh with the run's options already)."""
     if limit and not hasattr(Refined, "limit_points"):
         raise MissingFeatureError("--limit needs limit points (Refined.limit_points), which this version of "
                                   "warp-subdiv does not have yet")
     if normals and not hasattr(Refined, "limit_normals"):
         raise MissingFeatureError("--normals needs limit normals (Refined.limit_normals), which this version of "
                                   "warp-subdiv does not have yet")
-    for sp in p.prims:
-        # level 0 runs the whole control-mesh analysis (tags, sectors, options) at the cost of the control mesh
-        _make_refiner(sp, 0, _refiner_kwargs(sp, device, precision))
 
 
 class _Work:
@@ -262,10 +272,11 @@ def refine_usd(
         raise SubdivInputError(f"{input_path}: no such file")
     check_output_path(output_path)
     p = plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
-                         precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit)
+             precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit,
+             device=device)
     out_abs = check_output_path(output_path, p.stage)
     check_memory(p.estimates, max_memory, levels)
-    preflight(p, device=device, precision=precision, limit=limit, normals=normals)
+    preflight(p, limit=limit, normals=normals)
 
     custom = {"warpSubdiv": {
         "version": __version__, "levels": int(levels), "source": os.path.basename(input_path),
