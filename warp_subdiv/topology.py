@@ -684,14 +684,14 @@ class _QuadChildren:
         return self.level.at_next(out) if of_next else out
 
     def put(self, dst: np.ndarray, t: int, values) -> None:
-        """dst[child corner of type t of h] = values[h] for every corner h (values may be per face on quads)."""
+        """dst[child corner of type t of h] = values[h] for every corner h. On quads ``values`` is (F, 4) per
+        corner or (F,) per face; otherwise (C,)."""
         if self.quads:
             d = dst.reshape(-1, 4, 4)
-            v = np.asarray(values)
             for j in range(4):
-                d[:, j, (j + t) & 3] = v[:, j] if v.ndim == 2 else v
+                d[:, j, (j + t) & 3] = values[:, j] if values.ndim == 2 else values
         else:
-            dst[self.index(t)] = values.reshape(-1) if np.ndim(values) == 2 else values
+            dst[self.index(t)] = values
 
 
 def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
