@@ -621,10 +621,9 @@ def small_pages():
     """Let numpy skip its transparent-huge-page hint for arrays written once and read in order.
 
     A refinement step writes many large temporaries once each; with the hint the kernel zeroes (and on a
-    fragmented machine first compacts) 2 MiB pages at every first touch, which measured 30-40% of a
-    Catmull-Clark level-5 build. Used for topology steps and output copies; tables the kernels read at
-    random keep the hint (their reads measured 10-20% faster with it). numpy's switch is private: without
-    it, nothing changes.
+    fragmented machine first compacts) 2 MiB pages at every first touch (BENCHMARKS.md, "Where the build
+    time goes"). Used for topology steps and output copies; everything else keeps the host's setting.
+    numpy's switch is private: without it, nothing changes.
     """
     switch = getattr(getattr(getattr(np, "_core", None), "multiarray", None), "_set_madvise_hugepage", None)
     if switch is None:
