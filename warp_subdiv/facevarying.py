@@ -129,25 +129,22 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
     return vm, source
 
 
-class FaceVaryingRefiner:
-    """Refines one face-varying channel (its value indices fixed) with the options of a vertex Refiner."""
+class FaceVaryingChannel:
+    """One face-varying channel (its value indices fixed) of a vertex :class:`~warp_subdiv.refiner.Refiner`,
+    which owns it: the value mesh refined with the vertex refiner's options and OpenSubdiv's rules."""
 
     def __init__(self, refiner, indices, mode: str = "corners-plus1"):
         import warnings
 
         from .errors import NonManifoldWarning
-        from .refiner import Refiner
 
         self.mode = mode
         mesh, self.source = value_mesh(refiner.mesh, indices, mode, refiner.boundary)
+        options = refiner.options.replace(rules="opensubdiv", boundary="edge-only", flatness=None,
+                                          linear=(mode == "all"))
         with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
             warnings.simplefilter("ignore", NonManifoldWarning)
-            self.refiner = Refiner(
-                mesh, refiner.levels, scheme=refiner.scheme, rules="opensubdiv", boundary="edge-only",
-                device=refiner.device, precision=refiner.precision, loop_beta=refiner.loop_beta,
-                triangulate=refiner._triangulate, crease_method=refiner.crease_method,
-                triangle_subdivision=refiner.triangle_subdivision, _linear=(mode == "all"),
-            )
+            self.refiner = type(refiner)(mesh, refiner.levels, options=options, device=refiner.device)
         self.num_source_values = int(self.source.max()) + 1 if len(self.source) else 0
 
     def evaluate(self, values):
