@@ -1,4 +1,4 @@
-"""Eigenvectors, limit masks and flatness parameters (RULES.md sections 6 to 9) as pure functions.
+"""Eigenvectors, limit masks and flatness parameters (docs/rules.md sections 6 to 9) as pure functions.
 
 Every function is vectorised over a group of neighbourhoods with the same size: ``k`` is one integer,
 ``theta`` and ``s`` are arrays of shape (S,), and the result has shape (S, n) over the local vector
@@ -8,7 +8,7 @@ Every function is vectorised over a group of neighbourhoods with the same size: 
 
 with the ring listed counter-clockwise around the outward normal. ``l0`` is the limit-position mask,
 ``l1``/``l2`` the tangent masks, ``x1``/``x2`` the right eigenvectors with ``l^i . x^j = delta_ij``, and
-``tu``/``tv`` the two tangent masks in the order whose cross product points outward (RULES.md section 9).
+``tu``/``tv`` the two tangent masks in the order whose cross product points outward (docs/rules.md section 9).
 """
 from __future__ import annotations
 
@@ -32,6 +32,14 @@ class LocalMasks:
     tv: np.ndarray
 
 
+def crease_limit_weights():
+    """(centre, each of its two crease neighbours) of the limit position of a smooth crease vertex: 2/3, 1/6.
+
+    The cubic B-spline's limit mask: a crease is a B-spline of its own points whatever the faces beside it
+    (docs/rules.md sections 8.2 and 8.5), so the same mask serves sector limits and crease vertices without sectors."""
+    return 2.0 / 3.0, 1.0 / 6.0
+
+
 def local_size(scheme: str, k: int, sector: bool) -> int:
     """Length of the local vector."""
     ring = k + 1 if sector else k
@@ -43,7 +51,7 @@ def _col(a):
 
 
 def interior_masks(scheme: str, k: int, count: int, beta_variant: str = "loop") -> LocalMasks:
-    """Interior (and dart) vertex of valence k (RULES.md 8.1 and 8.4).
+    """Interior (and dart) vertex of valence k (docs/rules.md sections 8.1 and 8.4).
 
     The masks depend on k only: the (count, n) results are read-only broadcasts of one row (a level's
     interior vertices are most of its vertices; copies would cost 56 bytes per vertex and entry)."""
@@ -51,8 +59,7 @@ def interior_masks(scheme: str, k: int, count: int, beta_variant: str = "loop") 
     i = np.arange(k)
     tk = np.pi / k
     cos_i, sin_i = np.cos(2 * i * tk), np.sin(2 * i * tk)
-    z = lambda: np.zeros((1, n))
-    l0, l1, l2, x1, x2 = z(), z(), z(), z(), z()
+    l0, l1, l2, x1, x2 = (np.zeros((1, n)) for _ in range(5))
     if scheme == LOOP:
         beta = float(loop_beta(k, beta_variant))
         denom = 1.0 + 8.0 * k * beta / 3.0
@@ -78,9 +85,11 @@ def interior_masks(scheme: str, k: int, count: int, beta_variant: str = "loop") 
 
 
 def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatness=None) -> LocalMasks:
-    """Smooth-crease, convex-corner or concave-corner sector with crease degree k (RULES.md 8.2, 8.3, 8.5, 8.6).
+    """Smooth-crease, convex-corner or concave-corner sector with crease degree k.
 
-    ``flatness`` (S,) replaces the cross-crease mask of smooth creases by l_cross(s) (RULES.md section 6);
+    docs/rules.md sections 8.2 and 8.5 (smooth creases), 8.3 and 8.6 (corners).
+
+    ``flatness`` (S,) replaces the cross-crease mask of smooth creases by l_cross(s) (docs/rules.md section 6);
     corner masks do not depend on it.
     """
     kind = np.asarray(kind)
@@ -88,7 +97,10 @@ def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatn
     count = len(theta)
     n = local_size(scheme, k, sector=True)
     s = np.zeros(count) if flatness is None else np.asarray(flatness, dtype=np.float64)
-    z = lambda: np.zeros((count, n))
+
+    def z():
+        return np.zeros((count, n))
+
     l0, l1, l2, x1, x2 = z(), z(), z(), z(), z()
     P = slice(1, k + 2)  # p_0..p_k
     Q = slice(k + 2, n)  # q_0..q_{k-1} (Catmull-Clark)
@@ -115,9 +127,10 @@ def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatn
     tk = np.pi / k
     c_, s_ = np.cos(tk), np.sin(tk)
     l0_crease = np.zeros(n)
-    l0_crease[0], l0_crease[1], l0_crease[1 + k] = 2.0 / 3.0, 1.0 / 6.0, 1.0 / 6.0
+    centre_w, neighbour_w = crease_limit_weights()
+    l0_crease[0], l0_crease[1], l0_crease[1 + k] = centre_w, neighbour_w, neighbour_w
     if scheme == LOOP:
-        if k == 1:  # order [c, p0, p1]: x1/l1 the 1/4 mode (across), x2/l2 along (RULES.md 8.2)
+        if k == 1:  # order [c, p0, p1]: x1/l1 the 1/4 mode (across), x2/l2 along (docs/rules.md section 8.2)
             cx1[:] = [-1.0 / 3.0, 2.0 / 3.0, 2.0 / 3.0]
             cl1[:] = [-1.0, 0.5, 0.5]
             cx2[:] = [0.0, 1.0, -1.0]
@@ -132,7 +145,7 @@ def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatn
             cl2[:, 1] = cl2[:, 1 + k] = -(1.0 / k) * c_ * (1.0 + c_) / s_
             cross = 2
     else:
-        if k == 1:  # order [c, p0, p1, q0]; the 1/4 eigenvalue is defective (RULES.md 8.5)
+        if k == 1:  # order [c, p0, p1, q0]; the 1/4 eigenvalue is defective (docs/rules.md section 8.5)
             cx1[:] = [1.0 / 18.0, -1.0 / 9.0, -1.0 / 9.0, -5.0 / 18.0]
             cl1[:] = [6.0, -3.0, -3.0, 0.0]
             cx2[:] = [0.0, -0.5, 0.5, 0.0]
@@ -151,7 +164,7 @@ def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatn
             cl2[:, 1], cl2[:, 1 + k] = 0.5, -0.5
         cross = 1
     if k >= 2:
-        # l_cross(s) = l_cross + s g3 m_hat (RULES.md section 6), for smooth creases with flatness
+        # l_cross(s) = l_cross + s g3 m_hat (docs/rules.md section 6), for smooth creases with flatness
         lc = cl2 if cross == 2 else cl1
         g3 = lc[:, 0] - 4.0 * lc[:, 1]
         m_hat = np.zeros(n)
@@ -163,7 +176,7 @@ def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatn
     x1 = np.where(crease[:, None], cx1, corner_x1)
     x2 = np.where(crease[:, None], cx2, corner_x2)
 
-    # --- orientation (RULES.md section 9): normal = tu x tv
+    # --- orientation (docs/rules.md section 9): normal = tu x tv
     if scheme == LOOP and k >= 2:
         crease_uv = (l1, l2)  # t1 along x t2 across
     else:
@@ -217,7 +230,9 @@ def _mu_plus(theta, phi):
 
 
 def optimal_flatness(scheme: str, kind, k, theta):
-    """s* = max(0, 1 - 1/(4 mu_max)): the largest scaled eigenvalue becomes lambda^2 = 1/4 (RULES.md 6, 11)."""
+    """s* = max(0, 1 - 1/(4 mu_max)): the largest scaled eigenvalue becomes lambda^2 = 1/4.
+
+    docs/rules.md sections 6 and 11."""
     kind = np.asarray(kind)
     k = np.asarray(k, dtype=np.float64)
     theta = np.asarray(theta, dtype=np.float64)
@@ -234,7 +249,7 @@ def optimal_flatness(scheme: str, kind, k, theta):
 
 
 def concave_min_flatness(scheme: str, k, theta):
-    """s_min of a concave sector: the smallest s that makes 1/2 subdominant (RULES.md section 6, "Valid s")."""
+    """s_min of a concave sector: the smallest s that makes 1/2 subdominant (docs/rules.md section 6, "Valid s")."""
     k = np.asarray(k, dtype=np.float64)
     theta = np.asarray(theta, dtype=np.float64)
     tk = np.pi / k

@@ -1,4 +1,6 @@
-"""Tables for the paper's projections on one level: flatness (RULES.md 6), normal control (7) and limit masks (9).
+"""Tables for the paper's projections on one level: flatness, normal control and limit masks.
+
+Flatness follows docs/rules.md section 6, normal control section 7, and limit masks sections 8 and 9.
 
 Each table is built from a level's sector and ring tables plus the pure masks of :mod:`warp_subdiv.masks`;
 the Warp kernels in ``kernels/projection.py`` apply them without knowing what a sector is.
@@ -18,8 +20,9 @@ import numpy as np
 from . import masks as M
 from .errors import SubdivInputError
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, SMOOTH
-from .tables import StencilTable
-from .topology import Level, _offsets
+from .mesh import face_offsets_of
+from .tables import StencilTable, crease_neighbours
+from .topology import Level
 
 
 @dataclass
@@ -53,7 +56,7 @@ def _group_by_target(targets, sources, weights, normal_ids=None, normals=None) -
     order = np.argsort(row, kind="stable")
     table = DisplacementTable(
         targets=uniq.astype(np.int32),
-        offsets=_offsets(np.bincount(row, minlength=len(uniq))).astype(np.int32),
+        offsets=face_offsets_of(np.bincount(row, minlength=len(uniq))).astype(np.int32),
         indices=np.concatenate([src.reshape(-1) for src in sources])[order].astype(np.int32),
         weights=entry_w[order],
     )
@@ -104,17 +107,17 @@ def resolve_flatness(level: Level) -> np.ndarray:
         i = bad[0]
         raise SubdivInputError(
             f"flatness {s[i]:.6g} at concave corner vertex {level.sector_vertex[i]} must exceed "
-            f"s_min = {s_min[i]:.6g} for a C1 surface (RULES.md section 6)"
+            f"s_min = {s_min[i]:.6g} for a C1 surface (docs/rules.md section 6)"
         )
     return s
 
 
 def flatness_table(level: Level, flatness: np.ndarray) -> DisplacementTable | None:
-    """Flatness (RULES.md section 6) on ``level``: non-crease ring points move toward the tangent plane.
+    """Flatness (docs/rules.md section 6) on ``level``: non-crease ring points move toward the tangent plane.
 
     A ring point that lies on a crease itself (a crease or corner vertex, e.g. a q point of a sector next to
     a corner) is never moved: every crease stays a B-spline of its own points, so meshes that share a
-    boundary still meet (RULES.md section 6 excludes c, p_0, p_k for the same reason).
+    boundary still meet (docs/rules.md section 6 excludes c, p_0, p_k for the same reason).
     """
     on_crease = np.isin(level.vert_class, [CREASE, CORNER])
     k_all = level.sector_k()
@@ -147,13 +150,13 @@ def check_normal_vertices(level: Level, vertices: np.ndarray) -> None:
         v = vertices[bad[0]]
         raise SubdivInputError(
             f"prescribed normal at vertex {v}: normal control needs an interior vertex or a crease/corner "
-            "sector with at least two faces (RULES.md section 7)"
+            "sector with at least two faces (docs/rules.md section 7)"
         )
 
 
 def normal_table(level: Level, vertices: np.ndarray, normals: np.ndarray, strength: float,
                  flatness: np.ndarray, beta_variant: str) -> DisplacementTable | None:
-    """Normal control (RULES.md section 7, corrected: no x^0 term, q points too) on ``level``."""
+    """Normal control (docs/rules.md section 7, corrected: no x^0 term, q points too) on ``level``."""
     targets, sources, weights, nids = [], [], [], []
     normal_of = np.full(level.num_vertices, -1, dtype=np.int64)
     normal_of[vertices] = np.arange(len(vertices))
@@ -199,7 +202,7 @@ class LimitTables:
 
 def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
                  rule_set: str = "piecewise-smooth") -> LimitTables:
-    """Limit position and tangent masks of every vertex of ``level`` (RULES.md sections 8 and 9).
+    """Limit position and tangent masks of every vertex of ``level`` (docs/rules.md sections 8 and 9).
 
     With ``rule_set="opensubdiv"`` the tangent masks are OpenSubdiv's where they differ in direction from the
     paper's (a corner's second tangent runs along its first interior edge; Loop's cross-crease tangent of a
@@ -267,14 +270,13 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
         covered[r] = True
     crease = np.flatnonzero(~sectored & (cls == CREASE))
     if len(crease):
-        from .tables import _crease_neighbours
-
-        nb = _crease_neighbours(level, np.repeat(level.edge_sharp[:, None], 2, axis=1))[crease]
+        nb = crease_neighbours(level)[crease]
         ok = np.all(nb >= 0, axis=1)
         crease, nb = crease[ok], nb[ok]
         pos_rows.append(crease)
         pos_local.append(np.column_stack([crease, nb]))
-        pos_w.append(np.tile([2.0 / 3.0, 1.0 / 6.0, 1.0 / 6.0], (len(crease), 1)))
+        centre_w, neighbour_w = M.crease_limit_weights()
+        pos_w.append(np.tile([centre_w, neighbour_w, neighbour_w], (len(crease), 1)))
         covered[crease] = True
     # everything else (corners without sectors, isolated vertices, non-manifold leftovers) keeps its position
     rest = np.flatnonzero(~covered)
@@ -286,12 +288,12 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
     order = np.argsort(vertex_of, kind="stable")
     rank = np.empty(len(order), dtype=np.int64)
     rank[order] = np.arange(len(order))
-    bounds = _offsets(np.array([len(r) for r in tan_rows], dtype=np.int64))
+    bounds = face_offsets_of(np.array([len(r) for r in tan_rows], dtype=np.int64))
     rank_parts = [rank[bounds[i]:bounds[i + 1]] for i in range(len(tan_rows))]
     tu = _merge_rows(rank_parts, tan_local, tan_u, len(order), V)
     tv = _merge_rows(rank_parts, tan_local, tan_v, len(order), V)
     contribution_vertex = vertex_of[order]
-    vertex_offsets = _offsets(np.bincount(contribution_vertex, minlength=V)).astype(np.int32)
+    vertex_offsets = face_offsets_of(np.bincount(contribution_vertex, minlength=V)).astype(np.int32)
     return LimitTables(position, tu, tv, contribution_vertex.astype(np.int32), vertex_offsets)
 
 
@@ -306,7 +308,7 @@ def _merge_rows(rows_parts, local_parts, weight_parts, num_rows, num_sources) ->
         if np.any(counts[r]) or len(np.unique(r)) != len(r):
             raise AssertionError("limit table rows must come from one block each")
         counts[r] = l.shape[1]
-    offsets = _offsets(counts)
+    offsets = face_offsets_of(counts)
     indices = np.empty(offsets[-1], dtype=np.int32)
     weights = np.empty(offsets[-1], dtype=np.float64)
     for r, l, w in zip(rows_parts, local_parts, weight_parts):

@@ -1,8 +1,10 @@
 """Stencil tables: for each level, one CSR row per child vertex over the parent level's vertices.
 
 Rows follow the child vertex order of :mod:`warp_subdiv.topology` (vertex children, face children for
-Catmull-Clark, edge children). The weights come from :mod:`warp_subdiv.rules`; this module only gathers the
-neighbourhoods (by index arithmetic over the level's tables) and lays the weights out. Weights are float64.
+Catmull-Clark, edge children). As OpenSubdiv's ``far/stencilTableFactory`` expands ``Sdc`` masks, this module
+only decides which class each row is (from the level's vertex classes and :mod:`warp_subdiv.crease`'s
+sharpness decay), gathers the neighbourhood indices (by index arithmetic over the level's tables) and lays
+out the role masks that :mod:`warp_subdiv.rules` returns for that class. Weights are float64.
 """
 from __future__ import annotations
 
@@ -10,9 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import rules
+from . import crease, rules
+from .mesh import face_offsets_of
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
-from .topology import Level, _offsets, _rows_of, child_rules, child_sharpness, expand_counts, fractional_weight
+from .topology import Level, child_rules, child_sharpness, expand_counts, fractional_weight
 
 
 @dataclass
@@ -47,7 +50,7 @@ class _Layout:
     """Collects (row, position-in-row) -> (index, weight) entries for rows whose sizes are known up front."""
 
     def __init__(self, sizes: np.ndarray, num_sources: int):
-        self.offsets = _offsets(sizes)
+        self.offsets = face_offsets_of(sizes)
         total = int(self.offsets[-1])
         self.indices = np.full(total, -1, dtype=np.int64)
         self.weights = np.zeros(total, dtype=np.float64)
@@ -68,10 +71,19 @@ class _Layout:
         )
 
 
-def _crease_neighbours(level: Level, sharp_ends: np.ndarray) -> np.ndarray:
-    """(V, 2) the far ends of the (up to two) edges marked sharp at each vertex (-1 where missing).
+def rows_of(offsets: np.ndarray) -> np.ndarray:
+    """Row id of every entry of a CSR layout with the given offsets."""
+    return np.repeat(np.arange(len(offsets) - 1, dtype=np.int64), np.diff(offsets))
 
-    ``sharp_ends`` (E, 2): whether edge e counts as sharp at its end j."""
+
+def crease_neighbours(level: Level, sharp_ends: np.ndarray | None = None) -> np.ndarray:
+    """(V, 2) the far ends of the (up to two) sharp edges at each vertex (-1 where missing).
+
+    These are the neighbours the crease rules weigh: the crease vertex rule of a step and the crease limit
+    mask. ``sharp_ends`` (E, 2): whether edge e counts as sharp at its end j; by default the level's sharp
+    edges at both ends (for the rule after a step: whether each half's child sharpness is above 0)."""
+    if sharp_ends is None:
+        sharp_ends = np.repeat(level.edge_sharp[:, None], 2, axis=1)
     ev = level.edge_verts.astype(np.int64)
     a = np.concatenate([ev[sharp_ends[:, 0], 0], ev[sharp_ends[:, 1], 1]])
     b = np.concatenate([ev[sharp_ends[:, 0], 1], ev[sharp_ends[:, 1], 0]])
@@ -82,31 +94,37 @@ def _crease_neighbours(level: Level, sharp_ends: np.ndarray) -> np.ndarray:
     return nb
 
 
-def _edge_endpoint_weights(level: Level, rule_set: str, me: np.ndarray, h0: np.ndarray):
-    """Endpoint weights (w_a, w_b) of the non-crease edges ``me`` (RULES.md section 4, both rule sets).
+def _smooth_edge_mask(level: Level, rule_set: str, me: np.ndarray, h0: np.ndarray, face_size_0: np.ndarray,
+                      face_size_1: np.ndarray, smooth_triangles: bool = False) -> rules.EdgeMask:
+    """Masks of the non-crease edges ``me`` (Catmull-Clark: face points as wings; docs/rules.md section 4).
 
-    Only edges with a crease or corner endpoint can differ from the smooth weights; the sector angle of
-    such an endpoint is read at its corner in the edge's first face."""
+    Which rule: the smooth one, or with the piecewise-smooth rule set the crease/corner-neighbour rule where
+    an endpoint is a crease or corner vertex (OpenSubdiv's rule set uses the smooth rule next to creases
+    too). The sector angle of such an endpoint is read at its corner in the edge's first face.
+    ``face_size_*``: sizes of the faces on the edges' two sides (Catmull-Clark)."""
     scheme = level.scheme
-    w, _ = rules.smooth_edge_weights(scheme)
-    w_a, w_b = np.full(len(me), w), np.full(len(me), w)
-    if rule_set == "opensubdiv" or level.num_sectors == 0:  # OpenSubdiv: the smooth rule next to creases too
-        return w_a, w_b
+    if scheme == CATMULL_CLARK:
+        mask = rules.catmull_clark_edge_mask(face_size_0, face_size_1, smooth_triangles)
+    else:
+        mask = rules.smooth_edge_mask(scheme, len(me))
+    if rule_set == "opensubdiv" or level.num_sectors == 0:
+        return mask
     tagged = (level.vert_class == CREASE) | (level.vert_class == CORNER)
     ev = level.edge_verts
     near = np.flatnonzero(tagged[ev[me, 0]] | tagged[ev[me, 1]])
     if len(near) == 0:
-        return w_a, w_b
+        return mask
     e = me[near]
     a, b = ev[e, 0], ev[e, 1]
     g0 = h0[e]
     corner_vert = level.corner_vert
     at_a = np.where(corner_vert[g0] == a, g0, level.corner_next(g0))
     at_b = np.where(corner_vert[g0] == b, g0, level.corner_next(g0))
-    shift_a = np.nan_to_num(rules.edge_gamma_shift(scheme, level.corner_theta(at_a)))
-    shift_b = np.nan_to_num(rules.edge_gamma_shift(scheme, level.corner_theta(at_b)))
-    w_a[near], w_b[near] = rules.tagged_edge_endpoint_weights(scheme, shift_a, shift_b, tagged[a], tagged[b])
-    return w_a, w_b
+    shifted = rules.crease_neighbour_edge_mask(scheme, mask.take(near), level.corner_theta(at_a),
+                                               level.corner_theta(at_b), tagged[a], tagged[b])
+    mask.end_a[near] = shifted.end_a
+    mask.end_b[near] = shifted.end_b
+    return mask
 
 
 def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop",
@@ -114,8 +132,9 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     """The stencil table that refines ``level`` to the next level.
 
     Semi-sharp features follow OpenSubdiv's Sdc::Crease rules: where a vertex's rule changes during the step
-    (its sharpness or its edges' decays to 0) its mask blends the parent and child rules with the fractional
-    weight; a semi-sharp edge whose children are smooth blends the crease and smooth rules with its sharpness.
+    (its sharpness or its edges' decays to 0) its row lists the parent rule's mask times the fractional
+    weight, then the child rule's mask times one minus it; a semi-sharp edge whose children are smooth lists
+    the crease rule's mask times its sharpness, then the smooth rule's times one minus it.
     ``regular``: optional (vertex mask, edge mask) of the rows the regular kernels compute (see
     :func:`build_regular`); those rows are left out, and the table lists the rows it holds in ``rows``.
     ``smooth_triangles``: OpenSubdiv's TRI_SUB_SMOOTH edge weights next to triangles (Catmull-Clark).
@@ -130,21 +149,22 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     skip_vertex, skip_edge = regular if regular is not None else (np.zeros(V, bool), np.zeros(E, bool))
     with_faces = cc and regular is None
 
-    # ----- rules before and after the step
+    # ----- which rule each row follows before and after the step (sharpness decay: warp_subdiv.crease)
     halves, child_vs = child_sharpness(level)
     parent_rule = level.vert_class
     child_rule, edge_child_rule = child_rules(level, halves, child_vs)
-    transition = np.isin(parent_rule, [CREASE, CORNER]) & (child_rule != parent_rule) & ~skip_vertex
-    parent_weight = (np.where(transition, fractional_weight(level, halves, child_vs), 1.0)
-                     if np.any(transition) else np.ones(V))
-    sharp_now = np.repeat(level.edge_sharp[:, None], 2, axis=1)
-    pairs = {"parent": _crease_neighbours(level, sharp_now), "child": _crease_neighbours(level, halves > 0)}
+    transition = crease.vertex_transitions(parent_rule, child_rule) & ~skip_vertex
+    # rows without a transition follow their parent rule alone (fractional weight 1)
+    fraction = (np.where(transition, fractional_weight(level, halves, child_vs), 1.0)
+                if np.any(transition) else np.ones(V))
+    parent_weight, child_weight = rules.transition_weights(fraction)
+    pairs = {"parent": crease_neighbours(level), "child": crease_neighbours(level, halves > 0)}
 
     # ----- row sizes (the smooth rule's only where some row uses it)
     needs_smooth = np.any(~skip_vertex & np.isin(parent_rule, [SMOOTH, DART])) or np.any(
         transition & np.isin(child_rule, [SMOOTH, DART]))
     if needs_smooth:
-        slot_vertex = _rows_of(voff)
+        slot_vertex = rows_of(voff)
         slot_corner = level.vert_corners.astype(np.int64)
         slot_face = level.corner_face(slot_corner)
         per_slot = (face_sizes[slot_face] - 2) if cc else np.ones(len(slot_corner), dtype=np.int64)
@@ -166,7 +186,7 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     f1 = level.corner_face(h1)
     smooth_edge_size = (face_sizes[f0] + face_sizes[f1] - 2) if cc else np.full(E, 4)
     # a semi-sharp edge whose children are not both sharp blends the crease and smooth rules
-    edge_blend = sharp & (edge_child_rule != CREASE)
+    edge_blend = crease.edge_transitions(sharp, edge_child_rule)
     edge_sizes = np.where(sharp, 2 + np.where(edge_blend, smooth_edge_size, 0), smooth_edge_size)
     edge_sizes[skip_edge] = 0
     sizes = [vertex_sizes] + ([face_sizes] if with_faces else ([np.zeros(F, np.int64)] if cc else [])) + [edge_sizes]
@@ -177,23 +197,24 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     # ----- vertex rows: the parent rule's mask, then (where the rule changes) the child rule's mask
     v = np.arange(V, dtype=np.int64)
     keep_v = ~skip_vertex
-    for which, rule, verts, pos, scale in (
+    for which, rule, verts, pos, weight in (
         ("parent", parent_rule, v[keep_v], np.zeros(V, np.int64), parent_weight),
-        ("child", child_rule, v[transition], first_size, 1.0 - parent_weight),
+        ("child", child_rule, v[transition], first_size, child_weight),
     ):
         corner = verts[rule[verts] == CORNER]
-        out.put(corner, pos[corner], corner, scale[corner] * rules.corner_vertex_weights())
-        crease = verts[rule[verts] == CREASE]
-        w_c, w_n = rules.crease_vertex_weights()
-        nb = pairs[which][crease]
-        out.put(crease, pos[crease], crease, scale[crease] * w_c)
-        out.put(crease, pos[crease] + 1, nb[:, 0], scale[crease] * w_n)
-        out.put(crease, pos[crease] + 2, nb[:, 1], scale[crease] * w_n)
+        mask = rules.corner_vertex_mask(len(corner)).scaled(weight[corner])
+        out.put(corner, pos[corner], corner, mask.centre)
+        creased = verts[rule[verts] == CREASE]
+        mask = rules.crease_vertex_mask(len(creased)).scaled(weight[creased])
+        nb = pairs[which][creased]
+        out.put(creased, pos[creased], creased, mask.centre)
+        out.put(creased, pos[creased] + 1, nb[:, 0], mask.edge)
+        out.put(creased, pos[creased] + 2, nb[:, 1], mask.edge)
         smooth = np.zeros(V, dtype=bool)
         smooth[verts[np.isin(rule[verts], [SMOOTH, DART])]] = True
         if not needs_smooth:
             continue
-        _put_smooth_vertices(level, out, smooth, pos, scale, loop_beta, slot_vertex, slot_corner, slot_face,
+        _put_smooth_vertices(level, out, smooth, pos, weight, loop_beta, slot_vertex, slot_corner, slot_face,
                              per_slot, h0, h1)
 
     # ----- face rows (Catmull-Clark)
@@ -202,42 +223,37 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
         f_of_c = level.corner_face(c)
         out.put(face_row0 + f_of_c, c - face_starts[f_of_c], corner_vert, rules.face_point_weights(face_sizes[f_of_c]))
 
-    # ----- edge rows
+    # ----- edge rows: the crease rule's mask, then (semi-sharp edges whose rule changes) the smooth rule's;
+    # the crease rule weighs 1 on crease edges, 0 on smooth ones and the edge's sharpness where it blends
     e = np.arange(E, dtype=np.int64)
     ev = level.edge_verts.astype(np.int64)
+    crease_weight, smooth_weight = rules.semi_sharp_edge_weights(
+        np.where(edge_blend, level.edge_sharpness, np.where(sharp, 1.0, 0.0)))
     se = e[sharp & ~skip_edge]
-    crease_scale = np.where(edge_blend, level.edge_sharpness, 1.0)
-    wa, wb = rules.crease_edge_weights()
-    out.put(edge_row0 + se, 0, ev[se, 0], wa * crease_scale[se])
-    out.put(edge_row0 + se, 1, ev[se, 1], wb * crease_scale[se])
+    mask = rules.crease_edge_mask(len(se)).scaled(crease_weight[se])
+    out.put(edge_row0 + se, 0, ev[se, 0], mask.end_a)
+    out.put(edge_row0 + se, 1, ev[se, 1], mask.end_b)
 
     me = np.flatnonzero((~sharp | edge_blend) & ~skip_edge)
-    w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
-    scale = np.where(edge_blend[me], 1.0 - level.edge_sharpness[me], 1.0)
-    pos0 = np.where(edge_blend[me], 2, 0)
-    a, b = ev[me, 0], ev[me, 1]
     g0, g1 = h0[me], h1[me]
-    _, w_wing = rules.smooth_edge_weights(scheme)
+    m0, m1 = face_sizes[level.corner_face(g0)], face_sizes[level.corner_face(g1)]
+    mask = _smooth_edge_mask(level, rule_set, me, h0, m0, m1, smooth_triangles)
+    if cc:  # the two face points, written out over their faces' vertices
+        mask = rules.expand_edge_face_points(mask, m0, m1)
+    mask = mask.scaled(smooth_weight[me])
+    pos0 = np.where(edge_blend[me], 2, 0)
     rows = edge_row0 + me
-    if cc:
-        m0 = face_sizes[level.corner_face(g0)].astype(np.int64)
-        m1 = face_sizes[level.corner_face(g1)].astype(np.int64)
-        # endpoints and the two new face points (weight w_face each, i.e. w_face/m on each face vertex);
-        # "smooth triangles" re-weights them where a triangle touches the edge
-        w_end, w_face = rules.catmull_clark_edge_weights(m0, m1, smooth_triangles)
-        w_a = w_a - w_wing + w_end
-        w_b = w_b - w_wing + w_end
-        out.put(rows, pos0, a, scale * (w_a + w_face / m0 + w_face / m1))
-        out.put(rows, pos0 + 1, b, scale * (w_b + w_face / m0 + w_face / m1))
-        for g, m, base_pos in ((g0, m0, pos0 + 2), (g1, m1, pos0 + m0)):
-            rep, t = expand_counts(m - 2)
-            walk = _advance(level, g[rep], t + 2)
-            out.put(rows[rep], base_pos[rep] + t, corner_vert[walk], (scale * w_face / m)[rep])
-    else:
-        out.put(rows, pos0, a, scale * w_a)
-        out.put(rows, pos0 + 1, b, scale * w_b)
-        out.put(rows, pos0 + 2, corner_vert[level.corner_prev(g0)], scale * w_wing)
-        out.put(rows, pos0 + 3, corner_vert[level.corner_prev(g1)], scale * w_wing)
+    out.put(rows, pos0, ev[me, 0], mask.end_a)
+    out.put(rows, pos0 + 1, ev[me, 1], mask.end_b)
+    # each side's face: its vertices after the edge (Loop: the one opposite vertex)
+    for g, m, wing, base_pos in ((g0, m0, mask.wing_0, pos0 + 2), (g1, m1, mask.wing_1, pos0 + m0)):
+        if level.face_size:  # one face size: the same number of vertices on every side
+            for t in range(level.face_size - 2):
+                out.put(rows, base_pos + t, corner_vert[_advance(level, g, t + 2)], wing)
+            continue
+        rep, t = expand_counts(m - 2)
+        walk = _advance(level, g[rep], t + 2)
+        out.put(rows[rep], base_pos[rep] + t, corner_vert[walk], wing[rep])
     table = out.table()
     if regular is not None:  # keep the non-empty rows only
         keep = np.flatnonzero(np.diff(table.offsets) > 0)
@@ -246,10 +262,12 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     return table
 
 
-def _put_smooth_vertices(level, out, selected, pos, scale, loop_beta, slot_vertex, slot_corner, slot_face,
+def _put_smooth_vertices(level, out, selected, pos, weight, loop_beta, slot_vertex, slot_corner, slot_face,
                          per_slot, h0, h1):
-    """The smooth (interior) vertex rule for the ``selected`` vertices, at row position ``pos``, times ``scale``."""
-    V = level.num_vertices
+    """The smooth (interior) vertex rule for the ``selected`` vertices at row position ``pos``, times ``weight``.
+
+    Row layout: the vertex, then per slot (its corners in ring order) the edge neighbour that follows the
+    corner and the corner face's other vertices (Catmull-Clark faces of four or more vertices)."""
     cc = level.scheme == CATMULL_CLARK
     voff = level.vert_corner_offsets
     vcount = np.diff(voff)
@@ -258,38 +276,32 @@ def _put_smooth_vertices(level, out, selected, pos, scale, loop_beta, slot_verte
     sv = np.flatnonzero(selected)
     if len(sv) == 0:
         return
-    n = vcount[sv].astype(np.float64)
     slots = np.flatnonzero(selected[slot_vertex])
     sl_v = slot_vertex[slots]
     sl_h = slot_corner[slots]
-    sl_n = vcount[sl_v].astype(np.float64)
+    slot_row = np.repeat(np.arange(len(sv), dtype=np.int64), vcount[sv])  # slots come vertex by vertex
     # position of each slot's first entry inside its row: 1 + entries of the row's earlier slots
     cum = np.concatenate([[0], np.cumsum(np.where(selected[slot_vertex], per_slot, 0))])
     sl_pos = pos[sl_v] + 1 + cum[slots] - cum[voff[sl_v]]
-    sl_scale = scale[sl_v]
     nxt = level.corner_next(sl_h)
-    if cc:
-        w_self, w_edge, w_face = rules.catmull_clark_interior_vertex_weights(n)
-        m_f = face_sizes[slot_face[slots]].astype(np.float64)
-        # every face point gives 1/n^2 * (1/m) to each of its vertices; v itself collects one per face
-        self_faces = np.bincount(sl_v, weights=1.0 / (sl_n * sl_n * m_f), minlength=V)[sv]
-        out.put(sv, pos[sv], sv, scale[sv] * (w_self + self_faces))
-        # the edge neighbour p: edge weight plus the face points on both sides of the edge
+    mask = rules.smooth_vertex_mask(level.scheme, vcount[sv], loop_beta)
+    if cc:  # face sizes of the slot's face and of the face across the slot's edge, for the face points
         e_sl = level.corner_edge[sl_h].astype(np.int64)
         other = h0[e_sl] + h1[e_sl] - sl_h
-        m_g = face_sizes[level.corner_face(other)].astype(np.float64)
-        _, w_edge_sl, w_face_sl = rules.catmull_clark_interior_vertex_weights(sl_n)
-        out.put(sl_v, sl_pos, corner_vert[nxt], sl_scale * (w_edge_sl + w_face_sl / m_f + w_face_sl / m_g))
-        # the far vertices of the face (not v, not p, not the previous neighbour): face-point weight only
-        far_count = (m_f - 3).astype(np.int64)
-        rep, t = expand_counts(far_count)
-        walk = _advance(level, nxt[rep], t + 1)
-        out.put(sl_v[rep], sl_pos[rep] + 1 + t, corner_vert[walk], (sl_scale * w_face_sl / m_f)[rep])
+        ring = rules.ring_mask(mask, slot_row, face_sizes[slot_face[slots]], face_sizes[level.corner_face(other)])
     else:
-        w_self, w_ring = rules.loop_interior_vertex_weights(n, loop_beta)
-        out.put(sv, pos[sv], sv, scale[sv] * w_self)
-        _, w_ring_sl = rules.loop_interior_vertex_weights(sl_n, loop_beta)
-        out.put(sl_v, sl_pos, corner_vert[nxt], sl_scale * w_ring_sl)
+        ring = rules.ring_mask(mask, slot_row)
+    ring = ring.scaled(weight[sv])
+    out.put(sv, pos[sv], sv, ring.centre)
+    out.put(sl_v, sl_pos, corner_vert[nxt], ring.edge)
+    # the slot face's vertices that are neither the centre nor its edge neighbours in the face
+    if level.face_size:  # one face size: the same number in every slot (none for triangles)
+        for t in range(level.face_size - 3):
+            out.put(sl_v, sl_pos + 1 + t, corner_vert[_advance(level, nxt, t + 1)], ring.face)
+        return
+    rep, t = expand_counts(per_slot[slots] - 1)
+    walk = _advance(level, nxt[rep], t + 1)
+    out.put(sl_v[rep], sl_pos[rep] + 1 + t, corner_vert[walk], ring.face[rep])
 
 
 @dataclass
@@ -340,8 +352,8 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
     """Split one step into rows the regular kernels compute from the index tables and explicit stencils.
 
     Regular rows: interior and dart vertices (the smooth vertex rule of their valence) and non-crease edges
-    whose endpoint weights are the smooth ones (no gamma(theta) shift). Crease and corner vertices, crease
-    edges and the crease/corner-neighbour edges of extraordinary sectors get explicit stencils.
+    whose endpoint weights are the smooth ones (no crease/corner-neighbour shift). Crease and corner vertices,
+    crease edges and the crease/corner-neighbour edges of extraordinary sectors get explicit stencils.
     """
     assert level.face_size == (4 if level.scheme == CATMULL_CLARK else 3), \
         "regular kernels need a level of quads (Catmull-Clark) or triangles (Loop)"
@@ -350,11 +362,13 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
     vertex_regular = (vclass == SMOOTH) | (vclass == DART)
     h0, h1 = level.edge_corner_pair()
     edge_regular = ~level.edge_sharp
-    w, w_wing = rules.smooth_edge_weights(scheme)
+    plain = rules.smooth_edge_mask(scheme, 1)
+    w, w_wing = plain.end_a[0], plain.wing_0[0]
     if rule_set != "opensubdiv" and level.num_sectors:  # else every smooth edge has the smooth endpoint weights
         me = np.flatnonzero(edge_regular)
-        w_a, w_b = _edge_endpoint_weights(level, rule_set, me, h0)
-        edge_regular[me[(w_a != w) | (w_b != w)]] = False
+        m = np.full(len(me), level.face_size, dtype=np.int64)
+        mask = _smooth_edge_mask(level, rule_set, me, h0, m, m)
+        edge_regular[me[(mask.end_a != w) | (mask.end_b != w)]] = False
     if vertex_regular.all() and edge_regular.all():  # nothing irregular on this level (common on closed meshes)
         explicit = StencilTable(np.zeros(1, np.int32), np.zeros(0, np.int32), np.zeros(0), level.num_vertices,
                                 rows=np.zeros(0, np.int32))
@@ -362,15 +376,11 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
         explicit = build_stencils(level, rule_set, loop_beta, regular=(vertex_regular, edge_regular))
     valence = np.arange(np.diff(level.vert_corner_offsets).max() + 1, dtype=np.float64)
     valence[valence < 3] = 3  # unused entries (valence < 3 is never a smooth vertex)
-    if scheme == CATMULL_CLARK:
-        centre, edge_w, face_w = rules.catmull_clark_interior_vertex_weights(valence)
-        assert np.allclose(edge_w, face_w)
-        ring = np.stack([centre, edge_w], axis=1)
-        edge_weights = np.array([w, w_wing])  # (a + b + f0 + f1) / 4
-    else:
-        centre, beta = rules.loop_interior_vertex_weights(valence, loop_beta)
-        ring = np.stack([centre, beta], axis=1)
-        edge_weights = np.array([w, w_wing])
+    ring_mask = rules.smooth_vertex_mask(scheme, valence, loop_beta)
+    if scheme == CATMULL_CLARK:  # the quad kernels weigh ring and face-point terms alike: 1/n^2
+        assert np.allclose(ring_mask.edge, ring_mask.face)
+    ring = np.stack([ring_mask.centre, ring_mask.edge], axis=1)
+    edge_weights = np.array([w, w_wing])  # Catmull-Clark: (a + b + f0 + f1) / 4
     return RegularTables(
         face_size=level.face_size,
         num_vertices=level.num_vertices,
