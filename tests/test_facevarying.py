@@ -7,7 +7,9 @@ import pytest
 
 import warp_subdiv as ws
 from conftest import load_mesh
-from warp_subdiv.facevarying import FVAR_MODES
+from warp_subdiv.options import FaceVaryingMode
+
+FVAR_MODES = FaceVaryingMode.values()
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 try:

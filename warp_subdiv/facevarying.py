@@ -19,26 +19,24 @@ mode               values made sharp (interpolated) besides the vertex mesh's ow
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
-from .errors import SubdivInputError
+from .errors import NonManifoldWarning, SubdivInputError
 from .mesh import INFINITE_SHARPNESS, Mesh
+from .options import FaceVaryingMode
 from .topology import base_level
-
-FVAR_MODES = ("none", "corners-only", "corners-plus1", "corners-plus2", "boundaries", "all")
-#: USD's faceVaryingLinearInterpolation tokens
-USD_FVAR_MODES = {"none": "none", "cornersOnly": "corners-only", "cornersPlus1": "corners-plus1",
-                  "cornersPlus2": "corners-plus2", "boundaries": "boundaries", "all": "all"}
 
 
 def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
     """The value mesh of a face-varying channel and, for each of its vertices, the source value index.
 
     Each (vertex, value) pair becomes one value-mesh vertex, so a value index used at two different vertices
-    is two vertices of the value mesh (as OpenSubdiv keeps values per vertex).
+    is two vertices of the value mesh (as OpenSubdiv keeps values per vertex). ``mode``: a
+    :class:`~warp_subdiv.options.FaceVaryingMode` or its value.
     """
-    if mode not in FVAR_MODES:
-        raise ValueError(f"face-varying mode must be one of {FVAR_MODES}, got {mode!r}")
+    mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
     idx = np.asarray(indices)
     if idx.ndim != 1 or len(idx) != len(mesh.face_vertex_indices):
         raise SubdivInputError(
@@ -80,11 +78,11 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
     nonmanifold = np.zeros(nv, dtype=bool)
     nonmanifold[ev[ecount > 2].reshape(-1)] = True
 
-    linear_boundaries = mode in ("boundaries", "all")
-    dependent = mode in ("corners-plus1", "corners-plus2")
-    corners_sharp = mode != "none"
+    linear_boundaries = mode in (FaceVaryingMode.BOUNDARIES, FaceVaryingMode.ALL)
+    dependent = mode in (FaceVaryingMode.CORNERS_PLUS1, FaceVaryingMode.CORNERS_PLUS2)
+    corners_sharp = mode != FaceVaryingMode.NONE
     smooth_geometry_corners = boundary != "edge-and-corner"
-    sharpen_darts = mode == "corners-plus2" or linear_boundaries
+    sharpen_darts = mode == FaceVaryingMode.CORNERS_PLUS2 or linear_boundaries
 
     mismatch = np.zeros(nv, dtype=bool)
     mismatch[ev[seam].reshape(-1)] = True
@@ -101,10 +99,10 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
     value_sharp = all_sharp[pv] | (mismatch[pv] & (span == 1) & corners_sharp)
     if dependent:
         two_values = mismatch & (values_at == 2) & ~all_sharp
-        if mode == "corners-plus2":
+        if mode == FaceVaryingMode.CORNERS_PLUS2:
             one_face = np.bincount(pv, weights=(span == 1), minlength=nv) > 0
             value_sharp |= (two_values & one_face)[pv]
-    if mode == "all":
+    if mode == FaceVaryingMode.ALL:
         value_sharp[:] = True
 
     # the value mesh: the vertex mesh's creases on the corresponding value edges, its corners on all values
@@ -117,7 +115,7 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
     corner_sharp = np.maximum(level.vert_sharpness[pv], np.where(value_sharp, INFINITE_SHARPNESS, 0.0))
     keep_c = corner_sharp > 0
     holes = np.flatnonzero(level.face_hole) if level.face_hole is not None else None
-    if mode == "all":
+    if mode == FaceVaryingMode.ALL:
         crease_sharp = np.full(len(crease_pairs), INFINITE_SHARPNESS)
         keep = np.ones(len(crease_pairs), dtype=bool)
     vm = Mesh(
@@ -131,17 +129,16 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
 
 class FaceVaryingChannel:
     """One face-varying channel (its value indices fixed) of a vertex :class:`~warp_subdiv.refiner.Refiner`,
-    which owns it: the value mesh refined with the vertex refiner's options and OpenSubdiv's rules."""
+    which owns it: the value mesh refined with the vertex refiner's options and OpenSubdiv's rules.
 
-    def __init__(self, refiner, indices, mode: str = "corners-plus1"):
-        import warnings
+    The owning refiner passes itself in (:meth:`Refiner.face_varying_channel`); the value mesh is refined by
+    a refiner of the same type, so this module needs no import of :mod:`warp_subdiv.refiner`."""
 
-        from .errors import NonManifoldWarning
-
-        self.mode = mode
+    def __init__(self, refiner, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
+        self.mode = mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
         mesh, self.source = value_mesh(refiner.mesh, indices, mode, refiner.boundary)
         options = refiner.options.replace(rules="opensubdiv", boundary="edge-only", flatness=None,
-                                          linear=(mode == "all"))
+                                          linear=(mode == FaceVaryingMode.ALL))
         with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
             warnings.simplefilter("ignore", NonManifoldWarning)
             self.refiner = type(refiner)(mesh, refiner.levels, options=options, device=refiner.device)

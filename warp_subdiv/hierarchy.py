@@ -7,11 +7,42 @@ OpenSubdiv's ``Vtr::Refinement::refine`` is:
 2. ``guard``: the memory estimate of the whole refinement, checked before any refined level is allocated;
 3. per step: ``step tables`` (the smooth rows as index tables, irregular rows as explicit stencils, from
    :mod:`warp_subdiv.tables`), ``refine topology`` (the child level by index arithmetic,
-   :func:`topology.refine_level`), ``projections`` (flatness and normal-control displacement tables of the
-   child level, :mod:`warp_subdiv.projections`).
+   :func:`topology.refine_level`, and the step's parentage rules, :class:`topology.Refinement`),
+   ``projections`` (flatness and normal-control displacement tables of the child level,
+   :mod:`warp_subdiv.projections`).
 
 What the evaluator needs per step is in :attr:`steps`, :attr:`flatness_tables` and :attr:`normal_tables`;
 the last level's topology is :meth:`topology`; limit masks are built on demand by :meth:`limit_tables`.
+
+Parentage
+---------
+The hierarchy also records where every element of every level comes from (:class:`Parentage`, one
+:class:`~warp_subdiv.topology.Refinement` per step), as OpenSubdiv's ``Vtr::Refinement`` records
+``_childFaceParentIndex``, ``_childEdgeParentIndex``, ``_childVertexParentIndex`` and its child tags. Level 0 is
+the analysed control mesh; under Loop a polygon mesh is fan-triangulated first (triangle t of level 0 comes
+from control face :attr:`Parentage.control_face` ``[t]``, corners (v0, v_i, v_i+1)). Step k refines level
+k - 1 into level k; ``level`` arguments name the child level (1..levels). With V, F, E, C the parent level's
+vertices, faces, edges and corners:
+
+* child vertices are [V vertex children | F face children (Catmull-Clark only) | E edge children]:
+  :meth:`Hierarchy.vertex_parent` gives (kind, index), kind ``topology.VERTEX``, ``FACE`` or ``EDGE``;
+* child faces: Catmull-Clark makes one per parent corner (child face h belongs to parent corner h; on a level
+  of quads child c has parent face c // 4 and corner c % 4), Loop four per triangle (child 4f + s: s < 3 at
+  corner s, s = 3 the middle one). :meth:`Hierarchy.face_parent` gives (face, slot);
+* child corners: the child face of parent corner j holds, in cyclic order, the child of j's vertex, the child
+  of edge j (from corner j to j + 1), the face child (Catmull-Clark only) and the child of edge j - 1,
+  starting at position r (:meth:`Hierarchy.face_rotation`): Catmull-Clark rotates the children of quads
+  (r = j) and not those of other polygons (r = 0), as OpenSubdiv does; Loop's corner children have r = j,
+  and its middle child holds the child of edge m + 1 at position m (r = 0);
+* child edges are [C edges inside parent faces, one per parent corner | 2E halves]: edge h < C lies in the
+  face of parent corner h (Catmull-Clark: face child to the child of edge h; Loop: children of edges h and
+  h - 1), edge C + 2e + s is the half of edge e at its end s. :meth:`Hierarchy.edge_parent` gives (kind,
+  index, slot).
+
+Compositions: :meth:`Hierarchy.base_face_of` (the level-0 face of every face of a level) and
+:meth:`Hierarchy.control_face_of` (the control mesh face). Only rules are kept (counts, and the face offsets
+of a level 0 of mixed polygons, the triangulation's parents and level 0's holes, all of control size);
+arrays of a refined level's size are materialised when asked for and not kept.
 """
 from __future__ import annotations
 
@@ -22,7 +53,7 @@ from .mesh import Mesh
 from .options import Options, Scheme
 from .rules import edge_gamma_shift
 from .tables import StencilTable, build_regular, build_stencils
-from .topology import Level, base_level, refine_level, small_pages
+from .topology import Level, Refinement, base_faces, base_level, refine_level, small_pages
 
 
 class Hierarchy:
@@ -43,9 +74,11 @@ class Hierarchy:
         self.steps: list = []  # per step: RegularTables (uniform levels) or a full StencilTable
         self.flatness_tables: list = []
         self.normal_tables: list = []
+        self.parentage = Parentage([], level.face_hole, level.control_face)
         penultimate = level
         for step in range(levels):
             self.steps.append(self._step_tables(level))
+            self.parentage.steps.append(Refinement.of_level(level))
             penultimate = level
             level = refine_level(level, faces_only=(step == levels - 1) and not self.projects)
             flat, norm = self._projections(level)
@@ -106,6 +139,38 @@ class Hierarchy:
         return estimate.estimate("mesh", mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, self.levels,
                                  o.scheme, precision=o.precision, projecting=projecting)
 
+    # ------------------------------------------------------------------------------------------ parentage
+    def refinement(self, level: int) -> Refinement:
+        """The rules of the step that made ``level`` (1..levels) from level - 1."""
+        return self.parentage.refinement(level)
+
+    def vertex_parent(self, level: int):
+        """(kind int8, index int64) of every vertex of ``level``: the vertex, edge or face of level - 1 it comes
+        from (kinds ``topology.VERTEX``, ``EDGE``, ``FACE``)."""
+        return self.parentage.vertex_parent(level)
+
+    def edge_parent(self, level: int):
+        """(kind int8, index int64, slot int64) of every edge of ``level``: the face (and its corner) it lies
+        in, or the edge (and which end's half) it is part of."""
+        return self.parentage.edge_parent(level)
+
+    def face_parent(self, level: int):
+        """(face, slot) int64 of every face of ``level``: its parent face and which child it is (the corner,
+        or Loop's middle child, slot 3)."""
+        return self.parentage.face_parent(level)
+
+    def face_rotation(self, level: int):
+        """(faces,) int64: the position in each face of ``level`` of its parent corner's vertex child."""
+        return self.parentage.face_rotation(level)
+
+    def base_face_of(self, level: int):
+        """(faces,) int64: the level-0 face (Loop: triangle of the fan triangulation) of every face of ``level``."""
+        return self.parentage.base_face_of(level)
+
+    def control_face_of(self, level: int):
+        """(faces,) int64: the control mesh face every face of ``level`` lies in (hole faces included)."""
+        return self.parentage.control_face_of(level)
+
     # ------------------------------------------------------------------------------------------ queries
     def limit_reads_deeper(self, levels: int | None = None) -> bool:
         """Whether limit points and normals of ``levels`` (default: this hierarchy's) read their masks one level
@@ -158,3 +223,73 @@ class Hierarchy:
             raise NotImplementedError("limit masks need a level of quads (Catmull-Clark) or triangles")
         s = projections.resolve_flatness(level) if o.piecewise_smooth else np.zeros(level.num_sectors)
         return projections.limit_tables(level, s, o.loop_beta, o.rules)
+
+
+class Parentage:
+    """Where the elements of every level come from: one :class:`~warp_subdiv.topology.Refinement` per step
+    (rules, no refined-size arrays), plus what level 0 adds: ``control_face`` (the control polygon of each
+    triangle of a fan-triangulated mesh, or None) and ``base_face_hole`` (holes of level 0, with the faces
+    boundary "none" leaves out). See the module docstring for the conventions.
+    """
+
+    def __init__(self, steps: list, base_face_hole: np.ndarray, control_face: np.ndarray | None = None):
+        self.steps: list = list(steps)
+        self.base_face_hole = base_face_hole
+        self.control_face = control_face
+
+    @classmethod
+    def of_mesh(cls, mesh: Mesh, levels: int, scheme: str, boundary: str = "edge-and-corner") -> "Parentage":
+        """The parentage of ``levels`` steps of ``scheme`` over ``mesh`` without analysing it (no fans, classes
+        or sectors): level 0's faces from :func:`topology.base_faces`, each later step by the closed-form rule."""
+        faces = base_faces(mesh, scheme, boundary)
+        steps = [Refinement.of_faces(scheme, mesh.num_vertices, faces)] if levels > 0 else []
+        while len(steps) < levels:
+            steps.append(steps[-1].next())
+        return cls(steps, faces.face_hole, faces.control_face)
+
+    @property
+    def levels(self) -> int:
+        return len(self.steps)
+
+    def refinement(self, level: int) -> Refinement:
+        """The step that made ``level`` (1..levels)."""
+        if not 1 <= level <= len(self.steps):
+            raise ValueError(f"level must be in 1..{len(self.steps)} (the refined levels), got {level}")
+        return self.steps[level - 1]
+
+    def num_faces(self, level: int) -> int:
+        """Faces of ``level`` (0..levels), hole faces included."""
+        return len(self.base_face_hole) if level == 0 else self.refinement(level).child_faces
+
+    def vertex_parent(self, level: int):
+        return self.refinement(level).vertex_parent()
+
+    def edge_parent(self, level: int):
+        return self.refinement(level).edge_parent()
+
+    def face_parent(self, level: int):
+        return self.refinement(level).face_parent()
+
+    def face_rotation(self, level: int):
+        return self.refinement(level).face_rotation()
+
+    def base_face_of(self, level: int) -> np.ndarray:
+        """(faces of ``level``,) int64: the level-0 face each one descends from. Runs of steps whose parent is
+        a fixed number of children per face compose into one integer division."""
+        faces = np.arange(self.num_faces(level), dtype=np.int64)
+        divisor = 1
+        for step in reversed(self.steps[:level]):
+            if step.children_per_face:
+                divisor *= step.children_per_face
+                continue
+            faces = step.parent_face_of(faces // divisor)
+            divisor = 1
+        return faces // divisor if divisor > 1 else faces
+
+    def to_control(self, base_faces_: np.ndarray) -> np.ndarray:
+        """The control mesh face of level-0 faces (the identity unless Loop fan-triangulated polygons)."""
+        return base_faces_ if self.control_face is None else np.asarray(self.control_face, np.int64)[base_faces_]
+
+    def control_face_of(self, level: int) -> np.ndarray:
+        """(faces of ``level``,) int64: the control mesh face each one lies in."""
+        return self.to_control(self.base_face_of(level))

@@ -1,17 +1,10 @@
 """Face-level bookkeeping of a refinement: which control face every refined face comes from, and bilinear
 refinement of per-face-corner data.
 
-Both follow the refiner's child order (OpenSubdiv's, see :mod:`warp_subdiv.topology`):
-
-* Catmull-Clark (and bilinear): control corner h of a face becomes child quad h. Its four corners hold, in
-  cyclic order: the child of h's vertex, the child of the edge from h to the next corner, the face child, the
-  child of the edge from the previous corner to h; children of a quad start at position j (the local index
-  of h), as in OpenSubdiv, children of other polygons at 0 (OpenSubdiv) or at j mod 4 (earlier versions of
-  the refiner: :func:`rotates_non_quads` asks the refiner which). Every later level splits quad f into quads
-  4f..4f+3 by the same rule.
-* Loop: polygons are fan-triangulated from their first corner, triangle t becomes triangles 4t..4t+3: child
-  j < 3 holds corner j, the midpoint of edge j, the midpoint of edge j-1 (at positions j, j+1, j+2); child 3
-  holds the midpoint of edge m+1 at position m.
+Both read the refinement's recorded parentage (:class:`warp_subdiv.hierarchy.Parentage`: child faces, their
+parents and the rotation of their corners; conventions in :mod:`warp_subdiv.hierarchy`), either a refiner's
+own (``FaceMap(..., hierarchy=refiner.hierarchy)``) or one built from the mesh's faces alone, without analysing
+it. Bilinear meshes follow Catmull-Clark's child order, and Loop fan-triangulates polygons first.
 
 Uniform primvars and face subsets are mapped through :attr:`FaceMap.parent`; face-varying primvars (and
 varying primvars, and the points of bilinear meshes) are refined with :meth:`FaceMap.refine_corners`,
@@ -19,61 +12,53 @@ linearly inside every control face.
 """
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
-from .mesh import Mesh, face_offsets_of, next_corner_of
-from .topology import triangulate
+from .hierarchy import Parentage
+from .mesh import Mesh
+from .options import Boundary, Scheme
+from .topology import CATMULL_CLARK, Refinement, triangulate
 
 
 class FaceMap:
-    """The refined faces of ``mesh`` after ``levels`` steps of ``scheme``, and where they come from.
+    """The refined faces of ``mesh`` after ``levels`` steps of ``scheme`` ("catmull-clark", "loop" or
+    "bilinear"), and where they come from.
 
-    ``boundary`` matters only for "none", whose faces touching the boundary are left out (as holes are).
-    ``parent[i]`` is the control face of refined face i, for the faces the refiner outputs.
+    ``boundary`` matters only for "none", whose faces touching an untagged boundary are left out (as holes
+    are). ``parent[i]`` is the control face of refined face i, for the faces the refiner outputs; ``keep``
+    says which of all refined faces (holes included) those are. ``hierarchy``: the refiner's
+    :class:`~warp_subdiv.hierarchy.Hierarchy` of at least ``levels`` levels, whose recorded parentage is read
+    instead of being derived from the mesh's faces (same result, no second pass over the mesh).
     """
 
-    def __init__(self, mesh: Mesh, levels: int, scheme: str, boundary: str = "edge-and-corner"):
+    def __init__(self, mesh: Mesh, levels: int, scheme: str, boundary: str = "edge-and-corner", *,
+                 hierarchy=None):
         self.levels = int(levels)
         self.scheme = scheme
+        split = Scheme.LOOP if scheme == Scheme.LOOP else Scheme.CATMULL_CLARK  # bilinear: Catmull-Clark's order
+        if hierarchy is None:
+            if scheme == "bilinear":
+                boundary = Boundary.EDGE_AND_CORNER  # every face of a bilinear mesh has a limit surface
+            parentage = Parentage.of_mesh(mesh, self.levels, split, boundary)
+        else:
+            if hierarchy.options.scheme != split or hierarchy.levels < self.levels:
+                raise ValueError(f"the hierarchy ({hierarchy.options.scheme}, {hierarchy.levels} levels) does not "
+                                 f"hold {self.levels} levels of {scheme}")
+            parentage = hierarchy.parentage
+        self.parentage = parentage
         counts = mesh.face_vertex_counts.astype(np.int64)
-        indices = mesh.face_vertex_indices.astype(np.int64)
         self.control_counts = counts
-        hole = np.zeros(len(counts), dtype=bool)
-        hole[mesh.holes] = True
-
-        # level 0 as the refiner sees it: Loop fan-triangulates polygons
-        if scheme == "loop" and not np.all(counts == 3):
-            # the refiner's fan triangulation, applied to corner ids instead of vertex ids
-            _, tri_corners, parent0 = triangulate(counts, np.arange(len(indices)))
+        if parentage.control_face is not None:  # Loop's fan triangulation, applied to corner ids
+            _, tri_corners, _ = triangulate(counts, np.arange(int(counts.sum())))
             self._tri_corners = tri_corners.astype(np.int64)
+            self._level0_sizes = np.full(len(parentage.control_face), 3, dtype=np.int64)
         else:
-            parent0 = np.arange(len(counts))
             self._tri_corners = None
-        level0_verts = indices if self._tri_corners is None else indices[self._tri_corners]
-        level0_sizes = counts if self._tri_corners is None else np.full(len(parent0), 3, dtype=np.int64)
-        drop0 = hole[parent0]
-        if boundary == "none" and scheme != "bilinear":
-            # OpenSubdiv's VTX_BOUNDARY_NONE: faces that touch a boundary vertex have no limit surface
-            edge_faces = np.bincount(mesh.edges.corner_edge, minlength=mesh.num_edges)
-            on_boundary = np.zeros(mesh.num_vertices, dtype=bool)
-            on_boundary[mesh.edges.edge_verts[edge_faces == 1].reshape(-1)] = True
-            level0_face = np.repeat(np.arange(len(level0_sizes)), level0_sizes)
-            touches = np.bincount(level0_face[on_boundary[level0_verts]], minlength=len(level0_sizes)) > 0
-            drop0 |= touches
-        self._level0_sizes = level0_sizes
+            self._level0_sizes = counts
 
-        # refined face -> level-0 face
-        if self.levels == 0:
-            origin = np.arange(len(level0_sizes))
-        elif scheme == "loop":
-            origin = np.repeat(np.arange(len(level0_sizes)), 4 ** self.levels)
-        else:
-            level1_origin = np.repeat(np.arange(len(level0_sizes)), level0_sizes)
-            origin = np.repeat(level1_origin, 4 ** (self.levels - 1))
-        self.keep = ~drop0[origin]
-        self.parent = parent0[origin[self.keep]]
+        origin = parentage.base_face_of(self.levels)  # refined face -> level-0 face
+        self.keep = ~parentage.base_face_hole[origin]
+        self.parent = parentage.to_control(origin[self.keep])
 
     @property
     def num_faces(self) -> int:
@@ -99,31 +84,39 @@ class FaceMap:
             vals = vals[:, None]
         if len(vals) != int(self.control_counts.sum()):
             raise ValueError(f"need one value per face corner ({int(self.control_counts.sum())}), got {len(vals)}")
-        sizes = self.control_counts
         if self._tri_corners is not None:
             vals = vals[self._tri_corners]
-            sizes = self._level0_sizes
-        for _ in range(self.levels):
-            if self.scheme == "loop":
-                vals = _split_triangles(vals)
+        sizes = self._level0_sizes
+        for level in range(1, self.levels + 1):
+            step = self.parentage.refinement(level)
+            if step.scheme == CATMULL_CLARK:
+                vals = _split_polygons(vals, step)
             else:
-                vals = _split_polygons(vals, sizes)
-                sizes = np.full(len(vals) // 4, 4, dtype=np.int64)
-        out = vals[np.repeat(self.keep, sizes if self.levels == 0 else (3 if self.scheme == "loop" else 4))]
+                vals = _split_triangles(vals, step)
+            sizes = 4 if step.scheme == CATMULL_CLARK else 3
+        out = vals[np.repeat(self.keep, sizes)]
         return out[:, 0] if squeeze else out
 
 
-def _split_polygons(vals: np.ndarray, sizes: np.ndarray) -> np.ndarray:
-    """One Catmull-Clark (bilinear) split of per-corner data: corner h -> child quad h."""
-    offsets = face_offsets_of(sizes)
-    nxt = next_corner_of(sizes, offsets)
-    prv = np.empty_like(nxt)
-    prv[nxt] = np.arange(len(nxt))
-    face_mean = np.add.reduceat(vals, offsets[:-1], axis=0) / sizes[:, None]
-    corner_face = np.repeat(np.arange(len(sizes)), sizes)
-    local = np.arange(len(vals)) - offsets[:-1][corner_face]
-    r = local % 4 if rotates_non_quads() else np.where(sizes[corner_face] == 4, local, 0)
-    by_type = (vals, 0.5 * (vals + vals[nxt]), face_mean[corner_face], 0.5 * (vals[prv] + vals))
+def _split_polygons(vals: np.ndarray, step: Refinement) -> np.ndarray:
+    """One Catmull-Clark (bilinear) split of per-corner data: parent corner h -> child quad h, its corners
+    [vertex child, edge h's child, face child, edge h-1's child] starting at the step's rotation."""
+    if step.face_size:  # faces of one size: neighbours by rolling, no index arrays
+        n, d = step.face_size, vals.shape[1]
+        v = vals.reshape(-1, n, d)
+        at_next = np.roll(v, -1, axis=1).reshape(-1, d)
+        at_prev = np.roll(v, 1, axis=1).reshape(-1, d)
+        face_mean = np.repeat(np.add.reduceat(vals, step.face_starts(), axis=0) / n, n, axis=0)
+    else:
+        face, slot = step.face_parent()  # child quad h = parent corner h
+        sizes = step.face_sizes()
+        starts = step.face_starts()
+        n = sizes[face]
+        at_next = vals[starts[face] + (slot + 1) % n]
+        at_prev = vals[starts[face] + (slot - 1) % n]
+        face_mean = (np.add.reduceat(vals, starts, axis=0) / sizes[:, None])[face]
+    r = step.face_rotation()
+    by_type = (vals, 0.5 * (vals + at_next), face_mean, 0.5 * (at_prev + vals))
     out = np.empty((4 * len(vals), vals.shape[1]))
     base = 4 * np.arange(len(vals))
     for t, value in enumerate(by_type):
@@ -131,29 +124,21 @@ def _split_polygons(vals: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     return out
 
 
-@functools.lru_cache(maxsize=None)
-def rotates_non_quads() -> bool:
-    """Whether the refiner rotates the child quads of non-quad faces like those of quads (vertex child at
-    position j mod 4) or leaves them unrotated (vertex child first, as OpenSubdiv does): one pentagon, one
-    level, and where its corner 1's vertex child sits in child quad 1."""
-    from .refiner import Refiner
-
-    pentagon = Mesh(np.array([[np.cos(a), np.sin(a), 0.0] for a in np.linspace(0, 2 * np.pi, 5, endpoint=False)]),
-                    [5], [0, 1, 2, 3, 4])
-    _, indices = Refiner(pentagon, 1, device="cpu").topology()
-    return bool(indices.reshape(-1, 4)[1, 1] == 1)
-
-
-def _split_triangles(vals: np.ndarray) -> np.ndarray:
-    """One Loop (linear) split of per-corner triangle data: triangle t -> triangles 4t..4t+3."""
+def _split_triangles(vals: np.ndarray, step: Refinement) -> np.ndarray:
+    """One Loop (linear) split of per-corner triangle data: triangle t -> triangles 4t..4t+3. Child s < 3
+    holds [corner s, the midpoint of edge s, the midpoint of edge s-1] from the step's rotation on; the middle
+    child holds the midpoint of edge m+1 at position m + its rotation."""
     v = vals.reshape(-1, 3, vals.shape[1])
+    F = len(v)
     mid = [0.5 * (v[:, j] + v[:, (j + 1) % 3]) for j in range(3)]  # edge j runs from corner j to j+1
-    out = np.empty((len(v), 4, 3, vals.shape[1]))
-    for j in range(3):
-        out[:, j, j] = v[:, j]
-        out[:, j, (j + 1) % 3] = mid[j]
-        out[:, j, (j + 2) % 3] = mid[(j + 2) % 3]
-        out[:, 3, j] = mid[(j + 1) % 3]
+    r = step.face_rotation().reshape(F, 4)
+    rows = np.arange(F)
+    out = np.empty((F, 4, 3, vals.shape[1]))
+    for s in range(3):
+        for t, value in enumerate((v[:, s], mid[s], mid[(s + 2) % 3])):
+            out[rows, s, (t + r[:, s]) % 3] = value
+    for m in range(3):
+        out[rows, 3, (m + r[:, 3]) % 3] = mid[(m + 1) % 3]
     return out.reshape(-1, vals.shape[1])
 
 

@@ -2,12 +2,15 @@
 
 A :class:`Level` stores faces as corners (a corner is a face's use of a vertex, and also the half-edge from
 that vertex to the next corner's vertex), edges with their corners, vertices with their corners, the vertex
-classes of RULES.md section 1, and the sector angle theta of every corner at a crease or corner vertex.
+classes of docs/rules.md section 1, and the sector angle theta of every corner at a crease or corner vertex.
 
 The control mesh (level 0) is analysed once, with sorting (edges, rings, fans, sectors). Every later level
 is derived from its parent's tables by index arithmetic, as OpenSubdiv's Vtr does, in OpenSubdiv's order:
 child vertices are [one per parent vertex, one per parent face (Catmull-Clark), one per parent edge];
 child faces follow parent corners; child edges are [edges inside parent faces, two halves per parent edge].
+Because that order is closed-form index arithmetic, a step's child-to-parent maps need no stored tables:
+:class:`Refinement` states them as rules over the parent level's counts and materialises arrays on demand
+(the conventions are documented in :mod:`warp_subdiv.hierarchy`, which keeps one per step).
 """
 from __future__ import annotations
 
@@ -15,35 +18,22 @@ import contextlib
 import threading
 import warnings
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from . import rules
 from .errors import NonManifoldWarning, SubdivInputError
 from .mesh import INFINITE_SHARPNESS, Mesh, MeshEdges, face_offsets_of, find_edges
-from .rules import CATMULL_CLARK, CORNER, CREASE, DART, LOOP, SMOOTH
-
-BOUNDARY_MODES = ("edge-and-corner", "edge-only", "none")
-RULE_SETS = ("piecewise-smooth", "opensubdiv")
-CREASE_METHODS = ("uniform", "chaikin")
-
-
-def _offsets(counts: np.ndarray) -> np.ndarray:
-    out = np.zeros(len(counts) + 1, dtype=np.int64)
-    np.cumsum(counts, out=out[1:])
-    return out
-
-
-def _rows_of(offsets: np.ndarray) -> np.ndarray:
-    """Row id of every entry of a CSR layout."""
-    return np.repeat(np.arange(len(offsets) - 1, dtype=np.int64), np.diff(offsets))
+from .options import Boundary, CreaseMethod, RuleSet, Scheme
+from .rules import CATMULL_CLARK, CORNER, CREASE, LOOP, SMOOTH
 
 
 def expand_counts(counts: np.ndarray):
     """For a list of groups of the given sizes: (group of each item, rank of the item inside its group)."""
     counts = np.asarray(counts, dtype=np.int64)
     group = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
-    rank = np.arange(len(group), dtype=np.int64) - np.repeat(_offsets(counts)[:-1], counts)
+    rank = np.arange(len(group), dtype=np.int64) - np.repeat(face_offsets_of(counts)[:-1], counts)
     return group, rank
 
 
@@ -77,8 +67,9 @@ class Level:
     crease_method: str = "uniform"  # how semi-sharp edges decay: "uniform" (by 1) or "chaikin"
     linear: bool = False  # every vertex a corner and every edge sharp on every level: bilinear refinement
     semi_sharp: bool | None = None  # cached: does any edge or vertex have a finite, non-zero sharpness?
-    # sectors of crease and corner vertices (RULES.md section 0): corners listed counter-clockwise from the
-    # face after the first crease edge; theta and kind per RULES.md section 2; flatness s (NaN: optimal s*)
+    # sectors of crease and corner vertices (docs/rules.md section 0): corners listed counter-clockwise from
+    # the face after the first crease edge; theta and kind per docs/rules.md section 2; flatness s (NaN:
+    # optimal s*)
     sector_vertex: np.ndarray | None = None  # (S,)
     sector_offsets: np.ndarray | None = None  # (S+1,) int64
     sector_corners: np.ndarray | None = None  # (sum k,)
@@ -86,6 +77,8 @@ class Level:
     sector_kind: np.ndarray | None = None  # (S,) int8, rules.SECTOR_*
     sector_flatness: np.ndarray | None = None  # (S,) float64
     new_sector_flatness: float = float("nan")  # s of the regular crease sectors that later levels create
+    # level 0 of a fan-triangulated polygon mesh (Loop) only: the control polygon of each triangle
+    control_face: np.ndarray | None = None  # (F,) int64; None: face f is control face f
 
     @property
     def num_corners(self) -> int:
@@ -191,36 +184,17 @@ class Level:
 
 
 # --------------------------------------------------------------------------------------------------------
-# sharpness (OpenSubdiv's Sdc::Crease semantics; DeRose, Kass, Truong 1998)
+# sharpness (OpenSubdiv's Sdc::Crease semantics; DeRose, Kass, Truong 1998). The arithmetic on sharpness
+# values lives in warp_subdiv/crease.py; these wrappers read its inputs off a Level.
 
-
-def vertex_rule(vert_sharpness: np.ndarray, sharp_count: np.ndarray) -> np.ndarray:
-    """Vertex class from its sharpness and its number of sharp edges: a sharp vertex or more than two sharp
-    edges is a corner, two a crease, one a dart, none interior."""
-    out = np.choose(np.minimum(sharp_count, 3), [SMOOTH, DART, CREASE, CORNER]).astype(np.int8)
-    out[vert_sharpness > 0] = CORNER
-    return out
-
-
-def decrement_sharpness(s: np.ndarray) -> np.ndarray:
-    """One level of uniform decay: infinite stays infinite, s > 1 becomes s - 1, the rest 0."""
-    return np.where(s >= INFINITE_SHARPNESS, INFINITE_SHARPNESS, np.where(s > 1.0, s - 1.0, 0.0))
-
-
-def semi_sharp_vertices(edge_verts, edge_sharpness, vert_sharpness) -> np.ndarray:
-    """Vertices with a semi-sharp (finite, non-zero) sharpness or a semi-sharp incident edge."""
-    semi_edge = (edge_sharpness > 0) & (edge_sharpness < INFINITE_SHARPNESS)
-    out = (vert_sharpness > 0) & (vert_sharpness < INFINITE_SHARPNESS)
-    out[edge_verts[semi_edge].reshape(-1)] = True
-    return out
+from . import crease  # noqa: E402  (imported inside this block; base_level uses the two names below)
+from .crease import semi_sharp_vertices, vertex_rule  # noqa: E402
 
 
 def has_semi_sharpness(level: Level) -> bool:
-    """True when some edge or vertex of the level has a finite, non-zero sharpness."""
+    """True when some edge or vertex of the level has a finite, non-zero sharpness (cached on the level)."""
     if level.semi_sharp is None:
-        es, vs = level.edge_sharpness, level.vert_sharpness
-        level.semi_sharp = bool(np.any((es > 0) & (es < INFINITE_SHARPNESS)) or
-                                np.any((vs > 0) & (vs < INFINITE_SHARPNESS)))
+        level.semi_sharp = crease.any_semi_sharp(level.edge_sharpness, level.vert_sharpness)
     return level.semi_sharp
 
 
@@ -232,57 +206,22 @@ def child_sharpness(level: Level):
     Without semi-sharp features nothing changes (0 stays 0, infinite stays infinite)."""
     if not has_semi_sharpness(level):
         return np.repeat(level.edge_sharpness[:, None], 2, axis=1), level.vert_sharpness
-    es = level.edge_sharpness
-    ev = level.edge_verts.astype(np.int64)
-    decremented = decrement_sharpness(es)
-    halves = np.stack([decremented, decremented], axis=1)
-    semi = (es > 0) & (es < INFINITE_SHARPNESS)
-    if level.crease_method == "chaikin" and np.any(semi):
-        V = level.num_vertices
-        ends = ev.reshape(-1)
-        valence = np.bincount(ends, minlength=V)
-        semi_sum = np.bincount(ends, weights=np.repeat(np.where(semi, es, 0.0), 2), minlength=V)
-        semi_count = np.bincount(ends, weights=np.repeat(semi.astype(np.float64), 2), minlength=V)
-        for j in (0, 1):
-            v = ev[:, j]
-            others = semi_count[v] - 1
-            chaikin = semi & (valence[v] >= 2) & (others >= 1)
-            mean_other = (semi_sum[v] - es) / np.maximum(others, 1)
-            value = 0.75 * es + 0.25 * mean_other - 1.0
-            halves[:, j] = np.where(chaikin, np.where(value > 0, value, 0.0), halves[:, j])
-    return halves, decrement_sharpness(level.vert_sharpness)
+    halves = crease.child_edge_sharpness(level.edge_sharpness, level.edge_verts, level.num_vertices,
+                                         level.crease_method)
+    return halves, crease.decrement_sharpness(level.vert_sharpness)
 
 
 def child_rules(level: Level, halves: np.ndarray, child_vertex_sharpness: np.ndarray):
-    """Classes of the vertex children (V,) and edge children (E,) after one step."""
+    """Classes of the vertex children (V,) and edge children (E,) after one step (see crease.child_rules)."""
     if not has_semi_sharpness(level):  # rules do not change: vertex children keep theirs
         return level.vert_class, np.where(level.edge_sharp, CREASE, SMOOTH).astype(np.int8)
-    V = level.num_vertices
-    ev = level.edge_verts.astype(np.int64)
-    count = np.bincount(ev[:, 0], weights=(halves[:, 0] > 0), minlength=V) + np.bincount(
-        ev[:, 1], weights=(halves[:, 1] > 0), minlength=V)
-    vertex_children = vertex_rule(child_vertex_sharpness, count.astype(np.int64))
-    edge_children = vertex_rule(np.zeros(len(ev)), (halves > 0).sum(axis=1))
-    return vertex_children, edge_children
+    return crease.child_rules(level.edge_verts, halves, child_vertex_sharpness)
 
 
 def fractional_weight(level: Level, halves: np.ndarray, child_vertex_sharpness: np.ndarray) -> np.ndarray:
-    """Weight of the parent rule where a vertex's rule changes during this step (Sdc ComputeFractionalWeight):
-    the mean sharpness of the features that become smooth, at most 1."""
-    V = level.num_vertices
-    es = level.edge_sharpness
-    ev = level.edge_verts.astype(np.int64)
-    pv = level.vert_sharpness
-    total = np.where((pv > 0) & (child_vertex_sharpness <= 0), pv, 0.0)
-    count = ((pv > 0) & (child_vertex_sharpness <= 0)).astype(np.float64)
-    for j in (0, 1):
-        if level.crease_method == "uniform":
-            ending = (es > 0) & (es <= 1.0)
-        else:
-            ending = (es > 0) & (halves[:, j] <= 0)
-        total = total + np.bincount(ev[:, j], weights=np.where(ending, es, 0.0), minlength=V)
-        count = count + np.bincount(ev[:, j], weights=ending.astype(np.float64), minlength=V)
-    return np.where(count > 0, np.minimum(total / np.maximum(count, 1), 1.0), 0.0)
+    """Weight of the parent rule where a vertex's rule changes during this step (see crease.fractional_weight)."""
+    return crease.fractional_weight(level.edge_verts, level.edge_sharpness, level.vert_sharpness, halves,
+                                    child_vertex_sharpness, level.crease_method)
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -326,6 +265,78 @@ def _list_rank(link: np.ndarray, max_valence: int):
     return link, dist
 
 
+def _check_choice(value, kind, name: str) -> None:
+    """ValueError unless ``value`` is a member of the option enum ``kind`` or exactly its string value (the
+    level functions are also called directly, with strings; :class:`~warp_subdiv.options.Options` is the
+    lenient front door)."""
+    if value not in kind.values():
+        raise ValueError(f"{name} must be one of {kind.values()}, got {value!r}")
+
+
+@dataclass
+class BaseFaces:
+    """Level 0's faces as the refiner sees them, before any analysis: Loop fan-triangulates polygons, and
+    under boundary "none" the faces without a limit surface join the holes."""
+
+    counts: np.ndarray  # (F,) corners per face
+    indices: np.ndarray  # (C,) vertex of every corner
+    edges: MeshEdges  # the mesh's own edges, or those of its triangulation
+    control_face: np.ndarray | None  # (F,) control polygon of each triangle; None: face f is control face f
+    face_hole: np.ndarray  # (F,) bool
+
+    @property
+    def face_size(self) -> int:
+        """3 or 4 when every face has that size, else 0 (:attr:`Level.face_size`)."""
+        counts = self.counts
+        return int(counts[0]) if np.all(counts == counts[0]) and int(counts[0]) in (3, 4) else 0
+
+
+def base_faces(mesh: Mesh, scheme: str, boundary: str = "edge-and-corner",
+               triangulate_polygons: bool = True) -> BaseFaces:
+    """The faces, edges and holes of level 0 (cheap: no fans, classes or sectors), shared by
+    :func:`base_level` and the face bookkeeping of :mod:`warp_subdiv.primvars`."""
+    nv = mesh.num_vertices
+    counts = mesh.face_vertex_counts
+    indices = mesh.face_vertex_indices
+    edges: MeshEdges = mesh.edges
+    control_face = None
+    if scheme == LOOP and not mesh.is_all(3):
+        if not triangulate_polygons:
+            bad = int(np.flatnonzero(counts != 3)[0])
+            raise SubdivInputError(
+                f"Loop subdivision needs triangles: face {bad} has {counts[bad]} vertices "
+                "(pass triangulate=True to fan-triangulate polygons)"
+            )
+        counts, indices, control_face = triangulate(counts, indices)
+        edges = find_edges(counts, indices, nv)
+    face_hole = np.zeros(mesh.num_faces, dtype=bool)
+    face_hole[mesh.holes] = True
+    if control_face is not None:
+        face_hole = face_hole[control_face]
+    if boundary == Boundary.NONE:
+        # OpenSubdiv's VTX_BOUNDARY_NONE: a face touching a vertex with an untagged boundary edge has no
+        # limit surface and is left out (boundaries tagged infinitely sharp keep their faces)
+        E = len(edges.edge_verts)
+        boundary_edge = np.bincount(edges.corner_edge, minlength=E) == 1
+        untagged = boundary_edge & (tagged_edge_sharpness(mesh, edges) < INFINITE_SHARPNESS)
+        open_vertex = np.zeros(nv, dtype=bool)
+        open_vertex[edges.edge_verts[untagged].reshape(-1)] = True
+        F = len(counts)
+        touches = open_vertex[indices]
+        face_hole |= np.bincount(np.repeat(np.arange(F), counts)[touches], minlength=F) > 0
+    return BaseFaces(counts, indices, edges, control_face, face_hole)
+
+
+def tagged_edge_sharpness(mesh: Mesh, edges: MeshEdges) -> np.ndarray:
+    """(E,) float64: the sharpness the mesh's crease tags give ``edges`` (the mesh's own or a triangulation's),
+    0 elsewhere; the largest where an edge is tagged twice."""
+    out = np.zeros(len(edges.edge_verts), dtype=np.float64)
+    if len(mesh.creases):
+        tagged = edges.find(mesh.creases, mesh.num_vertices) if edges is not mesh.edges else mesh.crease_edges
+        np.maximum.at(out, tagged, mesh.crease_sharpness)
+    return out
+
+
 def base_level(
     mesh: Mesh,
     scheme: str,
@@ -336,36 +347,21 @@ def base_level(
     crease_method: str = "uniform",
     linear: bool = False,
 ) -> Level:
-    """Analyse the control mesh: edges, fans, manifoldness, vertex classes and sectors."""
-    if scheme not in rules.SCHEMES:
-        raise ValueError(f"scheme must be one of {rules.SCHEMES}, got {scheme!r}")
-    if boundary not in BOUNDARY_MODES:
-        raise ValueError(f"boundary must be one of {BOUNDARY_MODES}, got {boundary!r}")
-    if rule_set not in RULE_SETS:
-        raise ValueError(f"rules must be one of {RULE_SETS}, got {rule_set!r}")
-    if crease_method not in CREASE_METHODS:
-        raise ValueError(f"crease_method must be one of {CREASE_METHODS}, got {crease_method!r}")
+    """Analyse the control mesh: edges, fans, manifoldness, vertex classes and sectors.
+
+    ``scheme``, ``boundary``, ``rule_set`` and ``crease_method`` are members of the option enums or their exact
+    string values (ValueError otherwise)."""
+    _check_choice(scheme, Scheme, "scheme")
+    _check_choice(boundary, Boundary, "boundary")
+    _check_choice(rule_set, RuleSet, "rules")
+    _check_choice(crease_method, CreaseMethod, "crease_method")
 
     nv = mesh.num_vertices
-    counts = mesh.face_vertex_counts
-    indices = mesh.face_vertex_indices
-    edges: MeshEdges = mesh.edges
-    face_hole = np.zeros(len(counts), dtype=bool)
-    face_hole[mesh.holes] = True
-    if scheme == LOOP and not mesh.is_all(3):
-        if not triangulate_polygons:
-            bad = int(np.flatnonzero(counts != 3)[0])
-            raise SubdivInputError(
-                f"Loop subdivision needs triangles: face {bad} has {counts[bad]} vertices "
-                "(pass triangulate=True to fan-triangulate polygons)"
-            )
-        counts, indices, parent = triangulate(counts, indices)
-        edges = find_edges(counts, indices, nv)
-        face_hole = face_hole[parent]
+    faces = base_faces(mesh, scheme, boundary, triangulate_polygons)
+    counts, indices, edges, face_hole = faces.counts, faces.indices, faces.edges, faces.face_hole
 
     offsets = face_offsets_of(counts)
     C = len(indices)
-    F = len(counts)
     corner_vert = indices.astype(np.int64)
     nxt = edges.corner_next.astype(np.int64)
     prv = np.empty_like(nxt)
@@ -376,7 +372,7 @@ def base_level(
 
     # edge -> corners
     ecount = np.bincount(corner_edge, minlength=E)
-    eoff = _offsets(ecount)
+    eoff = face_offsets_of(ecount)
     ecorners = np.argsort(corner_edge, kind="stable")
     first = ecorners[eoff[:-1]]
     second = ecorners[np.minimum(eoff[:-1] + 1, C - 1)]
@@ -390,7 +386,7 @@ def base_level(
 
     # fans: the faces around a vertex joined through shared edges (one per vertex unless non-manifold)
     vcount = np.bincount(corner_vert, minlength=nv)
-    voff = _offsets(vcount)
+    voff = face_offsets_of(vcount)
     max_valence = int(vcount.max())
     idx = np.arange(C, dtype=np.int64)
     cw = np.where(twin >= 0, nxt[np.maximum(twin, 0)], idx)
@@ -410,11 +406,7 @@ def base_level(
     nonmanifold_vert[edge_verts[nonmanifold_edge].reshape(-1)] = True
 
     # edge sharpness: boundary and non-manifold edges are infinitely sharp, tagged creases as given
-    edge_sharpness = np.zeros(E, dtype=np.float64)
-    if len(mesh.creases):
-        tagged = edges.find(mesh.creases, nv) if edges is not mesh.edges else mesh.crease_edges
-        np.maximum.at(edge_sharpness, tagged, mesh.crease_sharpness)
-    untagged_boundary = boundary_edge & (edge_sharpness < INFINITE_SHARPNESS)  # not tagged infinitely sharp
+    edge_sharpness = tagged_edge_sharpness(mesh, edges)
     edge_sharpness[boundary_edge | nonmanifold_edge] = INFINITE_SHARPNESS
     if np.any(nonmanifold_edge) or np.any(fans > 1):
         ne = np.flatnonzero(nonmanifold_edge)
@@ -446,7 +438,7 @@ def base_level(
     edges_at = np.bincount(ends, minlength=nv)
     fin = (nonmanifold_edges_at == 2) & (boundary_edges_at == 0) & (vcount > edges_at)
     forced = nonmanifold_vert & ~fin
-    if boundary == "edge-and-corner":
+    if boundary == Boundary.EDGE_AND_CORNER:
         forced |= on_boundary & (vcount == 1)
     forced |= vcount == 0  # unused vertices keep their position
     vert_sharpness[forced] = INFINITE_SHARPNESS
@@ -455,13 +447,6 @@ def base_level(
         edge_sharpness[:] = INFINITE_SHARPNESS
     vclass = vertex_rule(vert_sharpness, sharp_count)
     edge_sharp = edge_sharpness > 0
-    if boundary == "none":
-        # OpenSubdiv's VTX_BOUNDARY_NONE: a face touching a vertex with an untagged boundary edge has no
-        # limit surface and is left out (boundaries tagged as creases keep their faces)
-        open_vertex = np.zeros(nv, dtype=bool)
-        open_vertex[edge_verts[untagged_boundary].reshape(-1)] = True
-        touches = open_vertex[corner_vert]
-        face_hole |= np.bincount(np.repeat(np.arange(F), counts)[touches], minlength=F) > 0
 
     # sectors and their angles: at crease and corner vertices whose sharp edges and own sharpness are all
     # infinite (semi-sharp features follow OpenSubdiv's rules in both rule sets)
@@ -472,41 +457,70 @@ def base_level(
     )
     sector_flatness, new_flatness = _sector_flatness(flatness, sectors[0], nv)
 
-    uniform = int(counts[0]) if np.all(counts == counts[0]) and int(counts[0]) in (3, 4) else 0
+    uniform = faces.face_size
+    return _full_level(
+        scheme, nv, uniform, corner_vert, face_hole,
+        face_offsets=None if uniform else offsets, corner_next_table=None if uniform else nxt,
+        corner_edge=corner_edge, edge_verts=edge_verts, edge_corner_offsets=eoff, edge_corners=ecorners,
+        vert_corner_offsets=voff, vert_corners=vcorners, vert_class=vclass, edge_sharpness=edge_sharpness,
+        vert_sharpness=vert_sharpness, sectors=Sectors(*sectors, sector_flatness), crease_method=crease_method,
+        linear=linear, new_sector_flatness=new_flatness, control_face=faces.control_face,
+    )
+
+
+class Sectors(NamedTuple):
+    """The sector tables of a level (the ``sector_*`` fields of :class:`Level`)."""
+
+    vertex: np.ndarray  # (S,)
+    offsets: np.ndarray  # (S+1,) int64
+    corners: np.ndarray  # (sum k,)
+    theta: np.ndarray  # (S,) float64
+    kind: np.ndarray  # (S,) int8
+    flatness: np.ndarray  # (S,) float64
+
+
+def _full_level(scheme, num_vertices: int, face_size: int, corner_vert, face_hole, *, corner_edge, edge_verts,
+                edge_corner_offsets, edge_corners, vert_corner_offsets, vert_corners, vert_class, edge_sharpness,
+                vert_sharpness, sectors: Sectors, crease_method, linear: bool, new_sector_flatness: float,
+                face_offsets=None, corner_next_table=None, control_face=None) -> Level:
+    """A level with all its tables: the one constructor of full levels, for the control mesh's analysis and
+    every refinement step alike. Index arrays become int32 (no copy when they already are); the face count
+    and ``edge_sharp`` follow from the other tables."""
     return Level(
         scheme=scheme,
-        num_vertices=nv,
-        num_faces=F,
-        face_size=uniform,
+        num_vertices=num_vertices,
+        num_faces=len(face_hole),
+        face_size=face_size,
         corner_vert=_i32(corner_vert),
         face_hole=face_hole,
-        face_offsets=None if uniform else offsets,
-        corner_next_table=None if uniform else _i32(nxt),
+        face_offsets=face_offsets,
+        corner_next_table=None if corner_next_table is None else _i32(corner_next_table),
         corner_edge=_i32(corner_edge),
         edge_verts=_i32(edge_verts),
-        edge_corner_offsets=eoff,
-        edge_corners=_i32(ecorners),
-        vert_corner_offsets=voff,
-        vert_corners=_i32(vcorners),
-        edge_sharp=edge_sharp,
-        vert_class=vclass,
+        edge_corner_offsets=edge_corner_offsets,
+        edge_corners=_i32(edge_corners),
+        vert_corner_offsets=vert_corner_offsets,
+        vert_corners=_i32(vert_corners),
+        edge_sharp=edge_sharpness > 0,
+        vert_class=vert_class,
         edge_sharpness=edge_sharpness,
         vert_sharpness=vert_sharpness,
         crease_method=crease_method,
         linear=linear,
-        sector_vertex=_i32(sectors[0]),
-        sector_offsets=sectors[1],
-        sector_corners=_i32(sectors[2]),
-        sector_theta=sectors[3],
-        sector_kind=sectors[4],
-        sector_flatness=sector_flatness,
-        new_sector_flatness=new_flatness,
+        sector_vertex=_i32(sectors.vertex),
+        sector_offsets=sectors.offsets,
+        sector_corners=_i32(sectors.corners),
+        sector_theta=sectors.theta,
+        sector_kind=sectors.kind,
+        sector_flatness=sectors.flatness,
+        new_sector_flatness=new_sector_flatness,
+        control_face=control_face,
     )
 
 
 def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, edge_sharp, ecount, eoff,
              ecorners, edges, vclass, sharp_count, max_valence):
-    """Sectors of crease and corner vertices with two or more crease edges (RULES.md sections 0 and 2).
+    """Sectors of crease and corner vertices with two or more crease edges (docs/rules.md sections 0 and 2).
 
     A sector is a run of faces around a vertex between two crease edges; its corners are found by walking
     clockwise to the first face (whose outgoing edge is a crease) with pointer jumping. alpha is measured
@@ -524,7 +538,7 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
     sector_of_head = np.full(C, -1, dtype=np.int64)
     sector_of_head[heads] = np.arange(len(heads))
     k = k_of_head[heads]
-    offsets = _offsets(k)
+    offsets = face_offsets_of(k)
     members = np.flatnonzero(sel)
     ordered = np.empty(len(members), dtype=np.int64)
     ordered[offsets[sector_of_head[head[members]]] + pos[members]] = members
@@ -540,7 +554,7 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
     if len(mesh.concave):  # checked under both rule sets; only the piecewise-smooth rules use them
         concave_heads = _concave_sector_heads(mesh, corner_vert, nxt, corner_edge, edge_sharp, ecount, eoff,
                                               ecorners, edges, vclass, sharp_count, head, k_of_head[head])
-        if rule_set == "piecewise-smooth":
+        if rule_set == RuleSet.PIECEWISE_SMOOTH:
             kind[sector_of_head[concave_heads]] = rules.SECTOR_CONCAVE
     theta = rules.sector_theta(kind, np.maximum(k, 1), alpha)
     return c, offsets, ordered, theta, kind
@@ -731,8 +745,10 @@ def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
     # corners at the child of edge h, counter-clockwise: the face after the half at v_next, then the one
     # before the half at v_h
     edge_child_corners = np.stack([far, child_of_edge], axis=1)
-    return _assemble(level, nV, C, 4, cv, ce, interior_verts, interior_corners, near, far,
-                     near, children.index(2), edge_child_corners, child_hole, V + F)
+    return _assemble(level, num_vertices=nV, face_size=4, corner_vert=cv, corner_edge=ce, face_hole=child_hole,
+                     interior_verts=interior_verts, interior_corners=interior_corners, near=near, far=far,
+                     vertex_child_corner=near, face_child_corners=children.index(2),
+                     edge_child_corners=edge_child_corners, edge_child_base=V + F)
 
 
 def _refine_loop(level: Level, faces_only: bool) -> Level:
@@ -783,13 +799,27 @@ def _refine_loop(level: Level, faces_only: bool) -> Level:
     vertex_child_corner = near
     # counter-clockwise around the child of edge j: child j+1, the middle child, child j
     edge_child_corners = block(3 * jn + j, 9 + jp, 3 * j + jn)
-    return _assemble(level, nV, C, 3, cv.reshape(-1, 3), ce.reshape(-1, 3), interior_verts, interior_corners,
-                     near, far, vertex_child_corner, None, edge_child_corners, child_hole, V)
+    return _assemble(level, num_vertices=nV, face_size=3, corner_vert=cv.reshape(-1), corner_edge=ce.reshape(-1),
+                     face_hole=child_hole, interior_verts=interior_verts, interior_corners=interior_corners,
+                     near=near, far=far, vertex_child_corner=vertex_child_corner, face_child_corners=None,
+                     edge_child_corners=edge_child_corners, edge_child_base=V)
 
 
-def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners, near, far,
-              vertex_child_corner, face_child_corners, edge_child_corners, child_hole, edge_child_base):
-    """Shared tail of both schemes: child edges, edge->corner and vertex->corner tables, classes, thetas."""
+def _assemble(level: Level, *, num_vertices: int, face_size: int, corner_vert, corner_edge, face_hole,
+              interior_verts, interior_corners, near, far, vertex_child_corner, face_child_corners,
+              edge_child_corners, edge_child_base: int) -> Level:
+    """Shared tail of both schemes: child edges, edge->corner and vertex->corner tables, classes, thetas.
+
+    What the scheme's split hands over (C = the parent's corners; every array int32):
+    ``num_vertices``, ``face_size``, ``corner_vert`` / ``corner_edge`` (4C,) and ``face_hole`` of the child
+    level; ``interior_verts`` / ``interior_corners`` (C, 2): the child edge inside the parent face at each
+    parent corner (child edges 0..C-1), its two end vertices and its two corners; ``near`` / ``far`` (C,):
+    the child corner on the half of edge h at v_h's side and at the next vertex's side; ``vertex_child_corner``
+    (C,): the child corner of each parent corner's vertex child; ``face_child_corners`` (C,) or None (Loop):
+    the child corner at the face child; ``edge_child_corners`` (C, m): the child corners at the child of edge
+    h, counter-clockwise; ``edge_child_base``: the first edge child's vertex index.
+    """
+    nV, nI, cv, ce, child_hole = num_vertices, level.num_corners, corner_vert, corner_edge, face_hole
     V, E, C = level.num_vertices, level.num_edges, level.num_corners
     nC = 4 * C
     ev = level.edge_verts
@@ -829,7 +859,7 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
         corner_blocks.append(face_child_corners)
     count_blocks.append(m * ecount)
     corner_blocks.append(edge_child_corners[slot_corner].reshape(-1))
-    child_voff = _offsets(np.concatenate(count_blocks))
+    child_voff = face_offsets_of(np.concatenate(count_blocks))
     child_vcorners = np.concatenate(corner_blocks)
     del corner_blocks
 
@@ -859,30 +889,162 @@ def _assemble(level, nV, nI, face_size, cv, ce, interior_verts, interior_corners
     sector_theta = np.concatenate([level.sector_theta, np.full(n_new, regular)])
     sector_kind = np.concatenate([level.sector_kind, np.full(n_new, rules.SECTOR_CREASE, np.int8)])
     sector_flatness = np.concatenate([level.sector_flatness, np.full(n_new, level.new_sector_flatness)])
-    return Level(
-        scheme=level.scheme,
-        num_vertices=nV,
-        num_faces=nC // face_size,
-        face_size=face_size,
-        corner_vert=_i32(cv.reshape(-1)),
-        face_hole=child_hole,
-        corner_edge=_i32(ce.reshape(-1)),
-        edge_verts=_i32(child_edge_verts),
-        edge_corner_offsets=child_eoff,
-        edge_corners=_i32(child_ecorners),
-        vert_corner_offsets=child_voff,
-        vert_corners=_i32(child_vcorners),
-        edge_sharp=child_edge_sharpness > 0,
-        vert_class=child_class,
-        edge_sharpness=child_edge_sharpness,
-        vert_sharpness=child_vert_sharpness,
-        crease_method=level.crease_method,
-        linear=level.linear,
-        sector_vertex=_i32(sector_vertex),
-        sector_offsets=sector_offsets,
-        sector_corners=_i32(sector_corners),
-        sector_theta=sector_theta,
-        sector_kind=sector_kind,
-        sector_flatness=sector_flatness,
-        new_sector_flatness=level.new_sector_flatness,
+    return _full_level(
+        level.scheme, nV, face_size, cv, child_hole,
+        corner_edge=ce, edge_verts=child_edge_verts, edge_corner_offsets=child_eoff, edge_corners=child_ecorners,
+        vert_corner_offsets=child_voff, vert_corners=child_vcorners, vert_class=child_class,
+        edge_sharpness=child_edge_sharpness, vert_sharpness=child_vert_sharpness,
+        sectors=Sectors(sector_vertex, sector_offsets, sector_corners, sector_theta, sector_kind, sector_flatness),
+        crease_method=level.crease_method, linear=level.linear, new_sector_flatness=level.new_sector_flatness,
     )
+
+
+# --------------------------------------------------------------------------------------------------------
+# child-to-parent maps of one step
+
+#: kinds of parent element a child comes from (the parent type of OpenSubdiv's Vtr::Refinement child tags)
+VERTEX, EDGE, FACE = 0, 1, 2
+
+
+@dataclass(frozen=True, eq=False)
+class Refinement:
+    """Where the children of one refinement step come from, as rules over the parent level's counts.
+
+    OpenSubdiv's ``Vtr::Refinement`` stores ``_childFaceParentIndex``, ``_childEdgeParentIndex``,
+    ``_childVertexParentIndex`` and a tag per child. Here the child order of :func:`refine_level` makes them
+    closed-form index arithmetic, so a step keeps its parent's counts and materialises arrays only when asked.
+    The one stored array is ``face_offsets`` of a parent with mixed polygons (only the control mesh has them),
+    of control size. The conventions are listed in :mod:`warp_subdiv.hierarchy`.
+    """
+
+    scheme: str
+    num_vertices: int  # of the parent level
+    num_faces: int
+    num_edges: int
+    num_corners: int
+    face_size: int  # 3 or 4 when every parent face has that size, 0 for mixed polygons
+    face_offsets: np.ndarray | None = None  # (F+1,) int64, mixed polygons only
+
+    @classmethod
+    def of_level(cls, level: Level) -> "Refinement":
+        """The step that refines ``level`` (which needs its edges: not a faces-only level)."""
+        return cls(level.scheme, level.num_vertices, level.num_faces, level.num_edges, level.num_corners,
+                   level.face_size, None if level.face_size else level.face_offsets)
+
+    @classmethod
+    def of_faces(cls, scheme: str, num_vertices: int, faces: BaseFaces) -> "Refinement":
+        """The step that refines level 0, from :func:`base_faces` alone (no analysis)."""
+        size = faces.face_size
+        return cls(scheme, num_vertices, len(faces.counts), len(faces.edges.edge_verts), len(faces.indices), size,
+                   None if size else face_offsets_of(faces.counts))
+
+    def next(self) -> "Refinement":
+        """The step after this one (its parent is this step's child level: all quads or all triangles)."""
+        return Refinement(self.scheme, self.child_vertices, self.child_faces, self.child_edges, self.child_corners,
+                          4 if self.scheme == CATMULL_CLARK else 3)
+
+    # ---------------------------------------------------------------------------------------- child counts
+    @property
+    def child_vertices(self) -> int:
+        """[vertex children V, face children F (Catmull-Clark only), edge children E]."""
+        face_children = self.num_faces if self.scheme == CATMULL_CLARK else 0
+        return self.num_vertices + face_children + self.num_edges
+
+    @property
+    def child_faces(self) -> int:
+        """One per parent corner (Catmull-Clark: C) or four per triangle (Loop: 4F)."""
+        return self.num_corners if self.scheme == CATMULL_CLARK else 4 * self.num_faces
+
+    @property
+    def child_edges(self) -> int:
+        """[one inside a parent face per parent corner (C), two halves per parent edge (2E)]."""
+        return self.num_corners + 2 * self.num_edges
+
+    @property
+    def child_corners(self) -> int:
+        return 4 * self.num_corners
+
+    @property
+    def children_per_face(self) -> int:
+        """Child faces per parent face where that number is fixed (4 for Loop and quads, 3 for a Catmull-Clark
+        step over triangles), else 0: then ``child // children_per_face`` is the parent face."""
+        return 4 if self.scheme != CATMULL_CLARK else self.face_size
+
+    # ---------------------------------------------------------------------------------------- parent faces
+    def face_sizes(self) -> np.ndarray:
+        """(F,) int64: corners of every parent face."""
+        if self.face_size:
+            return np.full(self.num_faces, self.face_size, dtype=np.int64)
+        return np.diff(self.face_offsets)
+
+    def face_starts(self) -> np.ndarray:
+        """(F,) int64: first corner of every parent face."""
+        if self.face_size:
+            return np.arange(self.num_faces, dtype=np.int64) * self.face_size
+        return self.face_offsets[:-1]
+
+    def corner_faces(self) -> np.ndarray:
+        """(C,) int64: the parent face of every parent corner."""
+        if self.face_size:
+            return np.arange(self.num_corners, dtype=np.int64) // self.face_size
+        return np.repeat(np.arange(self.num_faces, dtype=np.int64), np.diff(self.face_offsets))
+
+    def parent_face_of(self, child_faces: np.ndarray) -> np.ndarray:
+        """The parent face of each of ``child_faces`` (int64), without the slot arrays of :meth:`face_parent`."""
+        child_faces = np.asarray(child_faces, dtype=np.int64)
+        n = self.children_per_face
+        return child_faces // n if n else self.corner_faces()[child_faces]
+
+    # ---------------------------------------------------------------------------------------- maps
+    def vertex_ranges(self) -> tuple:
+        """((kind, first child, number of children), ...) in the child vertex order: the rule behind
+        :meth:`vertex_parent` (child ``first + i`` of a range comes from parent element ``i`` of ``kind``)."""
+        V, F, E = self.num_vertices, self.num_faces, self.num_edges
+        if self.scheme == CATMULL_CLARK:
+            return (VERTEX, 0, V), (FACE, V, F), (EDGE, V + F, E)
+        return (VERTEX, 0, V), (EDGE, V, E)
+
+    def vertex_parent(self):
+        """(kind int8, index int64) of every child vertex: the parent vertex, face or edge it comes from."""
+        ranges = self.vertex_ranges()
+        kind = np.concatenate([np.full(n, k, dtype=np.int8) for k, _, n in ranges])
+        index = np.concatenate([np.arange(n, dtype=np.int64) for _, _, n in ranges])
+        return kind, index
+
+    def face_parent(self):
+        """(face, slot) int64 of every child face: its parent face, and which of that face's children it is.
+
+        Catmull-Clark: child face h is the child of parent corner h, ``slot`` that corner's place in its face.
+        Loop: child 4f + s of triangle f; s < 3 is the child at corner s, s = 3 the middle triangle."""
+        if self.scheme != CATMULL_CLARK or self.face_size:
+            n = self.children_per_face
+            c = np.arange(self.child_faces, dtype=np.int64)
+            return c // n, c % n
+        face = self.corner_faces()
+        return face, np.arange(self.num_corners, dtype=np.int64) - self.face_offsets[face]
+
+    def face_rotation(self) -> np.ndarray:
+        """(child faces,) int64: the position r in each child face of its parent corner's vertex child.
+
+        Catmull-Clark (OpenSubdiv's order): children of a quad are rotated, r = slot; children of other
+        polygons are not, r = 0. Loop: r = s for the corner children; the middle child has r = 0."""
+        face, slot = self.face_parent()
+        if self.scheme == CATMULL_CLARK:
+            if self.face_size:
+                return slot if self.face_size == 4 else np.zeros_like(slot)
+            return np.where(self.face_sizes()[face] == 4, slot, 0)
+        return np.where(slot < 3, slot, 0)
+
+    def edge_parent(self):
+        """(kind int8, index int64, slot int64) of every child edge.
+
+        Child edge h < C lies inside parent face ``index`` (kind FACE) at its corner ``slot`` (parent corner h:
+        Catmull-Clark joins the face child to the child of the edge leaving h, Loop the children of the edges
+        leaving and entering h). Child edge C + 2e + s (kind EDGE) is the half of parent edge e at its end s,
+        joining the child of that end vertex to the child of e."""
+        C, E = self.num_corners, self.num_edges
+        face = self.corner_faces()
+        inner_slot = np.arange(C, dtype=np.int64) - self.face_starts()[face]
+        halves = np.arange(2 * E, dtype=np.int64)
+        kind = np.concatenate([np.full(C, FACE, dtype=np.int8), np.full(2 * E, EDGE, dtype=np.int8)])
+        return kind, np.concatenate([face, halves // 2]), np.concatenate([inner_slot, halves % 2])
