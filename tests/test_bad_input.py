@@ -453,3 +453,48 @@ def test_size_guards_refuse_before_any_work():
         ws.refine(cube, 6, device="cpu", max_memory=1_000_000)
     assert time.perf_counter() - start < 2.0
     assert ws.refine(cube, 2, device="cpu", max_memory=10**9).num_faces == 96
+
+
+def test_obj_bad_crease_method_names_file_and_line(tmp_path):
+    """An OBJ creasemethod tag that is neither uniform nor chaikin is refused where it is read."""
+    from warp_subdiv.objio import read_obj
+
+    p = tmp_path / "bad.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nt creasemethod 0/0/1 bspline\n")
+    with pytest.raises(SubdivInputError, match=r"bad\.obj:5: creasemethod 'bspline' is not uniform or chaikin"):
+        read_obj(str(p))
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nt creasemethod 0/0/1 chaikin\n")
+    assert read_obj(str(p)).options == {"crease_method": "chaikin"}
+
+
+# --------------------------------------------------------------------------------------------------------
+# structured fields: what a front end puts in its own terms
+
+
+@pytest.mark.parametrize("make,fields", [
+    (lambda: ws.Mesh(GRID_PTS, GRID_COUNTS, [0, 1, 4, 3, 1, 2, 6, 4]), ("face_vertex_indices", "face", 1)),
+    (lambda: ws.Mesh(GRID_PTS, GRID_COUNTS, [0, 1, 4, 3, 1, 2, 5, 2]), ("face_vertex_indices", "face", 1)),
+    (lambda: ws.Mesh(GRID_PTS, [3, 3, 2, 3], [0, 1, 4, 0, 4, 3, 1, 2, 1, 2, 5]), ("face_vertex_counts", "face", 2)),
+    (lambda: ws.Mesh(GRID_PTS, [4, 4], GRID_IDX[:7]), ("face_vertex_counts", None, None)),
+    (lambda: ws.Mesh(np.where(np.arange(6)[:, None] == 4, np.nan, GRID_PTS), GRID_COUNTS, GRID_IDX),
+     ("points", "vertex", 4)),
+    (lambda: grid(creases=[[0, 1], [0, 4]]), ("creases", "crease", 1)),
+    (lambda: grid(creases=[[0, 1], [0, 9]]), ("creases", "crease", 1)),
+    (lambda: grid(creases=[[0, 1], [1, 2]], crease_sharpness=[1.0, -1.0]), ("crease_sharpness", "crease", 1)),
+    (lambda: grid(corners=[0, 7]), ("corners", "corner", 1)),
+    (lambda: grid(corners=[0], corner_sharpness=[np.nan]), ("corner_sharpness", "corner", 0)),
+    (lambda: grid(concave=[[0, 1], [0, 5]]), ("concave", "concave", 1)),
+    (lambda: grid(normals=([0, 4], [[0, 0, 1], [0, 0, 2]])), ("normals", "normal", 1)),
+    (lambda: grid(normals=([2, 2], [[0, 0, 1], [0, 0, 1]])), ("normals", "vertex", 2)),
+    (lambda: grid(holes=[0, 2]), ("holes", "hole", 1)),
+])
+def test_mesh_errors_carry_structured_fields(make, fields):
+    """Every Mesh error says which argument (option), element and index are at fault, besides its message
+    (which names the same element; a prescribed normal's index is its place in the normals, the message names
+    its vertex)."""
+    with pytest.raises(SubdivInputError) as info:
+        make()
+    exc = info.value
+    assert (exc.option, exc.element, exc.index) == fields, str(exc)
+    if exc.index is not None and exc.element != "normal":
+        assert re.search(rf"\b{exc.index}\b", str(exc)), str(exc)

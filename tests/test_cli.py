@@ -100,3 +100,79 @@ def test_ci_runs_the_readme_test_command():
     # the first command refines a bundled scene that exists
     scene = re.search(r"(scenes/\S+)", commands[0]).group(1)
     assert os.path.isfile(os.path.join(ROOT, scene))
+
+
+def test_internal_errors_exit_1_with_the_debug_hint(tmp_path, monkeypatch, capsys):
+    """Only input errors exit 2: a plain ValueError from inside (a bug) exits 1 with one line that says it is
+    an internal error and how to see the traceback; WARP_SUBDIV_DEBUG=1 lets the exception through."""
+    from warp_subdiv import cli, objio
+
+    def broken(path):
+        raise ValueError("something inside went wrong")
+
+    monkeypatch.setattr(objio, "read_obj", broken)
+    monkeypatch.delenv("WARP_SUBDIV_DEBUG", raising=False)
+    args = ["refine", mesh_path("cube"), "-o", str(tmp_path / "x.obj"), "--levels", "1", "--device", "cpu"]
+    assert cli.main(args) == 1
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warp-subdiv")]
+    assert len(lines) == 1 and lines[0].startswith("warp-subdiv: internal error: ValueError: something inside")
+    assert "WARP_SUBDIV_DEBUG=1" in lines[0] and "traceback" in lines[0]
+    assert not (tmp_path / "x.obj").exists()
+    monkeypatch.setenv("WARP_SUBDIV_DEBUG", "1")
+    with pytest.raises(ValueError, match="something inside"):
+        cli.main(args)
+
+
+def test_input_errors_exit_2_with_the_flag_named(tmp_path, monkeypatch, capsys):
+    """A SubdivInputError from the same place exits 2; errors about an option the command line set name its
+    flag (the library's messages name the keyword)."""
+    from warp_subdiv import cli, objio
+    from warp_subdiv.errors import SubdivInputError
+
+    def bad(path):
+        raise SubdivInputError(f"{path}: not a mesh")
+
+    monkeypatch.setattr(objio, "read_obj", bad)
+    assert cli.main(["refine", mesh_path("cube"), "-o", str(tmp_path / "x.obj"), "--levels", "1"]) == 2
+    assert "error: " in capsys.readouterr().err
+    monkeypatch.undo()
+    for args, needle in ((["render", mesh_path("cube"), "-o", str(tmp_path / "x.png"), "--size", "12"], "--size '12'"),
+                         (["render", mesh_path("cube"), "-o", str(tmp_path / "x.png"), "--device", "bogus"],
+                          "--device bogus"),
+                         (["refine", mesh_path("cube"), "-o", str(tmp_path / "x.obj"), "--levels", "1",
+                           "--max-memory", "lots"], "--max-memory 'lots'")):
+        assert cli.main(args) == 2
+        lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warp-subdiv")]
+        assert len(lines) == 1 and lines[0].startswith("warp-subdiv: error: ") and needle in lines[0], lines
+    assert os.listdir(tmp_path) == []
+
+
+def test_the_library_names_no_flags():
+    """Messages of the library (every module but the CLI) name options by keyword, never by command-line flag:
+    the CLI phrases them as flags where it reports."""
+    import ast
+
+    folder = os.path.join(ROOT, "warp_subdiv")
+    for base, _, files in os.walk(folder):
+        for name in files:
+            path = os.path.join(base, name)
+            if not name.endswith(".py") or path == os.path.join(folder, "cli.py"):
+                continue
+            tree = ast.parse(open(path, encoding="utf-8").read())
+            docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                          if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                          and node.body and isinstance(node.body[0], ast.Expr)
+                          and isinstance(node.body[0].value, ast.Constant)}
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+                    assert not re.search(r"(^|[^\w-])--[a-z]", node.value), (path, node.lineno, node.value)
+
+
+def test_semi_sharp_flag_help_says_what_it_does(capsys):
+    """--semi-sharp-as-sharp makes semi-sharp tags infinitely sharp (by default they refine as semi-sharp)."""
+    from warp_subdiv import cli
+
+    assert cli.main(["refine", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "make semi-sharp creases and corners (0 < sharpness < 10) infinitely sharp, with a warning" in text
+    assert "refusing" not in text

@@ -1,6 +1,5 @@
 """The USD pipeline: round trip on every bundled scene, the output layer, time samples, primvars, subsets,
 the reader's tags and errors, orientation, bilinear meshes, failures that leave no file."""
-import inspect
 import os
 
 import numpy as np
@@ -10,7 +9,7 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 import warp_subdiv as ws
 from test_usd_support import SCENES_DIR, digest, grid, scene_module, write_mesh
 from warp_subdiv.errors import SubdivInputError
-from warp_subdiv.usd import MemoryGuardError, MissingFeatureError, refine_usd
+from warp_subdiv.usd import MemoryGuardError, refine_usd
 from warp_subdiv.usd_read import open_stage, read_mesh
 
 SCENES = scene_module().SCENES
@@ -149,7 +148,7 @@ def test_frames_select_time_samples(tmp_path):
         vel = np.asarray(src_mesh.GetVelocitiesAttr().Get(t), dtype=np.float64)
         np.testing.assert_allclose(np.asarray(mesh.GetVelocitiesAttr().Get(t)),
                                    expected_refined(spec, vel, 1).points, atol=2e-5)
-    with pytest.raises(SubdivInputError, match="none in --frames 30:40"):
+    with pytest.raises(SubdivInputError, match="none in frames 30:40"):
         refine_usd(src, str(tmp_path / "none.usda"), 1, device="cpu", frames=(30.0, 40.0))
 
 
@@ -163,7 +162,8 @@ def test_time_varying_topology_is_refused_unless_the_frames_hold_one_topology(tm
 
     src = write_mesh(tmp_path / "topo.usda", pts, counts, idx, time_points={t: pts + [0, 0, 0.1 * t] for t in
                                                                           (1.0, 2.0, 3.0, 4.0)}, setup=setup)
-    with pytest.raises(SubdivInputError, match=r"/World/Mesh: faceVertexIndices changes over time.*--frames"):
+    with pytest.raises(SubdivInputError,
+                       match=r"/World/Mesh: faceVertexIndices changes over time.*\(the frames option\)"):
         refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
     assert not (tmp_path / "out.usda").exists()
     refine_usd(src, str(tmp_path / "first.usda"), 1, device="cpu", frames=(1.0, 2.0))
@@ -270,12 +270,11 @@ def test_vertex_primvars_follow_the_stencils_and_not_the_normal_projection(refin
     # written indexed
     st_in = UsdGeom.PrimvarsAPI(src).GetPrimvar("st")
     st_out = UsdGeom.PrimvarsAPI(prim).GetPrimvar("st")
-    if hasattr(ws.Refiner, "evaluate_face_varying"):
-        values, indices = ws.Refiner(mesh, LEVELS, device="cpu").evaluate_face_varying(
-            np.asarray(st_in.Get(), dtype=np.float64), np.asarray(st_in.GetIndices()), mode="corners-plus1")
-        assert st_out.IsIndexed()
-        np.testing.assert_allclose(np.asarray(st_out.Get()), values, atol=1e-6)
-        np.testing.assert_array_equal(np.asarray(st_out.GetIndices()), indices)
+    values, indices = ws.Refiner(mesh, LEVELS, device="cpu").evaluate_face_varying(
+        np.asarray(st_in.Get(), dtype=np.float64), np.asarray(st_in.GetIndices()), mode="corners-plus1")
+    assert st_out.IsIndexed()
+    np.testing.assert_allclose(np.asarray(st_out.Get()), values, atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(st_out.GetIndices()), indices)
     assert len(st_out.ComputeFlattened()) == 4 * len(spec.counts) * 4 ** LEVELS
     # time-sampled varying primvar keeps its samples
     assert UsdGeom.PrimvarsAPI(prim).GetPrimvar("weight").GetAttr().GetTimeSamples() == [1.0, 12.0, 24.0]
@@ -317,6 +316,18 @@ def test_reader_reads_every_tag(tmp_path):
     assert any("treated as infinitely sharp" in w for w in sharp.warnings)
 
 
+@pytest.mark.parametrize("token,mode", [(None, "corners-plus1"), ("none", "none"), ("cornersOnly", "corners-only"),
+                                        ("cornersPlus2", "corners-plus2"), ("boundaries", "boundaries"),
+                                        ("all", "all")])
+def test_face_varying_interpolation_reads_as_the_refiners_mode(tmp_path, token, mode):
+    """faceVaryingLinearInterpolation (cornersPlus1 when unset, as in USD) maps onto FaceVaryingMode."""
+    pts, counts, idx = grid(1, 1)
+    attrs = {} if token is None else {"faceVaryingLinearInterpolation": token}
+    stage = open_stage(write_mesh(tmp_path / "fv.usda", pts, counts, idx, attrs=attrs))
+    sp = read_mesh(stage.GetPrimAtPath("/World/Mesh"))
+    assert isinstance(sp.face_varying_mode, ws.FaceVaryingMode) and sp.face_varying_mode == mode
+
+
 def test_semi_sharp_creases_refine_as_semi_sharp_or_are_made_sharp(tmp_path):
     pts, counts, idx = grid(2, 2)
     pts = np.array(pts, dtype=float)
@@ -350,6 +361,8 @@ def test_semi_sharp_creases_refine_as_semi_sharp_or_are_made_sharp(tmp_path):
      {}, "creaseSharpnesses has 3 values; expected 1 (one per crease) or 2 (one per crease edge)"),
     ({"holeIndices": Vt.IntArray([7])}, {}, "/World/Mesh: holeIndices[0] = 7 is not a face of the mesh"),
     ({"subdivisionScheme": "catmark"}, {}, "subdivisionScheme 'catmark' is not one of"),
+    ({"faceVaryingLinearInterpolation": "sometimes"}, {}, "/World/Mesh: faceVaryingLinearInterpolation 'sometimes' "
+     "is not one of none, cornersOnly, cornersPlus1, cornersPlus2, boundaries, all"),
     ({}, {"subdiv:concave": ("FloatArray", Vt.FloatArray([1.0]))}, "subdiv:concave must be int2[], got float[]"),
     ({}, {"subdiv:rules": ("Token", "hoppe")}, "subdiv:rules 'hoppe' is not"),
     ({}, {"subdiv:normalIndices": ("IntArray", Vt.IntArray([0]))}, "must be given together"),
@@ -364,21 +377,57 @@ def test_reader_errors_name_the_prim_and_attribute(tmp_path, attrs, custom, need
     assert not (tmp_path / "out.usda").exists() and sorted(os.listdir(tmp_path)) == ["bad.usda"]
 
 
+def test_library_errors_are_put_in_usd_terms_from_their_fields():
+    """usd_error names the USD attribute from an error's structured fields (the Mesh argument or refiner option,
+    else the element), never from its text, keeps the fields, and turns a crease edge into its USD crease."""
+    from warp_subdiv.usd_read import usd_error
+
+    cases = [
+        (SubdivInputError("flatness must lie in [0, 1], got 2", option="flatness", value=2),
+         "/W: subdiv:flatness: flatness must lie in [0, 1], got 2"),
+        (SubdivInputError("normal_strength must lie in [0, 1]", option="normal_strength"),
+         "/W: subdiv:normalStrength: normal_strength"),
+        (SubdivInputError("face 3 is odd", element="face", index=3), "/W: faceVertexIndices: face 3 is odd"),
+        (SubdivInputError("face 3 has 2 vertices", option="face_vertex_counts", element="face", index=3),
+         "/W: faceVertexCounts: face 3 has 2 vertices"),
+        (SubdivInputError("prescribed normal for vertex 4 has length 2", option="normals", element="normal", index=0),
+         "/W: subdiv:normals: prescribed normal"),
+        (SubdivInputError("concave tag 0 (10, 6): vertex 10 is not a corner", option="concave", element="vertex",
+                          index=10), "/W: subdiv:concave: concave tag 0"),
+        (SubdivInputError("crease 2 (4, 5) is not an edge of the mesh", option="creases", element="crease", index=2),
+         "/W: creaseIndices: crease 1 edge (4, 5) is not an edge of the mesh"),
+        (SubdivInputError("precision must be one of 'float32', 'float64'", option="precision"),
+         "/W: precision must be one of"),
+    ]
+    for exc, text in cases:
+        out = usd_error("/W", exc, np.array([0, 0, 1]))
+        assert str(out) == text or str(out).startswith(text), (str(out), text)
+        assert (out.option, out.element, out.index, out.value) == (exc.option, exc.element, exc.index, exc.value)
+
+
+def test_options_a_mesh_asks_for_are_checked_with_the_run_rules(tmp_path):
+    """subdiv:flatness under --rules opensubdiv is refused, naming the prim and the attribute."""
+    pts, counts, idx = grid(2, 2)
+    src = write_mesh(tmp_path / "flat.usda", pts, counts, idx, custom={"subdiv:flatness": ("Float", 0.5)})
+    with pytest.raises(SubdivInputError, match=r"^/World/Mesh: subdiv:flatness: flatness is a piecewise-smooth rule"):
+        refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu", rules="opensubdiv")
+    with pytest.raises(SubdivInputError, match=r"^precision must be one of") as info:
+        refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu", precision="float16")
+    assert info.value.option == "precision"
+    assert sorted(os.listdir(tmp_path)) == ["flat.usda"]
+
+
 def test_smooth_triangle_rule(tmp_path):
-    """triangleSubdivisionRule = smooth reaches the refiner (OpenSubdiv's TRI_SUB_SMOOTH) where it has it."""
+    """triangleSubdivisionRule = smooth reaches the refiner (OpenSubdiv's TRI_SUB_SMOOTH)."""
     spec = SCENES["icosahedron_normals"].meshes[0]
     src = write_mesh(tmp_path / "tri.usda", spec.points, spec.counts, spec.indices,
                      attrs={"triangleSubdivisionRule": "smooth"})
     result = refine_usd(src, str(tmp_path / "out.usda"), 2, device="cpu")
     points = np.asarray(opened(tmp_path / "out.usda").GetPrimAtPath("/World/Mesh").GetAttribute("points").Get())
     mesh = ws.Mesh(spec.points, spec.counts, spec.indices)
-    if "triangle_subdivision" in inspect.signature(ws.Refiner.__init__).parameters:
-        expected = ws.refine(mesh, 2, device="cpu", triangle_subdivision="smooth").points
-        assert not any("triangleSubdivisionRule" in w for w in result.warnings)
-        assert np.abs(expected - ws.refine(mesh, 2, device="cpu").points).max() > 1e-3  # it makes a difference
-    else:
-        expected = ws.refine(mesh, 2, device="cpu").points
-        assert any("triangleSubdivisionRule 'smooth' is not supported" in w for w in result.warnings)
+    expected = ws.refine(mesh, 2, device="cpu", triangle_subdivision="smooth").points
+    assert not any("triangleSubdivisionRule" in w for w in result.warnings)
+    assert np.abs(expected - ws.refine(mesh, 2, device="cpu").points).max() > 1e-3  # it makes a difference
     np.testing.assert_allclose(points, expected, atol=2e-6)
 
 
@@ -433,17 +482,8 @@ def test_limit_points_and_normals(tmp_path):
     assert mesh.GetNormalsInterpolation() == "vertex"
 
 
-def test_missing_refiner_features_fail_before_any_work(tmp_path, monkeypatch):
-    from warp_subdiv import refiner
-
-    monkeypatch.delattr(refiner.Refined, "limit_points")
-    with pytest.raises(MissingFeatureError, match="--limit needs limit points"):
-        refine_usd(os.path.join(SCENES_DIR, "animated.usda"), str(tmp_path / "x.usda"), 1, device="cpu", limit=True)
-    assert os.listdir(tmp_path) == []
-
-
 def test_memory_guard_refuses_before_any_work(tmp_path):
-    with pytest.raises(MemoryGuardError, match=r"would need about .* more than --max-memory 1\.0 MiB"):
+    with pytest.raises(MemoryGuardError, match=r"would need about .* more than max_memory 1\.0 MiB"):
         refine_usd(os.path.join(SCENES_DIR, "complex_corner.usda"), str(tmp_path / "x.usda"), 5, device="cpu",
                    max_memory=2**20)
     with pytest.raises(MemoryGuardError, match="more than 32-bit tables can index"):

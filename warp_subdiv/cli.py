@@ -4,13 +4,18 @@
     warp-subdiv info IN [--levels N]                     the subdivision meshes of a file and predicted sizes
     warp-subdiv render IN -o OUT.png [options]           a shaded preview, ray-cast with Warp
 
-Exit codes: 0 success, 2 usage or input errors (one line on stderr, no traceback), 1 internal errors,
-130 interrupted. Outputs are written to a temporary file and renamed, so a failed run leaves no file.
+Exit codes: 0 success, 2 usage or input errors (one line on stderr, no traceback), 1 internal errors
+(one line; WARP_SUBDIV_DEBUG=1 shows the traceback), 130 interrupted. Outputs are written to a temporary file
+and renamed, so a failed run leaves no file.
+
+The library's errors name options by their keywords (``max_memory``) and carry the keyword in their
+``option`` field; this module, where it reports them, names the command-line flag instead (``--max-memory``).
 """
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import sys
 import time
@@ -18,8 +23,11 @@ import warnings
 
 from .errors import SubdivInputError
 
-USD_EXTENSIONS = (".usd", ".usda", ".usdc")
 PROG = "warp-subdiv"
+#: The library's option keywords that the command line sets, and their flags.
+FLAGS = {"levels": "--levels", "prims": "--prim", "scheme": "--scheme", "rules": "--rules", "boundary": "--boundary",
+         "device": "--device", "precision": "--precision", "frames": "--frames", "max_memory": "--max-memory",
+         "camera": "--camera", "view": "--view", "size": "--size", "time": "--time", "samples": "--samples"}
 
 
 class UsageError(SubdivInputError):
@@ -67,8 +75,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="write one self-contained layer (the composed, flattened stage) instead of an "
                         "override layer that sublayers the input")
     r.add_argument("--semi-sharp-as-sharp", action="store_true",
-                   help="treat semi-sharp creases and corners (0 < sharpness < 10) as infinitely sharp, with "
-                        "a warning, instead of refusing them")
+                   help="make semi-sharp creases and corners (0 < sharpness < 10) infinitely sharp, with a warning "
+                        "(default: they are refined as semi-sharp, with OpenSubdiv's semantics)")
     r.add_argument("--progress", default="auto", choices=["auto", "on", "off"],
                    help="progress bar on stderr (auto: when stderr is a terminal)")
     r.add_argument("--quiet", action="store_true", help="print nothing on success (warnings still go to stderr)")
@@ -148,13 +156,23 @@ def _max_memory(text):
 
     if text is None:
         return default_max_memory()
+    return parse_size(text)
+
+
+def _check_device(device) -> None:
+    """A Warp device this machine has (None: the default); a usage error otherwise."""
+    if device is None:
+        return
+    wp = _quiet_warp()
     try:
-        return parse_size(text)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
+        wp.get_device(device)
+    except Exception as exc:  # noqa: BLE001 (Warp raises ValueError or RuntimeError)
+        raise UsageError(f"--device {device}: {_one_line(exc)}") from None
 
 
 def _kind(path: str) -> str:
+    from .usd_write import USD_EXTENSIONS
+
     ext = os.path.splitext(path)[1].lower()
     if ext == ".obj":
         return "obj"
@@ -206,6 +224,7 @@ def _refine(args) -> int:
     if out_kind is None:
         raise UsageError(f"{args.output}: give the output an extension (.obj, .usd, .usda or .usdc)")
     max_memory = _max_memory(args.max_memory)
+    _check_device(args.device)
     progress = ProgressBar(not args.quiet and (args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())))
     try:
         if kind == "obj":
@@ -239,7 +258,7 @@ def _refine_usd(args, max_memory, progress) -> int:
 
 
 def _device_name(device) -> str:
-    from .refiner import default_device
+    from .evaluator import default_device
 
     return str(device or default_device())
 
@@ -248,8 +267,7 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     _quiet_warp()
     from .estimate import check_memory, estimate
     from .objio import read_obj, write_obj
-    from .refiner import Refiner
-    from .usd import PrimReport
+    from .usd import make_refiner, options_for
 
     if args.prim or args.frames:
         raise UsageError("--prim and --frames apply to USD input only")
@@ -258,18 +276,15 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     start = time.perf_counter()
     data = read_obj(args.input)
     mesh = data.mesh
-    scheme = args.scheme
-    if scheme == "auto":
-        scheme = "loop" if mesh.is_all(3) else "catmull-clark"
-    boundary = args.boundary or data.options.get("boundary", "edge-and-corner")
-    options = dict(scheme=scheme, rules=args.rules or "piecewise-smooth", boundary=boundary, device=args.device,
-                   precision=args.precision)
-    control = Refiner(mesh, 0, **options)  # the control-mesh analysis: does the refiner project?
+    options = options_for(data, scheme=args.scheme, rules=args.rules, boundary=args.boundary,
+                          precision=args.precision)
+    scheme, rules = options.scheme.value, options.rules.value
+    control = make_refiner(data, 0, options=options, device=args.device)  # the analysis: does it project?
     est = estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, args.levels, scheme,
-                   precision=args.precision, projecting=control.projects)
+                   precision=options.precision.value, projecting=control.projects)
     check_memory([est], max_memory, args.levels)
     progress(0.0, f"{args.input}: {args.levels} levels")
-    refiner = Refiner(mesh, args.levels, **options)
+    refiner = make_refiner(data, args.levels, options=options, device=args.device)
     progress(0.7, f"{args.input}: points")
     refined = refiner.refine()
     progress(0.9, f"writing {args.output}")
@@ -287,11 +302,9 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
         raise SubdivInputError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
     progress.clear()
     if not args.quiet:
-        rep = PrimReport(os.path.basename(args.input), scheme, args.rules or "piecewise-smooth", mesh.num_faces,
-                         refined.num_faces, mesh.num_vertices, refined.num_vertices, 1, time.perf_counter() - start)
-        print(f"{args.input}: {scheme}, {rep.rules} rules, {args.levels} levels on {refiner.device}")
+        print(f"{args.input}: {scheme}, {rules} rules, {args.levels} levels on {refiner.device}")
         print(f"  faces {mesh.num_faces} -> {refined.num_faces}, vertices {mesh.num_vertices} -> "
-              f"{refined.num_vertices}, {rep.seconds:.2f} s; wrote {args.output}")
+              f"{refined.num_vertices}, {time.perf_counter() - start:.2f} s; wrote {args.output}")
     return 0
 
 
@@ -306,23 +319,22 @@ def _info(args) -> int:
     if kind == "obj":
         _quiet_warp()
         from .objio import read_obj
-        from .refiner import Refiner
+        from .usd import make_refiner, options_for
 
         data = read_obj(args.input)
         mesh = data.mesh
-        scheme = "loop" if mesh.is_all(3) else "catmull-clark"
-        boundary = data.options.get("boundary", "edge-and-corner")
+        options = options_for(data)
         print(f"{args.input}: 1 mesh (OBJ)")
         print(f"{os.path.basename(args.input)}")
-        _print_control(mesh, scheme, boundary, "piecewise-smooth")
-        projecting = Refiner(mesh, 0, scheme=scheme, boundary=boundary, device="cpu").projects
+        _print_control(mesh, options.scheme.value, options.boundary.value, options.rules.value)
+        projecting = make_refiner(data, 0, options=options, device="cpu").projects
         _print_levels(lambda lv: estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges,
-                                          lv, scheme, projecting=projecting), args.levels)
+                                          lv, options.scheme.value, projecting=projecting), args.levels)
         return 0
     _quiet_warp()
     from pxr import UsdGeom
 
-    from .usd import control_refiner, estimate_prim, plan
+    from .usd import estimate_prim, make_refiner, plan
     from .usd_read import summarize_tags
 
     p = plan(args.input, args.levels, prims=args.prim, require_meshes=False)
@@ -332,7 +344,7 @@ def _info(args) -> int:
         times = f", time codes {stage.GetStartTimeCode():g} to {stage.GetEndTimeCode():g}"
     print(f"{args.input}: {len(p.prims)} subdivision mesh{'es' if len(p.prims) != 1 else ''} (upAxis "
           f"{UsdGeom.GetStageUpAxis(stage)}, metersPerUnit {UsdGeom.GetStageMetersPerUnit(stage):g}{times})")
-    for sp in p.prims:
+    for sp, options in zip(p.prims, p.options):
         print(sp.path)
         _print_control(sp.mesh, sp.scheme, sp.boundary, sp.rules, sp.usd_scheme, sp.orientation)
         print(f"  tags: {summarize_tags(sp)}")
@@ -350,7 +362,7 @@ def _info(args) -> int:
             print(f"  not refinable: {name} ({reason})")
         for w in sp.warnings:
             print(f"  note: {w}")
-        control = control_refiner(sp)
+        control = make_refiner(sp, 0, options=options)
         _print_levels(lambda lv, sp=sp, control=control: estimate_prim(sp, lv, control=control), args.levels)
     for path, reason in p.left_alone:
         print(f"{path}: left alone ({reason})")
@@ -402,6 +414,7 @@ def _render(args) -> int:
         raise UsageError(f"--levels must be >= 0, got {args.levels}")
     if args.cage is not None:
         _check_input(args.cage)
+    _check_device(args.device)
     render_file(args.input, args.output, kind=kind, prims=args.prim, camera=args.camera, view=view, size=size,
                 time=args.time, levels=args.levels, cage=args.cage, samples=args.samples, device=args.device)
     return 0
@@ -433,19 +446,22 @@ def main(argv=None) -> int:
         print(f"{PROG}: error: out of memory; lower --levels (or --max-memory, whose prediction was too low)",
               file=sys.stderr)
         return 2
-    except (SubdivInputError, NotImplementedError, ValueError, OSError) as exc:
+    except SubdivInputError as exc:  # bad input, including the command line's own errors
+        print(f"{PROG}: error: {_phrase(exc)}", file=sys.stderr)
+        return 2
+    except (OSError, NotImplementedError) as exc:  # files that cannot be read or written; a feature not there
         print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except Exception as exc:  # noqa: BLE001 (the last line of defence: no traceback for the user)
-        if _is_usd_error(exc):
+        if _is_usd_error(exc):  # USD could not read the input
             from .usd_read import tf_message
 
             print(f"{PROG}: error: {tf_message(exc)}", file=sys.stderr)
             return 2
         if os.environ.get("WARP_SUBDIV_DEBUG"):
             raise
-        print(f"{PROG}: internal error: {type(exc).__name__}: {_one_line(exc)} (set WARP_SUBDIV_DEBUG=1 for a "
-              "traceback)", file=sys.stderr)
+        print(f"{PROG}: internal error: {type(exc).__name__}: {_one_line(exc)} (a bug in warp-subdiv; set "
+              "WARP_SUBDIV_DEBUG=1 for the traceback)", file=sys.stderr)
         return 1
 
 
@@ -454,6 +470,15 @@ def _one_line(exc: BaseException) -> str:
     if isinstance(exc, OSError) and exc.strerror and exc.filename:
         text = f"{exc.filename}: {exc.strerror}"
     return text or type(exc).__name__
+
+
+def _phrase(exc: SubdivInputError) -> str:
+    """The error's message in one line, the option at fault (its ``option`` field) named by its flag."""
+    text = _one_line(exc)
+    flag = FLAGS.get(exc.option) if isinstance(exc.option, str) else None
+    if flag:
+        text = re.sub(rf"(?<![\w:./-]){re.escape(exc.option)}(?![\w./-])", flag, text)
+    return text
 
 
 def _is_usd_error(exc: BaseException) -> bool:

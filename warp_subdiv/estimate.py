@@ -7,7 +7,7 @@ Counts follow from the control mesh alone (V vertices, F faces, E edges, C face 
 * Loop: polygons are first fan-triangulated (F = C - 2F, E = E + C - 3F, C = 3F); then V' = V + E, F' = 4F,
   E' = 2E + 3F, C' = 3F'.
 
-Bytes (what the memory guard compares with ``--max-memory``) model the peak resident memory a refinement
+Bytes (what the memory guard compares with ``max_memory``) model the peak resident memory a refinement
 adds to the process, phase by phase, from per-vertex costs measured with ``python bench/bench_memory.py``
 (BENCHMARKS.md, "Memory estimate"; each configuration in a fresh process, peak RSS over the RSS before the
 call). Every cost is per vertex of the last level a phase builds, because every level is 4x the previous
@@ -26,7 +26,7 @@ one and the last one dominates:
   vertex refiner is alive: 55 bytes per output vertex at the peak (it reuses memory the vertex refiner's
   build released; measured 40 to 110 over repeated runs), plus one kept refiner where there are several
   channels (the previous channel's is dropped once the next one is built);
-* limit points and normals (``--limit``, ``--normals``) build full topology and mask tables of the level they
+* limit points and normals (the CLI's ``--limit``, ``--normals``) build full topology and mask tables of the level they
   read: 755 (Catmull-Clark) or 680 (Loop) bytes per vertex of that level; where the refiner projects or its
   edge rules differ next to extraordinary crease vertices that level is one deeper, and a refiner is built
   for it: 860 or 865 bytes per vertex of the deeper level;
@@ -192,7 +192,8 @@ def total_bytes(estimates) -> int:
 
 
 class MemoryGuardError(SubdivInputError):
-    """The predicted memory is above the limit (or the output would not fit 32-bit indices)."""
+    """The predicted memory is above the limit (``option`` "max_memory", ``value`` the predicted bytes), or the
+    output would not fit 32-bit indices (``option`` "levels")."""
 
 
 def check_indices(estimates, levels: int) -> None:
@@ -200,8 +201,8 @@ def check_indices(estimates, levels: int) -> None:
     for e in estimates:
         if e.final.corners > MAX_CORNERS:
             raise MemoryGuardError(
-                f"{e.path}: {levels} levels make {e.final.faces:,} faces ({e.final.corners:,} face corners), more "
-                "than 32-bit tables can index; lower --levels"
+                f"{e.path}: level {levels} has {e.final.faces:,} faces ({e.final.corners:,} face corners), more "
+                "than 32-bit tables can index; lower levels", option="levels", value=levels,
             )
 
 
@@ -214,10 +215,11 @@ def check_memory(estimates, max_memory: int | None, levels: int) -> None:
     if max_memory is not None and need > max_memory:
         biggest = max(estimates, key=lambda e: e.output_bytes + e.working_bytes)
         raise MemoryGuardError(
-            f"refining {len(estimates)} mesh(es) {levels} levels would need about {format_bytes(need)} "
+            f"refining {len(estimates)} mesh(es) to level {levels} would need about {format_bytes(need)} "
             f"({biggest.path}: {biggest.final.faces:,} faces, {biggest.final.vertices:,} vertices), more than "
-            f"--max-memory {format_bytes(max_memory)}; lower --levels"
-            + (", pick meshes with --prim," if len(estimates) > 1 else "") + " or raise --max-memory"
+            f"max_memory {format_bytes(max_memory)}; refine fewer levels"
+            + (" or fewer meshes" if len(estimates) > 1 else "") + ", or raise max_memory",
+            option="max_memory", value=need,
         )
 
 
@@ -251,7 +253,8 @@ def parse_size(text: str) -> int | None:
     except ValueError:
         value = -1.0
     if unit not in _UNITS or not np.isfinite(value) or value <= 0:
-        raise ValueError(f"--max-memory {text!r}: give a size such as 512M, 8G or 1.5GiB (or 'none')")
+        raise SubdivInputError(f"max_memory {text!r}: give a size such as 512M, 8G or 1.5GiB (or 'none')",
+                               option="max_memory", value=text)
     return int(value * _UNITS[unit])
 
 

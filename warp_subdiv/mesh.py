@@ -1,7 +1,11 @@
 """The tagged control mesh: points, polygons, creases, corners, concave sectors, normals and holes.
 
 Everything a user hands in is validated here, so that later stages can trust their input. Errors are
-:class:`SubdivInputError` (a ``ValueError``) and name the face, vertex, edge or tag at fault.
+:class:`SubdivInputError` (a ``ValueError``) and name the face, vertex, edge or tag at fault; their fields say
+the same in structured form: ``option`` is the :class:`Mesh` argument at fault (``"points"``,
+``"face_vertex_counts"``, ``"face_vertex_indices"``, ``"creases"``, ``"crease_sharpness"``, ``"corners"``,
+``"corner_sharpness"``, ``"concave"``, ``"normals"``, ``"holes"``), ``element`` and ``index`` the element
+("vertex", "face", "crease", "corner", "concave", "normal", "hole") and its place in that argument.
 """
 from __future__ import annotations
 
@@ -78,46 +82,54 @@ def find_edges(counts: np.ndarray, indices: np.ndarray, num_vertices: int) -> Me
     )
 
 
-def _int_array(value, name: str, shape_tail: tuple = ()) -> np.ndarray:
+def _int_array(value, name: str, shape_tail: tuple = (), option: str | None = None) -> np.ndarray:
+    """``value`` as int64 of shape (n,) + shape_tail; ``name`` says it in messages, ``option`` (default
+    ``name``) is the Mesh argument it came from."""
+    option = option or name
     arr = np.asarray(value)
     if arr.size == 0:
         return np.zeros((0,) + shape_tail, dtype=np.int64)
     if arr.dtype.kind == "f":
         if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
-            raise SubdivInputError(f"{name} must hold integers")
+            raise SubdivInputError(f"{name} must hold integers", option=option)
         arr = arr.astype(np.int64)
     elif arr.dtype.kind not in "iu":
-        raise SubdivInputError(f"{name} must hold integers, got dtype {arr.dtype}")
+        raise SubdivInputError(f"{name} must hold integers, got dtype {arr.dtype}", option=option)
     arr = arr.astype(np.int64)
     if shape_tail:
         if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
-            raise SubdivInputError(f"{name} must have shape (n, {', '.join(map(str, shape_tail))}), got {arr.shape}")
+            raise SubdivInputError(f"{name} must have shape (n, {', '.join(map(str, shape_tail))}), got {arr.shape}",
+                                   option=option)
     elif arr.ndim != 1:
-        raise SubdivInputError(f"{name} must be one-dimensional, got shape {arr.shape}")
+        raise SubdivInputError(f"{name} must be one-dimensional, got shape {arr.shape}", option=option)
     return arr
 
 
-def _check_vertex_ids(ids: np.ndarray, num_vertices: int, name: str) -> None:
+def _check_vertex_ids(ids: np.ndarray, num_vertices: int, name: str, element: str, option: str | None = None) -> None:
+    """Every id a vertex; else an error naming the entry (``element`` ``index``: the row of the argument)."""
     bad = np.flatnonzero((ids < 0) | (ids >= num_vertices))
     if len(bad):
         flat = bad[0]
         raise SubdivInputError(
             f"{name} entry {np.unravel_index(flat, ids.shape)} is vertex {ids.flat[flat]}, "
-            f"outside [0, {num_vertices})"
+            f"outside [0, {num_vertices})",
+            option=option or name, element=element, index=int(np.unravel_index(flat, ids.shape)[0]),
+            value=int(ids.flat[flat]),
         )
 
 
-def _sharpness(values, count: int, name: str) -> np.ndarray:
+def _sharpness(values, count: int, name: str, element: str) -> np.ndarray:
     if values is None:
         return np.full(count, INFINITE_SHARPNESS)
     arr = np.asarray(values, dtype=np.float64).reshape(-1)
     if arr.size == 1 and count != 1:
         arr = np.full(count, float(arr[0]))
     if len(arr) != count:
-        raise SubdivInputError(f"{name} has {len(arr)} values for {count} tags")
+        raise SubdivInputError(f"{name} has {len(arr)} values for {count} tags", option=name)
     bad = np.flatnonzero(~np.isfinite(arr) | (arr < 0))
     if len(bad):
-        raise SubdivInputError(f"{name}[{bad[0]}] = {arr[bad[0]]} is not a finite sharpness >= 0")
+        raise SubdivInputError(f"{name}[{bad[0]}] = {arr[bad[0]]} is not a finite sharpness >= 0", option=name,
+                               element=element, index=int(bad[0]), value=float(arr[bad[0]]))
     return np.minimum(arr, INFINITE_SHARPNESS)
 
 
@@ -147,25 +159,30 @@ class Mesh:
     ):
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:
-            raise SubdivInputError(f"points must have shape (n, 3), got {pts.shape}")
+            raise SubdivInputError(f"points must have shape (n, 3), got {pts.shape}", option="points")
         bad = np.flatnonzero(~np.all(np.isfinite(pts), axis=1))
         if len(bad):
-            raise SubdivInputError(f"point {bad[0]} is not finite: {pts[bad[0]].tolist()}")
+            raise SubdivInputError(f"point {bad[0]} is not finite: {pts[bad[0]].tolist()}", option="points",
+                                   element="vertex", index=int(bad[0]))
         nv = len(pts)
 
         counts = _int_array(face_vertex_counts, "face_vertex_counts")
         indices = _int_array(face_vertex_indices, "face_vertex_indices")
         if len(counts) == 0:
-            raise SubdivInputError("the mesh has no faces")
+            raise SubdivInputError("the mesh has no faces", option="face_vertex_counts")
         small = np.flatnonzero(counts < 3)
         if len(small):
-            raise SubdivInputError(f"face {small[0]} has {counts[small[0]]} vertices; a face needs at least 3")
+            raise SubdivInputError(f"face {small[0]} has {counts[small[0]]} vertices; a face needs at least 3",
+                                   option="face_vertex_counts", element="face", index=int(small[0]),
+                                   value=int(counts[small[0]]))
         if int(counts.sum()) != len(indices):
             raise SubdivInputError(
-                f"face_vertex_counts add up to {int(counts.sum())} but face_vertex_indices has {len(indices)} entries"
+                f"face_vertex_counts add up to {int(counts.sum())} but face_vertex_indices has {len(indices)} entries",
+                option="face_vertex_counts",
             )
         if len(indices) >= 2**31 // 16:
-            raise SubdivInputError(f"{len(indices)} face-vertex indices exceed what 32-bit tables can refine")
+            raise SubdivInputError(f"{len(indices)} face-vertex indices exceed what 32-bit tables can refine",
+                                   option="face_vertex_indices")
         offsets = face_offsets_of(counts)
         corner_face = np.repeat(np.arange(len(counts)), counts)
         out = np.flatnonzero((indices < 0) | (indices >= nv))
@@ -173,14 +190,17 @@ class Mesh:
             h = out[0]
             f = corner_face[h]
             raise SubdivInputError(
-                f"face {f} corner {h - offsets[f]} refers to vertex {indices[h]}, outside [0, {nv})"
+                f"face {f} corner {h - offsets[f]} refers to vertex {indices[h]}, outside [0, {nv})",
+                option="face_vertex_indices", element="face", index=int(f), value=int(indices[h]),
             )
         # repeated vertices inside one face
         order = np.lexsort((indices, corner_face))
         same = (corner_face[order][1:] == corner_face[order][:-1]) & (indices[order][1:] == indices[order][:-1])
         if np.any(same):
             h = order[1:][np.flatnonzero(same)[0]]
-            raise SubdivInputError(f"face {corner_face[h]} uses vertex {indices[h]} more than once")
+            raise SubdivInputError(f"face {corner_face[h]} uses vertex {indices[h]} more than once",
+                                   option="face_vertex_indices", element="face", index=int(corner_face[h]),
+                                   value=int(indices[h]))
 
         self.points = pts
         self.face_vertex_counts = counts.astype(np.int32)
@@ -190,32 +210,34 @@ class Mesh:
 
         # creases
         cr = _int_array(creases if creases is not None else [], "creases", (2,))
-        _check_vertex_ids(cr, nv, "creases")
-        cr_sharp = _sharpness(crease_sharpness, len(cr), "crease_sharpness")
+        _check_vertex_ids(cr, nv, "creases", "crease")
+        cr_sharp = _sharpness(crease_sharpness, len(cr), "crease_sharpness", "crease")
         cr_edges = self.edges.find(cr, nv) if len(cr) else np.zeros(0, np.int64)
         missing = np.flatnonzero(cr_edges < 0)
         if len(missing):
             i = missing[0]
-            raise SubdivInputError(f"crease {i} ({cr[i, 0]}, {cr[i, 1]}) is not an edge of the mesh")
+            raise SubdivInputError(f"crease {i} ({cr[i, 0]}, {cr[i, 1]}) is not an edge of the mesh",
+                                   option="creases", element="crease", index=int(i))
         self.creases = cr.astype(np.int32)
         self.crease_sharpness = cr_sharp
         self.crease_edges = cr_edges
 
         # corners
         co = _int_array(corners if corners is not None else [], "corners")
-        _check_vertex_ids(co, nv, "corners")
+        _check_vertex_ids(co, nv, "corners", "corner")
         self.corners = co.astype(np.int32)
-        self.corner_sharpness = _sharpness(corner_sharpness, len(co), "corner_sharpness")
+        self.corner_sharpness = _sharpness(corner_sharpness, len(co), "corner_sharpness", "corner")
 
         # concave sectors
         cc = _int_array(concave if concave is not None else [], "concave", (2,))
-        _check_vertex_ids(cc, nv, "concave")
+        _check_vertex_ids(cc, nv, "concave", "concave")
         cc_edges = self.edges.find(cc, nv) if len(cc) else np.zeros(0, np.int64)
         missing = np.flatnonzero(cc_edges < 0)
         if len(missing):
             i = missing[0]
             raise SubdivInputError(
-                f"concave tag {i} ({cc[i, 0]}, {cc[i, 1]}): the pair is not an edge of the mesh"
+                f"concave tag {i} ({cc[i, 0]}, {cc[i, 1]}): the pair is not an edge of the mesh",
+                option="concave", element="concave", index=int(i),
             )
         self.concave = cc.astype(np.int32)
         self.concave_edges = cc_edges
@@ -228,21 +250,27 @@ class Mesh:
             try:
                 ids, vecs = normals
             except (TypeError, ValueError):
-                raise SubdivInputError("normals must be a pair (vertex ids, unit normals)") from None
-            ids = _int_array(ids, "normals vertex ids")
-            _check_vertex_ids(ids, nv, "normals vertex ids")
+                raise SubdivInputError("normals must be a pair (vertex ids, unit normals)", option="normals") from None
+            ids = _int_array(ids, "normals vertex ids", option="normals")
+            _check_vertex_ids(ids, nv, "normals vertex ids", "vertex", option="normals")
             vecs = np.asarray(vecs, dtype=np.float64)
             if vecs.shape != (len(ids), 3):
-                raise SubdivInputError(f"normals need shape ({len(ids)}, 3) for {len(ids)} vertex ids, got {vecs.shape}")
+                raise SubdivInputError(
+                    f"normals need shape ({len(ids)}, 3) for {len(ids)} vertex ids, got {vecs.shape}",
+                    option="normals", element="normal",
+                )
             length = np.linalg.norm(vecs, axis=1)
             bad = np.flatnonzero(~np.isfinite(length) | (np.abs(length - 1.0) > 1e-3))
             if len(bad):
                 raise SubdivInputError(
-                    f"prescribed normal for vertex {ids[bad[0]]} has length {length[bad[0]]:.6g}; give unit normals"
+                    f"prescribed normal for vertex {ids[bad[0]]} has length {length[bad[0]]:.6g}; give unit normals",
+                    option="normals", element="normal", index=int(bad[0]), value=float(length[bad[0]]),
                 )
             uniq, cnt = np.unique(ids, return_counts=True)
             if np.any(cnt > 1):
-                raise SubdivInputError(f"vertex {uniq[cnt > 1][0]} has more than one prescribed normal")
+                vertex = int(uniq[cnt > 1][0])
+                raise SubdivInputError(f"vertex {vertex} has more than one prescribed normal", option="normals",
+                                       element="vertex", index=vertex)
             self.normal_vertices = ids.astype(np.int32)
             self.normal_vectors = vecs / length[:, None]
 
@@ -250,7 +278,8 @@ class Mesh:
         ho = _int_array(holes if holes is not None else [], "holes")
         bad = np.flatnonzero((ho < 0) | (ho >= len(counts)))
         if len(bad):
-            raise SubdivInputError(f"hole {bad[0]} is face {ho[bad[0]]}, outside [0, {len(counts)})")
+            raise SubdivInputError(f"hole {bad[0]} is face {ho[bad[0]]}, outside [0, {len(counts)})", option="holes",
+                                   element="hole", index=int(bad[0]), value=int(ho[bad[0]]))
         self.holes = ho.astype(np.int32)
 
     @property

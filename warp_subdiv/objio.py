@@ -15,16 +15,19 @@ import numpy as np
 
 from .errors import SubdivInputError
 from .mesh import Mesh
+from .options import CreaseMethod
 
 BOUNDARY_FROM_TAG = {0: "none", 1: "edge-and-corner", 2: "edge-only"}
 
 
 @dataclass
 class ObjData:
-    """What an OBJ file says: the tagged mesh plus the options its tags ask for."""
+    """What an OBJ file says: the tagged mesh plus the options its tags ask for ("boundary", "crease_method");
+    ``warp_subdiv.usd.options_for`` turns them into a refiner's options."""
 
     mesh: Mesh
     options: dict = field(default_factory=dict)
+    path: str = ""
 
 
 def _read_side_file(path: str, width: int) -> np.ndarray:
@@ -36,7 +39,7 @@ def _read_side_file(path: str, width: int) -> np.ndarray:
                 continue
             parts = line.split()
             if len(parts) != width:
-                raise SubdivInputError(f"{path}:{lineno}: expected {width} values, got {len(parts)}")
+                raise SubdivInputError(f"{path}:{lineno}: expected {width} values, got {len(parts)}", value=line)
             rows.append([float(p) for p in parts])
     return np.asarray(rows, dtype=np.float64).reshape(-1, width)
 
@@ -86,7 +89,14 @@ def read_obj(path: str) -> ObjData:
                     elif name == "interpolateboundary":
                         options["boundary"] = BOUNDARY_FROM_TAG.get(ints[0], "edge-only")
                     elif name == "creasemethod":
-                        options["crease_method"] = parts[3 + nint] if len(parts) > 3 + nint else "uniform"
+                        method = parts[3 + nint] if len(parts) > 3 + nint else "uniform"
+                        if method not in CreaseMethod.values():
+                            raise SubdivInputError(
+                                f"{path}:{lineno}: creasemethod {method!r} is not "
+                                f"{' or '.join(CreaseMethod.values())}", value=method)
+                        options["crease_method"] = method
+            except SubdivInputError:
+                raise
             except (ValueError, IndexError):
                 raise SubdivInputError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
     stem = os.path.splitext(path)[0]
@@ -111,7 +121,7 @@ def read_obj(path: str) -> ObjData:
         holes=holes or None,
         concave=np.asarray(concave, dtype=np.int64).reshape(-1, 2) if concave else None,
     )
-    return ObjData(mesh, options)
+    return ObjData(mesh, options, path)
 
 
 def write_obj(path: str, points: np.ndarray, face_vertex_counts: np.ndarray, face_vertex_indices: np.ndarray) -> None:

@@ -7,6 +7,9 @@ per-corner normals (authored ``normals``, else face normals averaged over the fa
 less than 40 degrees, so creases stay sharp). The camera is a ``UsdGeom.Camera`` or frames the meshes from
 an azimuth and elevation around the stage's up axis. Optionally the control meshes of another file (the
 input of a refinement) are drawn on top as lines, dark where visible and faint where hidden.
+
+Subdivision meshes refined for the preview (``levels``) get their refiner from
+:func:`warp_subdiv.usd.make_refiner`, as ``warp-subdiv refine`` does, so a preview shows what a bake makes.
 """
 from __future__ import annotations
 
@@ -73,12 +76,13 @@ class Camera:
 
 
 def parse_size(text: str):
+    """'WIDTHxHEIGHT' -> (width, height), each 1 to 8192."""
     try:
         w, h = (int(v) for v in str(text).lower().split("x"))
     except ValueError:
-        raise SubdivInputError(f"--size {text!r}: give WIDTHxHEIGHT, e.g. 800x600") from None
+        raise SubdivInputError(f"size {text!r}: give WIDTHxHEIGHT, e.g. 800x600", option="size", value=text) from None
     if not (1 <= w <= 8192 and 1 <= h <= 8192):
-        raise SubdivInputError(f"--size {text!r}: width and height must be 1 to 8192")
+        raise SubdivInputError(f"size {text!r}: width and height must be 1 to 8192", option="size", value=text)
     return w, h
 
 
@@ -86,7 +90,8 @@ def check_view(view):
     """(azimuth, elevation) in degrees; the elevation strictly between -90 and 90."""
     az, el = (float(v) for v in view)
     if not (-90.0 < el < 90.0) or not math.isfinite(az):
-        raise SubdivInputError(f"--view {az:g} {el:g}: the elevation must lie strictly between -90 and 90 degrees")
+        raise SubdivInputError(f"view {az:g} {el:g}: the elevation must lie strictly between -90 and 90 degrees",
+                               option="view", value=(az, el))
     return az, el
 
 
@@ -279,27 +284,22 @@ def _authored_normals(mesh, counts, indices, n_points, t):
 
 
 def _refined(prim, t, levels, device):
-    """(points, counts, indices, control face of each refined face) of a subdivision mesh at time ``t``."""
+    """(points, counts, indices, control face of each refined face) of a subdivision mesh at time ``t``,
+    refined as ``warp-subdiv refine`` refines it (same options, same bilinear handling)."""
     from .primvars import FaceMap
-    from .refiner import Refiner
+    from .usd import linear_vertex_data, make_refiner
     from .usd_read import read_mesh
 
     sp = read_mesh(prim)
-    scheme = "catmull-clark" if sp.scheme == "bilinear" else sp.scheme
-    boundary = "edge-and-corner" if sp.scheme == "bilinear" else sp.boundary
-    refiner = Refiner(sp.mesh, levels, scheme=scheme, rules=sp.rules, boundary=boundary, device=device)
+    refiner = make_refiner(sp, levels, device=device)
     pts = sp.points_default if t.IsDefault() else sp.points_at(t.GetValue())
     counts, indices = refiner.topology()
-    parent = FaceMap(sp.mesh, levels, sp.scheme, boundary).parent
+    fmap = FaceMap(sp.mesh, levels, sp.scheme, refiner.options.boundary.value, hierarchy=refiner.hierarchy)
     if sp.scheme == "bilinear":
-        from .primvars import corners_to_vertices
-
-        fm = FaceMap(sp.mesh, levels, "bilinear")
-        refined = corners_to_vertices(fm.refine_corners(pts[sp.mesh.face_vertex_indices]), indices,
-                                      refiner.num_vertices, refiner.evaluate(pts))
+        refined = linear_vertex_data(refiner, fmap, pts, indices)
     else:
         refined = refiner.evaluate(pts)
-    return refined.astype(np.float64), counts.astype(np.int64), indices.astype(np.int64), parent
+    return refined.astype(np.float64), counts.astype(np.int64), indices.astype(np.int64), fmap.parent
 
 
 def cage_edges(stage, time=None, prims=None) -> np.ndarray:
@@ -386,7 +386,7 @@ def usd_camera(stage, path: str, time, aspect: float) -> Camera:
 
     prim = stage.GetPrimAtPath(path) if path.startswith("/") else None
     if not prim or not prim.IsA(UsdGeom.Camera):
-        raise SubdivInputError(f"--camera {path}: no UsdGeom.Camera at that path")
+        raise SubdivInputError(f"camera {path}: no UsdGeom.Camera at that path", option="camera", value=path)
     t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     cam = UsdGeom.Camera(prim).GetCamera(t)
     m = np.array(cam.transform, dtype=np.float64).reshape(4, 4)
@@ -408,7 +408,7 @@ def render_soup(soup: Soup, camera: Camera, width: int, height: int, samples: in
     import warp as wp
 
     from .kernels import render as kr
-    from .refiner import default_device
+    from .evaluator import default_device
 
     dev = wp.get_device(device if device is not None else default_device())
     sw, sh = width * samples, height * samples
@@ -544,18 +544,19 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
     if kind == "obj":
         from .objio import read_obj
 
-        mesh = read_obj(path).mesh
+        if camera:
+            raise SubdivInputError("camera needs a USD file", option="camera", value=camera)
+        data = read_obj(path)
+        mesh = data.mesh
         pts, counts, idx = mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices
         if levels:
-            from .refiner import Refiner
+            from .usd import make_refiner
 
-            r = Refiner(mesh, levels, scheme="loop" if mesh.is_all(3) else "catmull-clark", device=device)
+            r = make_refiner(data, levels, device=device)
             counts, idx = r.topology()
             pts = r.evaluate(mesh.points).astype(np.float64)
         soup = _soup(pts, counts, idx, corner_normals(pts, counts, idx), np.tile(DEFAULT_COLOR, (len(idx), 1)))
         up_axis, stage = "Y", None
-        if camera:
-            raise SubdivInputError("--camera needs a USD file")
     else:
         from pxr import UsdGeom
 
@@ -568,14 +569,14 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
             try:
                 time = float(time)
             except ValueError:
-                raise SubdivInputError(f"--time {time!r}: give a time code (a number)") from None
+                raise SubdivInputError(f"time {time!r} is not a number", option="time", value=time) from None
         soup = stage_soup(stage, prims, time, levels, device)
         up_axis = UsdGeom.GetStageUpAxis(stage)
     edges = None
     if cage:
-        from .usd_read import open_stage as _open
+        from .usd_read import open_stage
 
-        edges = cage_edges(_open(cage), time, prims)
+        edges = cage_edges(open_stage(cage), time, prims)
     if not len(soup.corners):
         raise SubdivInputError(f"{path}: nothing to render (no visible meshes{' under ' + ', '.join(prims) if prims else ''})")
     if camera:

@@ -7,7 +7,7 @@ layer layout and what is supported.
 The output layer sublayers the input and holds an ``over`` of every refined mesh, at the mesh's own path:
 
 * ``subdivisionScheme = "none"``, ``points``, ``faceVertexCounts``, ``faceVertexIndices``, ``extent`` (per
-  time sample), ``velocities`` / ``accelerations`` (refined like points), ``normals`` (with ``--normals``);
+  time sample), ``velocities`` / ``accelerations`` (refined like points), ``normals`` (with ``normals=True``);
 * every subdivision attribute (creases, corners, holes, boundary and face-varying interpolation, triangle
   rule) and every ``subdiv:`` tag is blocked, and so are authored ``normals`` / ``primvars:normals`` when no
   normals are written (they belong to the control mesh);
@@ -16,10 +16,14 @@ The output layer sublayers the input and holds an ``over`` of every refined mesh
 * face GeomSubsets (material bindings) get their ``indices`` remapped to the refined faces.
 
 Transforms, materials, relationships and every other prim come from the input unchanged.
+
+Every front end gets its refiner here: :func:`options_for` turns what a file says about a control mesh (a USD
+prim as read, or an OBJ file) and the run's overrides into :class:`~warp_subdiv.options.Options`, and
+:func:`make_refiner` builds the refiner from them, so that ``refine``, ``info`` and ``render --levels`` refine
+alike.
 """
 from __future__ import annotations
 
-import inspect
 import os
 import time as _time
 from dataclasses import dataclass, field
@@ -30,17 +34,15 @@ from pxr import Sdf, Usd, Vt
 from . import __version__
 from .errors import SubdivInputError
 from .estimate import Estimate, MemoryGuardError, check_memory, estimate, total_bytes
+from .objio import ObjData
+from .options import Boundary, Options, Precision, RuleSet, Scheme
 from .primvars import FaceMap, corners_to_vertices, vertices_used
-from .refiner import Refined, Refiner
+from .refiner import Refiner
 from .usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, mesh_prims, open_stage,
                        read_mesh)
 from .usd_write import OutputLayer, check_output_path, extent_of, int_array, vec3f_array, vt_array
 
 T = Sdf.ValueTypeNames
-
-
-class MissingFeatureError(SubdivInputError):
-    """The input asks for something this version of warp-subdiv cannot do yet."""
 
 
 @dataclass
@@ -64,6 +66,7 @@ class Plan:
     stage: Usd.Stage
     prims: list
     estimates: list
+    options: list = field(default_factory=list)  # the Options of each of prims
     left_alone: list = field(default_factory=list)  # (path, reason)
     warnings: list = field(default_factory=list)  # "path: message"
 
@@ -104,8 +107,9 @@ def plan(
 ) -> Plan:
     """Open ``input_path`` and read every subdivision mesh at or under ``prims``; predict output sizes.
 
-    Every control mesh is analysed with the run's options (``control_refiner``), so bad tags, options or
+    Every control mesh is analysed with the run's options (``make_refiner(sp, 0)``), so bad tags, options or
     devices fail here, before any refinement."""
+    scheme, rules, boundary, precision = _run_options(scheme, rules, boundary, precision)
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     stage = open_stage(input_path)
@@ -116,19 +120,19 @@ def plan(
         out.left_alone.append((str(prim.GetPath()), reason))
         out.warnings.append(f"{prim.GetPath()}: not refined: {reason}")
     for prim in meshes:
-        sp = read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme, rules=rules, boundary=boundary)
+        sp = read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme or "auto", rules=rules,
+                       boundary=boundary)
         if sp is None:
             scheme_token = prim.GetAttribute("subdivisionScheme").Get()
             out.left_alone.append((str(prim.GetPath()), "empty mesh" if scheme_token != "none"
                                    else "subdivisionScheme none"))
             continue
+        options = options_for(sp, precision=precision)
         out.prims.append(sp)
-        if sp.smooth_triangles and not _has_param("triangle_subdivision"):
-            sp.warnings.append("triangleSubdivisionRule 'smooth' is not supported by this refiner: triangles get "
-                               "the plain Catmull-Clark rule")
+        out.options.append(options)
         out.warnings.extend(f"{sp.path}: {w}" for w in sp.warnings)
         out.estimates.append(estimate_prim(sp, levels, precision, normals, limit,
-                                           control_refiner(sp, device, precision)))
+                                           make_refiner(sp, 0, options=options, device=device)))
     if require_meshes and not out.prims:
         where = f"under {', '.join(prims)}" if prims else "in the file"
         why = "; ".join(f"{p} ({r})" for p, r in out.left_alone[:3])
@@ -138,20 +142,106 @@ def plan(
     return out
 
 
-def control_refiner(sp: SubdivPrim, device=None, precision: str = "float32") -> Refiner:
-    """The prim's level-0 refiner: its whole control-mesh analysis (tags, sectors, options), at the cost of
-    the control mesh."""
-    return _make_refiner(sp, 0, _refiner_kwargs(sp, device, precision))
+def _run_options(scheme, rules, boundary, precision):
+    """The run's overrides, checked (their errors name the option, not a mesh), as plain strings; None where
+    the file decides (a scheme of "auto" too)."""
+    scheme = None if scheme in (None, "auto") else Scheme.parse(scheme, "scheme").value
+    rules = None if rules is None else RuleSet.parse(rules, "rules").value
+    boundary = None if boundary is None else Boundary.parse(boundary, "boundary").value
+    return scheme, rules, boundary, Precision.parse(precision, "precision").value
+
+
+def options_for(source, *, scheme=None, rules=None, boundary=None, precision="float32") -> Options:
+    """The refinement options of one control mesh, as its file gives them, with the run's overrides.
+
+    The one place every front end (the USD bake, ``info``, ``render --levels``, OBJ refinement) gets its
+    options from. ``source`` is a :class:`~warp_subdiv.usd_read.SubdivPrim` (a USD mesh as read: its scheme,
+    ``subdiv:rules``, ``interpolateBoundary``, ``subdiv:flatness``, ``subdiv:normalStrength``,
+    ``triangleSubdivisionRule``) or an :class:`~warp_subdiv.objio.ObjData` (OBJ: Loop for an all-triangle
+    mesh, else Catmull-Clark; its ``interpolateboundary`` and ``creasemethod`` tags). ``scheme`` ("auto" or
+    None: the file's), ``rules`` and ``boundary`` (None: the file's) override what the file says.
+
+    A bilinear USD mesh gets Catmull-Clark topology with edge-and-corner boundaries and neither flatness nor
+    normal control: its refined faces are those of Catmull-Clark, its data is interpolated linearly inside
+    each control face (:func:`linear_vertex_data`).
+
+    Errors in what the file says name the prim and attribute (USD) or the file (OBJ); errors in the overrides
+    name the option.
+    """
+    scheme, rules, boundary, precision = _run_options(scheme, rules, boundary, precision)
+    if isinstance(source, ObjData):
+        mesh = source.mesh
+        chosen = scheme or ("loop" if mesh.is_all(3) else "catmull-clark")
+        keywords = dict(scheme=chosen, rules=rules or "piecewise-smooth",
+                        boundary=boundary or source.options.get("boundary", "edge-and-corner"), precision=precision,
+                        crease_method=source.options.get("crease_method", "uniform"))
+    else:
+        chosen = scheme or source.scheme
+        bilinear = chosen == "bilinear"
+        keywords = dict(scheme="catmull-clark" if bilinear else chosen, rules=rules or source.rules,
+                        boundary="edge-and-corner" if bilinear else (boundary or source.boundary),
+                        precision=precision)
+        if source.smooth_triangles and not bilinear:
+            keywords["triangle_subdivision"] = "smooth"  # OpenSubdiv's TRI_SUB_SMOOTH
+        if not bilinear:
+            if source.flatness is not None:
+                keywords["flatness"] = source.flatness
+            if source.normal_strength is not None:
+                keywords["normal_strength"] = source.normal_strength
+    try:
+        return Options(**keywords)
+    except SubdivInputError as exc:
+        raise _about(source, exc) from None
+
+
+def make_refiner(source, levels: int, *, options: Options | None = None, device=None, max_memory=None,
+                 **overrides) -> Refiner:
+    """The refiner of one control mesh: ``source`` as for :func:`options_for`, refined ``levels`` times with
+    ``options`` (default: ``options_for(source, **overrides)``). Every front end builds its refiners here.
+
+    Errors about the mesh (its tags, the options it asks for) name the prim and the USD attribute, or the OBJ
+    file; the memory guard's errors pass as they are."""
+    if options is None:
+        options = options_for(source, **overrides)
+    elif overrides:
+        raise TypeError(f"pass either options= or overrides, not both ({', '.join(overrides)})")
+    try:
+        return Refiner(source.mesh, levels, options=options, device=device, max_memory=max_memory)
+    except MemoryGuardError:
+        raise
+    except SubdivInputError as exc:
+        raise _about(source, exc) from None
+
+
+def _about(source, exc: SubdivInputError) -> SubdivInputError:
+    """``exc``, an error about the mesh of ``source``, said in the terms of its file."""
+    if isinstance(source, ObjData):
+        return SubdivInputError(f"{source.path}: {exc}" if source.path else str(exc), option=exc.option,
+                                element=exc.element, index=exc.index, value=exc.value)
+    return source.error(exc)
+
+
+def linear_vertex_data(refiner: Refiner, fmap: FaceMap, values, indices, complete: bool | None = None) -> np.ndarray:
+    """Per-vertex ``values`` of the control mesh refined linearly inside each control face (bilinear meshes,
+    varying primvars): the refined vertices of ``refiner`` (whose ``topology()`` indices are ``indices``)
+    that no face uses (holes) get the refiner's values. ``complete``: whether every vertex is used (computed
+    when None)."""
+    mesh = refiner.mesh
+    corners = fmap.refine_corners(np.asarray(values, dtype=np.float64)[mesh.face_vertex_indices])
+    if complete is None:
+        complete = vertices_used(indices, refiner.num_vertices)
+    fill = None if complete else refiner.evaluate(values)
+    return corners_to_vertices(corners, indices, refiner.num_vertices, fill)
 
 
 def estimate_prim(sp: SubdivPrim, levels: int, precision: str = "float32", normals: bool = False,
                   limit: bool = False, control: Refiner | None = None) -> Estimate:
     """Predicted counts and bytes of refining one mesh (its samples, primvars and point arrays included).
 
-    ``control`` (the prim's ``control_refiner``, analysed here when not given) says whether the refiner
-    projects on every level and where limit masks are read."""
+    ``control`` (the prim's level-0 refiner, ``make_refiner(sp, 0)``, analysed here when not given) says
+    whether the refiner projects on every level and where limit masks are read."""
     if control is None:
-        control = control_refiner(sp, "cpu", precision)
+        control = make_refiner(sp, 0, device="cpu", precision=precision)
     widths = {"vertex": 0, "faceVarying": 0, "uniform": 0}
     channels = sum(pv.interpolation == "faceVarying" for pv in sp.primvars) if sp.scheme != "bilinear" else 0
     for pv in sp.primvars:
@@ -173,50 +263,6 @@ def _components(pv) -> int:
     """Scalars per value of the primvar's type (float3 -> 3, texCoord2f -> 2, float -> 1)."""
     digits = [c for c in str(pv.type_name.scalarType) if c.isdigit()]
     return int(digits[0]) if digits else 1
-
-
-def _has_param(name: str) -> bool:
-    return name in inspect.signature(Refiner.__init__).parameters
-
-
-def _refiner_kwargs(sp: SubdivPrim, device, precision) -> dict:
-    kw = dict(scheme="catmull-clark" if sp.scheme == "bilinear" else sp.scheme, rules=sp.rules,
-              boundary="edge-and-corner" if sp.scheme == "bilinear" else sp.boundary, device=device,
-              precision=precision)
-    if sp.smooth_triangles and _has_param("triangle_subdivision"):
-        kw["triangle_subdivision"] = "smooth"  # OpenSubdiv's TRI_SUB_SMOOTH
-    if sp.scheme != "bilinear":
-        for attr, param, value in (("subdiv:flatness", "flatness", sp.flatness),
-                                   ("subdiv:normalStrength", "normal_strength", sp.normal_strength)):
-            if value is None:
-                continue
-            if not _has_param(param):
-                raise MissingFeatureError(
-                    f"{sp.path}: {attr} needs the refiner's {param} option (normal control and flatness), which "
-                    "this version of warp-subdiv does not have yet"
-                )
-            kw[param] = value
-    return kw
-
-
-def _make_refiner(sp: SubdivPrim, levels: int, kw: dict) -> Refiner:
-    try:
-        return Refiner(sp.mesh, levels, **kw)
-    except NotImplementedError as exc:
-        raise MissingFeatureError(f"{sp.path}: {exc}") from None
-    except (SubdivInputError, ValueError) as exc:
-        raise SubdivInputError(f"{sp.path}: {exc}") from None
-
-
-def preflight(p: Plan, *, limit=False, normals=False) -> None:
-    """Fail early, before any refinement: features the run needs that this version lacks (``plan`` has
-    analysed every control mesh with the run's options already)."""
-    if limit and not hasattr(Refined, "limit_points"):
-        raise MissingFeatureError("--limit needs limit points (Refined.limit_points), which this version of "
-                                  "warp-subdiv does not have yet")
-    if normals and not hasattr(Refined, "limit_normals"):
-        raise MissingFeatureError("--normals needs limit normals (Refined.limit_normals), which this version of "
-                                  "warp-subdiv does not have yet")
 
 
 class _Work:
@@ -267,7 +313,7 @@ def refine_usd(
     """
     start = _time.perf_counter()
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
-        raise SubdivInputError(f"levels must be an integer >= 0, got {levels!r}")
+        raise SubdivInputError(f"levels must be an integer >= 0, got {levels!r}", option="levels", value=levels)
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     check_output_path(output_path)
@@ -276,7 +322,6 @@ def refine_usd(
              device=device)
     out_abs = check_output_path(output_path, p.stage)
     check_memory(p.estimates, max_memory, levels)
-    preflight(p, limit=limit, normals=normals)
 
     custom = {"warpSubdiv": {
         "version": __version__, "levels": int(levels), "source": os.path.basename(input_path),
@@ -294,7 +339,7 @@ def refine_usd(
     try:
         for i, sp in enumerate(p.prims):
             t0 = _time.perf_counter()
-            rep = _refine_prim(sp, layer, levels, device, precision, limit, normals, warnings, work,
+            rep = _refine_prim(sp, p.options[i], layer, levels, device, limit, normals, warnings, work,
                                work.weights[i], f"[{i + 1}/{len(p.prims)}] {sp.path}")
             rep.seconds = _time.perf_counter() - t0
             reports.append(rep)
@@ -307,12 +352,11 @@ def refine_usd(
     return Result(out_abs, reports, warnings, _time.perf_counter() - start, p.predicted_bytes)
 
 
-def _refine_prim(sp: SubdivPrim, layer: OutputLayer, levels, device, precision, limit, normals, warnings, work,
-                 weights, label) -> PrimReport:
-    kw = _refiner_kwargs(sp, device, precision)
-    refiner = _make_refiner(sp, levels, kw)
+def _refine_prim(sp: SubdivPrim, options: Options, layer: OutputLayer, levels, device, limit, normals, warnings,
+                 work, weights, label) -> PrimReport:
+    refiner = make_refiner(sp, levels, options=options, device=device)
     counts, indices = refiner.topology()
-    fmap = FaceMap(sp.mesh, levels, sp.scheme, "edge-and-corner" if sp.scheme == "bilinear" else sp.boundary)
+    fmap = FaceMap(sp.mesh, levels, sp.scheme, options.boundary.value, hierarchy=refiner.hierarchy)
     fmap.check(counts)
     n_out = refiner.num_vertices
     w_tables, w_sample = weights
@@ -323,9 +367,7 @@ def _refine_prim(sp: SubdivPrim, layer: OutputLayer, levels, device, precision, 
 
     def linear_field(values):
         """Bilinear refinement of per-vertex data (varying primvars, bilinear meshes)."""
-        corners = fmap.refine_corners(np.asarray(values, dtype=np.float64)[mesh.face_vertex_indices])
-        fill = None if complete else refiner.evaluate(values)
-        return corners_to_vertices(corners, indices, n_out, fill)
+        return linear_vertex_data(refiner, fmap, values, indices, complete)
 
     def positions(pts):
         """Refined (or limit) points and limit normals (or None) of control points ``pts``."""
@@ -401,11 +443,7 @@ def _refine_prim(sp: SubdivPrim, layer: OutputLayer, levels, device, precision, 
 
     # primvars; face-varying ones by the refiner's face-varying channels where it has them (OpenSubdiv's
     # FVarLinearInterpolation modes), else linearly per face
-    mode = sp.prim.GetAttribute("faceVaryingLinearInterpolation").Get() or "cornersPlus1"
-    if mode not in FVAR_MODES:
-        raise SubdivInputError(f"{sp.path}: faceVaryingLinearInterpolation {mode!r} is not one of "
-                               f"{', '.join(FVAR_MODES)}")
-    fvar_mode = FVAR_MODES[mode] if sp.scheme != "bilinear" else None
+    fvar_mode = sp.face_varying_mode if sp.scheme != "bilinear" else None
     fv_refined = []
     for pv in sp.primvars:
         try:
@@ -429,11 +467,6 @@ def _drop(sp, layer, prim, name, reason, warnings):
     if sp.prim.GetAttribute(name + ":indices").HasAuthoredValue() or name + ":indices" in prim.attributes:
         layer.block(prim, name + ":indices", T.IntArray)
     warnings.append(f"{sp.path}: {name} dropped ({reason})")
-
-
-#: USD faceVaryingLinearInterpolation -> Refiner.evaluate_face_varying mode.
-FVAR_MODES = {"none": "none", "cornersOnly": "corners-only", "cornersPlus1": "corners-plus1",
-              "cornersPlus2": "corners-plus2", "boundaries": "boundaries", "all": "all"}
 
 
 def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=None):
@@ -481,17 +514,11 @@ def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=N
         elif pv.interpolation == "varying" or sp.scheme == "bilinear":
             out = linear_field(rows.astype(np.float64))
         else:  # vertex: the subdivision rules (with flatness), but prescribed normals move positions only
-            out = _evaluate(refiner, rows.astype(np.float64), normal_control=False)
+            out = refiner.evaluate(rows.astype(np.float64), normal_control=False)
         shaped = np.asarray(out).reshape((len(out) * pv.element_size,) + like.shape[1:])
         layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))
         if pv.indexed and t == DEFAULT:
             layer.block(prim, pv.name + ":indices", T.IntArray)
-
-
-def _evaluate(refiner, data, normal_control):
-    if "normal_control" in inspect.signature(refiner.evaluate).parameters:
-        return refiner.evaluate(data, normal_control=normal_control)
-    return refiner.evaluate(data)
 
 
 def _default_or_sample(t, value):
@@ -518,5 +545,5 @@ def _write_subset(sp, subset, layer, fmap, warnings):
         layer.set(spec, *_default_or_sample(t, int_array(np.flatnonzero(member[fmap.parent]))))
 
 
-__all__ = ["plan", "refine_usd", "check_memory", "preflight", "Plan", "Result", "PrimReport", "MemoryGuardError",
-           "MissingFeatureError", "SUBDIV_ATTRIBUTES"]
+__all__ = ["plan", "refine_usd", "options_for", "make_refiner", "check_memory", "Plan", "Result", "PrimReport",
+           "MemoryGuardError", "SUBDIV_ATTRIBUTES"]

@@ -6,7 +6,9 @@ USD attributes read (``UsdGeom.Mesh``): ``points``, ``faceVertexCounts``, ``face
 ``creaseLengths`` / ``creaseSharpnesses`` (one sharpness per crease or per crease edge), ``cornerIndices`` /
 ``cornerSharpnesses``, ``triangleSubdivisionRule``, ``faceVaryingLinearInterpolation``, ``velocities``,
 ``accelerations``, ``normals`` and the primvars; and warp-subdiv's own tags in the ``subdiv:`` namespace
-(see :data:`SUBDIV_ATTRIBUTES`). Errors are :class:`SubdivInputError` naming the prim and the attribute.
+(see :data:`SUBDIV_ATTRIBUTES`). Errors are :class:`SubdivInputError` naming the prim and the attribute:
+errors of the library underneath (:class:`Mesh`, the refiner) are put in USD terms by :func:`usd_error`, from
+their structured fields.
 """
 from __future__ import annotations
 
@@ -18,13 +20,36 @@ from pxr import Sdf, Tf, Usd, UsdGeom
 
 from .errors import SubdivInputError
 from .mesh import INFINITE_SHARPNESS, Mesh
+from .options import FaceVaryingMode, RuleSet
 from .topology import expand_counts
 
 #: USD subdivisionScheme -> the scheme warp-subdiv refines with ("none" meshes are left alone).
 USD_SCHEMES = {"catmullClark": "catmull-clark", "loop": "loop", "bilinear": "bilinear"}
 #: USD interpolateBoundary -> Refiner boundary option.
 USD_BOUNDARY = {"none": "none", "edgeOnly": "edge-only", "edgeAndCorner": "edge-and-corner"}
-RULE_SETS = ("piecewise-smooth", "opensubdiv")
+#: USD faceVaryingLinearInterpolation -> the mode of the refiner's face-varying channels.
+USD_FVAR_MODES = {"none": FaceVaryingMode.NONE, "cornersOnly": FaceVaryingMode.CORNERS_ONLY,
+                  "cornersPlus1": FaceVaryingMode.CORNERS_PLUS1, "cornersPlus2": FaceVaryingMode.CORNERS_PLUS2,
+                  "boundaries": FaceVaryingMode.BOUNDARIES, "all": FaceVaryingMode.ALL}
+#: The faceVaryingLinearInterpolation of a mesh that does not author one (USD's fallback).
+USD_FVAR_DEFAULT = "cornersPlus1"
+
+#: Where an error of the library underneath is in a USD mesh, by the error's ``option``: the arguments of
+#: :class:`Mesh` (what the reader made of the attributes), then the refiner's options a mesh sets.
+MESH_ARGUMENT_ATTRIBUTES = {
+    "points": "points", "face_vertex_counts": "faceVertexCounts", "face_vertex_indices": "faceVertexIndices",
+    "creases": "creaseIndices", "crease_sharpness": "creaseSharpnesses", "corners": "cornerIndices",
+    "corner_sharpness": "cornerSharpnesses", "concave": "subdiv:concave", "normals": "subdiv:normalIndices",
+    "holes": "holeIndices",
+}
+OPTION_ATTRIBUTES = {
+    "scheme": "subdivisionScheme", "rules": "subdiv:rules", "boundary": "interpolateBoundary",
+    "flatness": "subdiv:flatness", "normal_strength": "subdiv:normalStrength",
+    "triangle_subdivision": "triangleSubdivisionRule",
+}
+#: ... and by the error's ``element``, where its option says nothing more.
+ELEMENT_ATTRIBUTES = {"face": "faceVertexIndices", "crease": "creaseIndices", "corner": "cornerIndices",
+                      "hole": "holeIndices", "concave": "subdiv:concave", "normal": "subdiv:normalIndices"}
 
 #: warp-subdiv's own per-mesh attributes: name -> (accepted USD types, meaning).
 SUBDIV_ATTRIBUTES = {
@@ -152,6 +177,12 @@ class SubdivPrim:
     warnings: list = field(default_factory=list)
     semi_sharp: int = 0  # finite sharpness tags left as they are (the refiner may refuse them)
     smooth_triangles: bool = False  # triangleSubdivisionRule "smooth" on a Catmull-Clark mesh with triangles
+    face_varying_mode: FaceVaryingMode = FaceVaryingMode.CORNERS_PLUS1  # faceVaryingLinearInterpolation
+    crease_of_edge: np.ndarray | None = None  # the USD crease (creaseLengths entry) of each of mesh.creases
+
+    def error(self, exc: SubdivInputError) -> SubdivInputError:
+        """``exc``, an error of the library about this mesh, in USD terms (see :func:`usd_error`)."""
+        return usd_error(self.path, exc, self.crease_of_edge)
 
     def points_at(self, time) -> np.ndarray:
         """Control points at ``time`` (float64 (n, 3)), checked against the topology."""
@@ -186,6 +217,28 @@ class SubdivPrim:
         return pts
 
 
+def usd_error(path: str, exc: SubdivInputError, crease_of_edge=None) -> SubdivInputError:
+    """An error of the library about the mesh at ``path`` (from :class:`Mesh` or the refiner), its message
+    prefixed with the prim and the USD attribute at fault, which its structured fields name: ``option`` (a
+    Mesh argument or a refiner option), else ``element``. A crease edge's index is turned into its USD crease
+    (``crease_of_edge``). The fields are kept."""
+    message = str(exc)
+    option, element, index = exc.option, exc.element, exc.index
+    if option == "normals" and element == "normal":
+        attr = "subdiv:normals"  # the vectors themselves
+    elif option in MESH_ARGUMENT_ATTRIBUTES:
+        attr = MESH_ARGUMENT_ATTRIBUTES[option]
+    elif element in ELEMENT_ATTRIBUTES:
+        attr = ELEMENT_ATTRIBUTES[element]
+    else:
+        attr = OPTION_ATTRIBUTES.get(option)
+    if (element == "crease" and index is not None and crease_of_edge is not None and 0 <= index < len(crease_of_edge)
+            and message.startswith(f"crease {index} ")):
+        message = f"crease {int(crease_of_edge[index])} edge {message[len(f'crease {index} '):]}"
+    text = f"{path}: {attr}: {message}" if attr else f"{path}: {message}"
+    return SubdivInputError(text, option=option, element=element, index=index, value=exc.value)
+
+
 def parse_frames(text: str | None):
     """'A:B', 'A:', ':B' or 'A' -> (start, end) with None for an open end; None -> None (all samples)."""
     if text is None:
@@ -200,9 +253,10 @@ def parse_frames(text: str | None):
         else:
             raise ValueError
     except ValueError:
-        raise SubdivInputError(f"--frames {text!r}: give A:B, A:, :B or A (time codes)") from None
+        raise SubdivInputError(f"frames {text!r}: give A:B, A:, :B or A (time codes)", option="frames",
+                               value=text) from None
     if a is not None and b is not None and a > b:
-        raise SubdivInputError(f"--frames {text!r}: the start is after the end")
+        raise SubdivInputError(f"frames {text!r}: the start is after the end", option="frames", value=text)
     return a, b
 
 
@@ -253,7 +307,8 @@ def mesh_prims(stage: Usd.Stage, prim_paths=None, where: str = ""):
     if prim_paths:
         for p in prim_paths:
             if not Sdf.Path.IsValidPathString(p) or not Sdf.Path(p).IsAbsolutePath():
-                raise SubdivInputError(f"--prim {p!r}: not an absolute prim path such as /World/Mesh")
+                raise SubdivInputError(f"prims {p!r}: not an absolute prim path such as /World/Mesh",
+                                       option="prims", value=p)
             prim = stage.GetPrimAtPath(p)
             if not prim or not prim.IsValid():
                 raise SubdivInputError(f"{where}: no prim at {p}")
@@ -287,7 +342,8 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
         return None
     if usd_scheme not in USD_SCHEMES:
         raise SubdivInputError(
-            f"{path}: subdivisionScheme {usd_scheme!r} is not one of catmullClark, loop, bilinear, none"
+            f"{path}: subdivisionScheme {usd_scheme!r} is not one of catmullClark, loop, bilinear, none",
+            value=usd_scheme,
         )
     chosen = USD_SCHEMES[usd_scheme] if scheme == "auto" else scheme
 
@@ -298,7 +354,7 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     if all_times and not point_times:
         raise SubdivInputError(
             f"{path}: points has {len(all_times)} time samples ({all_times[0]:g} to {all_times[-1]:g}), "
-            f"none in --frames {_frames_text(frames)}"
+            f"none in frames {_frames_text(frames)}", option="frames", value=frames,
         )
     ref_time = point_times[0] if point_times else DEFAULT
 
@@ -319,7 +375,8 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     if boundary is None:
         ib = geom.GetInterpolateBoundaryAttr().Get() or "edgeAndCorner"
         if ib not in USD_BOUNDARY:
-            raise SubdivInputError(f"{path}: interpolateBoundary {ib!r} is not one of none, edgeOnly, edgeAndCorner")
+            raise SubdivInputError(f"{path}: interpolateBoundary {ib!r} is not one of none, edgeOnly, edgeAndCorner",
+                                   value=ib)
         boundary = USD_BOUNDARY[ib]
     orientation = geom.GetOrientationAttr().Get() or "rightHanded"
     if orientation not in ("rightHanded", "leftHanded"):
@@ -338,19 +395,19 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     k_sharp = _floats(_get(geom.GetCornerSharpnessesAttr(), ref_time))
     if len(k_sharp) != len(k_idx):
         raise SubdivInputError(
-            f"{path}: cornerSharpnesses has {len(k_sharp)} values for {len(k_idx)} cornerIndices"
+            f"{path}: cornerSharpnesses has {len(k_sharp)} values for {len(k_idx)} cornerIndices", element="corner"
         )
     holes = _ints(_get(geom.GetHoleIndicesAttr(), ref_time))
-    _check_range(path, "creaseIndices", c_idx, len(points))
-    _check_range(path, "cornerIndices", k_idx, len(points))
-    _check_range(path, "holeIndices", holes, len(counts), what="face")
+    _check_range(path, "creaseIndices", c_idx, len(points), "crease")
+    _check_range(path, "cornerIndices", k_idx, len(points), "corner")
+    _check_range(path, "holeIndices", holes, len(counts), "hole", what="face")
 
     semi = int(np.count_nonzero((pair_sharp > 0) & (pair_sharp < INFINITE_SHARPNESS))
                + np.count_nonzero((k_sharp > 0) & (k_sharp < INFINITE_SHARPNESS)))
     if semi and semi_sharp == "sharp":
         pair_sharp = np.where(pair_sharp > 0, INFINITE_SHARPNESS, pair_sharp)
         k_sharp = np.where(k_sharp > 0, INFINITE_SHARPNESS, k_sharp)
-        warn.append(f"{semi} semi-sharp crease edges / corners are treated as infinitely sharp (--semi-sharp-as-sharp)")
+        warn.append(f"{semi} semi-sharp crease edges / corners are treated as infinitely sharp, as requested")
     keep_c = pair_sharp > 0
     keep_k = k_sharp > 0
 
@@ -373,14 +430,20 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     if chosen == "bilinear":
         kwargs.update(creases=None, crease_sharpness=None, corners=None, corner_sharpness=None, concave=None,
                       normals=None)
+    crease_of_edge = pair_crease[keep_c] if chosen != "bilinear" else None
     try:
         mesh = Mesh(points, counts, indices, **kwargs)
     except SubdivInputError as exc:
-        raise SubdivInputError(_usd_terms(path, str(exc), pair_crease[keep_c])) from None
+        raise usd_error(path, exc, crease_of_edge) from None
 
     tri_rule = geom.GetTriangleSubdivisionRuleAttr().Get() or "catmullClark"
     if tri_rule not in ("catmullClark", "smooth"):
-        raise SubdivInputError(f"{path}: triangleSubdivisionRule {tri_rule!r} is not catmullClark or smooth")
+        raise SubdivInputError(f"{path}: triangleSubdivisionRule {tri_rule!r} is not catmullClark or smooth",
+                               value=tri_rule)
+    fvar = prim.GetAttribute("faceVaryingLinearInterpolation").Get() or USD_FVAR_DEFAULT
+    if fvar not in USD_FVAR_MODES:
+        raise SubdivInputError(f"{path}: faceVaryingLinearInterpolation {fvar!r} is not one of "
+                               f"{', '.join(USD_FVAR_MODES)}", value=fvar)
     if chosen == "loop" and not np.all(counts == 3):
         warn.append(f"{int(np.count_nonzero(counts != 3))} non-triangle faces are fan-triangulated for Loop")
 
@@ -390,6 +453,7 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
         point_times=point_times, warnings=warn, semi_sharp=semi if semi_sharp != "sharp" else 0,
         subdiv_attributes=subdiv.get("_names", []),
         smooth_triangles=chosen == "catmull-clark" and tri_rule == "smooth" and bool(np.any(counts == 3)),
+        face_varying_mode=USD_FVAR_MODES[fvar], crease_of_edge=crease_of_edge,
     )
     sp.points_default = np.asarray(_get(points_attr, DEFAULT), dtype=np.float64).reshape(-1, 3)
     _check_topology_constant(sp, geom, ref_time, frames)
@@ -398,7 +462,7 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
         if attr and attr.HasAuthoredValue():
             times = _in_frames(attr.GetTimeSamples(), frames)
             if attr.GetNumTimeSamples() and not times:
-                sp.dropped.append((name, "no time samples in --frames"))
+                sp.dropped.append((name, "no time samples in the selected frames"))
                 continue
             sp.point_arrays[name] = times
     for name in ("normals", "primvars:normals"):
@@ -415,11 +479,11 @@ def _frames_text(frames) -> str:
     return f"{'' if a is None else f'{a:g}'}:{'' if b is None else f'{b:g}'}"
 
 
-def _check_range(path, name, ids, n, what="vertex"):
+def _check_range(path, name, ids, n, element, what="vertex"):
     bad = np.flatnonzero((ids < 0) | (ids >= n))
     if len(bad):
         raise SubdivInputError(f"{path}: {name}[{bad[0]}] = {ids[bad[0]]} is not a {what} of the mesh "
-                               f"(it has {n})")
+                               f"(it has {n})", element=element, index=int(bad[0]), value=int(ids[bad[0]]))
 
 
 def _crease_pairs(path, idx, lengths, sharp):
@@ -428,10 +492,12 @@ def _crease_pairs(path, idx, lengths, sharp):
         return np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0, np.int64)
     bad = np.flatnonzero(lengths < 2)
     if len(bad):
-        raise SubdivInputError(f"{path}: creaseLengths[{bad[0]}] = {lengths[bad[0]]}; a crease needs at least 2 vertices")
+        raise SubdivInputError(f"{path}: creaseLengths[{bad[0]}] = {lengths[bad[0]]}; a crease needs at least 2 vertices",
+                               element="crease", index=int(bad[0]), value=int(lengths[bad[0]]))
     if int(lengths.sum()) != len(idx):
         raise SubdivInputError(
-            f"{path}: creaseLengths add up to {int(lengths.sum())} but creaseIndices has {len(idx)} entries"
+            f"{path}: creaseLengths add up to {int(lengths.sum())} but creaseIndices has {len(idx)} entries",
+            element="crease",
         )
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
     crease, rank = expand_counts(lengths - 1)  # crease of each crease edge, and its place in the crease
@@ -445,37 +511,13 @@ def _crease_pairs(path, idx, lengths, sharp):
         per_edge_text = f" or {len(pairs)} (one per crease edge)" if len(pairs) != len(lengths) else ""
         raise SubdivInputError(
             f"{path}: creaseSharpnesses has {len(sharp)} values; expected {len(lengths)} (one per crease)"
-            + per_edge_text
+            + per_edge_text, element="crease",
         )
     bad = np.flatnonzero(~np.isfinite(per_edge))
     if len(bad):
-        raise SubdivInputError(f"{path}: creaseSharpnesses has a value that is not finite (crease {crease[bad[0]]})")
+        raise SubdivInputError(f"{path}: creaseSharpnesses has a value that is not finite (crease {crease[bad[0]]})",
+                               element="crease", index=int(crease[bad[0]]))
     return pairs, per_edge, crease
-
-
-# Mesh's messages start with the name of the argument at fault: say which USD attribute that is.
-_MESH_ARGS = (
-    (r"^points|^point \d", "points"),
-    (r"^face_vertex_counts add up|^the mesh has no faces", "faceVertexCounts"),
-    (r"^face \d+ has \d+ vertices", "faceVertexCounts"),
-    (r"^face \d+ corner|^face \d+ uses vertex|^face_vertex_indices|entries? exceed", "faceVertexIndices"),
-    (r"^corner", "cornerIndices"),
-    (r"^hole", "holeIndices"),
-    (r"^concave", "subdiv:concave"),
-    (r"^normals|^prescribed normal|^vertex \d+ has more than one prescribed normal", "subdiv:normalIndices"),
-)
-
-
-def _usd_terms(path: str, message: str, pair_crease: np.ndarray) -> str:
-    m = re.match(r"^crease (\d+) (.*)$", message)
-    if m:
-        i = int(m.group(1))
-        crease = pair_crease[i] if i < len(pair_crease) else i
-        return f"{path}: creaseIndices: crease {crease} edge {m.group(2)}"
-    for pattern, attr in _MESH_ARGS:
-        if re.search(pattern, message):
-            return f"{path}: {attr}: {message}"
-    return f"{path}: {message}"
 
 
 def _read_subdiv_attributes(prim, path, num_points, time, warn) -> dict:
@@ -496,13 +538,14 @@ def _read_subdiv_attributes(prim, path, num_points, time, warn) -> dict:
     attr = prim.GetAttribute("subdiv:rules")
     if attr and attr.HasAuthoredValue():
         value = str(_get(attr, time))
-        if value not in RULE_SETS:
-            raise SubdivInputError(f"{path}: subdiv:rules {value!r} is not piecewise-smooth or opensubdiv")
+        if value not in RuleSet.values():
+            raise SubdivInputError(f"{path}: subdiv:rules {value!r} is not {' or '.join(RuleSet.values())}",
+                                   value=value)
         out["rules"] = value
     attr = prim.GetAttribute("subdiv:concave")
     if attr and attr.HasAuthoredValue():
         out["concave"] = np.asarray(_get(attr, time), dtype=np.int64).reshape(-1, 2)
-        _check_range(path, "subdiv:concave", out["concave"].reshape(-1), num_points)
+        _check_range(path, "subdiv:concave", out["concave"].reshape(-1), num_points, "concave")
     ids_attr, n_attr = prim.GetAttribute("subdiv:normalIndices"), prim.GetAttribute("subdiv:normals")
     has_ids = bool(ids_attr and ids_attr.HasAuthoredValue())
     has_n = bool(n_attr and n_attr.HasAuthoredValue())
@@ -515,7 +558,7 @@ def _read_subdiv_attributes(prim, path, num_points, time, warn) -> dict:
             raise SubdivInputError(
                 f"{path}: subdiv:normals has {len(vecs)} normals for {len(ids)} subdiv:normalIndices"
             )
-        _check_range(path, "subdiv:normalIndices", ids, num_points)
+        _check_range(path, "subdiv:normalIndices", ids, num_points, "normal")
         if len(ids):
             out["normalIndices"], out["normals"] = ids, vecs
     attr = prim.GetAttribute("subdiv:flatness")
@@ -541,7 +584,9 @@ def _check_unit_interval(path, name, values, allow_nan=False):
     bad = np.flatnonzero((nan & (not allow_nan)) | np.isinf(values) | (~nan & ((values < 0) | (values > 1))))
     if len(bad):
         where = f"[{bad[0]}]" if len(values) > 1 else ""
-        raise SubdivInputError(f"{path}: {name}{where} = {values[bad[0]]:g} is not in [0, 1]")
+        raise SubdivInputError(f"{path}: {name}{where} = {values[bad[0]]:g} is not in [0, 1]",
+                               element="vertex" if len(values) > 1 else None,
+                               index=int(bad[0]) if len(values) > 1 else None, value=float(values[bad[0]]))
 
 
 def _check_topology_constant(sp: SubdivPrim, geom: UsdGeom.Mesh, ref_time, frames) -> None:
@@ -560,8 +605,8 @@ def _check_topology_constant(sp: SubdivPrim, geom: UsdGeom.Mesh, ref_time, frame
                 at = "the default time" if ref_time == DEFAULT else f"time {ref_time:g}"
                 raise SubdivInputError(
                     f"{sp.path}: {name} changes over time (its value at time {t:g} differs from {at}); "
-                    "time-varying topology is not supported: refine each stretch of frames with one topology "
-                    "separately (--frames)"
+                    "time-varying topology is not supported: refine each stretch of time with one topology "
+                    "separately (the frames option)", option="frames",
                 )
 
 
@@ -583,7 +628,7 @@ def _read_primvars(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
         all_times = sorted(times)
         sel = _in_frames(all_times, frames)
         if all_times and not sel:
-            sp.dropped.append((name, "no time samples in --frames"))
+            sp.dropped.append((name, "no time samples in the selected frames"))
             continue
         es = pv.GetElementSize() or 1
         p = Primvar(name, str(interp), type_name, int(es), bool(indexed), sel, pv)
@@ -623,4 +668,5 @@ def summarize_tags(sp: SubdivPrim) -> str:
 
 
 __all__ = ["SubdivPrim", "Primvar", "FaceSubset", "read_mesh", "mesh_prims", "open_stage", "parse_frames",
-           "tf_message", "SUBDIV_ATTRIBUTES", "SUBDIVISION_ATTRIBUTES", "USD_SCHEMES", "USD_BOUNDARY"]
+           "tf_message", "usd_error", "SUBDIV_ATTRIBUTES", "SUBDIVISION_ATTRIBUTES", "USD_SCHEMES", "USD_BOUNDARY",
+           "USD_FVAR_MODES"]
