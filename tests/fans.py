@@ -56,7 +56,7 @@ def patch(scheme, k, kind="interior", alpha=np.pi / 2, twist=0.0):
 
 
 def local_ids(scheme, mesh, kind, k, levels=1, **options):
-    """Vertex ids of vertex 0's local vector at level 0 .. levels (RULES.md section 0 order)."""
+    """Vertex ids of vertex 0's local vector at level 0 .. levels (docs/rules.md section 0 order)."""
     rule_set = options.get("rules", "piecewise-smooth")
     level = base_level(mesh, scheme, options.get("boundary", "edge-and-corner"), rule_set)
     out = []

@@ -1,4 +1,4 @@
-"""The paper's claims as properties of the implementation (RULES.md sections 6 to 11).
+"""The paper's claims as properties of the implementation (docs/rules.md sections 6 to 11).
 
 Local subdivision matrices are read off the implementation itself: a patch whose vertex 0 has the wanted
 neighbourhood is refined with unit basis vectors as vertex data through Refiner.evaluate, and the rows and
@@ -16,7 +16,7 @@ from warp_subdiv.rules import SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE
 
 KIND = {"crease": SECTOR_CREASE, "convex": SECTOR_CONVEX, "concave": SECTOR_CONCAVE}
 
-# RULES.md section 10: (scheme, configuration, k, alpha, Loop beta, leading eigenvalues by modulus at s = 0)
+# docs/rules.md section 10: (scheme, configuration, k, alpha, Loop beta, leading eigenvalues by modulus at s = 0)
 TABLE_10 = [
     ('loop', 'interior', 3, None, 'warren', [1.0, 0.25, 0.25, 0.0625]),
     ('loop', 'interior', 4, None, 'warren', [1.0, 0.375, 0.375, 0.25, 0.125]),
@@ -142,7 +142,7 @@ def test_flatness_scales_the_other_eigenvalues_by_one_minus_s(scheme, kind, k, a
     if kind == "concave":
         s_min = float(M.concave_min_flatness(scheme, k, theta))
         assert s_star > s_min
-        assert rest0.max() > 0.5  # 1/2 is not subdominant without flatness (RULES.md section 10)
+        assert rest0.max() > 0.5  # 1/2 is not subdominant without flatness (docs/rules.md section 10)
         s_values = [s_star, 1.0] + ([0.3] if 0.3 > s_min else [])
     for s in s_values:
         S = local_matrix(scheme, mesh, kind, k, flatness=only_at_centre(mesh, s))
@@ -199,7 +199,7 @@ def test_interior_eigenvectors_and_masks(scheme, k):
 
 
 def test_rules_table_11_s_values():
-    """s* and s_min against RULES.md section 11."""
+    """s* and s_min against docs/rules.md section 11."""
     cases = [
         ("loop", "crease", 4, pi / 4, 0.22654, 0), ("loop", "crease", 6, pi / 6, 0.38800, 0),
         ("loop", "convex", 4, pi / 8, 0.43922, 0), ("loop", "concave", 2, 3 * pi / 4, 0.63060, 0.26120),
@@ -325,7 +325,7 @@ def test_no_fold_at_concave_corner(scheme):
     osd = ws.refine(mesh, 6, scheme=scheme, rules="opensubdiv", device="cpu", precision="float64")
     assert folded_faces_near(ours, pts[c], 0.3) == 0
     assert folded_faces_near(osd, pts[c], 0.3) > 10
-    # and the concave corner's limit normal keeps pointing up (RULES.md section 9's sign flip)
+    # and the concave corner's limit normal keeps pointing up (docs/rules.md section 9's sign flip)
     np.testing.assert_allclose(ours.limit_normals()[c], [0, 0, 1], atol=1e-9)
 
 
@@ -369,11 +369,11 @@ def test_planar_mesh_normals_are_up_everywhere(scheme):
 
 
 # ------------------------------------------------------------------------------------------------------
-# prescribed normals (RULES.md section 7)
+# prescribed normals (docs/rules.md section 7)
 
 
 def mask_tangents(scheme, mesh, level, vertex, points, **options):
-    """Tangents l^1.p, l^2.p of an interior vertex's ring at ``level`` (the masks of RULES.md 8)."""
+    """Tangents l^1.p, l^2.p of an interior vertex's ring at ``level`` (the masks of docs/rules.md 8)."""
     k = int(np.sum(mesh.face_vertex_indices == vertex))
     ids = local_ids(scheme, mesh, "interior", k, levels=level)[-1] if vertex == 0 else None
     from warp_subdiv.projections import ring_local_vectors

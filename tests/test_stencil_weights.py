@@ -1,6 +1,6 @@
-"""Exact stencil weights of every subdivision rule, both schemes (RULES.md sections 0 to 5).
+"""Exact stencil weights of every subdivision rule, both schemes (docs/rules.md sections 0 to 5).
 
-Every expected weight is written here from the formulas of RULES.md (never read from warp_subdiv.rules), so
+Every expected weight is written here from the formulas of docs/rules.md (never read from warp_subdiv.rules), so
 that a wrong rule in the library makes a test fail. Tables are built in float64 and compared to 1e-12.
 
 Row of a child vertex in ``Refiner.tables[level]``: vertex child of v is row v; Catmull-Clark face child of f
@@ -190,7 +190,7 @@ def test_test_meshes_are_what_the_tests_assume():
 
 
 # --------------------------------------------------------------------------------------------------------
-# Loop interior vertex (RULES.md section 3)
+# Loop interior vertex (docs/rules.md section 3)
 
 
 @pytest.mark.parametrize("k", [3, 4, 5, 6, 7])
@@ -204,7 +204,7 @@ def test_loop_interior_vertex_fan(k, variant):
 
 
 def test_loop_beta_literal_values():
-    """The formulas above, pinned to literal numbers (RULES.md: both give 3/16 at k = 3 and 1/16 at k = 6)."""
+    """The formulas above, pinned to literal numbers (docs/rules.md: both give 3/16 at k = 3 and 1/16 at k = 6)."""
     for k, b in [(3, 3 / 16), (4, 31 / 256), (6, 1 / 16)]:
         assert_row(table(tri_fan(k), LOOP, loop_beta="loop"), 0, {0: 1 - k * b, **{1 + i: b for i in range(k)}})
     for k, b in [(3, 3 / 16), (4, 3 / 32), (5, 3 / 40), (6, 1 / 16), (7, 3 / 56)]:
@@ -241,7 +241,7 @@ def test_loop_interior_vertex_level1_regular():
 
 
 # --------------------------------------------------------------------------------------------------------
-# Catmull-Clark interior vertex (RULES.md section 3)
+# Catmull-Clark interior vertex (docs/rules.md section 3)
 
 
 def cc_quad_interior(k, c, ps, qs):
@@ -325,7 +325,7 @@ def test_cc_interior_vertex_mixed_polygons_every_vertex():
 
 
 # --------------------------------------------------------------------------------------------------------
-# smooth edges and face points (RULES.md sections 4, 5)
+# smooth edges and face points (docs/rules.md sections 4, 5)
 
 
 def test_loop_smooth_edge():
@@ -392,7 +392,7 @@ def test_cc_face_points():
 
 
 def test_cc_face_points_are_centroids_after_boundary_and_tags():
-    """The face rule is the centroid always, next to creases and corners too (RULES.md section 5)."""
+    """The face rule is the centroid always, next to creases and corners too (docs/rules.md section 5)."""
     lshape = load_mesh("quad_lshape")
     tab = table(retag(lshape, corners=[10], concave=[[10, 6]]), CC)
     # face 5 = (6 7 11 10) touches the concave corner 10
@@ -400,7 +400,7 @@ def test_cc_face_points_are_centroids_after_boundary_and_tags():
 
 
 # --------------------------------------------------------------------------------------------------------
-# crease and corner vertices, darts (RULES.md sections 1, 3)
+# crease and corner vertices, darts (docs/rules.md sections 1, 3)
 
 
 @pytest.mark.parametrize("scheme", [LOOP, CC])
@@ -506,7 +506,7 @@ def test_dart_cc():
 
 
 # --------------------------------------------------------------------------------------------------------
-# crease edges (RULES.md section 4)
+# crease edges (docs/rules.md section 4)
 
 
 @pytest.mark.parametrize("rules", ["piecewise-smooth", "opensubdiv"])
@@ -534,7 +534,7 @@ def test_crease_edge_midpoint_level1():
 
 
 # --------------------------------------------------------------------------------------------------------
-# crease-neighbour edge rule at extraordinary boundary vertices (RULES.md section 4)
+# crease-neighbour edge rule at extraordinary boundary vertices (docs/rules.md section 4)
 
 
 def test_loop_crease_neighbour_k4_level1():
@@ -671,7 +671,7 @@ def test_crease_neighbour_opensubdiv_uses_smooth_rule():
 
 
 # --------------------------------------------------------------------------------------------------------
-# convex and concave corner neighbours (RULES.md sections 2, 4)
+# convex and concave corner neighbours (docs/rules.md sections 2, 4)
 
 
 @pytest.mark.parametrize("k,alpha", [(2, pi / 2), (3, pi / 2), (4, 2 * pi / 3), (3, 0.9 * pi), (2, 0.3 * pi)])
@@ -855,7 +855,7 @@ def test_corner_theta_is_fixed_on_later_levels():
 
 
 # --------------------------------------------------------------------------------------------------------
-# both endpoints tagged: the average of the two one-sided rules (RULES.md section 1)
+# both endpoints tagged: the average of the two one-sided rules (docs/rules.md section 1)
 
 
 def test_loop_both_endpoints_tagged_average():

@@ -1,21 +1,17 @@
 """warp-subdiv: Loop and Catmull-Clark subdivision with the piecewise-smooth rules of Biermann, Levin and
 Zorin (SIGGRAPH 2000) and an OpenSubdiv-compatible rule set.
 
-Pipeline: mesh -> topology -> rules -> tables -> kernels (Warp) -> USD.
+Pipeline (see the README's "How it works"): mesh -> options -> hierarchy (topology, rules, tables) ->
+evaluator (Warp kernels) -> USD.
 """
-import os as _os
+from .errors import NonManifoldWarning, SubdivInputError
+from .evaluator import default_device
+from .mesh import Mesh
+from .options import (Boundary, CreaseMethod, FaceVaryingMode, LoopBeta, Options, Precision, RuleSet, Scheme,
+                      TriangleSubdivision)
+from .refiner import Refined, Refiner, refine
 
-# In a source checkout the kernels live in the top-level kernels/ folder; an installed package has them as
-# warp_subdiv/kernels. Let the checkout import them under the same name.
-_here = _os.path.dirname(_os.path.abspath(__file__))
-if not _os.path.isdir(_os.path.join(_here, "kernels")) and _os.path.isfile(
-    _os.path.join(_os.path.dirname(_here), "kernels", "__init__.py")
-):
-    __path__.append(_os.path.dirname(_here))  # noqa: F821 (package __path__)
-
-from .errors import NonManifoldWarning, SubdivInputError  # noqa: E402
-from .mesh import Mesh  # noqa: E402
-from .refiner import Refined, Refiner, default_device, refine  # noqa: E402
-
-__all__ = ["Mesh", "Refiner", "Refined", "refine", "default_device", "SubdivInputError", "NonManifoldWarning"]
+__all__ = ["Mesh", "Options", "Refiner", "Refined", "refine", "default_device", "SubdivInputError",
+           "NonManifoldWarning", "Scheme", "RuleSet", "Boundary", "Precision", "LoopBeta", "CreaseMethod",
+           "TriangleSubdivision", "FaceVaryingMode"]
 __version__ = "0.1.0"
