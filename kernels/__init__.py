@@ -1,7 +1,8 @@
 """Warp kernels of warp-subdiv (installed as ``warp_subdiv.kernels``).
 
 Kernels know nothing about creases or schemes: they apply tables that :mod:`warp_subdiv.tables` and
-:mod:`warp_subdiv.projections` built.
+:mod:`warp_subdiv.projections` built, to vertex data held as 2-D arrays (rows, width) of float32 or float64
+(one compiled overload per precision serves every width).
 """
 from .projection import (  # noqa: F401
     displace_rows,
@@ -17,4 +18,4 @@ from .regular import (  # noqa: F401
     tri_edge_points,
     tri_vertex_points,
 )
-from .stencil import apply_stencils_vec  # noqa: F401
+from .stencil import stencil_rows  # noqa: F401

@@ -1,12 +1,18 @@
 """Kernels for displacement tables (flatness, normal control) and limit normals.
 
-A displacement table moves a few target points: out[i] = src[t_i] + sum_j w_j src[idx_j] (scalar weights),
-or + sum_j w_j n_j (n_j . src[idx_j]) (projections onto given normals). Results go to a small buffer first
-and are scattered back afterwards, so every row reads unmodified points.
+A displacement table moves a few target points: out[i] = src[t_i] + sum_j w_j src[idx_j] (scalar weights,
+:func:`displace_rows`, data of any width), or + sum_j w_j n_j (n_j . src[idx_j]) (projections onto given
+normals, :func:`project_rows`, positions only). Results go to a small buffer first and are scattered back
+afterwards (:func:`scatter_rows`), so every row reads unmodified points.
+
+:func:`displace_rows` and :func:`scatter_rows` take either layout of :mod:`warp_subdiv.kernels.layout`;
+:func:`project_rows` and :func:`vertex_normals` (dot and cross products) take vec3 positions.
 """
 from typing import Any
 
 import warp as wp
+
+from .layout import columns, data_types, load, store
 
 wp.set_module_options({"enable_backward": False})
 
@@ -17,15 +23,19 @@ def displace_rows(
     offsets: wp.array(dtype=wp.int32),
     indices: wp.array(dtype=wp.int32),
     weights: wp.array(dtype=Any),
-    src: wp.array(dtype=Any),
-    out: wp.array(dtype=Any),
+    src: Any,
+    out: Any,
 ):
-    """One thread per moved point; points are vec3 or vec3d."""
+    """One thread per moved point (any width)."""
     i = wp.tid()
-    acc = src[targets[i]]
-    for j in range(offsets[i], offsets[i + 1]):
-        acc += weights[j] * src[indices[j]]
-    out[i] = acc
+    t = targets[i]
+    start = offsets[i]
+    end = offsets[i + 1]
+    for c in range(columns(out)):
+        acc = load(src, t, c)
+        for j in range(start, end):
+            acc += weights[j] * load(src, indices[j], c)
+        store(out, i, c, acc)
 
 
 @wp.kernel
@@ -39,7 +49,8 @@ def project_rows(
     src: wp.array(dtype=Any),
     out: wp.array(dtype=Any),
 ):
-    """One thread per moved point: each entry adds w * n (n . src[idx]) for its own normal n."""
+    """One thread per moved point of vec3 positions: each entry adds w * n (n . src[idx]) for its own
+    normal n."""
     i = wp.tid()
     acc = src[targets[i]]
     for j in range(offsets[i], offsets[i + 1]):
@@ -49,10 +60,11 @@ def project_rows(
 
 
 @wp.kernel
-def scatter_rows(targets: wp.array(dtype=wp.int32), values: wp.array(dtype=Any), dst: wp.array(dtype=Any)):
-    """dst[targets[i]] = values[i]."""
+def scatter_rows(targets: wp.array(dtype=wp.int32), values: Any, dst: Any):
+    """dst[targets[i]] = values[i] (any width)."""
     i = wp.tid()
-    dst[targets[i]] = values[i]
+    for c in range(columns(dst)):
+        store(dst, targets[i], c, load(values, i, c))
 
 
 @wp.kernel
@@ -63,7 +75,7 @@ def vertex_normals(
     zero: Any,
     out: wp.array(dtype=Any),
 ):
-    """Unit normal per vertex: the normalised sum of the unit normals tu x tv of its contributions."""
+    """Unit normal per vertex (vec3): the normalised sum of the unit normals tu x tv of its contributions."""
     i = wp.tid()
     acc = zero
     for j in range(vertex_offsets[i], vertex_offsets[i + 1]):
@@ -71,13 +83,18 @@ def vertex_normals(
     out[i] = wp.normalize(acc)
 
 
+# Explicit instantiations, so that the module compiles once whatever the data's width: the generic kernels for
+# both layouts of both precisions, the vec3 ones for both precisions.
 PROJECTION_OVERLOADS = []
-for _s, _v in ((wp.float32, wp.vec3f), (wp.float64, wp.vec3d)):
-    _i = wp.array(dtype=wp.int32)
+_i = wp.array(dtype=wp.int32)
+for _s, _a in data_types():
     PROJECTION_OVERLOADS += [
-        wp.overload(displace_rows, [_i, _i, _i, wp.array(dtype=_s), wp.array(dtype=_v), wp.array(dtype=_v)]),
-        wp.overload(project_rows, [_i, _i, _i, wp.array(dtype=_s), _i, wp.array(dtype=_v), wp.array(dtype=_v),
-                                   wp.array(dtype=_v)]),
-        wp.overload(scatter_rows, [_i, wp.array(dtype=_v), wp.array(dtype=_v)]),
-        wp.overload(vertex_normals, [_i, wp.array(dtype=_v), wp.array(dtype=_v), _v, wp.array(dtype=_v)]),
+        wp.overload(displace_rows, [_i, _i, _i, wp.array(dtype=_s), _a, _a]),
+        wp.overload(scatter_rows, [_i, _a, _a]),
+    ]
+for _s, _v in ((wp.float32, wp.vec3f), (wp.float64, wp.vec3d)):
+    _a = wp.array(dtype=_v)
+    PROJECTION_OVERLOADS += [
+        wp.overload(project_rows, [_i, _i, _i, wp.array(dtype=_s), _i, _a, _a, _a]),
+        wp.overload(vertex_normals, [_i, _a, _a, _v, _a]),
     ]

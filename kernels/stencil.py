@@ -1,37 +1,45 @@
-"""Gather-stencil kernels: out[i] = sum_j weights[j] * src[indices[j]], j over row i of a CSR table."""
+"""Gather-stencil kernel: dst[i] = sum_j weights[j] * src[indices[j]], j over row i of a CSR table.
+
+Used for the steps of non-uniform levels (every row explicit) and for limit masks. Vertex data comes in
+either layout of :mod:`warp_subdiv.kernels.layout` (vec3 rows, or (rows, width) scalars).
+"""
 from typing import Any
 
 import warp as wp
+
+from .layout import columns, data_types, load, store
 
 # Forward evaluation only: no adjoint code (faster compiles, smaller modules).
 wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def apply_stencils_vec(
+def stencil_rows(
     offsets: wp.array(dtype=wp.int32),
     indices: wp.array(dtype=wp.int32),
     weights: wp.array(dtype=Any),
-    src: wp.array(dtype=Any),
-    dst: wp.array(dtype=Any),
+    src: Any,
+    dst: Any,
 ):
-    """One thread per output point; points are vectors (vec3 or vec3d), weights scalars of the same type."""
+    """One thread per output row; weights are scalars of the data's precision."""
     i = wp.tid()
     start = offsets[i]
     end = offsets[i + 1]
-    acc = weights[start] * src[indices[start]]
-    for j in range(start + 1, end):
-        acc += weights[j] * src[indices[j]]
-    dst[i] = acc
+    for c in range(columns(dst)):
+        acc = weights[start] * load(src, indices[start], c)
+        for j in range(start + 1, end):
+            acc += weights[j] * load(src, indices[j], c)
+        store(dst, i, c, acc)
 
 
-# Explicit instantiations, so that ahead-of-time compilation (and the cache) holds every variant we launch.
+# Explicit instantiations (both layouts of both precisions), so that the module compiles once whatever the
+# data's width, and ahead-of-time compilation and the kernel cache hold every variant we launch.
 STENCIL_OVERLOADS = []
-for _scalar, _vec in ((wp.float32, wp.vec3f), (wp.float64, wp.vec3d)):
+for _scalar, _data in data_types():
     STENCIL_OVERLOADS.append(
         wp.overload(
-            apply_stencils_vec,
+            stencil_rows,
             {"offsets": wp.array(dtype=wp.int32), "indices": wp.array(dtype=wp.int32),
-             "weights": wp.array(dtype=_scalar), "src": wp.array(dtype=_vec), "dst": wp.array(dtype=_vec)},
+             "weights": wp.array(dtype=_scalar), "src": _data, "dst": _data},
         )
     )

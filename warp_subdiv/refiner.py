@@ -145,18 +145,19 @@ class Refiner:
     def evaluate_device(self, points, normal_control: bool = True) -> wp.array:
         """Refine (n, 3) positions; returns the final level's device array of vec3 (no copy to the host).
 
-        The array is reused by the next call."""
+        The array is a shared buffer of the evaluator, overwritten by the next call (from any thread)."""
         arr = self._check_data(points)
         if arr.shape[1] != 3:
             raise SubdivInputError(f"evaluate_device takes (n, 3) positions, got {arr.shape}", element="data",
                                    value=arr.shape)
-        return self.evaluator.run(arr, normal_control)
+        return self.evaluator.evaluate_device(arr, normal_control)
 
     def evaluate(self, points, normal_control=None) -> np.ndarray:
         """Refine (n, 3) or (n, d) vertex data (n = control vertices); returns a numpy array (N, d).
 
-        Flatness applies to all data (it is part of the subdivision matrix); prescribed normals only to
-        positions, i.e. (n, 3) data unless ``normal_control=False``.
+        Data of any width d is refined in one pass, each column as if it were refined alone. Flatness applies
+        to all data (it is part of the subdivision matrix); prescribed normals only to positions, i.e. (n, 3)
+        data unless ``normal_control=False``. Safe to call from several threads at once.
         """
         arr = self._check_data(points)
         width = arr.shape[1]
@@ -171,12 +172,15 @@ class Refiner:
     def limit_points(self, refined_points) -> np.ndarray:
         """Limit positions of the refined vertices (docs/rules.md section 9): l^0 applied to each vertex's ring.
 
-        Where this level's masks are not exact (:meth:`limit_reads_deeper`) one more level is refined first."""
+        ``refined_points`` (N,) or (N, d) of any width (positions, primvars, face-varying values); the result
+        has the same shape. Where this level's masks are not exact (:meth:`limit_reads_deeper`) one more level
+        is refined first (with normal control for (N, 3) data)."""
         if self.limit_reads_deeper():
             deeper = self._one_more_level()
-            return deeper.evaluator.limit_points(deeper.evaluator.evaluate_last_step(refined_points))[
-                : self.num_vertices]
-        return self.evaluator.limit_points(refined_points)
+            out = deeper.evaluator.limit_points(refined_points, last_step=True)[: self.num_vertices]
+        else:
+            out = self.evaluator.limit_points(refined_points)
+        return out[:, 0] if np.ndim(refined_points) == 1 else out
 
     def limit_normals(self, refined_points) -> np.ndarray:
         """Unit outward limit normals of the refined vertices (docs/rules.md section 9); prescribed normals as
@@ -187,16 +191,16 @@ class Refiner:
         """
         if self.limit_reads_deeper():
             deeper = self._one_more_level()
-            return deeper._limit_normals_here(deeper.evaluator.evaluate_last_step(refined_points))[
-                : self.num_vertices]
+            return deeper._limit_normals_here(refined_points, last_step=True)[: self.num_vertices]
         return self._limit_normals_here(refined_points)
 
-    def _limit_normals_here(self, refined_points) -> np.ndarray:
-        """Limit normals from this level's masks, without refining deeper."""
+    def _limit_normals_here(self, refined_points, last_step: bool = False) -> np.ndarray:
+        """Limit normals from this level's masks, without refining deeper; ``last_step``: the points are of the
+        level before this refiner's last and go through its last step first."""
         ids, normals = self.hierarchy.normal_vertices, self.hierarchy.normal_vectors
         if self.options.normal_strength <= 0:
             ids, normals = ids[:0], normals[:0]
-        return self.evaluator.limit_normals(refined_points, (ids, normals))
+        return self.evaluator.limit_normals(refined_points, (ids, normals), last_step=last_step)
 
     def _one_more_level(self) -> "Refiner":
         """A refiner one level deeper, with the same options, for limit masks (see limit_reads_deeper)."""
@@ -205,24 +209,28 @@ class Refiner:
         return self._deeper
 
     # ---------------------------------------------------------------------------------------------
-    def evaluate_face_varying(self, values, indices, mode: str = "corners-plus1"):
+    def evaluate_face_varying(self, values, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
         """Refine a face-varying channel (UVs): ``values`` (m,) or (m, d), ``indices`` one per face corner.
 
         Returns (refined values, refined indices int32, one per corner of the refined faces as in
-        :meth:`topology`). ``mode``: OpenSubdiv's FVarLinearInterpolation ("none", "corners-only",
-        "corners-plus1" (USD's default), "corners-plus2", "boundaries", "all"); see
-        :mod:`warp_subdiv.facevarying`. The channel's topology is built on the first call for given indices
-        and mode and reused, so later frames cost one evaluation.
+        :meth:`topology`). ``mode``: OpenSubdiv's FVarLinearInterpolation, a
+        :class:`~warp_subdiv.options.FaceVaryingMode` or its value ("none", "corners-only", "corners-plus1"
+        (USD's default), "corners-plus2", "boundaries", "all"); see :mod:`warp_subdiv.facevarying`. The
+        channel's topology is built on the first call for given indices and mode and reused, so later frames
+        cost one evaluation.
         """
         return self.face_varying_channel(indices, mode).evaluate(values)
 
-    def limit_face_varying(self, values, indices, mode: str = "corners-plus1"):
+    def limit_face_varying(self, values, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
         """Limit values of a face-varying channel at the refined face corners (OpenSubdiv's
         LimitFaceVarying); same arguments and results as :meth:`evaluate_face_varying`."""
         return self.face_varying_channel(indices, mode).limit(values)
 
-    def face_varying_channel(self, indices, mode: str = "corners-plus1"):
-        """The refiner's face-varying channel for ``indices`` and ``mode`` (built once, then reused)."""
+    def face_varying_channel(self, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
+        """The refiner's face-varying channel for ``indices`` and ``mode`` (built once, then reused).
+
+        The refiner owns its channel and passes itself in: the channel refines its value mesh with a refiner of
+        this type and these options (:class:`~warp_subdiv.facevarying.FaceVaryingChannel`)."""
         from .facevarying import FaceVaryingChannel
 
         mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
