@@ -19,7 +19,7 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchutil import ROOT, proc_status, quiet_warp, run_child  # noqa: E402
+from benchutil import ROOT, proc_status, quiet_warp, run_child
 
 MARK = "MEMORY_RESULT "
 

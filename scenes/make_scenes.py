@@ -97,7 +97,8 @@ def lifted_grid(cells, step, height):
     """Quads over the unit cells (i, j) of a grid (counter-clockwise seen from +z); z = height(i, j)."""
     b = Builder()
     for i, j in cells:
-        ids = [b.v((a, c), (a * step, c * step, height(a, c))) for a, c in ((i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1))]
+        ids = [b.v((a, c), (a * step, c * step, height(a, c)))
+               for a, c in ((i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1))]
         b.face(*ids)
     return b
 
@@ -342,7 +343,8 @@ def write_scene(scene: Scene, path: str) -> None:
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
     world = UsdGeom.Xform.Define(stage, "/World")
     stage.SetDefaultPrim(world.GetPrim())
-    layer.documentation = f"warp-subdiv scene {scene.name}: {scene.title} ({scene.figure}). Written by scenes/make_scenes.py."
+    layer.documentation = (f"warp-subdiv scene {scene.name}: {scene.title} ({scene.figure}). "
+                           "Written by scenes/make_scenes.py.")
     if scene.time_range:
         stage.SetStartTimeCode(scene.time_range[0])
         stage.SetEndTimeCode(scene.time_range[1])

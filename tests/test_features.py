@@ -100,7 +100,8 @@ def test_crease_curve_depends_only_on_crease_points(scheme):
     """A crease loop around a closed cube: the refined crease is a B-spline of the crease points alone."""
     cube = load_mesh("cube")
     ring = [[4, 5], [5, 6], [6, 7], [7, 4]]  # the top face's edges
-    make = lambda pts: ws.Mesh(pts, cube.face_vertex_counts, cube.face_vertex_indices, creases=ring)
+    def make(pts):
+        return ws.Mesh(pts, cube.face_vertex_counts, cube.face_vertex_indices, creases=ring)
     moved = cube.points.copy()
     moved[0] += [0.3, -0.2, 0.5]  # a vertex off the crease
     r = ws.Refiner(make(cube.points), 3, scheme=scheme, device="cpu", precision="float64")

@@ -111,7 +111,8 @@ def test_derived_equals_rediscovered(name, scheme):
                     corners=np.flatnonzero(top.vert_class == rules.CORNER))
     again = base_level(fresh, scheme, "edge-and-corner", "piecewise-smooth")
     # same edges (as sets) with the same sharpness
-    key = lambda ev: ev.min(1).astype(np.int64) * top.num_vertices + ev.max(1)
+    def key(ev):
+        return ev.min(1).astype(np.int64) * top.num_vertices + ev.max(1)
     k1, k2 = key(top.edge_verts), key(again.edge_verts)
     assert len(k1) == len(np.unique(k1)) == len(k2)
     o1, o2 = np.argsort(k1), np.argsort(k2)
@@ -150,7 +151,8 @@ def test_sector_angles_on_control_mesh():
     m = load_mesh("quad_lshape")
     tagged = ws.Mesh(m.points, m.face_vertex_counts, m.face_vertex_indices, corners=[10, 0], concave=[[10, 6]])
     lv = base_level(tagged, "catmull-clark", "edge-and-corner", "piecewise-smooth")
-    at = lambda v: lv.corner_theta()[lv.corner_vert == v]
+    def at(v):
+        return lv.corner_theta()[lv.corner_vert == v]
     # vertex 10 (2, 2, 0.5): three faces, crease edges to (3, 2, 0) and (2, 3, 0): cos alpha = 0.25/1.25;
     # concave: theta = (2 pi - alpha)/3
     np.testing.assert_allclose(at(10), (2 * np.pi - np.arccos(0.2)) / 3)

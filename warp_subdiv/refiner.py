@@ -14,6 +14,7 @@ import warp as wp
 
 from .errors import SubdivInputError
 from .evaluator import Evaluator, default_device
+from .facevarying import FaceVaryingChannel
 from .hierarchy import Hierarchy
 from .mesh import Mesh
 from .options import FaceVaryingMode, Options
@@ -231,7 +232,6 @@ class Refiner:
 
         The refiner owns its channel and passes itself in: the channel refines its value mesh with a refiner of
         this type and these options (:class:`~warp_subdiv.facevarying.FaceVaryingChannel`)."""
-        from .facevarying import FaceVaryingChannel
 
         mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
         key = (mode, np.asarray(indices).tobytes())
