@@ -138,7 +138,7 @@ class FaceVaryingChannel:
         self.mode = mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
         mesh, self.source = value_mesh(refiner.mesh, indices, mode, refiner.boundary)
         options = refiner.options.replace(rules="opensubdiv", boundary="edge-only", flatness=None,
-                                          linear=(mode == FaceVaryingMode.ALL))
+                                          loop_beta="loop", linear=(mode == FaceVaryingMode.ALL))
         with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
             warnings.simplefilter("ignore", NonManifoldWarning)
             self.refiner = type(refiner)(mesh, refiner.levels, options=options, device=refiner.device)

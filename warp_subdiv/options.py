@@ -166,6 +166,10 @@ class Options:
         if not paper and self.flatness is not None:
             raise SubdivInputError("flatness is a piecewise-smooth rule; rules='opensubdiv' has none",
                                    option="flatness", value=self.flatness)
+        if not paper and self.loop_beta != LoopBeta.LOOP:
+            raise SubdivInputError(f"loop_beta={self.loop_beta.value!r} is a piecewise-smooth rule; "
+                                   "rules='opensubdiv' uses Loop's original beta only",
+                                   option="loop_beta", value=self.loop_beta.value)
 
     @property
     def piecewise_smooth(self) -> bool:
