@@ -327,14 +327,24 @@ def base_faces(mesh: Mesh, scheme: str, boundary: str = "edge-and-corner",
     return BaseFaces(counts, indices, edges, control_face, face_hole)
 
 
+def last_tag_values(size: int, ids: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(size,) float64: ``values[i]`` at ``ids[i]``, 0 where untagged; where an id is tagged more than once
+    the last tag wins, as in OpenSubdiv's and USD's tag lists."""
+    out = np.zeros(size, dtype=np.float64)
+    if len(ids):
+        ids = np.asarray(ids, dtype=np.int64)
+        uniq, first_from_end = np.unique(ids[::-1], return_index=True)
+        out[uniq] = np.asarray(values, dtype=np.float64)[len(ids) - 1 - first_from_end]
+    return out
+
+
 def tagged_edge_sharpness(mesh: Mesh, edges: MeshEdges) -> np.ndarray:
     """(E,) float64: the sharpness the mesh's crease tags give ``edges`` (the mesh's own or a triangulation's),
-    0 elsewhere; the largest where an edge is tagged twice."""
-    out = np.zeros(len(edges.edge_verts), dtype=np.float64)
-    if len(mesh.creases):
-        tagged = edges.find(mesh.creases, mesh.num_vertices) if edges is not mesh.edges else mesh.crease_edges
-        np.maximum.at(out, tagged, mesh.crease_sharpness)
-    return out
+    0 elsewhere; the last tag's where an edge is tagged twice (either orientation), as in OpenSubdiv."""
+    if not len(mesh.creases):
+        return np.zeros(len(edges.edge_verts), dtype=np.float64)
+    tagged = edges.find(mesh.creases, mesh.num_vertices) if edges is not mesh.edges else mesh.crease_edges
+    return last_tag_values(len(edges.edge_verts), tagged, mesh.crease_sharpness)
 
 
 def base_level(
@@ -427,8 +437,7 @@ def base_level(
     # vertices that are not creases and unused vertices are infinitely sharp, as in OpenSubdiv
     on_boundary = np.zeros(nv, dtype=bool)
     on_boundary[edge_verts[boundary_edge].reshape(-1)] = True
-    vert_sharpness = np.zeros(nv, dtype=np.float64)
-    np.maximum.at(vert_sharpness, mesh.corners.astype(np.int64), mesh.corner_sharpness)
+    vert_sharpness = last_tag_values(nv, mesh.corners, mesh.corner_sharpness)  # the last tag of a vertex wins
     sharp_count = np.bincount(edge_verts[edge_sharpness > 0].reshape(-1), minlength=nv)
     # non-manifold vertices are corners, except a "fin" inside the mesh (two non-manifold edges, no boundary
     # edge, more faces than edges), which OpenSubdiv keeps a crease
