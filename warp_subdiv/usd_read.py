@@ -108,13 +108,19 @@ class Primvar:
         return bool(_LINEAR_SCALARS.match(str(self.type_name.scalarType)))
 
     def raw(self, time):
-        """(values, indices or None) at ``time``, as USD holds them."""
+        """(values, indices or None) at ``time``, as USD holds them; at the default time, what has no default
+        value there (values or indices authored only as time samples) comes from the first selected sample."""
         values = self.primvar.Get(time)
         if values is None and time == DEFAULT and self.times:
             values = self.primvar.Get(self.times[0])
-        indices = self.primvar.GetIndices(time) if self.indexed else None
-        if self.indexed and indices is None and time == DEFAULT and self.times:
-            indices = self.primvar.GetIndices(self.times[0])
+        indices = None
+        if self.indexed:
+            # the indices attribute, not Primvar.GetIndices: that returns an empty array, not None, where the
+            # indices have no value at the default time (only time samples)
+            attr = self.primvar.GetIndicesAttr()
+            indices = attr.Get(time)
+            if indices is None and time == DEFAULT and self.times:
+                indices = attr.Get(self.times[0])
         return values, indices
 
     def elements(self, time, where: str):
