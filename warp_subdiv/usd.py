@@ -483,10 +483,11 @@ def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=N
             raise SubdivInputError(f"{where}: {pv.name} has no value at time {t:g}")
         like = np.asarray(raw)
         if pv.interpolation == "uniform" and pv.indexed:
-            idx = np.asarray(raw_idx, dtype=np.int64)
-            if len(idx) != n_expected * pv.element_size:
-                raise SubdivInputError(f"{where}: {pv.name}:indices has {len(idx)} entries for {n_expected} faces")
-            new_idx = idx.reshape(n_expected, -1)[fmap.parent].reshape(-1)
+            _, idx = pv.elements(t, where)  # checked against the values' elements (elementSize values each)
+            if idx is None or len(idx) != n_expected:  # indices count elements, one per face
+                raise SubdivInputError(f"{where}: {pv.name}:indices has {0 if idx is None else len(idx)} entries "
+                                       f"for {n_expected} faces")
+            new_idx = idx[fmap.parent]
             idx_spec = layer.attr(prim, pv.name + ":indices", T.IntArray)
             layer.set(idx_spec, *_default_or_sample(t, int_array(new_idx)))
             continue
