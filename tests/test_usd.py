@@ -148,8 +148,13 @@ def test_frames_select_time_samples(tmp_path):
         vel = np.asarray(src_mesh.GetVelocitiesAttr().Get(t), dtype=np.float64)
         np.testing.assert_allclose(np.asarray(mesh.GetVelocitiesAttr().Get(t)),
                                    expected_refined(spec, vel, 1).points, atol=2e-5)
-    with pytest.raises(SubdivInputError, match="none in frames 30:40"):
-        refine_usd(src, str(tmp_path / "none.usda"), 1, device="cpu", frames=(30.0, 40.0))
+    # frames after the last sample: the value USD holds there (the last sample's), with a warning
+    result = refine_usd(src, str(tmp_path / "late.usda"), 1, device="cpu", frames=(30.0, 40.0))
+    assert any("frames 30:40 hold no time sample of points" in w for w in result.warnings)
+    late = UsdGeom.Mesh(opened(str(tmp_path / "late.usda")).GetPrimAtPath("/World/Animated/Plate"))
+    assert late.GetPointsAttr().GetTimeSamples() == [30.0]
+    np.testing.assert_allclose(np.asarray(late.GetPointsAttr().Get(30.0)),
+                               expected_refined(spec, spec.time_points[24.0], 1).points, atol=2e-6)
 
 
 def test_time_varying_topology_is_refused_unless_the_frames_hold_one_topology(tmp_path):

@@ -106,3 +106,81 @@ def test_indexed_uniform_primvar_indices_out_of_range_are_reported(tmp_path):
     src = write_mesh(tmp_path / "w.usda", pts, counts, idx, setup=setup)
     result = refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
     assert any("primvars:w dropped" in w and "elementSize 2" in w for w in result.warnings), result.warnings
+
+
+# -- item 12 -------------------------------------------------------------------------------------------
+
+def refined_plane(dst, t=None):
+    """(refined points, faceVertexIndices) of the output mesh at time ``t`` (None: the default)."""
+    mesh = UsdGeom.Mesh(out_prim(dst))
+    time = Usd.TimeCode.Default() if t is None else t
+    return (np.asarray(mesh.GetPointsAttr().Get(time), dtype=np.float64),
+            np.asarray(mesh.GetFaceVertexIndicesAttr().Get()))
+
+
+def test_frames_evaluate_attributes_held_or_interpolated_from_samples_outside_the_range(tmp_path):
+    """--frames 2:4 on a plane whose points are sampled at 1..5: attributes whose samples lie outside the range
+    (st at 1 and 5, velocities at 1, a vertex primvar at 1, 3, 5, subset indices at 1) are evaluated at the
+    range's ends as USD holds or interpolates them; nothing is dropped or emptied, and the output agrees with
+    the input at every time in the range."""
+    pts, counts, idx = grid(2, 2)
+    n = len(pts)
+
+    def setup(stage, mesh):
+        api = UsdGeom.PrimvarsAPI(mesh)
+        st = api.CreatePrimvar("st", T.TexCoord2fArray, "faceVarying")
+        st.SetIndices(Vt.IntArray(idx))
+        for t in (1.0, 5.0):
+            st.Set(Vt.Vec2fArray.FromNumpy((pts[:, :2] * t).astype(np.float32)), t)
+        mesh.CreateVelocitiesAttr().Set(Vt.Vec3fArray([(0.0, 0.0, 2.0)] * n), 1.0)
+        w = api.CreatePrimvar("w", T.FloatArray, "vertex")
+        for t in (1.0, 3.0, 5.0):
+            w.Set(Vt.FloatArray([t] * n), t)
+        subset = UsdGeom.Subset.CreateGeomSubset(mesh, "left", "face", Vt.IntArray(), "materialBind")
+        subset.GetIndicesAttr().Set(Vt.IntArray([0, 2]), 1.0)
+
+    src = write_mesh(tmp_path / "held.usda", pts, counts, idx, setup=setup,
+                     time_points={float(t): pts + [0, 0, t] for t in range(1, 6)})
+    dst = tmp_path / "out.usda"
+    result = refine_usd(src, str(dst), 1, device="cpu", frames=(2.0, 4.0))
+    assert not [w for w in result.warnings if "dropped" in w], result.warnings
+    prim = out_prim(dst)
+    api = UsdGeom.PrimvarsAPI(prim)
+    mesh = UsdGeom.Mesh(prim)
+    counts_out = np.asarray(mesh.GetFaceVertexCountsAttr().Get())
+    for t in (2.0, 2.5, 3.0, 4.0):
+        p, fvi = refined_plane(dst, t)
+        np.testing.assert_allclose(p[:, 2], t, atol=1e-5)
+        # st: interpolated between the samples at 1 and 5, as the input reads at t
+        np.testing.assert_allclose(np.asarray(api.GetPrimvar("st").ComputeFlattened(t)), p[fvi, :2] * t, atol=1e-5)
+        # velocities: the sample at 1, held
+        np.testing.assert_allclose(np.asarray(mesh.GetVelocitiesAttr().Get(t)), [[0, 0, 2]] * len(p), atol=1e-6)
+        # the vertex primvar reads t (linear between 1, 3 and 5), not 3 at both ends
+        np.testing.assert_allclose(np.asarray(api.GetPrimvar("w").Get(t)), t, atol=1e-5)
+        # the subset: the refined faces of control faces 0 and 2 (4 children each), held from time 1
+        ids = np.asarray(UsdGeom.Subset(prim.GetChild("left")).GetIndicesAttr().Get(t))
+        np.testing.assert_array_equal(ids, [0, 1, 2, 3, 8, 9, 10, 11])
+        assert len(ids) and ids.max() < len(counts_out)
+    assert mesh.GetPointsAttr().GetTimeSamples() == [2.0, 3.0, 4.0]
+
+
+def test_frames_between_samples_evaluate_the_range_ends(tmp_path):
+    """Points sampled at 11.6, 13.2, 14.8, 16.4 refined for --frames 12:16: the output has samples at 12 and
+    16 (the interpolated points refined) besides 13.2 and 14.8, so every time in 12..16 reads as in the input;
+    a range holding no sample of the points reads the value USD holds there, with a warning."""
+    pts, counts, idx = grid(1, 1)
+    times = (11.6, 13.2, 14.8, 16.4)
+    src = write_mesh(tmp_path / "between.usda", pts, counts, idx, scheme="bilinear",
+                     time_points={t: pts + [0, 0, t] for t in times})
+    dst = tmp_path / "out.usda"
+    refine_usd(src, str(dst), 1, device="cpu", frames=(12.0, 16.0))
+    mesh = UsdGeom.Mesh(out_prim(dst))
+    assert mesh.GetPointsAttr().GetTimeSamples() == pytest.approx([12.0, 13.2, 14.8, 16.0])
+    for t in (12.0, 12.5, 15.0, 16.0):
+        np.testing.assert_allclose(np.asarray(mesh.GetPointsAttr().Get(t))[:, 2], t, atol=1e-4)
+    late = tmp_path / "late.usda"
+    result = refine_usd(src, str(late), 1, device="cpu", frames=(30.0, 40.0))
+    assert any("no time sample of points" in w for w in result.warnings), result.warnings
+    late_mesh = UsdGeom.Mesh(out_prim(late))
+    assert late_mesh.GetPointsAttr().GetTimeSamples() == [30.0]
+    np.testing.assert_allclose(np.asarray(late_mesh.GetPointsAttr().Get(35.0))[:, 2], 16.4, atol=1e-4)

@@ -532,6 +532,8 @@ def _write_subset(sp, subset, layer, fmap, warnings):
     n = sp.mesh.num_faces
     for t in [DEFAULT] + list(subset.times):
         value = subset.attr.Get(t)
+        if value is None and t == DEFAULT and subset.times:
+            value = subset.attr.Get(subset.times[0])  # no default: the first selected sample stands in
         if value is None:
             continue
         ids = np.asarray(value, dtype=np.int64)

@@ -266,11 +266,27 @@ def parse_frames(text: str | None):
     return a, b
 
 
-def _in_frames(times, frames) -> list:
-    if frames is None:
-        return [float(t) for t in times]
+def _within(t, frames) -> bool:
     a, b = frames
-    return [float(t) for t in times if (a is None or t >= a) and (b is None or t <= b)]
+    return (a is None or t >= a) and (b is None or t <= b)
+
+
+def _in_frames(times, frames) -> list:
+    """The times at which an attribute with time samples ``times`` is evaluated for ``frames`` (all its samples
+    when None): its samples in [A, B], and A (B) where a sample lies before A (after B), so that the value USD
+    holds or interpolates at the ends of the range from samples outside it is written too. Between those
+    times the output has the input's own samples, and refinement is linear: every time in [A, B] reads as in
+    the input. Non-empty whenever ``times`` is."""
+    times = sorted(float(t) for t in times)
+    if frames is None or not times:
+        return times
+    a, b = frames
+    out = [t for t in times if _within(t, frames)]
+    if a is not None and a not in out and times[0] < a:
+        out.insert(0, float(a))
+    if b is not None and b not in out and times[-1] > b:
+        out.append(float(b))
+    return out
 
 
 def open_stage(path: str) -> Usd.Stage:
@@ -357,11 +373,9 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     points_attr = geom.GetPointsAttr()
     all_times = points_attr.GetTimeSamples()
     point_times = _in_frames(all_times, frames)
-    if all_times and not point_times:
-        raise SubdivInputError(
-            f"{path}: points has {len(all_times)} time samples ({all_times[0]:g} to {all_times[-1]:g}), "
-            f"none in frames {_frames_text(frames)}", option="frames", value=frames,
-        )
+    if all_times and frames is not None and not any(_within(t, frames) for t in all_times):
+        warn.append(f"frames {_frames_text(frames)} hold no time sample of points (its {len(all_times)} samples run "
+                    f"from {all_times[0]:g} to {all_times[-1]:g}): the value USD holds there is refined")
     ref_time = point_times[0] if point_times else DEFAULT
 
     counts = _get(geom.GetFaceVertexCountsAttr(), ref_time)
@@ -461,16 +475,13 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
         smooth_triangles=chosen == "catmull-clark" and tri_rule == "smooth" and bool(np.any(counts == 3)),
         face_varying_mode=USD_FVAR_MODES[fvar], crease_of_edge=crease_of_edge,
     )
-    sp.points_default = np.asarray(_get(points_attr, DEFAULT), dtype=np.float64).reshape(-1, 3)
+    default = points_attr.Get(DEFAULT)  # the input's default, else the first selected sample
+    sp.points_default = np.asarray(pts if default is None else default, dtype=np.float64).reshape(-1, 3)
     _check_topology_constant(sp, geom, ref_time, frames)
     for name in ("velocities", "accelerations"):
         attr = prim.GetAttribute(name)
         if attr and attr.HasAuthoredValue():
-            times = _in_frames(attr.GetTimeSamples(), frames)
-            if attr.GetNumTimeSamples() and not times:
-                sp.dropped.append((name, "no time samples in the selected frames"))
-                continue
-            sp.point_arrays[name] = times
+            sp.point_arrays[name] = _in_frames(attr.GetTimeSamples(), frames)
     for name in ("normals", "primvars:normals"):
         attr = prim.GetAttribute(name)
         if attr and attr.HasAuthoredValue():
@@ -631,11 +642,7 @@ def _read_primvars(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
         indexed = pv.IsIndexed()
         if indexed:
             times |= set(pv.GetIndicesAttr().GetTimeSamples())
-        all_times = sorted(times)
-        sel = _in_frames(all_times, frames)
-        if all_times and not sel:
-            sp.dropped.append((name, "no time samples in the selected frames"))
-            continue
+        sel = _in_frames(times, frames)
         es = pv.GetElementSize() or 1
         p = Primvar(name, str(interp), type_name, int(es), bool(indexed), sel, pv)
         if interp not in ("vertex", "varying", "uniform", "faceVarying"):
