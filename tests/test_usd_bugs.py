@@ -184,3 +184,57 @@ def test_frames_between_samples_evaluate_the_range_ends(tmp_path):
     late_mesh = UsdGeom.Mesh(out_prim(late))
     assert late_mesh.GetPointsAttr().GetTimeSamples() == [30.0]
     np.testing.assert_allclose(np.asarray(late_mesh.GetPointsAttr().Get(35.0))[:, 2], 16.4, atol=1e-4)
+
+
+# -- item 13 -------------------------------------------------------------------------------------------
+
+def test_an_empty_or_wrongly_sized_default_beside_time_samples_is_stood_in_for(tmp_path):
+    """An empty points (and velocities, primvar) default beside time samples: the first selected sample stands
+    in for it (the README's rule); a default of another size too, with a warning, with or without --frames."""
+    pts, counts, idx = grid(2, 1)
+    n = len(pts)
+
+    def setup(stage, mesh, default):
+        mesh.GetPointsAttr().Set(default)
+        vel = mesh.CreateVelocitiesAttr()
+        vel.Set(Vt.Vec3fArray())
+        w = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("w", T.FloatArray, "vertex")
+        w.Set(Vt.FloatArray())
+        for t in (1.0, 2.0):
+            vel.Set(Vt.Vec3fArray([(0.0, 0.0, t)] * n), t)
+            w.Set(Vt.FloatArray([t] * n), t)
+
+    timed = {t: pts + [0, 0, t] for t in (1.0, 2.0)}
+    for name, default in (("empty", Vt.Vec3fArray()), ("short", Vt.Vec3fArray([(0.0, 0.0, 0.0)] * 2))):
+        src = write_mesh(tmp_path / f"{name}.usda", pts, counts, idx, time_points=timed,
+                         setup=lambda stage, mesh, d=default: setup(stage, mesh, d))
+        for frames in (None, (2.0, 2.0)):
+            dst = tmp_path / f"{name}_{frames is None}.usda"
+            result = refine_usd(src, str(dst), 1, device="cpu", frames=frames)
+            assert not [w for w in result.warnings if "dropped" in w], result.warnings
+            first = 1.0 if frames is None else 2.0
+            prim = out_prim(dst)
+            p = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(), dtype=np.float64)
+            np.testing.assert_allclose(p[:, 2], first, atol=1e-6)  # the first selected sample's points
+            np.testing.assert_allclose(np.asarray(UsdGeom.Mesh(prim).GetVelocitiesAttr().Get())[:, 2], first)
+            np.testing.assert_allclose(np.asarray(UsdGeom.PrimvarsAPI(prim).GetPrimvar("w").Get()), first)
+            stood_in = [w for w in result.warnings if "default" in w and "stands in" in w]
+            if name == "short":
+                assert any("/World/Mesh: points default has 2 entries" in w for w in stood_in), result.warnings
+            else:
+                assert not stood_in, result.warnings
+
+
+def test_a_bad_sample_names_prim_attribute_and_time_and_leaves_no_folder(tmp_path):
+    """A points sample of the wrong size (empty here) is an error naming the prim, the attribute and the time
+    (not numpy's reshape message), and the failed run leaves neither the output nor the folders it made."""
+    pts, counts, idx = grid(2, 1)
+
+    def setup(stage, mesh):
+        mesh.GetPointsAttr().Set(Vt.Vec3fArray(), 2.0)
+
+    src = write_mesh(tmp_path / "bad.usda", pts, counts, idx, time_points={1.0: pts}, setup=setup)
+    dst = tmp_path / "made" / "deeper" / "out.usda"
+    with pytest.raises(SubdivInputError, match=r"/World/Mesh: points at time 2 has 0 entries, the mesh has 6"):
+        refine_usd(src, str(dst), 1, device="cpu")
+    assert not (tmp_path / "made").exists()

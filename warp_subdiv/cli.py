@@ -288,18 +288,23 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     progress(0.7, f"{args.input}: points")
     refined = refiner.refine()
     progress(0.9, f"writing {args.output}")
+    from .usd_write import make_folders, remove_folders, write_mesh_layer
+
     out_dir = os.path.dirname(os.path.abspath(args.output))
+    created = []
     try:
-        os.makedirs(out_dir, exist_ok=True)
+        created = make_folders(out_dir)
         if out_kind == "obj":
             write_obj(args.output, refined.points, refined.face_vertex_counts, refined.face_vertex_indices)
         else:
-            from .usd_write import write_mesh_layer
-
             write_mesh_layer(os.path.abspath(args.output), os.path.splitext(os.path.basename(args.input))[0],
                              refined.points, refined.face_vertex_counts, refined.face_vertex_indices)
     except OSError as exc:
+        remove_folders(created)
         raise SubdivInputError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
+    except BaseException:
+        remove_folders(created)  # a failed run leaves no folder it made
+        raise
     progress.clear()
     if not args.quiet:
         print(f"{args.input}: {scheme}, {rules} rules, {args.levels} levels on {refiner.device}")

@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import SubdivInputError
 from .mesh import face_offsets_of, next_corner_of
-from .usd_write import publish
+from .usd_write import make_folders, publish, remove_folders
 
 BACKGROUND_TOP = np.array([0.93, 0.94, 0.96])
 BACKGROUND_BOTTOM = np.array([0.78, 0.80, 0.84])
@@ -510,10 +510,12 @@ def png_bytes(rgb: np.ndarray) -> bytes:
 def write_png(path: str, rgb: np.ndarray) -> None:
     """Write a PNG through a temporary file and a rename (no partial file on failure)."""
     folder = os.path.dirname(os.path.abspath(path))
+    created = []
     try:
-        os.makedirs(folder, exist_ok=True)
+        created = make_folders(folder)
         fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=".png", dir=folder)
     except OSError as exc:
+        remove_folders(created)
         raise SubdivInputError(f"{path}: cannot write there: {exc.strerror or exc}") from None
     try:
         with os.fdopen(fd, "wb") as fh:
@@ -522,6 +524,7 @@ def write_png(path: str, rgb: np.ndarray) -> None:
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        remove_folders(created)
         raise
 
 

@@ -447,7 +447,7 @@ def _refine_prim(sp: SubdivPrim, options: Options, layer: OutputLayer, levels, d
     fv_refined = []
     for pv in sp.primvars:
         try:
-            _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode)
+            _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode, warnings)
         except SubdivInputError as exc:
             _drop(sp, layer, prim, pv.name, str(exc).split(": ", 1)[-1], warnings)
             continue
@@ -469,57 +469,72 @@ def _drop(sp, layer, prim, name, reason, warnings):
     warnings.append(f"{sp.path}: {name} dropped ({reason})")
 
 
-def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=None):
+def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=None, warnings=None):
+    """Refine one primvar at the default time and at each of its selected samples. A default that does not
+    fit the mesh beside time samples gives way to the first selected sample (with a warning)."""
+    for t in [DEFAULT] + list(pv.times):
+        try:
+            _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode)
+        except SubdivInputError as exc:
+            if t != DEFAULT or not pv.times or pv.default_time is not None:
+                raise
+            pv.default_time = pv.times[0]
+            _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode)
+            if warnings is not None:
+                warnings.append(f"{sp.path}: {pv.name} default does not fit the mesh ({str(exc).split(': ', 1)[-1]})"
+                                f": the sample at time {pv.times[0]:g} stands in for it")
+
+
+def _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode):
     mesh = sp.mesh
     where = sp.path
     n_expected = {"vertex": mesh.num_vertices, "varying": mesh.num_vertices, "uniform": mesh.num_faces,
                   "faceVarying": len(mesh.face_vertex_indices)}[pv.interpolation]
     spec = layer.attr(prim, pv.name, pv.type_name, custom=pv.primvar.GetAttr().IsCustom())
-    for t in [DEFAULT] + list(pv.times):
-        raw, raw_idx = pv.raw(t)
-        if raw is None:
-            if t == DEFAULT:
-                continue
-            raise SubdivInputError(f"{where}: {pv.name} has no value at time {t:g}")
-        like = np.asarray(raw)
-        if pv.interpolation == "uniform" and pv.indexed:
-            _, idx = pv.elements(t, where)  # checked against the values' elements (elementSize values each)
-            if idx is None or len(idx) != n_expected:  # indices count elements, one per face
-                raise SubdivInputError(f"{where}: {pv.name}:indices has {0 if idx is None else len(idx)} entries "
-                                       f"for {n_expected} faces")
-            new_idx = idx[fmap.parent]
-            idx_spec = layer.attr(prim, pv.name + ":indices", T.IntArray)
-            layer.set(idx_spec, *_default_or_sample(t, int_array(new_idx)))
-            continue
-        if pv.interpolation == "faceVarying" and fvar_mode is not None:
-            rows, idx = pv.elements(t, where)
-            idx = np.arange(len(rows)) if idx is None else idx
-            if len(idx) != n_expected:
-                raise SubdivInputError(f"{where}: {pv.name} has {len(idx)} faceVarying values, the mesh needs "
-                                       f"{n_expected}")
-            values, new_idx = refiner.evaluate_face_varying(rows.astype(np.float64), idx, mode=fvar_mode)
-            values = np.asarray(values).reshape(len(values), -1)
-            shaped = values.reshape((len(values) * pv.element_size,) + like.shape[1:])
-            layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))
-            idx_spec = layer.attr(prim, pv.name + ":indices", T.IntArray)
-            layer.set(idx_spec, *_default_or_sample(t, int_array(new_idx)))
-            continue
-        rows = pv.flattened(t, where)
-        if len(rows) != n_expected:
-            raise SubdivInputError(f"{where}: {pv.name} has {len(rows)} {pv.interpolation} values, the mesh needs "
+    raw, raw_idx = pv.raw(t)
+    if raw is None:
+        if t == DEFAULT:
+            return
+        raise SubdivInputError(f"{where}: {pv.name} has no value at time {t:g}")
+    like = np.asarray(raw)
+    if pv.interpolation == "uniform" and pv.indexed:
+        _, idx = pv.elements(t, where)  # checked against the values' elements (elementSize values each)
+        if idx is None or len(idx) != n_expected:  # indices count elements, one per face
+            raise SubdivInputError(f"{where}: {pv.name}:indices has {0 if idx is None else len(idx)} entries "
+                                   f"for {n_expected} faces")
+        new_idx = idx[fmap.parent]
+        idx_spec = layer.attr(prim, pv.name + ":indices", T.IntArray)
+        layer.set(idx_spec, *_default_or_sample(t, int_array(new_idx)))
+        return
+    if pv.interpolation == "faceVarying" and fvar_mode is not None:
+        rows, idx = pv.elements(t, where)
+        idx = np.arange(len(rows)) if idx is None else idx
+        if len(idx) != n_expected:
+            raise SubdivInputError(f"{where}: {pv.name} has {len(idx)} faceVarying values, the mesh needs "
                                    f"{n_expected}")
-        if pv.interpolation == "uniform":
-            out = rows[fmap.parent]
-        elif pv.interpolation == "faceVarying":
-            out = fmap.refine_corners(rows.astype(np.float64))
-        elif pv.interpolation == "varying" or sp.scheme == "bilinear":
-            out = linear_field(rows.astype(np.float64))
-        else:  # vertex: the subdivision rules (with flatness), but prescribed normals move positions only
-            out = refiner.evaluate(rows.astype(np.float64), normal_control=False)
-        shaped = np.asarray(out).reshape((len(out) * pv.element_size,) + like.shape[1:])
+        values, new_idx = refiner.evaluate_face_varying(rows.astype(np.float64), idx, mode=fvar_mode)
+        values = np.asarray(values).reshape(len(values), -1)
+        shaped = values.reshape((len(values) * pv.element_size,) + like.shape[1:])
         layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))
-        if pv.indexed and t == DEFAULT:
-            layer.block(prim, pv.name + ":indices", T.IntArray)
+        idx_spec = layer.attr(prim, pv.name + ":indices", T.IntArray)
+        layer.set(idx_spec, *_default_or_sample(t, int_array(new_idx)))
+        return
+    rows = pv.flattened(t, where)
+    if len(rows) != n_expected:
+        raise SubdivInputError(f"{where}: {pv.name} has {len(rows)} {pv.interpolation} values, the mesh needs "
+                               f"{n_expected}")
+    if pv.interpolation == "uniform":
+        out = rows[fmap.parent]
+    elif pv.interpolation == "faceVarying":
+        out = fmap.refine_corners(rows.astype(np.float64))
+    elif pv.interpolation == "varying" or sp.scheme == "bilinear":
+        out = linear_field(rows.astype(np.float64))
+    else:  # vertex: the subdivision rules (with flatness), but prescribed normals move positions only
+        out = refiner.evaluate(rows.astype(np.float64), normal_control=False)
+    shaped = np.asarray(out).reshape((len(out) * pv.element_size,) + like.shape[1:])
+    layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))
+    if pv.indexed and t == DEFAULT:
+        layer.block(prim, pv.name + ":indices", T.IntArray)
 
 
 def _default_or_sample(t, value):

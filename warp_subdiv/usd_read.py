@@ -101,6 +101,7 @@ class Primvar:
     indexed: bool
     times: list  # selected time samples of values and indices ([] = static)
     primvar: UsdGeom.Primvar
+    default_time: float | None = None  # the sample that stands in for a default that does not fit the mesh
 
     @property
     def linear(self) -> bool:
@@ -108,11 +109,17 @@ class Primvar:
         return bool(_LINEAR_SCALARS.match(str(self.type_name.scalarType)))
 
     def raw(self, time):
-        """(values, indices or None) at ``time``, as USD holds them; at the default time, what has no default
-        value there (values or indices authored only as time samples) comes from the first selected sample."""
+        """(values, indices or None) at ``time``, as USD holds them. At the default time of a time-sampled
+        primvar, the first selected sample stands in for values without a default (or an empty one, or one
+        that does not fit the mesh: :attr:`default_time`), and for indices authored only as time samples."""
+        if time == DEFAULT and self.times:
+            if self.default_time is not None:
+                time = self.default_time
+            else:
+                values = self.primvar.Get(DEFAULT)
+                if values is None or len(values) == 0:
+                    time = self.times[0]
         values = self.primvar.Get(time)
-        if values is None and time == DEFAULT and self.times:
-            values = self.primvar.Get(self.times[0])
         indices = None
         if self.indexed:
             # the indices attribute, not Primvar.GetIndices: that returns an empty array, not None, where the
@@ -175,6 +182,7 @@ class SubdivPrim:
     point_times: list = field(default_factory=list)  # selected time samples of points ([] = static)
     points_default: np.ndarray | None = None
     point_arrays: dict = field(default_factory=dict)  # "velocities"/"accelerations" -> times ([] = static)
+    stand_in_defaults: set = field(default_factory=set)  # point arrays whose default does not fit the mesh
     primvars: list = field(default_factory=list)
     dropped: list = field(default_factory=list)  # (attribute name, reason): blocked on the output
     subsets: list = field(default_factory=list)
@@ -203,8 +211,8 @@ class SubdivPrim:
         """velocities / accelerations at ``time`` (float64 (n, 3))."""
         attr = self.prim.GetAttribute(name)
         value = attr.Get(time)
-        if value is None and time == DEFAULT and self.point_arrays.get(name):
-            value = attr.Get(self.point_arrays[name][0])
+        if time == DEFAULT and self.point_arrays.get(name) and (value is None or name in self.stand_in_defaults):
+            value = attr.Get(self.point_arrays[name][0])  # the first selected sample stands in for the default
         pts = None if value is None else np.asarray(value, dtype=np.float64)
         return self._check_rows(pts, name, time)
 
@@ -212,7 +220,7 @@ class SubdivPrim:
         when = "" if time == DEFAULT else f" at time {time:g}"
         if pts is None:
             raise SubdivInputError(f"{self.path}: {name} has no value{when}")
-        pts = pts.reshape(len(pts), -1)
+        pts = pts.reshape(len(pts), -1) if pts.size else pts.reshape(0, 3)
         if pts.shape != (self.mesh.num_vertices, 3):
             raise SubdivInputError(
                 f"{self.path}: {name}{when} has {len(pts)} entries, the mesh has {self.mesh.num_vertices} points"
@@ -475,13 +483,17 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
         smooth_triangles=chosen == "catmull-clark" and tri_rule == "smooth" and bool(np.any(counts == 3)),
         face_varying_mode=USD_FVAR_MODES[fvar], crease_of_edge=crease_of_edge,
     )
-    default = points_attr.Get(DEFAULT)  # the input's default, else the first selected sample
+    # the default written: the input's, unless it is missing or does not fit the mesh beside time samples
+    # (an empty default is common in exports): then the first selected sample stands in for it
+    default = None if _stands_in(points_attr, point_times, len(points), warn) else points_attr.Get(DEFAULT)
     sp.points_default = np.asarray(pts if default is None else default, dtype=np.float64).reshape(-1, 3)
     _check_topology_constant(sp, geom, ref_time, frames)
     for name in ("velocities", "accelerations"):
         attr = prim.GetAttribute(name)
         if attr and attr.HasAuthoredValue():
             sp.point_arrays[name] = _in_frames(attr.GetTimeSamples(), frames)
+            if _stands_in(attr, sp.point_arrays[name], len(points), warn):
+                sp.stand_in_defaults.add(name)
     for name in ("normals", "primvars:normals"):
         attr = prim.GetAttribute(name)
         if attr and attr.HasAuthoredValue():
@@ -489,6 +501,20 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     _read_primvars(sp, geom, frames)
     _read_subsets(sp, geom, frames)
     return sp
+
+
+def _stands_in(attr, times, num_points: int, warn: list) -> bool:
+    """Whether the first selected sample (``times[0]``) stands in for the default of a time-sampled per-point
+    attribute: a default that is empty (silently) or of another size (with a warning)."""
+    if not times:
+        return False
+    default = attr.Get(DEFAULT)
+    if default is None or len(default) == num_points:
+        return False
+    if len(default):
+        warn.append(f"{attr.GetName()} default has {len(default)} entries, the mesh has {num_points} points: the "
+                    f"sample at time {times[0]:g} stands in for it")
+    return True
 
 
 def _frames_text(frames) -> str:

@@ -33,6 +33,27 @@ def publish(tmp: str, output: str) -> None:
     os.replace(tmp, output)
 
 
+def make_folders(folder: str) -> list:
+    """Create ``folder`` and its missing ancestors; the folders created, deepest first (for
+    :func:`remove_folders` when the run fails). OSError as os.makedirs raises it."""
+    created = []
+    path = os.path.abspath(folder)
+    while not os.path.exists(path) and os.path.dirname(path) != path:
+        created.append(path)
+        path = os.path.dirname(path)
+    os.makedirs(folder, exist_ok=True)
+    return created
+
+
+def remove_folders(created) -> None:
+    """Remove the folders :func:`make_folders` created (deepest first), where they are still empty."""
+    for path in created:
+        try:
+            os.rmdir(path)
+        except OSError:
+            return  # not empty (someone else wrote there) or gone: leave it and its ancestors
+
+
 def check_output_path(output: str, stage: Usd.Stage | None = None) -> str:
     """Absolute output path; refuses unknown extensions and any file the input stage reads."""
     ext = os.path.splitext(output)[1].lower()
@@ -72,12 +93,15 @@ class OutputLayer:
 
     def __init__(self, output: str, input_stage: Usd.Stage, custom_data: dict | None = None):
         self.output = output
+        self.tmp = None
+        self.created = []  # folders this run made: removed again if it fails
         folder = os.path.dirname(output)
         try:
-            os.makedirs(folder, exist_ok=True)
+            self.created = make_folders(folder)
             fd, self.tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=os.path.splitext(output)[1], dir=folder)
             os.close(fd)
         except OSError as exc:
+            remove_folders(self.created)
             raise SubdivInputError(f"{output}: cannot write there: {exc.strerror or exc}") from None
         try:
             self.layer = Sdf.Layer.CreateNew(self.tmp)
@@ -142,14 +166,18 @@ class OutputLayer:
             self.discard()
             raise
         self.layer = None
+        self.created = []  # the output is there: its folders stay
         existing = Sdf.Layer.Find(self.output)
         if existing is not None:
             existing.Reload(force=True)  # a layer this process opened before now reads the new file
 
     def discard(self) -> None:
+        """Forget the layer and remove its temporary file, and the folders this run created."""
         self.layer = None
         if getattr(self, "tmp", None) and os.path.exists(self.tmp):
             os.unlink(self.tmp)
+        remove_folders(getattr(self, "created", []))
+        self.created = []
 
 
 def vt_array(type_name: Sdf.ValueTypeName, values: np.ndarray, like=None):
