@@ -238,3 +238,24 @@ def test_a_bad_sample_names_prim_attribute_and_time_and_leaves_no_folder(tmp_pat
     with pytest.raises(SubdivInputError, match=r"/World/Mesh: points at time 2 has 0 entries, the mesh has 6"):
         refine_usd(src, str(dst), 1, device="cpu")
     assert not (tmp_path / "made").exists()
+
+
+# -- item 14 -------------------------------------------------------------------------------------------
+
+@pytest.mark.skipif(not hasattr(os, "symlink"), reason="needs symbolic links")
+def test_output_through_a_symlinked_folder_sublayers_the_input(tmp_path):
+    """Writing through a symlinked folder: USD anchors the relative sublayer path to the path the layer is
+    opened by, so it must be computed from the output path as given, not from the resolved folder."""
+    pts, counts, idx = grid(1, 1)
+    src = write_mesh(tmp_path / "in.usda", pts, counts, idx)
+    deep = tmp_path / "real" / "deep"
+    deep.mkdir(parents=True)
+    os.symlink(deep, tmp_path / "link")
+    dst = tmp_path / "link" / "out.usda"
+    result = refine_usd(src, str(dst), 1, device="cpu")
+    assert (deep / "out.usda").exists()
+    assert os.path.dirname(result.output) == str(tmp_path / "link")
+    stage = opened(dst)
+    assert str(tmp_path / "in.usda") in [layer.realPath for layer in stage.GetUsedLayers()]
+    prim = stage.GetPrimAtPath("/World/Mesh")
+    assert prim.GetTypeName() == "Mesh" and len(UsdGeom.Mesh(prim).GetFaceVertexCountsAttr().Get()) == 4

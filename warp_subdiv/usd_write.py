@@ -55,11 +55,13 @@ def remove_folders(created) -> None:
 
 
 def check_output_path(output: str, stage: Usd.Stage | None = None) -> str:
-    """Absolute output path; refuses unknown extensions and any file the input stage reads."""
+    """Absolute output path, as given (symbolic links not resolved: USD anchors the relative sublayer path to
+    the path a layer is opened by); refuses unknown extensions and any file the input stage reads."""
     ext = os.path.splitext(output)[1].lower()
     if ext not in USD_EXTENSIONS:
         raise SubdivInputError(f"{output}: the output of a USD refinement must end in .usd, .usda or .usdc")
-    out = os.path.realpath(os.path.abspath(output))
+    given = os.path.abspath(output)
+    out = os.path.realpath(given)  # for comparisons with the files the input reads
     if os.path.isdir(out):
         raise SubdivInputError(f"{output}: is a folder")
     folder = os.path.dirname(out)
@@ -75,7 +77,7 @@ def check_output_path(output: str, stage: Usd.Stage | None = None) -> str:
             if real and os.path.realpath(real) == out:
                 raise SubdivInputError(f"{output}: the input reads this file ({layer.identifier}); "
                                        "write the refined layer somewhere else")
-    return out
+    return given
 
 
 def relative_asset_path(target: str, anchor_dir: str) -> str:
