@@ -259,3 +259,38 @@ def test_output_through_a_symlinked_folder_sublayers_the_input(tmp_path):
     assert str(tmp_path / "in.usda") in [layer.realPath for layer in stage.GetUsedLayers()]
     prim = stage.GetPrimAtPath("/World/Mesh")
     assert prim.GetTypeName() == "Mesh" and len(UsdGeom.Mesh(prim).GetFaceVertexCountsAttr().Get()) == 4
+
+
+# -- item 15 -------------------------------------------------------------------------------------------
+
+def test_ancestors_extents_hint_is_recomputed(tmp_path):
+    """A prescribed normal tilts a flat plate out of its plane (the control hull): the extentsHint that
+    /World (UsdGeom.ModelAPI) carries for the control mesh is overridden with the refined bounds, at the
+    default time and at every time sample of the points, so bounding boxes that use the hint contain the mesh."""
+    pts, counts, idx = grid(2, 2)
+    tilt = np.array([[0.6, 0.0, 0.8]])
+
+    def setup(stage, mesh):
+        world = stage.GetPrimAtPath("/World")
+        hint = UsdGeom.ModelAPI.Apply(world)
+        hint.SetExtentsHint(Vt.Vec3fArray([(0, 0, 0), (2, 2, 0)]))
+        hint.GetExtentsHintAttr().Set(Vt.Vec3fArray([(0, 0, 1), (2, 2, 1)]), 1.0)
+        hint.GetExtentsHintAttr().Set(Vt.Vec3fArray([(0, 0, 2), (2, 2, 2)]), 2.0)
+
+    src = write_mesh(tmp_path / "hint.usda", pts, counts, idx, setup=setup,
+                     time_points={1.0: pts + [0, 0, 1], 2.0: pts + [0, 0, 2]},
+                     custom={"subdiv:normalIndices": ("IntArray", Vt.IntArray([4])),
+                             "subdiv:normals": ("Normal3fArray", Vt.Vec3fArray.FromNumpy(tilt.astype(np.float32)))})
+    dst = tmp_path / "out.usda"
+    refine_usd(src, str(dst), 2, device="cpu")
+    stage = opened(dst)
+    world = stage.GetPrimAtPath("/World")
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Mesh"))
+    for t in (Usd.TimeCode.Default(), 1.0, 2.0):
+        p = np.asarray(mesh.GetPointsAttr().Get(t), dtype=np.float64)
+        assert np.ptp(p[:, 2]) > 0.01  # the surface leaves the control plane
+        hint = np.asarray(UsdGeom.ModelAPI(world).GetExtentsHint(t), dtype=np.float64)
+        np.testing.assert_allclose(hint[:2], [p.min(axis=0), p.max(axis=0)], atol=1e-5)
+        box = UsdGeom.BBoxCache(t, [UsdGeom.Tokens.default_], useExtentsHint=True).ComputeWorldBound(world)
+        lo, hi = np.asarray(box.GetRange().GetMin()), np.asarray(box.GetRange().GetMax())
+        assert np.all(p >= lo - 1e-5) and np.all(p <= hi + 1e-5)

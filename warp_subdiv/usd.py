@@ -343,6 +343,8 @@ def refine_usd(
                                work.weights[i], f"[{i + 1}/{len(p.prims)}] {sp.path}")
             rep.seconds = _time.perf_counter() - t0
             reports.append(rep)
+        # bounding-box hints above the refined meshes: recomputed for the refined surfaces
+        layer.override_extents_hints(p.stage, {sp.path: sp.point_times for sp in p.prims}, frames)
         if progress is not None:
             progress(1.0, "writing " + os.path.basename(out_abs))
         layer.commit(flatten=flatten)

@@ -148,6 +148,38 @@ class OutputLayer:
             self.layer.EraseTimeSample(spec.path, time)
         spec.default = Sdf.ValueBlock()
 
+    def override_extents_hints(self, input_stage: Usd.Stage, mesh_times: dict, frames=None) -> list:
+        """Recompute, in this layer, the ``extentsHint`` (UsdGeom.ModelAPI) that a refined mesh or any of its
+        ancestors authors: refinement may leave the control hull (prescribed normals, concave corners), and a
+        hint computed for the control mesh would then no longer contain it. ``mesh_times``: refined mesh path
+        -> the time samples written for its points. The hint is written at the default time and at the union
+        of the times of the meshes under it and its own selected samples. Returns the prim paths overridden."""
+        from pxr import UsdGeom
+
+        from .usd_read import _in_frames
+
+        hinted: dict = {}
+        for path, times in mesh_times.items():
+            prim = input_stage.GetPrimAtPath(path)
+            while prim and not prim.IsPseudoRoot():
+                attr = prim.GetAttribute("extentsHint")
+                if attr and attr.HasAuthoredValue():
+                    own = _in_frames(attr.GetTimeSamples(), frames)
+                    hinted.setdefault(str(prim.GetPath()), set()).update(times, own)
+                prim = prim.GetParent()
+        if not hinted:
+            return []
+        stage = Usd.Stage.Open(self.layer)
+        purposes = UsdGeom.Imageable.GetOrderedPurposeTokens()
+        for path, times in sorted(hinted.items()):
+            model = UsdGeom.ModelAPI(stage.GetPrimAtPath(path))
+            spec = self.attr(self.prim(path), "extentsHint", Sdf.ValueTypeNames.Float3Array)
+            self.set(spec, model.ComputeExtentsHint(UsdGeom.BBoxCache(Usd.TimeCode.Default(), purposes)))
+            for t in sorted(times):
+                self.set(spec, samples=[(t, model.ComputeExtentsHint(UsdGeom.BBoxCache(t, purposes)))])
+        del stage
+        return sorted(hinted)
+
     # -- finishing -------------------------------------------------------------------------------------
     def commit(self, flatten: bool = False) -> None:
         """Save (or flatten) to the temporary file and rename it over the output."""
