@@ -110,6 +110,33 @@ def test_loop_polygon_channels_match_opensubdiv_on_the_fan_triangles():
     assert worst < 1e-9
 
 
+@needs_peer
+@pytest.mark.parametrize("name,scheme", [("grid3x3", "catmull-clark"), ("cube", "catmull-clark"),
+                                         ("mixed_prism", "catmull-clark"), ("tri_grid3x3", "loop"),
+                                         ("icosahedron", "loop")])
+def test_disjoint_values_match_opensubdiv(name, scheme):
+    """Item 4 (found with the fan triangles, where a polygon's first value spans several triangles): a value
+    whose faces around its vertex are split by a seam or by its other values is "disjoint" in OpenSubdiv,
+    hence sharp, and with corners-plus1/2 it makes the other value of a two-valued vertex sharp too; where
+    the values around a vertex run A, B, A, B OpenSubdiv counts the second B as a value of its own."""
+    mesh = load_mesh(name)
+    rng = np.random.default_rng(4)
+    cases, reqs = [], []
+    for mode in FaceVaryingMode.values():
+        for _ in range(3):  # up to two values per vertex, given to its faces at random
+            idx = 2 * mesh.face_vertex_indices.astype(np.int64) + rng.integers(0, 2, len(mesh.face_vertex_indices))
+            vals = rng.random((2 * mesh.num_vertices, 2))
+            cases.append((mode, idx, vals))
+            reqs.append(osd_peer.request(mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices, 2,
+                                         scheme="catmark" if scheme == "catmull-clark" else "loop",
+                                         fvar=(vals, idx), fvar_linear=mode))
+    r = build(mesh, 2, scheme=scheme, rules="opensubdiv")
+    for (mode, idx, vals), out in zip(cases, osd_peer.refine_many(reqs)):
+        fv, fi = r.evaluate_face_varying(vals, idx, mode)
+        lv = out.levels[2]
+        np.testing.assert_allclose(fv[fi], lv.fvar_values[lv.fvar_indices], atol=1e-9, err_msg=mode)
+
+
 # --------------------------------------------------------------------------------------------------------
 # item 5: rules="opensubdiv" has Loop's original beta only
 

@@ -1,10 +1,11 @@
 """Face-varying data (UVs): refinement on its own topology, with OpenSubdiv's FVarLinearInterpolation modes.
 
 A face-varying channel gives every face corner a value index. Its values form their own mesh (the "value
-mesh"): faces as in the vertex mesh, with the value indices as vertices, so a seam (an edge whose two faces
-use different values) is a boundary of the value mesh. The value mesh is refined by the same engine with
-OpenSubdiv's rules, edge-only boundaries, the vertex mesh's creases and corners, and extra corners chosen by
-the linear-interpolation mode, as OpenSubdiv's Vtr::FVarLevel chooses them:
+mesh"): the faces the vertex refiner refines (under Loop, a polygon's fan triangles) with the value indices
+as vertices, so a seam (an edge whose two faces use different values) is a boundary of the value mesh. The
+value mesh is refined by the same engine with OpenSubdiv's rules, edge-only boundaries, the vertex mesh's
+creases and corners, and extra corners chosen by the linear-interpolation mode, as OpenSubdiv's
+Vtr::FVarLevel chooses them:
 
 =================  ===================================================================================
 mode               values made sharp (interpolated) besides the vertex mesh's own corners
@@ -25,30 +26,48 @@ import numpy as np
 
 from .errors import NonManifoldWarning, SubdivInputError
 from .mesh import INFINITE_SHARPNESS, Mesh
-from .options import FaceVaryingMode
-from .topology import base_level
+from .options import FaceVaryingMode, Scheme
+from .topology import base_level, triangulate
 
 
-def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
+def check_indices(indices, num_corners: int) -> np.ndarray:
+    """A channel's value indices as a read-only int64 array, one per face corner (``num_corners``), or
+    :class:`SubdivInputError` (``option`` "indices"): not 1-D of that length, not integers, or negative."""
+    idx = np.asarray(indices)
+    if idx.ndim != 1 or len(idx) != num_corners:
+        raise SubdivInputError(
+            f"face-varying indices need one entry per face corner ({num_corners}), got shape {idx.shape}",
+            option="indices", value=idx.shape,
+        )
+    if idx.dtype.kind not in "iu" and len(idx):
+        raise SubdivInputError(f"face-varying indices must be integers, got dtype {idx.dtype}", option="indices")
+    if len(idx) and idx.dtype.kind == "u" and int(idx.max()) > np.iinfo(np.int64).max:
+        h = int(np.argmax(idx))
+        raise SubdivInputError(f"face-varying index {int(idx[h])} at face corner {h} is too large",
+                               option="indices", index=h, value=int(idx[h]))
+    idx = idx.astype(np.int64)
+    if len(idx) and idx.min() < 0:
+        h = int(np.flatnonzero(idx < 0)[0])
+        raise SubdivInputError(f"face-varying index {idx[h]} at face corner {h} is negative", option="indices",
+                               index=h, value=int(idx[h]))
+    idx.flags.writeable = False
+    return idx
+
+
+def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str, scheme: str = Scheme.CATMULL_CLARK):
     """The value mesh of a face-varying channel and, for each of its vertices, the source value index.
 
     Each (vertex, value) pair becomes one value-mesh vertex, so a value index used at two different vertices
     is two vertices of the value mesh (as OpenSubdiv keeps values per vertex). ``mode``: a
-    :class:`~warp_subdiv.options.FaceVaryingMode` or its value.
+    :class:`~warp_subdiv.options.FaceVaryingMode` or its value. Under ``scheme`` "loop" a polygon mesh is
+    analysed (and its value mesh built) on its fan triangles (:func:`~warp_subdiv.topology.triangulate`),
+    which is what the Loop refiner refines: vertices and values then follow the same faces.
     """
     mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
-    idx = np.asarray(indices)
-    if idx.ndim != 1 or len(idx) != len(mesh.face_vertex_indices):
-        raise SubdivInputError(
-            f"face-varying indices need one entry per face corner ({len(mesh.face_vertex_indices)}), got "
-            f"{np.shape(indices)}"
-        )
-    if idx.dtype.kind not in "iu":
-        raise SubdivInputError("face-varying indices must be integers")
-    if len(idx) and idx.min() < 0:
-        h = int(np.flatnonzero(idx < 0)[0])
-        raise SubdivInputError(f"face-varying index {idx[h]} at face corner {h} is negative")
-    idx = idx.astype(np.int64)
+    scheme = Scheme.parse(scheme, "scheme")
+    idx = check_indices(indices, len(mesh.face_vertex_indices))
+    if scheme == Scheme.LOOP and not mesh.is_all(3):
+        mesh, idx = _fan_triangles(mesh, idx)
     # vertex-level analysis of the control mesh (edges, fans, sharpness) with the geometry's options
     level = base_level(mesh, "catmull-clark", boundary, "opensubdiv")
     cv = mesh.face_vertex_indices.astype(np.int64)
@@ -57,7 +76,14 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
     pairs, pid = np.unique(cv * base + idx, return_inverse=True)
     pid = pid.reshape(-1)
     source, pair_vertex = pairs % base, pairs // base
-    npairs = len(pairs)
+    # OpenSubdiv gives a value a second sibling (a vertex of its own) in one pattern, see _repeated_sibling
+    again = _repeated_sibling(level, cv, idx)
+    if len(again):
+        extra, at = np.unique(pid[again], return_inverse=True)
+        pid[again] = len(pairs) + at.reshape(-1)
+        source = np.concatenate([source, source[extra]])
+        pair_vertex = np.concatenate([pair_vertex, pair_vertex[extra]])
+    npairs = len(source)
 
     nxt = mesh.edges.corner_next.astype(np.int64)
     ecount = np.diff(level.edge_corner_offsets)
@@ -90,15 +116,22 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
     mismatch |= vertex_boundary & (faces_at == 1) & smooth_geometry_corners & corners_sharp
 
     span = np.bincount(pid, minlength=npairs)  # faces of each value at its vertex
-    # (a value whose faces around its vertex are not one fan, "disjoint", is a non-manifold vertex of the
-    # value mesh, which the refiner makes a corner)
+    # A value is "disjoint" (Vtr::FVarLevel's ValueSpan) when its faces around its vertex are not one run
+    # joined by unbroken edges: an edge joining two of its faces is broken when it is a seam (its values differ
+    # at the other end) or infinitely sharp. Its faces then number more than its unbroken joints plus one.
+    # A disjoint value is sharp (in the value mesh it is a non-manifold vertex or a corner anyway), and with
+    # dependent sharpness (corners-plus1/2) it makes the other value of its vertex sharp too.
+    joined = two & ~seam & (level.edge_sharpness < INFINITE_SHARPNESS)
+    joints = np.bincount(np.concatenate([at_a0[joined], at_b0[joined]]), minlength=npairs)
+    pv = pair_vertex
+    disjoint = mismatch[pv] & (joints < span - 1)
     inf_sharp_vertex = level.vert_sharpness >= INFINITE_SHARPNESS
     all_sharp = mismatch & (linear_boundaries | inf_sharp_vertex | nonmanifold | (dependent & (values_at > 2))
                             | (sharpen_darts & (values_at == 1) & ~vertex_boundary))
-    pv = pair_vertex
-    value_sharp = all_sharp[pv] | (mismatch[pv] & (span == 1) & corners_sharp)
+    value_sharp = all_sharp[pv] | disjoint | (mismatch[pv] & (span == 1) & corners_sharp)
     if dependent:
         two_values = mismatch & (values_at == 2) & ~all_sharp
+        value_sharp |= (two_values & (np.bincount(pv, weights=disjoint, minlength=nv) > 0))[pv]
         if mode == FaceVaryingMode.CORNERS_PLUS2:
             one_face = np.bincount(pv, weights=(span == 1), minlength=nv) > 0
             value_sharp |= (two_values & one_face)[pv]
@@ -127,6 +160,47 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str):
     return vm, source
 
 
+def _repeated_sibling(level, cv: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Face corners whose value OpenSubdiv counts as a new value of their vertex although the vertex has it.
+
+    Vtr::FVarLevel numbers the values ("siblings") around a vertex in its face order (from its first face, or
+    the face after a boundary, across each face's incoming edge: ``level.vert_corners``), run by run, and
+    while it has seen two values it adds any run whose value differs from the first value without comparing
+    it with the second: where the runs start A, B, A, B the fourth run becomes a third value B (later runs
+    find their value). The two B's then refine as separate values (and the vertex has three)."""
+    vc = level.vert_corners.astype(np.int64)
+    if len(vc) < 4:
+        return np.zeros(0, dtype=np.int64)
+    verts, vals = cv[vc], idx[vc]
+    start = np.ones(len(vc), dtype=bool)
+    start[1:] = (verts[1:] != verts[:-1]) | (vals[1:] != vals[:-1])
+    first = np.flatnonzero(start)  # first position of every run
+    vertex_start = np.ones(len(first), dtype=bool)
+    vertex_start[1:] = verts[first[1:]] != verts[first[:-1]]
+    rank = np.arange(len(first)) - np.maximum.accumulate(np.where(vertex_start, np.arange(len(first)), 0))
+    r = np.flatnonzero(rank == 3)
+    r = r[(vals[first[r - 3]] == vals[first[r - 1]]) & (vals[first[r - 2]] == vals[first[r]])]
+    if not len(r):
+        return np.zeros(0, dtype=np.int64)
+    end = np.append(first[1:], len(vc))
+    lengths = end[r] - first[r]
+    positions = np.repeat(first[r] - np.cumsum(lengths) + lengths, lengths) + np.arange(int(lengths.sum()))
+    return vc[positions]
+
+
+def _fan_triangles(mesh: Mesh, idx: np.ndarray):
+    """``mesh`` fan-triangulated as the Loop refiner triangulates it (its tags and holes kept), and the channel's
+    indices on the triangles' corners."""
+    counts, tri_vertices, parent = triangulate(mesh.face_vertex_counts, mesh.face_vertex_indices)
+    _, tri_values, _ = triangulate(mesh.face_vertex_counts, idx)
+    holes = np.flatnonzero(np.isin(parent, mesh.holes)) if len(mesh.holes) else None
+    tris = Mesh(mesh.points, counts, tri_vertices,
+                creases=mesh.creases if len(mesh.creases) else None,
+                crease_sharpness=mesh.crease_sharpness if len(mesh.creases) else None,
+                corners=mesh.corners, corner_sharpness=mesh.corner_sharpness, holes=holes)
+    return tris, tri_values.astype(np.int64)
+
+
 class FaceVaryingChannel:
     """One face-varying channel (its value indices fixed) of a vertex :class:`~warp_subdiv.refiner.Refiner`,
     which owns it: the value mesh refined with the vertex refiner's options and OpenSubdiv's rules.
@@ -136,7 +210,7 @@ class FaceVaryingChannel:
 
     def __init__(self, refiner, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
         self.mode = mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
-        mesh, self.source = value_mesh(refiner.mesh, indices, mode, refiner.boundary)
+        mesh, self.source = value_mesh(refiner.mesh, indices, mode, refiner.boundary, refiner.scheme)
         options = refiner.options.replace(rules="opensubdiv", boundary="edge-only", flatness=None,
                                           loop_beta="loop", linear=(mode == FaceVaryingMode.ALL))
         with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
