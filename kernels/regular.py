@@ -6,7 +6,9 @@ looked up per valence. Rows marked 0 in the ``regular`` masks are left for :func
 Output layout: child vertices [vertex children, face children (Catmull-Clark), edge children].
 
 Vertex data comes in either layout of :mod:`warp_subdiv.kernels.layout` (vec3 rows, or (rows, width)
-scalars with a loop over the columns): one thread per output row.
+scalars with a loop over the columns): one thread per output row. Every kernel takes ``row0``, the first
+row of its launch: thread ``tid`` computes row ``row0 + tid``, so a launch can cover a contiguous range of
+rows (the evaluator splits a CPU launch into a few ranges run on several threads; one launch has row0 0).
 """
 from typing import Any
 
@@ -19,9 +21,9 @@ wp.set_module_options({"enable_backward": False})
 
 @wp.kernel
 def quad_face_points(corner_vert: wp.array(dtype=wp.int32), src: Any, dst: Any, first_row: int,
-                     quarter: wp.array(dtype=Any)):
+                     quarter: wp.array(dtype=Any), row0: int):
     """Catmull-Clark face points of a quad level: dst[first_row + f] = mean of the face's 4 corners."""
-    f = wp.tid()
+    f = wp.tid() + row0
     b = 4 * f
     c0 = corner_vert[b]
     c1 = corner_vert[b + 1]
@@ -34,11 +36,11 @@ def quad_face_points(corner_vert: wp.array(dtype=wp.int32), src: Any, dst: Any, 
 
 @wp.kernel
 def quad_edge_points(neighbours: wp.array2d(dtype=wp.int32), regular: wp.array(dtype=wp.uint8), src: Any,
-                     dst: Any, face_row: int, first_row: int, weights: wp.array(dtype=Any)):
+                     dst: Any, face_row: int, first_row: int, weights: wp.array(dtype=Any), row0: int):
     """Smooth Catmull-Clark edge points: w0 (a + b) + w1 (f0 + f1), f the new face points already in dst.
 
     ``neighbours[e]`` = (a, b, face 0, face 1)."""
-    e = wp.tid()
+    e = wp.tid() + row0
     if regular[e] == wp.uint8(0):
         return
     a = neighbours[e, 0]
@@ -53,9 +55,9 @@ def quad_edge_points(neighbours: wp.array2d(dtype=wp.int32), regular: wp.array(d
 @wp.kernel
 def quad_vertex_points(offsets: wp.array(dtype=wp.int32), ring: wp.array(dtype=wp.int32),
                        ring_faces: wp.array(dtype=wp.int32), regular: wp.array(dtype=wp.uint8), src: Any, dst: Any,
-                       face_row: int, weights: wp.array2d(dtype=Any)):
+                       face_row: int, weights: wp.array2d(dtype=Any), row0: int):
     """Smooth Catmull-Clark vertex points: w0(n) v + w1(n) (sum of ring vertices + sum of new face points)."""
-    v = wp.tid()
+    v = wp.tid() + row0
     if regular[v] == wp.uint8(0):
         return
     start = offsets[v]
@@ -70,10 +72,10 @@ def quad_vertex_points(offsets: wp.array(dtype=wp.int32), ring: wp.array(dtype=w
 
 @wp.kernel
 def tri_edge_points(neighbours: wp.array2d(dtype=wp.int32), regular: wp.array(dtype=wp.uint8), src: Any, dst: Any,
-                    first_row: int, weights: wp.array(dtype=Any)):
+                    first_row: int, weights: wp.array(dtype=Any), row0: int):
     """Smooth Loop edge points: w0 (a + b) + w1 (o0 + o1). ``neighbours[e]`` = (a, b, o0, o1), o the vertices
     opposite the edge."""
-    e = wp.tid()
+    e = wp.tid() + row0
     if regular[e] == wp.uint8(0):
         return
     a = neighbours[e, 0]
@@ -87,9 +89,10 @@ def tri_edge_points(neighbours: wp.array2d(dtype=wp.int32), regular: wp.array(dt
 
 @wp.kernel
 def tri_vertex_points(offsets: wp.array(dtype=wp.int32), ring: wp.array(dtype=wp.int32),
-                      regular: wp.array(dtype=wp.uint8), src: Any, dst: Any, weights: wp.array2d(dtype=Any)):
+                      regular: wp.array(dtype=wp.uint8), src: Any, dst: Any, weights: wp.array2d(dtype=Any),
+                      row0: int):
     """Smooth Loop vertex points: (1 - n beta) v + beta (sum of ring vertices); ``ring`` lists the vertices."""
-    v = wp.tid()
+    v = wp.tid() + row0
     if regular[v] == wp.uint8(0):
         return
     start = offsets[v]
@@ -104,10 +107,10 @@ def tri_vertex_points(offsets: wp.array(dtype=wp.int32), ring: wp.array(dtype=wp
 
 @wp.kernel
 def explicit_rows(rows: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int32),
-                  indices: wp.array(dtype=wp.int32), weights: wp.array(dtype=Any), src: Any, dst: Any):
+                  indices: wp.array(dtype=wp.int32), weights: wp.array(dtype=Any), src: Any, dst: Any, row0: int):
     """dst[rows[i]] = sum_j weights[j] src[indices[j]] over row i of a CSR table (the irregular rows of a
     uniform step)."""
-    i = wp.tid()
+    i = wp.tid() + row0
     start = offsets[i]
     end = offsets[i + 1]
     for c in range(columns(dst)):
@@ -127,10 +130,10 @@ for _s, _a in data_types():
     _w = wp.array(dtype=_s)
     _w2 = wp.array2d(dtype=_s)
     REGULAR_OVERLOADS += [
-        wp.overload(quad_face_points, [_i, _a, _a, int, _w]),
-        wp.overload(quad_edge_points, [_i2, _u, _a, _a, int, int, _w]),
-        wp.overload(quad_vertex_points, [_i, _i, _i, _u, _a, _a, int, _w2]),
-        wp.overload(tri_edge_points, [_i2, _u, _a, _a, int, _w]),
-        wp.overload(tri_vertex_points, [_i, _i, _u, _a, _a, _w2]),
-        wp.overload(explicit_rows, [_i, _i, _i, _w, _a, _a]),
+        wp.overload(quad_face_points, [_i, _a, _a, int, _w, int]),
+        wp.overload(quad_edge_points, [_i2, _u, _a, _a, int, int, _w, int]),
+        wp.overload(quad_vertex_points, [_i, _i, _i, _u, _a, _a, int, _w2, int]),
+        wp.overload(tri_edge_points, [_i2, _u, _a, _a, int, _w, int]),
+        wp.overload(tri_vertex_points, [_i, _i, _u, _a, _a, _w2, int]),
+        wp.overload(explicit_rows, [_i, _i, _i, _w, _a, _a, int]),
     ]

@@ -1,7 +1,8 @@
 """Gather-stencil kernel: dst[i] = sum_j weights[j] * src[indices[j]], j over row i of a CSR table.
 
 Used for the steps of non-uniform levels (every row explicit) and for limit masks. Vertex data comes in
-either layout of :mod:`warp_subdiv.kernels.layout` (vec3 rows, or (rows, width) scalars).
+either layout of :mod:`warp_subdiv.kernels.layout` (vec3 rows, or (rows, width) scalars). ``row0`` is the
+first row of the launch (a launch may cover a contiguous range of rows, see :mod:`.regular`).
 """
 from typing import Any
 
@@ -20,9 +21,10 @@ def stencil_rows(
     weights: wp.array(dtype=Any),
     src: Any,
     dst: Any,
+    row0: int,
 ):
-    """One thread per output row; weights are scalars of the data's precision."""
-    i = wp.tid()
+    """One thread per output row (row ``row0 + tid``); weights are scalars of the data's precision."""
+    i = wp.tid() + row0
     start = offsets[i]
     end = offsets[i + 1]
     for c in range(columns(dst)):
@@ -40,6 +42,6 @@ for _scalar, _data in data_types():
         wp.overload(
             stencil_rows,
             {"offsets": wp.array(dtype=wp.int32), "indices": wp.array(dtype=wp.int32),
-             "weights": wp.array(dtype=_scalar), "src": _data, "dst": _data},
+             "weights": wp.array(dtype=_scalar), "src": _data, "dst": _data, "row0": int},
         )
     )

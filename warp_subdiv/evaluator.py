@@ -10,7 +10,10 @@ evaluation over typed records:
   :func:`upload_limit` makes the :class:`LimitMasks`.
 * :func:`apply` (dispatching on the record's type), :func:`refine_step`, :func:`limit_positions` and
   :func:`limit_normals` launch the kernels of :mod:`warp_subdiv.kernels` over a record and source and
-  destination buffers, always on an explicit device.
+  destination buffers, always on an explicit device, through a :class:`Launcher`: on the CPU it splits each
+  launch into a few contiguous row ranges run on several threads (:mod:`warp_subdiv.threads`; Warp runs one
+  CPU launch on one thread and releases the GIL while a kernel runs). Every row is computed by the same code
+  whatever the split, so results are bitwise equal to one thread's.
 
 Vertex data of any width ``d`` lives in row-major (rows, d) device buffers of the evaluation precision and
 reaches the kernels as a 2-D array, which is the buffer descriptor (its data pointer the offset, ``shape[1]``
@@ -21,7 +24,8 @@ normal-control and limit-normal kernels need.
 
 :class:`Evaluator` owns the records and the per-level buffers (allocated once, grown when wider data comes,
 reused by every later call). One lock guards the section that uses the shared buffers, so one evaluator
-can serve several Python threads at once.
+can serve several Python threads at once (each call's launches, on however many threads, finish before the
+lock is released).
 """
 from __future__ import annotations
 
@@ -32,6 +36,7 @@ from functools import singledispatch
 import numpy as np
 import warp as wp
 
+from . import threads as _threads
 from .errors import SubdivInputError
 from .tables import RegularTables
 from .topology import small_pages
@@ -238,50 +243,111 @@ def upload_limit(tables, device, precision: str) -> LimitMasks:
 
 
 # ------------------------------------------------------------------------------------------------ launches
+_loaded: set = set()
+_load_lock = threading.Lock()
+
+
+def _load_kernels(device) -> None:
+    """Load the kernel modules on ``device`` (once per process and device) before threads launch them: a
+    module must not be compiled or loaded from two threads at once."""
+    key = str(device)
+    if key in _loaded:
+        return
+    with _load_lock:
+        if key not in _loaded:
+            k = _kernels()
+            for module in (k.regular, k.stencil, k.projection):
+                wp.load_module(module, device=device)
+            _loaded.add(key)
+
+
+class Launcher:
+    """Launches kernels on ``device``; on the CPU with ``threads`` > 1, a launch of many rows runs as a few
+    contiguous row ranges on the process's thread pool (the calling thread runs the first), and returns when
+    every range is done. On CUDA one launch, whatever ``threads``."""
+
+    def __init__(self, device, threads: int = 1):
+        self.device = wp.get_device(device)
+        self.threads = max(1, int(threads)) if self.device.is_cpu else 1
+        if self.threads > 1:
+            _load_kernels(self.device)
+
+    def __repr__(self):
+        return f"Launcher({self.device}, threads={self.threads})"
+
+    def rows(self, kernel, n: int, inputs: list) -> None:
+        """``kernel`` over rows 0..n, its last parameter the first row of the launch (``row0``)."""
+        if n <= 0:
+            return
+        if self.threads == 1 or n < 2 * _threads.MIN_ROWS:
+            wp.launch(kernel, dim=n, inputs=inputs + [0], device=self.device)
+            return
+        dev = self.device
+        _threads.map_ranges(lambda a, b: wp.launch(kernel, dim=b - a, inputs=inputs + [a], device=dev), n,
+                            self.threads)
+
+    def sliced(self, kernel, n: int, inputs_of) -> None:
+        """``kernel`` over rows 0..n of a kernel without a row offset: ``inputs_of(start, stop)`` gives the
+        inputs of one range (views of the arrays' rows start..stop)."""
+        if n <= 0:
+            return
+        if self.threads == 1 or n < 2 * _threads.MIN_ROWS:
+            wp.launch(kernel, dim=n, inputs=inputs_of(0, n), device=self.device)
+            return
+        dev = self.device
+        _threads.map_ranges(lambda a, b: wp.launch(kernel, dim=b - a, inputs=inputs_of(a, b), device=dev), n,
+                            self.threads)
+
+
+def launcher(device_or_launcher) -> Launcher:
+    """A :class:`Launcher` as given, or a one-thread launcher on the given device."""
+    if isinstance(device_or_launcher, Launcher):
+        return device_or_launcher
+    return Launcher(device_or_launcher, 1)
+
+
 @singledispatch
 def apply(record, src: wp.array, dst: wp.array, device) -> None:
-    """Write the rows of ``record`` into ``dst`` from ``src`` (both in one :func:`layout`) on ``device``."""
+    """Write the rows of ``record`` into ``dst`` from ``src`` (both in one :func:`layout`) on ``device`` (a
+    Warp device, or a :class:`Launcher` that may split the launches over threads)."""
     raise TypeError(f"no evaluation for {type(record).__name__}")
 
 
 @apply.register
 def _(record: QuadStep, src, dst, device) -> None:
-    k = _kernels()
+    k, run = _kernels(), launcher(device)
     V, F = record.num_vertices, record.num_faces
-    wp.launch(k.quad_face_points, dim=F, inputs=[record.corner_vert, src, dst, V, record.quarter], device=device)
-    wp.launch(k.quad_edge_points, dim=record.num_edges,
-              inputs=[record.edge_neighbours, record.edge_regular, src, dst, V, V + F, record.edge_weights],
-              device=device)
-    wp.launch(k.quad_vertex_points, dim=V,
-              inputs=[record.ring_offsets, record.ring, record.ring_faces, record.vertex_regular, src, dst, V,
-                      record.ring_weights], device=device)
-    apply(record.explicit, src, dst, device)
+    # face points first: edge and vertex points read them from dst (each launch ends before the next starts)
+    run.rows(k.quad_face_points, F, [record.corner_vert, src, dst, V, record.quarter])
+    run.rows(k.quad_edge_points, record.num_edges,
+             [record.edge_neighbours, record.edge_regular, src, dst, V, V + F, record.edge_weights])
+    run.rows(k.quad_vertex_points, V,
+             [record.ring_offsets, record.ring, record.ring_faces, record.vertex_regular, src, dst, V,
+              record.ring_weights])
+    apply(record.explicit, src, dst, run)
 
 
 @apply.register
 def _(record: TriangleStep, src, dst, device) -> None:
-    k = _kernels()
+    k, run = _kernels(), launcher(device)
     V = record.num_vertices
-    wp.launch(k.tri_edge_points, dim=record.num_edges,
-              inputs=[record.edge_neighbours, record.edge_regular, src, dst, V, record.edge_weights], device=device)
-    wp.launch(k.tri_vertex_points, dim=V,
-              inputs=[record.ring_offsets, record.ring, record.vertex_regular, src, dst, record.ring_weights],
-              device=device)
-    apply(record.explicit, src, dst, device)
+    run.rows(k.tri_edge_points, record.num_edges,
+             [record.edge_neighbours, record.edge_regular, src, dst, V, record.edge_weights])
+    run.rows(k.tri_vertex_points, V, [record.ring_offsets, record.ring, record.vertex_regular, src, dst,
+                                      record.ring_weights])
+    apply(record.explicit, src, dst, run)
 
 
 @apply.register
 def _(record: ExplicitRows, src, dst, device) -> None:
-    if record.count:
-        wp.launch(_kernels().explicit_rows, dim=record.count,
-                  inputs=[record.rows, record.offsets, record.indices, record.weights, src, dst], device=device)
+    launcher(device).rows(_kernels().explicit_rows, record.count,
+                          [record.rows, record.offsets, record.indices, record.weights, src, dst])
 
 
 @apply.register
 def _(record: StencilStep, src, dst, device) -> None:
-    if record.num_rows:
-        wp.launch(_kernels().stencil_rows, dim=record.num_rows,
-                  inputs=[record.offsets, record.indices, record.weights, src, dst], device=device)
+    launcher(device).rows(_kernels().stencil_rows, record.num_rows,
+                          [record.offsets, record.indices, record.weights, src, dst])
 
 
 @singledispatch
@@ -292,23 +358,28 @@ def displace(record, points: wp.array, scratch: wp.array, device) -> None:
 
 @displace.register
 def _(record: Displacement, points, scratch, device) -> None:
-    k = _kernels()
+    k, run = _kernels(), launcher(device)
     tmp = scratch[: record.count]
-    wp.launch(k.displace_rows, dim=record.count,
-              inputs=[record.targets, record.offsets, record.indices, record.weights, points, tmp], device=device)
-    wp.launch(k.scatter_rows, dim=record.count, inputs=[record.targets, tmp, points], device=device)
+    run.sliced(k.displace_rows, record.count, lambda a, b: [
+        record.targets[a:b], record.offsets[a:b + 1], record.indices, record.weights, points, tmp[a:b]])
+    _scatter(run, record.targets, tmp, points, record.count)
+
+
+def _scatter(run: Launcher, targets, values, dst, n: int) -> None:
+    """dst[targets[i]] = values[i] for i < n (after every row of ``values`` is computed)."""
+    run.sliced(_kernels().scatter_rows, n, lambda a, b: [targets[a:b], values[a:b], dst])
 
 
 @displace.register
 def _(record: Projection, points, scratch, device) -> None:
     if points.ndim != 1:
         raise SubdivInputError("normal control applies to (n, 3) positions only", option="normal_control")
-    k = _kernels()
+    k, run = _kernels(), launcher(device)
     tmp = scratch[: record.count]
-    wp.launch(k.project_rows, dim=record.count,
-              inputs=[record.targets, record.offsets, record.indices, record.weights, record.normal_ids,
-                      record.normals, points, tmp], device=device)
-    wp.launch(k.scatter_rows, dim=record.count, inputs=[record.targets, tmp, points], device=device)
+    run.sliced(k.project_rows, record.count, lambda a, b: [
+        record.targets[a:b], record.offsets[a:b + 1], record.indices, record.weights, record.normal_ids,
+        record.normals, points, tmp[a:b]])
+    _scatter(run, record.targets, tmp, points, record.count)
 
 
 def refine_step(step: StepRecord, src: wp.array, dst: wp.array, scratch: wp.array | None, normal_control: bool,
@@ -333,10 +404,12 @@ def limit_normals(masks: LimitMasks, src: wp.array, tangent_u: wp.array, tangent
                   device) -> None:
     """Unit limit normals ``out`` from positions ``src`` (vec3 arrays); ``tangent_u``/``tangent_v`` are vec3
     work buffers of ``masks.num_tangents`` rows."""
-    apply(masks.tangent_u, src, tangent_u, device)
-    apply(masks.tangent_v, src, tangent_v, device)
-    wp.launch(_kernels().vertex_normals, dim=masks.num_vertices,
-              inputs=[masks.vertex_offsets, tangent_u, tangent_v, src.dtype(), out], device=device)
+    run = launcher(device)
+    apply(masks.tangent_u, src, tangent_u, run)
+    apply(masks.tangent_v, src, tangent_v, run)
+    zero = src.dtype()
+    run.sliced(_kernels().vertex_normals, masks.num_vertices, lambda a, b: [
+        masks.vertex_offsets[a:b + 1], tangent_u, tangent_v, zero, out[a:b]])
 
 
 def layout(rows_by_width: wp.array) -> wp.array:
@@ -384,11 +457,16 @@ class Evaluator:
     call. Thread safety: a lock guards every call's use of the shared level buffers (upload, launches and the
     copy of the result to the host), so concurrent calls from several threads run one after the other and
     each gets its own result. :meth:`evaluate_device` returns a shared buffer, valid until the next call.
+
+    ``threads``: CPU threads per launch (None: :func:`warp_subdiv.threads.default_threads`); each launch of
+    many rows is split into that many contiguous row ranges. Results do not depend on it.
     """
 
-    def __init__(self, hierarchy, *, device, precision: str):
+    def __init__(self, hierarchy, *, device, precision: str, threads: int | None = None):
         self.hierarchy = hierarchy
         self.device = wp.get_device(device)
+        self.threads = _threads.resolve(threads)
+        self._launcher = None
         self.precision = str(precision)
         self._scalar_np, self._scalar, self._vec = PRECISIONS[self.precision]
         self._lock = threading.RLock()
@@ -397,6 +475,14 @@ class Evaluator:
         self._limit: LimitMasks | None = None
 
     # ---------------------------------------------------------------------------------------- state
+    @property
+    def launcher(self) -> Launcher:
+        """The :class:`Launcher` of this evaluator's device and thread count (made on first use, so that
+        building a refiner loads no Warp module)."""
+        if self._launcher is None:
+            self._launcher = Launcher(self.device, self.threads)
+        return self._launcher
+
     def records(self) -> list[StepRecord]:
         """The step records on this evaluator's device (uploaded on first use)."""
         with self._lock:
@@ -431,7 +517,13 @@ class Evaluator:
         pages, see topology.small_pages)."""
         with small_pages():
             out = arr.numpy()
-            return np.array(out, copy=True) if self.device.is_cpu else out
+            if not self.device.is_cpu:
+                return out
+            if self.threads == 1 or len(out) < 2 * _threads.MIN_ROWS:
+                return np.array(out, copy=True)
+            copy = np.empty_like(out)  # copied in row ranges on the evaluator's threads (numpy frees the GIL)
+            _threads.map_ranges(lambda a, b: np.copyto(copy[a:b], out[a:b]), len(out), self.threads)
+            return copy
 
     def _input(self, data, rows: int, what: str) -> np.ndarray:
         arr = np.asarray(data)
@@ -449,7 +541,7 @@ class Evaluator:
         levels, scratch = self._level_views(arr.shape[1])
         self._put(levels[0], arr)
         for step, src, dst, tmp in zip(records, levels[:-1], levels[1:], scratch):
-            refine_step(step, src, dst, tmp, normal_control, self.device)
+            refine_step(step, src, dst, tmp, normal_control, self.launcher)
         return levels[-1]
 
     def evaluate(self, arr: np.ndarray, normal_control: bool) -> np.ndarray:
@@ -471,7 +563,7 @@ class Evaluator:
         arr = self._input(points, self._level_rows(-2), "points of the second-to-last level")
         levels, scratch = self._level_views(arr.shape[1])
         self._put(levels[-2], arr)
-        refine_step(records[-1], levels[-2], levels[-1], scratch[-1], arr.shape[1] == 3, self.device)
+        refine_step(records[-1], levels[-2], levels[-1], scratch[-1], arr.shape[1] == 3, self.launcher)
         return levels[-1]
 
     def _level_rows(self, level: int) -> int:
@@ -498,7 +590,7 @@ class Evaluator:
         with self._lock:
             src = self._last_step(refined_points) if last_step else self._device_points(refined_points)
             out = wp.empty(src.shape, dtype=src.dtype, device=self.device)
-            limit_positions(masks, src, out, self.device)
+            limit_positions(masks, src, out, self.launcher)
             return self._host(out)
 
     def limit_normals(self, refined_points, prescribed, *, last_step: bool = False) -> np.ndarray:
@@ -514,7 +606,7 @@ class Evaluator:
             tu = wp.empty(masks.num_tangents, dtype=vec, device=dev)
             tv = wp.empty(masks.num_tangents, dtype=vec, device=dev)
             out = wp.empty(masks.num_vertices, dtype=vec, device=dev)
-            limit_normals(masks, src, tu, tv, out, dev)
+            limit_normals(masks, src, tu, tv, out, self.launcher)
             ids, normals = prescribed
             if len(ids):
                 up = _Uploader(dev, self.precision)

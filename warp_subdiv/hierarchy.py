@@ -61,10 +61,13 @@ class Hierarchy:
 
     ``max_memory``: bytes; the predicted peak of the refinement is checked against it after the control mesh
     is analysed and before any refined level is allocated (``None``: no limit). Requests whose last level
-    would not fit 32-bit indices are refused whatever the limit.
+    would not fit 32-bit indices are refused whatever the limit. ``threads``: CPU threads the build may use
+    (the tables do not depend on it).
     """
 
-    def __init__(self, mesh: Mesh, levels: int, options: Options, *, max_memory: int | None = None):
+    def __init__(self, mesh: Mesh, levels: int, options: Options, *, max_memory: int | None = None,
+                 threads: int = 1):
+        self.threads = max(1, int(threads))
         self.mesh = mesh
         self.levels = levels
         self.options = options

@@ -19,6 +19,7 @@ from .hierarchy import Hierarchy
 from .mesh import Mesh
 from .options import FaceVaryingMode, Options
 from .tables import StencilTable
+from .threads import resolve as resolve_threads
 
 
 @dataclass
@@ -56,11 +57,12 @@ class Refiner:
 
     :meth:`evaluate` then refines any per-vertex data (positions of animation frames, vertex primvars) of
     shape (n, 3) or (n, d) with Warp kernels, with no topology work. Options as in :func:`refine`: either
-    ``options=`` (an :class:`~warp_subdiv.options.Options`) or the option keywords.
+    ``options=`` (an :class:`~warp_subdiv.options.Options`) or the option keywords. ``threads`` (as in
+    :func:`refine`) does not change results.
     """
 
     def __init__(self, mesh: Mesh, levels: int, *, options: Options | None = None, device=None,
-                 max_memory: int | None = None, **option_keywords):
+                 max_memory: int | None = None, threads: int | None = None, **option_keywords):
         if not isinstance(mesh, Mesh):
             raise TypeError(f"mesh must be a warp_subdiv.Mesh, got {type(mesh).__name__}")
         if isinstance(levels, bool) or not isinstance(levels, numbers.Integral) or levels < 0:
@@ -77,8 +79,10 @@ class Refiner:
         self.levels = int(levels)
         self.options = options
         self.device = wp.get_device(device if device is not None else default_device())
-        self.hierarchy = Hierarchy(mesh, self.levels, options, max_memory=max_memory)
-        self.evaluator = Evaluator(self.hierarchy, device=self.device, precision=options.precision)
+        self.threads = resolve_threads(threads)
+        self.hierarchy = Hierarchy(mesh, self.levels, options, max_memory=max_memory, threads=self.threads)
+        self.evaluator = Evaluator(self.hierarchy, device=self.device, precision=options.precision,
+                                   threads=self.threads)
         self.base_num_vertices = self.hierarchy.base_num_vertices
         self.num_vertices = self.hierarchy.num_vertices
         self._full_tables = None
@@ -206,7 +210,8 @@ class Refiner:
     def _one_more_level(self) -> "Refiner":
         """A refiner one level deeper, with the same options, for limit masks (see limit_reads_deeper)."""
         if self._deeper is None:
-            self._deeper = Refiner(self.mesh, self.levels + 1, options=self.options, device=self.device)
+            self._deeper = Refiner(self.mesh, self.levels + 1, options=self.options, device=self.device,
+                                   threads=self.threads)
         return self._deeper
 
     # ---------------------------------------------------------------------------------------------
@@ -259,7 +264,7 @@ class Refiner:
 
 
 def refine(mesh: Mesh, levels: int, *, options: Options | None = None, device=None,
-           max_memory: int | None = None, **option_keywords) -> Refined:
+           max_memory: int | None = None, threads: int | None = None, **option_keywords) -> Refined:
     """Refine ``mesh`` uniformly ``levels`` times.
 
     Options (keywords, or ``options=`` an :class:`~warp_subdiv.options.Options`):
@@ -279,5 +284,8 @@ def refine(mesh: Mesh, levels: int, *, options: Options | None = None, device=No
     ``device``: a Warp device ("cpu", "cuda", "cuda:1"); None picks CUDA when present, else the CPU.
     ``max_memory``: bytes; refuse (``SubdivInputError``) before any work when the predicted memory is above it.
     Requests whose last level would not fit 32-bit indices are always refused.
+    ``threads``: CPU threads for evaluation and the table build (None: the cores this process may use, see
+    :func:`warp_subdiv.threads.default_threads`); results are bitwise the same for any value.
     """
-    return Refiner(mesh, levels, options=options, device=device, max_memory=max_memory, **option_keywords).refine()
+    return Refiner(mesh, levels, options=options, device=device, max_memory=max_memory, threads=threads,
+                   **option_keywords).refine()

@@ -1,0 +1,109 @@
+"""Threaded CPU evaluation: a launch split into row ranges on several threads gives, bitwise, one thread's
+result; ``threads`` is checked; one threaded evaluator still serves several Python threads."""
+import threading
+
+import numpy as np
+import pytest
+
+import warp_subdiv as ws
+from warp_subdiv import threads as th
+
+from conftest import load_mesh
+
+
+@pytest.fixture
+def small_ranges(monkeypatch):
+    """Split launches of a few rows too, so that the small test meshes exercise every kernel's ranges."""
+    monkeypatch.setattr(th, "MIN_ROWS", 3)
+
+
+def test_ranges_cover_rows_in_order():
+    """ranges() covers 0..n with at most `parts` contiguous, non-empty, ordered ranges, none shorter than
+    min_rows (one range for small n)."""
+    assert th.ranges(10, 4, min_rows=100) == [(0, 10)]
+    for n, parts, m in [(100, 3, 1), (7, 8, 1), (1000, 4, 200), (65536, 2, 32768)]:
+        r = th.ranges(n, parts, m)
+        assert r[0][0] == 0 and r[-1][1] == n and len(r) <= parts
+        assert all(a < b and (b - a >= m or len(r) == 1) for a, b in r)
+        assert all(r[i][1] == r[i + 1][0] for i in range(len(r) - 1))
+
+
+@pytest.mark.parametrize("name,scheme,normals", [
+    ("cube_creased", "catmull-clark", False), ("quad_lshape", "catmull-clark", True),
+    ("tri_hexfan", "loop", False), ("mixed_prism", "loop", True), ("mixed_prism", "catmull-clark", False)])
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_threaded_evaluation_is_bitwise_one_thread(small_ranges, name, scheme, normals, precision):
+    """Refined points (width 3 with normal control, width 5), limit points and limit normals with 1, 2 and 3
+    threads are bitwise equal: quad and triangle steps, explicit rows, stencil steps, flatness and
+    normal-control displacements, limit masks."""
+    base = load_mesh(name)
+    mesh = base
+    if normals:
+        mesh = ws.Mesh(base.points, base.face_vertex_counts, base.face_vertex_indices,
+                       creases=base.creases if len(base.creases) else None, normals=([1], [[0.0, 0.6, 0.8]]))
+    rng = np.random.default_rng(3)
+    wide = rng.standard_normal((mesh.num_vertices, 5))
+    results = []
+    for threads in (1, 2, 3):
+        r = ws.Refiner(mesh, 3, scheme=scheme, precision=precision, device="cpu", threads=threads)
+        assert r.evaluator.launcher.threads == threads
+        pts = r.evaluate(mesh.points)
+        results.append((pts, r.evaluate(wide), r.limit_points(pts), r.limit_normals(pts)))
+    for other in results[1:]:
+        for a, b in zip(results[0], other):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_large_level_splits_without_patching():
+    """With the real range size, a level of 393K vertices (cube64 at level 2) is split over 2 threads and
+    matches one thread bitwise."""
+    import os
+
+    from warp_subdiv.objio import read_obj
+
+    mesh = read_obj(os.path.join(os.path.dirname(__file__), "..", "bench", "meshes", "cube64_noisy.obj")).mesh
+    one = ws.Refiner(mesh, 2, device="cpu", threads=1)
+    two = ws.Refiner(mesh, 2, device="cpu", threads=2)
+    assert len(th.ranges(one.num_vertices, 2)) == 2
+    np.testing.assert_array_equal(one.evaluate(mesh.points), two.evaluate(mesh.points))
+
+
+def test_threads_is_checked_and_defaults_to_the_affinity(monkeypatch):
+    """threads must be an integer >= 1; None means the cores this process may use, or the process default
+    that set_default_threads (the CLI's --threads) or WARP_SUBDIV_THREADS sets."""
+    mesh = load_mesh("cube")
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ws.SubdivInputError, match="threads"):
+            ws.Refiner(mesh, 1, device="cpu", threads=bad)
+    monkeypatch.delenv("WARP_SUBDIV_THREADS", raising=False)
+    assert ws.Refiner(mesh, 1, device="cpu").threads == th.available_cores()
+    monkeypatch.setenv("WARP_SUBDIV_THREADS", "3")
+    assert ws.Refiner(mesh, 1, device="cpu").threads == 3
+    th.set_default_threads(2)
+    try:
+        assert ws.Refiner(mesh, 1, device="cpu").threads == 2
+    finally:
+        th.set_default_threads(None)
+    assert ws.refine(mesh, 1, device="cpu", threads=2).num_vertices == 26
+
+
+def test_threaded_evaluator_serves_several_python_threads(small_ranges):
+    """Several Python threads evaluating different points on one 2-thread refiner each get their own
+    result, equal to a one-thread refiner's (the evaluator's lock spans every range of a call)."""
+    mesh = load_mesh("cube_creased")
+    ref = ws.Refiner(mesh, 3, device="cpu", threads=1)
+    r = ws.Refiner(mesh, 3, device="cpu", threads=2)
+    inputs = [mesh.points + 0.01 * k for k in range(6)]
+    out = [None] * len(inputs)
+
+    def work(k):
+        for _ in range(5):
+            out[k] = r.evaluate(inputs[k])
+
+    ts = [threading.Thread(target=work, args=(k,)) for k in range(len(inputs))]
+    for t in ts:
+        t.start()
+    for t in ts:
+        t.join()
+    for k, pts in enumerate(inputs):
+        np.testing.assert_array_equal(out[k], ref.evaluate(pts))

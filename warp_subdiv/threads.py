@@ -1,0 +1,121 @@
+"""Threads for CPU work: how many, the shared pool, and contiguous row ranges.
+
+Warp runs one CPU launch on one thread, but calls CPU kernels through ctypes, which releases the GIL; numpy
+releases it inside large array operations too. So work over rows is split into a few contiguous ranges that
+run on a process-wide thread pool, the calling thread taking the first range itself. Every row is computed
+by the same code whatever the split, so results are bitwise equal to one thread's.
+
+``threads`` is not a result-determining option: it sits beside ``device=`` and ``max_memory=`` (``Refiner``,
+``refine``), not in :class:`~warp_subdiv.options.Options`. ``None`` means :func:`default_threads`: the value
+set with :func:`set_default_threads` (the CLI's ``--threads``; a Dask worker sets its share), else the
+``WARP_SUBDIV_THREADS`` environment variable, else the cores this process may use (``os.sched_getaffinity``).
+"""
+from __future__ import annotations
+
+import numbers
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+from .errors import SubdivInputError
+
+#: Rows below which a launch is not split (a launch costs about 24 us of GIL-held Python time).
+MIN_ROWS = 32768
+
+_default: int | None = None
+_pools: dict[int, ThreadPoolExecutor] = {}
+_pools_lock = threading.Lock()
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no sched_getaffinity (macOS, Windows)
+        return max(1, os.cpu_count() or 1)
+
+
+def check_threads(value, option: str = "threads") -> int | None:
+    """``value`` as a thread count (an integer >= 1) or None; a :class:`SubdivInputError` otherwise."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise SubdivInputError(f"{option} must be an integer >= 1 (or None: the cores this process may use), "
+                               f"got {value!r}", option=option, value=value)
+    return int(value)
+
+
+def set_default_threads(value: int | None) -> None:
+    """Set the thread count that ``threads=None`` means in this process (None: back to the automatic one)."""
+    global _default
+    _default = check_threads(value)
+
+
+def default_threads() -> int:
+    """What ``threads=None`` means: :func:`set_default_threads`'s value, else ``WARP_SUBDIV_THREADS``, else
+    :func:`available_cores`."""
+    if _default is not None:
+        return _default
+    env = os.environ.get("WARP_SUBDIV_THREADS", "").strip()
+    if env:
+        try:
+            return check_threads(int(env), "WARP_SUBDIV_THREADS")
+        except ValueError:
+            raise SubdivInputError(f"WARP_SUBDIV_THREADS must be an integer >= 1, got {env!r}",
+                                   option="WARP_SUBDIV_THREADS", value=env) from None
+    return available_cores()
+
+
+def resolve(threads) -> int:
+    """A checked thread count: ``threads``, or :func:`default_threads` for None."""
+    threads = check_threads(threads)
+    return default_threads() if threads is None else threads
+
+
+def pool(threads: int) -> ThreadPoolExecutor | None:
+    """The process-wide pool that serves ``threads``-way work (``threads - 1`` workers: the caller runs one
+    range itself); None for one thread."""
+    if threads <= 1:
+        return None
+    with _pools_lock:
+        ex = _pools.get(threads)
+        if ex is None:
+            ex = _pools[threads] = ThreadPoolExecutor(threads - 1, thread_name_prefix=f"warp-subdiv-{threads}")
+        return ex
+
+
+def ranges(n: int, parts: int, min_rows: int = MIN_ROWS) -> list[tuple[int, int]]:
+    """At most ``parts`` contiguous (start, stop) ranges covering 0..n, none shorter than ``min_rows`` (one
+    range when n is small)."""
+    parts = max(1, min(parts, n // max(1, min_rows)))
+    bounds = [(n * i) // parts for i in range(parts + 1)]
+    return [(bounds[i], bounds[i + 1]) for i in range(parts) if bounds[i + 1] > bounds[i]]
+
+
+def run(jobs, threads: int) -> list:
+    """Run the callables ``jobs`` (no arguments) on ``threads`` threads, the first on the calling thread;
+    returns their results in order. The first exception is raised after every job has finished."""
+    jobs = list(jobs)
+    ex = pool(threads)
+    if ex is None or len(jobs) <= 1:
+        return [job() for job in jobs]
+    futures = [ex.submit(job) for job in jobs[1:]]
+    first, error = None, None
+    try:
+        first = jobs[0]()
+    except BaseException as exc:  # noqa: BLE001 (re-raised below, after the other jobs are done)
+        error = exc
+    results = [first]
+    for f in futures:
+        try:
+            results.append(f.result())
+        except BaseException as exc:  # noqa: BLE001
+            error = error or exc
+    if error is not None:
+        raise error
+    return results
+
+
+def map_ranges(fn, n: int, threads: int, min_rows: int = MIN_ROWS) -> list:
+    """``fn(start, stop)`` over contiguous ranges of 0..n on ``threads`` threads; results in range order."""
+    return run([(lambda a=a, b=b: fn(a, b)) for a, b in ranges(n, threads, min_rows)], threads)
