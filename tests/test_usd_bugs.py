@@ -294,3 +294,20 @@ def test_ancestors_extents_hint_is_recomputed(tmp_path):
         box = UsdGeom.BBoxCache(t, [UsdGeom.Tokens.default_], useExtentsHint=True).ComputeWorldBound(world)
         lo, hi = np.asarray(box.GetRange().GetMin()), np.asarray(box.GetRange().GetMax())
         assert np.all(p >= lo - 1e-5) and np.all(p <= hi + 1e-5)
+
+
+# -- item 16 -------------------------------------------------------------------------------------------
+
+def test_render_uses_the_first_sample_when_points_are_only_time_sampled(tmp_path):
+    """Points authored only as time samples on a stage without a start time: render shows the first sample
+    (saying so, and that --time chooses another), instead of 'nothing to render'."""
+    from warp_subdiv.render import BACKGROUND_BOTTOM, BACKGROUND_TOP, render_file
+
+    pts, counts, idx = grid(2, 2)
+    src = write_mesh(tmp_path / "timed.usda", pts, counts, idx, time_points={3.0: pts, 4.0: pts + [0, 0, 1]})
+    assert not opened(src).HasAuthoredTimeCodeRange()
+    with pytest.warns(UserWarning, match=r"rendering time 3\b.*--time"):
+        img = render_file(src, str(tmp_path / "timed.png"), size=(40, 30), samples=1, device="cpu")
+    rows = np.linspace(0.0, 1.0, img.shape[0])[:, None, None]
+    background = 255 * (BACKGROUND_TOP * (1 - rows) + BACKGROUND_BOTTOM * rows)
+    assert np.count_nonzero(np.any(np.abs(img - background) > 12, axis=2)) > 100  # the plate is there

@@ -17,6 +17,7 @@ import math
 import os
 import struct
 import tempfile
+import warnings
 import zlib
 from dataclasses import dataclass
 
@@ -302,6 +303,22 @@ def _refined(prim, t, levels, device):
     return refined.astype(np.float64), counts.astype(np.int64), indices.astype(np.int64), fmap.parent
 
 
+def first_points_sample(stage, prims=None):
+    """The earliest first time sample of the meshes (at or under ``prims``) whose points have no default
+    value (only time samples), or None: what to render when the stage has no start time and none is asked."""
+    from pxr import Usd, UsdGeom
+
+    from .usd_read import mesh_prims
+
+    meshes, instanced = mesh_prims(stage, prims, where="render")
+    first = []
+    for prim in meshes + instanced:
+        attr = UsdGeom.Mesh(prim).GetPointsAttr()
+        if attr.GetNumTimeSamples() and attr.Get(Usd.TimeCode.Default()) is None:
+            first.append(attr.GetTimeSamples()[0])
+    return min(first) if first else None
+
+
 def cage_edges(stage, time=None, prims=None) -> np.ndarray:
     """World-space control-mesh edges of the subdivision meshes of ``stage``: (E, 2, 3)."""
     from pxr import Usd, UsdGeom
@@ -568,7 +585,12 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
         stage = open_stage(path)
         if time is None and stage.HasAuthoredTimeCodeRange():
             time = stage.GetStartTimeCode()
-        elif time is not None:
+        elif time is None:
+            time = first_points_sample(stage, prims)
+            if time is not None:
+                warnings.warn(f"{path}: the stage has no start time and some meshes have time-sampled points only: "
+                              f"rendering time {time:g}, their first sample (pass --time to choose)", stacklevel=2)
+        else:
             try:
                 time = float(time)
             except ValueError:
