@@ -9,6 +9,7 @@ the same in structured form: ``option`` is the :class:`Mesh` argument at fault (
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,17 +83,30 @@ def find_edges(counts: np.ndarray, indices: np.ndarray, num_vertices: int) -> Me
     )
 
 
+#: Integers beyond this magnitude are out of range for every index; they are clamped to it on conversion to
+#: int64 (so range checks still fail) and reported as given (:func:`_given`).
+_HUGE = 2**62
+
+
 def _int_array(value, name: str, shape_tail: tuple = (), option: str | None = None) -> np.ndarray:
     """``value`` as int64 of shape (n,) + shape_tail; ``name`` says it in messages, ``option`` (default
-    ``name``) is the Mesh argument it came from."""
+    ``name``) is the Mesh argument it came from. Integers too large for int64 (1e20, 2**64 - 1) become +-2**62,
+    out of range of every index, so the range checks report them (with the value given: :func:`_given`)."""
     option = option or name
     arr = np.asarray(value)
     if arr.size == 0:
         return np.zeros((0,) + shape_tail, dtype=np.int64)
     if arr.dtype.kind == "f":
-        if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
-            raise SubdivInputError(f"{name} must hold integers", option=option)
-        arr = arr.astype(np.int64)
+        bad = np.flatnonzero(~np.isfinite(arr) | (arr != np.round(arr)))
+        if len(bad):
+            raise SubdivInputError(f"{name} must hold integers, got {arr.flat[bad[0]]!r}", option=option,
+                                   value=arr.flat[bad[0]].item())
+        arr = np.clip(arr, -_HUGE, _HUGE)
+    elif arr.dtype.kind == "u":
+        arr = np.minimum(arr, np.uint64(_HUGE))
+    elif arr.dtype.kind == "O" and all(isinstance(x, numbers.Integral) and not isinstance(x, bool)
+                                       for x in arr.flat):
+        arr = np.array([min(max(int(x), -_HUGE), _HUGE) for x in arr.flat], dtype=np.int64).reshape(arr.shape)
     elif arr.dtype.kind not in "iu":
         raise SubdivInputError(f"{name} must hold integers, got dtype {arr.dtype}", option=option)
     arr = arr.astype(np.int64)
@@ -105,27 +119,45 @@ def _int_array(value, name: str, shape_tail: tuple = (), option: str | None = No
     return arr
 
 
-def _check_vertex_ids(ids: np.ndarray, num_vertices: int, name: str, element: str, option: str | None = None) -> None:
-    """Every id a vertex; else an error naming the entry (``element`` ``index``: the row of the argument)."""
+def _given(value, flat: int):
+    """Entry ``flat`` of the flattened argument ``value`` as the caller gave it (a Python number), for
+    messages: 1e20 stays 1e+20 rather than what it becomes in int64."""
+    item = np.asarray(value).reshape(-1)[flat]
+    item = item.item() if isinstance(item, np.generic) else item
+    if isinstance(item, float) and item == int(item) and abs(item) < _HUGE:
+        return int(item)
+    return item
+
+
+def _check_vertex_ids(ids: np.ndarray, num_vertices: int, name: str, element: str, option: str | None = None,
+                      given=None) -> None:
+    """Every id a vertex; else an error naming the entry (``element`` ``index``: the row of the argument) and
+    its value as given (``given``: the argument as passed, default ``ids``)."""
     bad = np.flatnonzero((ids < 0) | (ids >= num_vertices))
     if len(bad):
-        flat = bad[0]
+        flat = int(bad[0])
+        where = tuple(int(i) for i in np.unravel_index(flat, ids.shape))
+        value = _given(ids if given is None else given, flat)
         raise SubdivInputError(
-            f"{name} entry {np.unravel_index(flat, ids.shape)} is vertex {ids.flat[flat]}, "
+            f"{name} entry {where[0] if len(where) == 1 else list(where)} is vertex {value}, "
             f"outside [0, {num_vertices})",
-            option=option or name, element=element, index=int(np.unravel_index(flat, ids.shape)[0]),
-            value=int(ids.flat[flat]),
+            option=option or name, element=element, index=where[0], value=value,
         )
 
 
 def _sharpness(values, count: int, name: str, element: str) -> np.ndarray:
     if values is None:
         return np.full(count, INFINITE_SHARPNESS)
-    arr = np.asarray(values, dtype=np.float64).reshape(-1)
-    if arr.size == 1 and count != 1:
-        arr = np.full(count, float(arr[0]))
-    if len(arr) != count:
-        raise SubdivInputError(f"{name} has {len(arr)} values for {count} tags", option=name)
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SubdivInputError(f"{name} must be a number or one number per tag, got {values!r}",
+                               option=name) from None
+    if arr.ndim == 0:  # one number for every tag
+        arr = np.full(count, float(arr))
+    if arr.ndim != 1 or len(arr) != count:
+        raise SubdivInputError(f"{name} has {arr.size} values for {count} tags; give one per tag (or a single "
+                               "number for all)", option=name, value=arr.shape)
     bad = np.flatnonzero(~np.isfinite(arr) | (arr < 0))
     if len(bad):
         raise SubdivInputError(f"{name}[{bad[0]}] = {arr[bad[0]]} is not a finite sharpness >= 0", option=name,
@@ -190,8 +222,9 @@ class Mesh:
             h = out[0]
             f = corner_face[h]
             raise SubdivInputError(
-                f"face {f} corner {h - offsets[f]} refers to vertex {indices[h]}, outside [0, {nv})",
-                option="face_vertex_indices", element="face", index=int(f), value=int(indices[h]),
+                f"face {f} corner {h - offsets[f]} refers to vertex {_given(face_vertex_indices, h)}, outside "
+                f"[0, {nv})",
+                option="face_vertex_indices", element="face", index=int(f), value=_given(face_vertex_indices, h),
             )
         # repeated vertices inside one face
         order = np.lexsort((indices, corner_face))
@@ -210,7 +243,7 @@ class Mesh:
 
         # creases
         cr = _int_array(creases if creases is not None else [], "creases", (2,))
-        _check_vertex_ids(cr, nv, "creases", "crease")
+        _check_vertex_ids(cr, nv, "creases", "crease", given=creases)
         cr_sharp = _sharpness(crease_sharpness, len(cr), "crease_sharpness", "crease")
         cr_edges = self.edges.find(cr, nv) if len(cr) else np.zeros(0, np.int64)
         missing = np.flatnonzero(cr_edges < 0)
@@ -224,13 +257,13 @@ class Mesh:
 
         # corners
         co = _int_array(corners if corners is not None else [], "corners")
-        _check_vertex_ids(co, nv, "corners", "corner")
+        _check_vertex_ids(co, nv, "corners", "corner", given=corners)
         self.corners = co.astype(np.int32)
         self.corner_sharpness = _sharpness(corner_sharpness, len(co), "corner_sharpness", "corner")
 
         # concave sectors
         cc = _int_array(concave if concave is not None else [], "concave", (2,))
-        _check_vertex_ids(cc, nv, "concave", "concave")
+        _check_vertex_ids(cc, nv, "concave", "concave", given=concave)
         cc_edges = self.edges.find(cc, nv) if len(cc) else np.zeros(0, np.int64)
         missing = np.flatnonzero(cc_edges < 0)
         if len(missing):
@@ -251,8 +284,9 @@ class Mesh:
                 ids, vecs = normals
             except (TypeError, ValueError):
                 raise SubdivInputError("normals must be a pair (vertex ids, unit normals)", option="normals") from None
+            given_ids = ids
             ids = _int_array(ids, "normals vertex ids", option="normals")
-            _check_vertex_ids(ids, nv, "normals vertex ids", "vertex", option="normals")
+            _check_vertex_ids(ids, nv, "normals vertex ids", "vertex", option="normals", given=given_ids)
             vecs = np.asarray(vecs, dtype=np.float64)
             if vecs.shape != (len(ids), 3):
                 raise SubdivInputError(
@@ -278,8 +312,9 @@ class Mesh:
         ho = _int_array(holes if holes is not None else [], "holes")
         bad = np.flatnonzero((ho < 0) | (ho >= len(counts)))
         if len(bad):
-            raise SubdivInputError(f"hole {bad[0]} is face {ho[bad[0]]}, outside [0, {len(counts)})", option="holes",
-                                   element="hole", index=int(bad[0]), value=int(ho[bad[0]]))
+            value = _given(holes, int(bad[0]))
+            raise SubdivInputError(f"hole {bad[0]} is face {value}, outside [0, {len(counts)})", option="holes",
+                                   element="hole", index=int(bad[0]), value=value)
         self.holes = ho.astype(np.int32)
 
     @property
