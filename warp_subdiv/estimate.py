@@ -41,6 +41,8 @@ output plus the largest working set, plus 64 MiB for Warp's runtime and kernels.
 """
 from __future__ import annotations
 
+import math
+import numbers
 import os
 from dataclasses import dataclass, field
 
@@ -206,9 +208,10 @@ def check_indices(estimates, levels: int) -> None:
             )
 
 
-def check_memory(estimates, max_memory: int | None, levels: int) -> None:
-    """The memory guard: refuse, before any work, when the prediction is above ``max_memory`` bytes (and
-    outputs beyond 32-bit indices)."""
+def check_memory(estimates, max_memory, levels: int) -> None:
+    """The memory guard: refuse, before any work, when the prediction is above ``max_memory`` (bytes or a size
+    string, see :func:`memory_limit`), and outputs beyond 32-bit indices."""
+    max_memory = memory_limit(max_memory)
     estimates = list(estimates)
     check_indices(estimates, levels)
     need = total_bytes(estimates)
@@ -256,6 +259,28 @@ def parse_size(text: str) -> int | None:
         raise SubdivInputError(f"max_memory {text!r}: give a size such as 512M, 8G or 1.5GiB (or 'none')",
                                option="max_memory", value=text)
     return int(value * _UNITS[unit])
+
+
+def memory_limit(value) -> int | None:
+    """A ``max_memory`` argument as bytes, or None for no limit.
+
+    None, 0, infinity and the strings of :func:`parse_size` ("none", "0") mean no limit; a number of bytes
+    >= 0, or a size string as the CLI's ``--max-memory`` takes ("512M", "8G", "1.5GiB"). Anything else
+    (negative, NaN, another type) is refused with :class:`SubdivInputError` (``option`` "max_memory")."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        return parse_size(value)
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise SubdivInputError(f"max_memory must be a number of bytes, a size such as '8G' or None, got {value!r}",
+                               option="max_memory", value=value)
+    number = float(value)
+    if math.isnan(number) or number < 0:
+        raise SubdivInputError(f"max_memory {value!r} is not a size: give bytes >= 0, a size such as '8G', or "
+                               "None for no limit", option="max_memory", value=value)
+    if number == 0 or math.isinf(number):
+        return None
+    return int(value)
 
 
 def format_bytes(n: int) -> str:
