@@ -588,23 +588,17 @@ def _concave_sector_heads(mesh, corner_vert, nxt, corner_edge, edge_sharp, ecoun
     nv = mesh.num_vertices
     e = edges.find(tags, nv) if edges is not mesh.edges else mesh.concave_edges
     c = tags[:, 0]
+    def refuse(i, reason):
+        raise SubdivInputError(f"concave tag {i} ({c[i]}, {tags[i, 1]}): {reason}", option="concave",
+                               element="concave", index=int(i))
+
     for i in np.flatnonzero(vclass[c] != CORNER)[:1]:
         name = rules.VERTEX_CLASS_NAMES[int(vclass[c[i]])]
-        raise SubdivInputError(
-            f"concave tag {i} ({c[i]}, {tags[i, 1]}): vertex {c[i]} is not a corner (it is a vertex of class "
-            f"'{name}'); "
-            "tag it in corners"
-        )
-    for i in np.flatnonzero(sharp_count[c] < 2)[:1]:
-        raise SubdivInputError(
-            f"concave tag {i} ({c[i]}, {tags[i, 1]}): corner {c[i]} has {sharp_count[c[i]]} crease edges, so no "
-            "sector bounded by two creases"
-        )
+        refuse(i, f"vertex {c[i]} is not a corner (it is a vertex of class '{name}'); tag it in corners")
+    for i in np.flatnonzero(sharp_count[c] < 2)[:1]:  # (semi-sharp corners count no crease edges)
+        refuse(i, _too_few_creases(mesh, edges, ecount, int(c[i]), int(sharp_count[c[i]])))
     for i in np.flatnonzero(edge_sharp[e] & (ecount[e] != 1))[:1]:
-        raise SubdivInputError(
-            f"concave tag {i} ({c[i]}, {tags[i, 1]}): the edge is a crease between two sectors; name a "
-            "non-crease edge inside the concave sector"
-        )
+        refuse(i, "the edge is a crease between two sectors; name a non-crease edge inside the concave sector")
     h0 = ecorners[eoff[e]]
     h1 = ecorners[np.minimum(eoff[e] + 1, len(ecorners) - 1)]
     # the corner at c in a face containing edge e: the edge's corner if it starts at c, else the next one
@@ -613,11 +607,26 @@ def _concave_sector_heads(mesh, corner_vert, nxt, corner_edge, edge_sharp, ecoun
     corner_at_c = np.where(corner_vert[at_c0] == c, at_c0, at_c1)
     heads = head[corner_at_c]
     for i in np.flatnonzero(k[corner_at_c] < 2)[:1]:
-        raise SubdivInputError(
-            f"concave tag {i} ({c[i]}, {tags[i, 1]}): that sector of corner {c[i]} has one face; a concave "
-            "sector needs at least two"
-        )
+        refuse(i, f"that sector of corner {c[i]} has one face; a concave sector needs at least two")
     return heads
+
+
+def _too_few_creases(mesh, edges, ecount, vertex: int, count: int) -> str:
+    """Why a concave-tagged corner has no sector bounded by two infinitely sharp creases: it is semi-sharp,
+    some of its creases are, or it has fewer than two."""
+    need = "concave tags need an infinitely sharp corner (sharpness >= 10) between infinitely sharp creases"
+    edge_s = tagged_edge_sharpness(mesh, edges)
+    semi = np.flatnonzero((edge_s > 0) & (edge_s < INFINITE_SHARPNESS) & (ecount == 2)
+                          & np.any(edges.edge_verts == vertex, axis=1))
+    if len(semi):
+        other = edges.edge_verts[semi].sum(axis=1) - vertex
+        names = ", ".join(f"({vertex}, {int(o)}) sharpness {edge_s[j]:g}" for j, o in zip(semi, other))
+        return f"the creases of corner {vertex} are semi-sharp ({names}); {need}"
+    own = last_tag_values(mesh.num_vertices, mesh.corners, mesh.corner_sharpness)[vertex]
+    if 0 < own < INFINITE_SHARPNESS:
+        return f"corner {vertex} is semi-sharp (sharpness {own:g}); {need}"
+    return (f"corner {vertex} has {count} crease edge{'' if count == 1 else 's'}, so no sector bounded by two "
+            "creases")
 
 
 # --------------------------------------------------------------------------------------------------------
