@@ -306,8 +306,21 @@ def test_render_uses_the_first_sample_when_points_are_only_time_sampled(tmp_path
     pts, counts, idx = grid(2, 2)
     src = write_mesh(tmp_path / "timed.usda", pts, counts, idx, time_points={3.0: pts, 4.0: pts + [0, 0, 1]})
     assert not opened(src).HasAuthoredTimeCodeRange()
-    with pytest.warns(UserWarning, match=r"rendering time 3\b.*--time"):
+    with pytest.warns(UserWarning, match=r"rendered at 3\b.*the time option"):
         img = render_file(src, str(tmp_path / "timed.png"), size=(40, 30), samples=1, device="cpu")
     rows = np.linspace(0.0, 1.0, img.shape[0])[:, None, None]
     background = 255 * (BACKGROUND_TOP * (1 - rows) + BACKGROUND_BOTTOM * rows)
     assert np.count_nonzero(np.any(np.abs(img - background) > 12, axis=2)) > 100  # the plate is there
+
+
+def test_render_command_says_which_time_it_rendered(tmp_path, capsys):
+    """The command line names the time option by its flag in that warning."""
+    from warp_subdiv import cli
+
+    pts, counts, idx = grid(1, 1)
+    src = write_mesh(tmp_path / "timed.usda", pts, counts, idx, time_points={5.0: pts})
+    assert cli.main(["render", src, "-o", str(tmp_path / "t.png"), "--size", "20x20", "--samples", "1",
+                     "--device", "cpu"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: " in err and "rendered at 5, their first sample (the --time option chooses another)" in err
+    assert "start --time" not in err

@@ -439,6 +439,7 @@ def main(argv=None) -> int:
         seen = set()
         for w in caught:
             text = str(w.message).splitlines()[0] if str(w.message) else w.category.__name__
+            text = _flagged(text, getattr(w.message, "option", None))
             if text not in seen:
                 seen.add(text)
                 _warn(text)
@@ -480,10 +481,14 @@ def _one_line(exc: BaseException) -> str:
 
 def _phrase(exc: SubdivInputError) -> str:
     """The error's message in one line, the option at fault (its ``option`` field) named by its flag."""
-    text = _one_line(exc)
-    flag = FLAGS.get(exc.option) if isinstance(exc.option, str) else None
+    return _flagged(_one_line(exc), exc.option)
+
+
+def _flagged(text: str, option) -> str:
+    """``text`` with the library's keyword ``option`` (when the command line has it) named by its flag."""
+    flag = FLAGS.get(option) if isinstance(option, str) else None
     if flag:
-        text = re.sub(rf"(?<![\w:./-]){re.escape(exc.option)}(?![\w./-])", flag, text)
+        text = re.sub(rf"(?<![\w:./-]){re.escape(option)}(?![\w./-])", flag, text)
     return text
 
 

@@ -33,6 +33,15 @@ DEFAULT_COLOR = (0.7, 0.7, 0.7)
 SMOOTH_ANGLE = 40.0  # degrees
 
 
+class OptionWarning(UserWarning):
+    """A warning about an option, named by its keyword in the message and in ``option`` (the command line
+    names it by its flag)."""
+
+    def __init__(self, message: str, option: str | None = None):
+        super().__init__(message)
+        self.option = option
+
+
 @dataclass
 class Soup:
     """Triangles in world space: corners (3T, 3), per-corner normals and colours (3T, 3)."""
@@ -588,8 +597,10 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
         elif time is None:
             time = first_points_sample(stage, prims)
             if time is not None:
-                warnings.warn(f"{path}: the stage has no start time and some meshes have time-sampled points only: "
-                              f"rendering time {time:g}, their first sample (pass --time to choose)", stacklevel=2)
+                warnings.warn(OptionWarning(
+                    f"{path}: the stage has no startTimeCode and some meshes have sampled points only: rendered "
+                    f"at {time:g}, their first sample (the time option chooses another)", option="time"),
+                    stacklevel=2)
         else:
             try:
                 time = float(time)
