@@ -14,7 +14,7 @@ import warp as wp
 
 from .errors import SubdivInputError
 from .evaluator import Evaluator, default_device
-from .facevarying import FaceVaryingChannel
+from .facevarying import FaceVaryingChannel, check_indices
 from .hierarchy import Hierarchy
 from .mesh import Mesh
 from .options import FaceVaryingMode, Options
@@ -239,7 +239,8 @@ class Refiner:
         this type and these options (:class:`~warp_subdiv.facevarying.FaceVaryingChannel`)."""
 
         mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
-        key = (mode, np.asarray(indices).tobytes())
+        indices = check_indices(indices, len(self.mesh.face_vertex_indices))  # before the cache: 1-D int64
+        key = (mode, indices.tobytes())
         if self._face_varying.get("key") != key:
             self._face_varying = {"key": key, "channel": FaceVaryingChannel(self, indices, mode)}
         return self._face_varying["channel"]
