@@ -324,3 +324,32 @@ def test_render_command_says_which_time_it_rendered(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "warning: " in err and "rendered at 5, their first sample (the --time option chooses another)" in err
     assert "start --time" not in err
+
+
+# -- item 17 -------------------------------------------------------------------------------------------
+
+def test_prim_option_on_inactive_or_abstract_prims_says_so(tmp_path):
+    """--prim on an inactive prim (or below one), or on a mesh under a class prim, says inactive / abstract,
+    not 'is not a mesh and holds no meshes'."""
+    pts, counts, idx = grid(1, 1)
+
+    def setup(stage, mesh):
+        off = UsdGeom.Mesh.Define(stage, "/World/Off")
+        off.CreateFaceVertexCountsAttr(Vt.IntArray(counts))
+        off.CreateFaceVertexIndicesAttr(Vt.IntArray(idx))
+        off.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+        UsdGeom.Xform.Define(stage, "/World/Group/Inner")
+        stage.GetPrimAtPath("/World/Group").SetActive(False)
+        off.GetPrim().SetActive(False)
+        stage.CreateClassPrim("/Template")
+        UsdGeom.Mesh.Define(stage, "/Template/Mesh").CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+
+    src = write_mesh(tmp_path / "odd.usda", pts, counts, idx, setup=setup)
+    for prim, needle in (("/World/Off", "/World/Off is inactive"),
+                         ("/World/Group/Inner", "/World/Group/Inner is under the inactive prim /World/Group"),
+                         ("/Template/Mesh", "/Template/Mesh is abstract (under the class /Template)"),
+                         ("/Template", "/Template is abstract (a class)")):
+        with pytest.raises(SubdivInputError) as info:
+            refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu", prims=[prim])
+        assert needle in str(info.value)
+        assert "holds no meshes" not in str(info.value)

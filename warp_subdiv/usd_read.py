@@ -341,7 +341,8 @@ def mesh_prims(stage: Usd.Stage, prim_paths=None, where: str = ""):
                                        option="prims", value=p)
             prim = stage.GetPrimAtPath(p)
             if not prim or not prim.IsValid():
-                raise SubdivInputError(f"{where}: no prim at {p}")
+                raise SubdivInputError(f"{where}: {_missing(stage, p)}")
+            _check_traversable(prim, where)
             roots.append(prim)
     else:
         roots.append(stage.GetPseudoRoot())
@@ -353,6 +354,34 @@ def mesh_prims(stage: Usd.Stage, prim_paths=None, where: str = ""):
             seen.add(prim.GetPath())
             (instanced if prim.IsInstanceProxy() else meshes).append(prim)
     return meshes, instanced
+
+
+def _missing(stage: Usd.Stage, path: str) -> str:
+    """Why there is no prim at ``path``: below an inactive prim (whose children are not composed), or none."""
+    anc = Sdf.Path(path).GetParentPath()
+    while anc != Sdf.Path.absoluteRootPath and not anc.isEmpty:
+        prim = stage.GetPrimAtPath(anc)
+        if prim and prim.IsValid():
+            if not prim.IsActive():
+                return f"{path} is under the inactive prim {anc} (active = false)"
+            break
+        anc = anc.GetParentPath()
+    return f"no prim at {path}"
+
+
+def _check_traversable(prim: Usd.Prim, where: str) -> None:
+    """A prim picked by path must be part of the scene: active, not abstract (a class or under one), defined."""
+    path = prim.GetPath()
+    if not prim.IsActive():
+        raise SubdivInputError(f"{where}: {path} is inactive (active = false)")
+    if prim.IsAbstract():
+        cls = prim
+        while cls and cls.GetSpecifier() != Sdf.SpecifierClass:
+            cls = cls.GetParent()
+        what = "a class" if cls == prim else f"under the class {cls.GetPath()}"
+        raise SubdivInputError(f"{where}: {path} is abstract ({what}), not part of the scene")
+    if not prim.IsDefined():
+        raise SubdivInputError(f"{where}: {path} is not defined (only an over), not part of the scene")
 
 
 def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: str = "auto",
