@@ -257,6 +257,16 @@ def test_evaluate_refuses_non_numeric_or_empty_data(data):
     assert info.value.element == "data"
 
 
+@pytest.mark.parametrize("values", [[["a", "b"]] * 6, np.zeros((6, 0)), np.full((6, 2), np.nan), np.zeros((5, 2))])
+def test_evaluate_face_varying_refuses_bad_values(values):
+    """Item 9: face-varying values that are not real numbers, have no columns, are not finite or are too few
+    are refused with SubdivInputError (element "data")."""
+    r = build(grid(), 1)
+    with pytest.raises(SubdivInputError, match="values") as info:
+        r.evaluate_face_varying(values, GRID_IDX, "none")
+    assert info.value.element == "data"
+
+
 def test_limit_points_refuse_bad_points():
     """Item 9: limit points and normals refuse NaN points and points of the wrong shape."""
     r = build(grid(), 1)

@@ -25,7 +25,7 @@ import warnings
 import numpy as np
 
 from .errors import NonManifoldWarning, SubdivInputError
-from .mesh import INFINITE_SHARPNESS, Mesh
+from .mesh import INFINITE_SHARPNESS, Mesh, check_rows
 from .options import FaceVaryingMode, Scheme
 from .topology import base_level, triangulate
 
@@ -220,15 +220,13 @@ class FaceVaryingChannel:
 
     def evaluate(self, values):
         """(refined values (M, d), refined face-varying indices int32 aligned with the refined faces)."""
-        vals = np.asarray(values, dtype=np.float64)
-        squeeze = vals.ndim == 1
-        if squeeze:
-            vals = vals[:, None]
-        if len(vals) < self.num_source_values:
+        squeeze = np.ndim(values) == 1
+        if np.ndim(values) in (1, 2) and len(values) < self.num_source_values:
             raise SubdivInputError(
-                f"face-varying indices refer to value {self.num_source_values - 1} but only {len(vals)} values "
-                "were given"
+                f"face-varying indices refer to value {self.num_source_values - 1} but only {len(values)} values "
+                "were given", option="values", element="data", value=len(values),
             )
+        vals = check_rows(values, self.num_source_values, "face-varying values", at_least=True)
         out = self.refiner.evaluate(vals[self.source], normal_control=False)
         _, indices = self.refiner.topology()
         return (out[:, 0] if squeeze else out), indices

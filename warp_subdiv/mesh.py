@@ -165,6 +165,32 @@ def _sharpness(values, count: int, name: str, element: str) -> np.ndarray:
     return np.minimum(arr, INFINITE_SHARPNESS)
 
 
+def check_rows(data, rows: int, what: str, *, at_least: bool = False) -> np.ndarray:
+    """Per-vertex (or per-value) data as a finite real array (rows, d), d >= 1 ((rows,) becomes (rows, 1));
+    ``at_least``: any number of rows >= ``rows``. Else :class:`SubdivInputError` (``element`` "data") naming
+    ``what`` and the shape, the dtype or the first row that is not finite."""
+    try:
+        arr = np.asarray(data)
+        if arr.dtype.kind == "O":
+            arr = arr.astype(np.float64)
+    except (TypeError, ValueError):
+        raise SubdivInputError(f"{what} must be an array of real numbers ({rows}, d)", element="data") from None
+    if arr.dtype.kind not in "biuf":
+        raise SubdivInputError(f"{what} must hold real numbers, got dtype {arr.dtype}", element="data",
+                               value=str(arr.dtype))
+    if arr.ndim == 1:
+        arr = arr[:, None]
+    if arr.ndim != 2 or arr.shape[1] < 1 or (arr.shape[0] < rows if at_least else arr.shape[0] != rows):
+        need = f"at least {rows} rows" if at_least else f"shape ({rows}, d)"
+        raise SubdivInputError(f"{what} must have {need} with d >= 1, got {np.shape(data)}",
+                               element="data", value=np.shape(data))
+    finite = np.all(np.isfinite(arr), axis=1)
+    if not np.all(finite):
+        bad = int(np.flatnonzero(~finite)[0])
+        raise SubdivInputError(f"{what} row {bad} is not finite", element="data", index=bad)
+    return arr
+
+
 class Mesh:
     """A polygon control mesh with subdivision tags.
 

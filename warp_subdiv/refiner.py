@@ -16,7 +16,7 @@ from .errors import SubdivInputError
 from .evaluator import Evaluator, default_device
 from .facevarying import FaceVaryingChannel, check_indices
 from .hierarchy import Hierarchy
-from .mesh import Mesh
+from .mesh import Mesh, check_rows
 from .options import FaceVaryingMode, Options
 from .tables import StencilTable
 from .threads import resolve as resolve_threads
@@ -134,18 +134,7 @@ class Refiner:
         return self.evaluator.table_bytes()
 
     def _check_data(self, data) -> np.ndarray:
-        arr = np.asarray(data)
-        if arr.ndim == 1:
-            arr = arr[:, None]
-        if arr.ndim != 2 or arr.shape[0] != self.base_num_vertices:
-            raise SubdivInputError(
-                f"vertex data must have shape ({self.base_num_vertices}, d), got {np.shape(data)}",
-                element="data", value=np.shape(data),
-            )
-        if not np.all(np.isfinite(arr)):
-            bad = int(np.flatnonzero(~np.all(np.isfinite(arr), axis=1))[0])
-            raise SubdivInputError(f"vertex data row {bad} is not finite", element="data", index=bad)
-        return arr
+        return check_rows(data, self.base_num_vertices, "vertex data")
 
     def evaluate_device(self, points, normal_control: bool = True) -> wp.array:
         """Refine (n, 3) positions; returns the final level's device array of vec3 (no copy to the host).
@@ -180,11 +169,12 @@ class Refiner:
         ``refined_points`` (N,) or (N, d) of any width (positions, primvars, face-varying values); the result
         has the same shape. Where this level's masks are not exact (:meth:`limit_reads_deeper`) one more level
         is refined first (with normal control for (N, 3) data)."""
+        points = check_rows(refined_points, self.num_vertices, "refined points")
         if self.limit_reads_deeper():
             deeper = self._one_more_level()
-            out = deeper.evaluator.limit_points(refined_points, last_step=True)[: self.num_vertices]
+            out = deeper.evaluator.limit_points(points, last_step=True)[: self.num_vertices]
         else:
-            out = self.evaluator.limit_points(refined_points)
+            out = self.evaluator.limit_points(points)
         return out[:, 0] if np.ndim(refined_points) == 1 else out
 
     def limit_normals(self, refined_points) -> np.ndarray:
@@ -194,6 +184,10 @@ class Refiner:
         A crease or corner vertex has one tangent plane per sector; its normal is the normalised sum of the
         sectors' unit normals (exact where there is one sector, e.g. on a boundary).
         """
+        refined_points = check_rows(refined_points, self.num_vertices, "refined points")
+        if refined_points.shape[1] != 3:
+            raise SubdivInputError(f"limit normals take (N, 3) positions, got {np.shape(refined_points)}",
+                                   element="data", value=np.shape(refined_points))
         if self.limit_reads_deeper():
             deeper = self._one_more_level()
             return deeper._limit_normals_here(refined_points, last_step=True)[: self.num_vertices]
