@@ -353,3 +353,63 @@ def test_prim_option_on_inactive_or_abstract_prims_says_so(tmp_path):
             refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu", prims=[prim])
         assert needle in str(info.value)
         assert "holds no meshes" not in str(info.value)
+
+
+# -- item 18 -------------------------------------------------------------------------------------------
+
+def cube():
+    pts = np.array([(x, y, z) for z in (0.0, 1.0) for y in (0.0, 1.0) for x in (0.0, 1.0)])
+    faces = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    return pts, [4] * 6, [i for f in faces for i in f]
+
+
+def test_limit_evaluates_vertex_and_face_varying_primvars_at_the_limit(tmp_path):
+    """--limit on a cube at level 2: a Pref vertex primvar equal to the points (and a 2-wide one equal to their
+    x, y) and a face-varying copy of the points (on the points' indices) come out as the limit points, not
+    as refined control values (0.039 apart before)."""
+    pts, counts, idx = cube()
+
+    def setup(stage, mesh):
+        api = UsdGeom.PrimvarsAPI(mesh)
+        api.CreatePrimvar("Pref", T.Point3fArray, "vertex").Set(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+        api.CreatePrimvar("xy", T.Float2Array, "vertex").Set(Vt.Vec2fArray.FromNumpy(pts[:, :2].astype(np.float32)))
+        fv = api.CreatePrimvar("pos", T.Float3Array, "faceVarying")
+        fv.Set(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+        fv.SetIndices(Vt.IntArray(idx))
+
+    src = write_mesh(tmp_path / "cube.usda", pts, counts, idx, setup=setup)
+    dst = tmp_path / "limit.usda"
+    refine_usd(src, str(dst), 2, device="cpu", limit=True, precision="float64")
+    prim = out_prim(dst)
+    api = UsdGeom.PrimvarsAPI(prim)
+    mesh = UsdGeom.Mesh(prim)
+    p = np.asarray(mesh.GetPointsAttr().Get(), dtype=np.float64)
+    fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get())
+    np.testing.assert_allclose(np.asarray(api.GetPrimvar("Pref").Get()), p, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(api.GetPrimvar("xy").Get()), p[:, :2], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(api.GetPrimvar("pos").ComputeFlattened()), p[fvi], atol=1e-6)
+
+
+def test_limit_primvars_ignore_prescribed_normals(tmp_path):
+    """With prescribed normals (normal control moves positions only) a 3-wide vertex primvar is evaluated at
+    the limit exactly as the same data 4 wide: no normal control reaches the primvar."""
+    pts, counts, idx = cube()
+    normal = np.array([[0.0, 0.6, 0.8]])
+
+    def setup(stage, mesh):
+        api = UsdGeom.PrimvarsAPI(mesh)
+        api.CreatePrimvar("a", T.Float3Array, "vertex").Set(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+        wide = np.concatenate([pts, np.ones((len(pts), 1))], axis=1)
+        api.CreatePrimvar("b", T.Float4Array, "vertex").Set(Vt.Vec4fArray.FromNumpy(wide.astype(np.float32)))
+
+    src = write_mesh(tmp_path / "cube.usda", pts, counts, idx, setup=setup,
+                     custom={"subdiv:normalIndices": ("IntArray", Vt.IntArray([7])),
+                             "subdiv:normals": ("Normal3fArray", Vt.Vec3fArray.FromNumpy(normal.astype(np.float32)))})
+    dst = tmp_path / "limit.usda"
+    refine_usd(src, str(dst), 2, device="cpu", limit=True, precision="float64")
+    api = UsdGeom.PrimvarsAPI(out_prim(dst))
+    a, b = np.asarray(api.GetPrimvar("a").Get()), np.asarray(api.GetPrimvar("b").Get())
+    np.testing.assert_allclose(a, b[:, :3], atol=1e-6)
+    np.testing.assert_allclose(b[:, 3], 1.0, atol=1e-6)
+    p = np.asarray(UsdGeom.Mesh(out_prim(dst)).GetPointsAttr().Get())
+    assert np.abs(a - p).max() > 1e-3  # the positions were moved by the normal, the primvar was not

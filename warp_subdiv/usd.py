@@ -449,7 +449,7 @@ def _refine_prim(sp: SubdivPrim, options: Options, layer: OutputLayer, levels, d
     fv_refined = []
     for pv in sp.primvars:
         try:
-            _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode, warnings)
+            _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode, warnings, limit)
         except SubdivInputError as exc:
             _drop(sp, layer, prim, pv.name, str(exc).split(": ", 1)[-1], warnings)
             continue
@@ -471,23 +471,24 @@ def _drop(sp, layer, prim, name, reason, warnings):
     warnings.append(f"{sp.path}: {name} dropped ({reason})")
 
 
-def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=None, warnings=None):
+def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=None, warnings=None, limit=False):
     """Refine one primvar at the default time and at each of its selected samples. A default that does not
-    fit the mesh beside time samples gives way to the first selected sample (with a warning)."""
+    fit the mesh beside time samples gives way to the first selected sample (with a warning). ``limit``: vertex
+    and face-varying values are limit values (as the points are with ``limit``)."""
     for t in [DEFAULT] + list(pv.times):
         try:
-            _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode)
+            _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode, limit)
         except SubdivInputError as exc:
             if t != DEFAULT or not pv.times or pv.default_time is not None:
                 raise
             pv.default_time = pv.times[0]
-            _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode)
+            _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode, limit)
             if warnings is not None:
                 warnings.append(f"{sp.path}: {pv.name} default does not fit the mesh ({str(exc).split(': ', 1)[-1]})"
                                 f": the sample at time {pv.times[0]:g} stands in for it")
 
 
-def _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode):
+def _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode, limit=False):
     mesh = sp.mesh
     where = sp.path
     n_expected = {"vertex": mesh.num_vertices, "varying": mesh.num_vertices, "uniform": mesh.num_faces,
@@ -514,7 +515,8 @@ def _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_
         if len(idx) != n_expected:
             raise SubdivInputError(f"{where}: {pv.name} has {len(idx)} faceVarying values, the mesh needs "
                                    f"{n_expected}")
-        values, new_idx = refiner.evaluate_face_varying(rows.astype(np.float64), idx, mode=fvar_mode)
+        channel = refiner.limit_face_varying if limit else refiner.evaluate_face_varying
+        values, new_idx = channel(rows.astype(np.float64), idx, mode=fvar_mode)
         values = np.asarray(values).reshape(len(values), -1)
         shaped = values.reshape((len(values) * pv.element_size,) + like.shape[1:])
         layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))
@@ -533,10 +535,23 @@ def _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_
         out = linear_field(rows.astype(np.float64))
     else:  # vertex: the subdivision rules (with flatness), but prescribed normals move positions only
         out = refiner.evaluate(rows.astype(np.float64), normal_control=False)
+        if limit:
+            out = limit_values(refiner, out)
     shaped = np.asarray(out).reshape((len(out) * pv.element_size,) + like.shape[1:])
     layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))
     if pv.indexed and t == DEFAULT:
         layer.block(prim, pv.name + ":indices", T.IntArray)
+
+
+def limit_values(refiner: Refiner, refined: np.ndarray) -> np.ndarray:
+    """Limit values of refined vertex data (N, d) that is not a position: as the points' limit, but without
+    normal control, which the refiner applies to 3-wide data where its limit masks read one level deeper
+    (3-wide data goes through 4 wide, a zero column added)."""
+    data = np.asarray(refined, dtype=np.float64)
+    data = data.reshape(len(data), -1)
+    if data.shape[1] == 3:
+        return refiner.limit_points(np.pad(data, ((0, 0), (0, 1))))[:, :3]
+    return refiner.limit_points(data)
 
 
 def _default_or_sample(t, value):
