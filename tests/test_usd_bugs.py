@@ -413,3 +413,62 @@ def test_limit_primvars_ignore_prescribed_normals(tmp_path):
     np.testing.assert_allclose(b[:, 3], 1.0, atol=1e-6)
     p = np.asarray(UsdGeom.Mesh(out_prim(dst)).GetPointsAttr().Get())
     assert np.abs(a - p).max() > 1e-3  # the positions were moved by the normal, the primvar was not
+
+
+# -- item 19 -------------------------------------------------------------------------------------------
+
+def chain(pairs, start, end):
+    """Whether the edges ``pairs`` (k, 2) form one path from ``start`` to ``end``."""
+    links = {}
+    for a, b in pairs:
+        links.setdefault(int(a), []).append(int(b))
+        links.setdefault(int(b), []).append(int(a))
+    path, prev, here = [start], None, start
+    while here != end:
+        nxt = [v for v in links.get(here, []) if v != prev]
+        if len(nxt) != 1:
+            return False
+        prev, here = here, nxt[0]
+        path.append(here)
+    return len(path) == len(pairs) + 1
+
+
+@pytest.mark.parametrize("scheme", ["catmullClark", "loop"])
+def test_edge_subsets_are_mapped_to_the_child_edges(tmp_path, scheme):
+    """An edge GeomSubset (pairs of point indices) is mapped to the child edges of each control edge, so
+    UsdGeom.Subset.ValidateFamily accepts it on the refined mesh; edges of hole faces vanish with them."""
+    pts, counts, idx = grid(2, 1)  # faces (0 1 4 3) and (1 2 5 4); face 1 is a hole
+
+    def setup(stage, mesh):
+        UsdGeom.Subset.CreateGeomSubset(mesh, "seam", "edge", Vt.IntArray([0, 1, 4, 1, 2, 5]), "seams",
+                                        UsdGeom.Tokens.nonOverlapping)
+
+    src = write_mesh(tmp_path / "edges.usda", pts, counts, idx, scheme=scheme, setup=setup,
+                     attrs={"holeIndices": Vt.IntArray([1])})
+    dst = tmp_path / "out.usda"
+    levels = 2
+    result = refine_usd(src, str(dst), levels, device="cpu")
+    prim = out_prim(dst)
+    ok, why = UsdGeom.Subset.ValidateFamily(UsdGeom.Mesh(prim), "edge", "seams")
+    assert ok, why
+    pairs = np.asarray(UsdGeom.Subset(prim.GetChild("seam")).GetIndicesAttr().Get()).reshape(-1, 2)
+    n = 2 ** levels  # child edges per control edge
+    assert len(pairs) == 2 * n  # (0, 1) and (1, 4); (2, 5) lies only on the hole face
+    assert chain(pairs, 0, 4)  # one path from control vertex 0 through 1 to 4
+    assert not [w for w in result.warnings if "seam" in w], result.warnings
+
+
+def test_an_edge_subset_naming_no_edge_is_dropped_with_a_warning(tmp_path):
+    """An edge subset whose pair is no edge of the control mesh (a quad's diagonal) cannot be mapped: it is
+    blocked on the output, with a warning naming it."""
+    pts, counts, idx = grid(1, 1)
+
+    def setup(stage, mesh):
+        UsdGeom.Subset.CreateGeomSubset(mesh, "bad", "edge", Vt.IntArray([0, 1, 0, 3]), "seams")
+
+    src = write_mesh(tmp_path / "edges.usda", pts, counts, idx, setup=setup)
+    dst = tmp_path / "out.usda"
+    result = refine_usd(src, str(dst), 1, device="cpu")
+    assert any("/World/Mesh/bad: edge 1 (0, 3) is not an edge of the mesh; the subset is dropped" in w
+               for w in result.warnings), result.warnings
+    assert UsdGeom.Subset(out_prim(dst).GetChild("bad")).GetIndicesAttr().Get() is None

@@ -158,11 +158,13 @@ class Primvar:
 
 @dataclass
 class FaceSubset:
-    """A GeomSubset of faces under the mesh (material bindings use them): its indices are remapped."""
+    """A GeomSubset of faces (material bindings use them) or edges (pairs of point indices) under the mesh:
+    its indices are remapped to the refined faces, or to the child edges of its edges."""
 
     path: str
     attr: Usd.Attribute
     times: list
+    element: str = "face"  # "face" or "edge"
 
 
 @dataclass
@@ -714,9 +716,9 @@ def _read_subsets(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
         et = subset.GetElementTypeAttr().Get()
         attr = subset.GetIndicesAttr()
         path = str(subset.GetPath())
-        if et == UsdGeom.Tokens.face:
+        if et in (UsdGeom.Tokens.face, "edge"):
             times = _in_frames(attr.GetTimeSamples(), frames)
-            sp.subsets.append(FaceSubset(path, attr, times))
+            sp.subsets.append(FaceSubset(path, attr, times, str(et)))
         elif et == "point":
             continue  # refined vertex i is the child of control vertex i: point ids keep their meaning
         else:
