@@ -472,3 +472,24 @@ def test_an_edge_subset_naming_no_edge_is_dropped_with_a_warning(tmp_path):
     assert any("/World/Mesh/bad: edge 1 (0, 3) is not an edge of the mesh; the subset is dropped" in w
                for w in result.warnings), result.warnings
     assert UsdGeom.Subset(out_prim(dst).GetChild("bad")).GetIndicesAttr().Get() is None
+
+
+# -- item 20 -------------------------------------------------------------------------------------------
+
+def test_flattened_layer_doc_names_no_temporary_file(tmp_path):
+    """--flatten: the flattened layer's doc names the input it came from, not the deleted temporary file."""
+    pts, counts, idx = grid(1, 1)
+    src = write_mesh(tmp_path / "in.usda", pts, counts, idx)
+    dst = tmp_path / "flat.usda"
+    refine_usd(src, str(dst), 1, device="cpu", flatten=True)
+    doc = Sdf.Layer.FindOrOpen(str(dst)).documentation
+    assert ".warp-subdiv-" not in doc and "in.usda" in doc, doc
+
+
+@pytest.mark.parametrize("text", ["nan", "1:inf", "-inf:3", "nan:", ":inf"])
+def test_frames_must_be_finite(text):
+    """--frames nan, 1:inf and the like are refused (time codes are finite)."""
+    from warp_subdiv.usd_read import parse_frames
+
+    with pytest.raises(SubdivInputError, match="frames .*finite"):
+        parse_frames(text)

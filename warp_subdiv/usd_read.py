@@ -12,6 +12,7 @@ their structured fields.
 """
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 
@@ -271,6 +272,8 @@ def parse_frames(text: str | None):
     except ValueError:
         raise SubdivInputError(f"frames {text!r}: give A:B, A:, :B or A (time codes)", option="frames",
                                value=text) from None
+    if any(v is not None and not math.isfinite(v) for v in (a, b)):
+        raise SubdivInputError(f"frames {text!r}: time codes must be finite numbers", option="frames", value=text)
     if a is not None and b is not None and a > b:
         raise SubdivInputError(f"frames {text!r}: the start is after the end", option="frames", value=text)
     return a, b
