@@ -96,7 +96,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="azimuth and elevation in degrees of the framing camera around the up axis "
                         "(default -60 30)")
     g.add_argument("--size", default="800x600", metavar="WxH", help="image size in pixels (default 800x600)")
-    g.add_argument("--time", default=None, help="time code to render (default: the stage's start time; without one, the first time "
+    g.add_argument("--time", default=None,
+                   help="time code to render (default: the stage's start time; without one, the first time "
                         "sample of points that have no default value)")
     g.add_argument("--levels", type=int, default=0,
                    help="refine subdivision meshes this many levels before rendering (default 0: as stored)")
