@@ -46,6 +46,9 @@ arrays of a refined level's size are materialised when asked for and not kept.
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
+
 import numpy as np
 
 from . import estimate, projections
@@ -67,6 +70,12 @@ class Hierarchy:
 
     def __init__(self, mesh: Mesh, levels: int, options: Options, *, max_memory: int | None = None,
                  threads: int = 1):
+        source = _shipped_for(mesh, options)
+        if source is not None:
+            if source.levels == levels:  # the same mesh, levels and options: take its tables as they are
+                self.__dict__.update(source.__dict__)
+                return
+            mesh = source.mesh  # another level count: build, from the control points it was built from
         self.threads = max(1, int(threads))
         self.mesh = mesh
         self.levels = levels
@@ -226,6 +235,53 @@ class Hierarchy:
             raise NotImplementedError("limit masks need a level of quads (Catmull-Clark) or triangles")
         s = projections.resolve_flatness(level) if o.piecewise_smooth else np.zeros(level.num_sectors)
         return projections.limit_tables(level, s, o.loop_beta, o.rules)
+
+
+# ------------------------------------------------------------------------------------------------ shipping
+_SHIPPED: contextvars.ContextVar = contextvars.ContextVar("warp_subdiv_shipped", default=())
+
+
+@contextlib.contextmanager
+def shipped(*hierarchies):
+    """Within the block, a :class:`Hierarchy` of a mesh with the topology and tags of one of ``hierarchies``
+    (None entries are ignored), with the same options, is not built again: with the same levels it takes the
+    shipped one's tables; with other levels it is built from the shipped one's control points.
+
+    A distributed bake computes each mesh's topology and tables once and ships them to the tasks that refine
+    its frames (:mod:`warp_subdiv.distributed`): a task reads the mesh at its own frames, whose points may
+    differ from those the tables were built from (sector angles are measured on the control points), so the
+    shipped tables are also what keeps every task's result equal to the single-process bake's."""
+    extra = tuple(h for h in hierarchies if h is not None)
+    token = _SHIPPED.set(extra + _SHIPPED.get())
+    try:
+        yield
+    finally:
+        _SHIPPED.reset(token)
+
+
+_TOPOLOGY_FIELDS = ("face_vertex_counts", "face_vertex_indices", "creases", "crease_sharpness", "corners",
+                    "corner_sharpness", "concave", "normal_vertices", "normal_vectors", "holes")
+
+
+def same_topology(a: Mesh, b: Mesh) -> bool:
+    """Whether two control meshes have the same faces and tags (their points may differ)."""
+    if a is b:
+        return True
+    if a.num_vertices != b.num_vertices:
+        return False
+    for name in _TOPOLOGY_FIELDS:
+        x, y = getattr(a, name, None), getattr(b, name, None)
+        if (x is None) != (y is None) or (x is not None and not np.array_equal(x, y)):
+            return False
+    return True
+
+
+def _shipped_for(mesh: Mesh, options: Options):
+    """A shipped hierarchy (see :func:`shipped`) of ``mesh``'s topology and ``options``, or None."""
+    for h in _SHIPPED.get():
+        if h.options == options and same_topology(h.mesh, mesh):
+            return h
+    return None
 
 
 class Parentage:

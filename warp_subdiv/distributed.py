@@ -1,0 +1,620 @@
+"""Distributed USD bakes on Dask, and the stitching of chunk layers into one output.
+
+:func:`bake` (``warp-subdiv refine ... --workers N`` or ``--scheduler ADDRESS``) refines the subdivision
+meshes of a USD file on a Dask cluster: a local one of ``workers`` worker processes, or an existing one at
+``scheduler``. The units of work are
+
+* one mesh: a static mesh, or an animated one with too few time samples to split; its task writes a layer
+  with the refined mesh (the single-process bake's ``refine_usd`` restricted to that prim), which becomes a
+  sublayer of the output;
+* one frame range of an animated mesh: a task refines the mesh's samples in the range (with the ``--frames``
+  semantics, so values held or interpolated at the range's ends are written there) into its own chunk layer.
+  Neighbouring ranges share their boundary sample, so values between two samples interpolate across chunks.
+  The mesh's topology and tables are computed once by a topology task and shipped to its frame tasks
+  (:func:`warp_subdiv.hierarchy.shipped`): the tasks read the mesh at their own frames but refine with the
+  tables of the single-process bake, so they produce its values.
+
+Every task writes into a temporary folder next to the output. When all succeeded the driver stitches each
+animated mesh's chunks as USD value clips (:func:`stitch_clips`: ``UsdUtils.StitchClipsTopology`` and
+``StitchClipsManifest``, one clip set per mesh on the mesh prim), renames the folder to ``<output
+stem>.chunks`` and writes the output layer last: clip sets, then sublayers ``[topology, per-mesh layers...,
+input]``. Any failure cancels the other tasks and removes the folder, so no output and no chunk file is
+left; a worker that dies has its tasks rerun elsewhere by Dask. Each task applies the memory guard against
+its worker's memory (the worker's memory limit, and ``max_memory`` when given).
+
+:func:`stitch` (``warp-subdiv stitch``) assembles chunk layers that ``warp-subdiv refine --frames A:B`` runs
+wrote (a farm scheduler launching them itself): no Dask needed.
+
+Dask (``distributed``) is an optional dependency (``pip install 'warp-subdiv[distributed]'``), imported
+only by :func:`bake`.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import shutil
+import tempfile
+import time as _time
+import uuid
+from dataclasses import asdict, dataclass
+
+from pxr import Sdf, Usd, UsdUtils, Vt
+
+from . import __version__
+from .errors import SubdivInputError
+from .usd_write import USD_EXTENSIONS, check_output_path, make_folders, relative_asset_path, remove_folders
+
+#: Fewest time samples a frame chunk holds (an animated mesh with fewer than twice this is one unit).
+MIN_CHUNK_SAMPLES = 4
+#: Frame chunks per worker when ``chunk_frames`` is not given (load balance, and little lost to a dead worker).
+CHUNKS_PER_WORKER = 3
+#: Environment variable that makes tasks misbehave, for the tests (see _fault).
+FAULT_ENV = "WARP_SUBDIV_TEST_FAULT"
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One task's work: a whole mesh (``kind`` "mesh") or a frame range of one (``kind`` "frames")."""
+
+    number: int
+    kind: str
+    mesh: int  # index of the mesh in the plan
+    path: str
+    frames: tuple | None  # (start, end), None ends open; the run's own frames for "mesh" units
+    layer: str  # file name in the chunk folder
+
+    @property
+    def label(self) -> str:
+        if self.kind == "mesh":
+            return self.path
+        a, b = self.frames
+        return f"{self.path} frames {'' if a is None else f'{a:g}'}:{'' if b is None else f'{b:g}'}"
+
+
+def _slug(path: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_]+", "_", path.strip("/")) or "root"
+
+
+def plan_units(prims, frames, workers: int, chunk_frames: int | None = None, ext: str = ".usdc") -> list:
+    """The units of a bake of ``prims`` (the plan's SubdivPrims): a mesh with at least 2 *
+    MIN_CHUNK_SAMPLES selected point samples is split into frame ranges of ``chunk_frames`` samples (default:
+    about CHUNKS_PER_WORKER ranges per worker), each range starting at the previous one's last sample."""
+    units = []
+    for i, sp in enumerate(prims):
+        times = list(sp.point_times)
+        size = chunk_frames or max(MIN_CHUNK_SAMPLES, math.ceil(len(times) / (CHUNKS_PER_WORKER * max(1, workers))))
+        size = max(1, int(size))
+        if len(times) < 2 * MIN_CHUNK_SAMPLES or len(times) <= size:
+            units.append(Unit(len(units), "mesh", i, sp.path, frames, f"{i:04d}_{_slug(sp.path)}{ext}"))
+            continue
+        starts = list(range(0, len(times), size))
+        if len(times) - starts[-1] < max(2, size // 2) and len(starts) > 1:
+            starts.pop()  # a short last range joins the one before
+        for k, s in enumerate(starts):
+            a = times[s] if k else (frames[0] if frames is not None else None)
+            b = times[starts[k + 1]] if k + 1 < len(starts) else (frames[1] if frames is not None else None)
+            units.append(Unit(len(units), "frames", i, sp.path, (a, b), f"{i:04d}_{_slug(sp.path)}.{k:04d}{ext}"))
+    return units
+
+
+# ------------------------------------------------------------------------------------------------ tasks
+def _worker_setup(threads):
+    """Per task on a worker: the thread count evaluation uses, and the worker's memory limit (bytes or None)."""
+    import warp as wp
+
+    from . import threads as th
+
+    wp.config.log_level = 30  # no start-up banner or module-load lines in the workers' logs
+    th.set_default_threads(threads)
+    limit = None
+    try:
+        from distributed import get_worker
+
+        limit = get_worker().memory_manager.memory_limit or None
+    except (ImportError, ValueError, AttributeError):  # not on a Dask worker
+        pass
+    return limit
+
+
+def _fault(unit_number: int) -> None:
+    """Test hook (FAULT_ENV): "sleep:SECONDS[:FOLDER]" (each task start also leaves FOLDER/<unit>.<pid>), or
+    "fail:UNIT"."""
+    spec = os.environ.get(FAULT_ENV, "")
+    kind, _, arg = spec.partition(":")
+    if kind == "sleep":
+        seconds, _, folder = arg.partition(":")
+        if folder:
+            open(os.path.join(folder, f"{unit_number}.{os.getpid()}"), "w").close()
+        _time.sleep(float(seconds))
+    elif kind == "fail" and int(arg) == unit_number:
+        raise SubdivInputError(f"unit {unit_number}: failure requested by {FAULT_ENV}")
+
+
+def _memory(max_memory, worker_limit):
+    limits = [m for m in (max_memory, worker_limit) if m]
+    return min(limits) if limits else None
+
+
+def _error_record(exc: SubdivInputError) -> dict:
+    return {"type": type(exc).__name__, "message": str(exc), "option": exc.option, "element": exc.element,
+            "index": exc.index, "value": repr(exc.value) if exc.value is not None else None}
+
+
+def topology_task(input_path, path, levels, run, threads=None):
+    """The hierarchy (topology and tables) of the mesh at ``path``, built as the single-process bake builds it
+    (``run``: refine_usd's keywords), for the mesh's frame tasks."""
+    from .usd import make_refiner, plan
+
+    limit = _worker_setup(threads)
+    p = plan(input_path, levels, prims=[path], **_plan_keywords(run))
+    i = [sp.path for sp in p.prims].index(path)
+    refiner = make_refiner(p.prims[i], levels, options=p.options[i], device=run.get("device"),
+                           max_memory=_memory(run.get("max_memory"), limit))
+    return refiner.hierarchy
+
+
+def unit_task(input_path, folder, unit: Unit, levels, run, hierarchy=None, threads=None) -> dict:
+    """Refine one unit into ``folder/unit.layer`` (written under a private name, then renamed). Returns its
+    reports and warnings, or {"error": ...} for input errors (the driver raises them)."""
+    from .hierarchy import shipped
+    from .usd import refine_usd
+
+    limit = _worker_setup(threads)
+    tmp = os.path.join(folder, f".{unit.layer}.{uuid.uuid4().hex}{os.path.splitext(unit.layer)[1]}")
+    try:
+        _fault(unit.number)
+        keywords = dict(run, max_memory=_memory(run.get("max_memory"), limit), frames=unit.frames, flatten=False)
+        with shipped(hierarchy):
+            result = refine_usd(input_path, tmp, levels, prims=[unit.path], **keywords)
+        layer = Sdf.Layer.FindOrOpen(tmp)
+        times = layer.ListAllTimeSamples()
+        if unit.kind == "mesh":
+            layer.subLayerPaths.clear()  # a sublayer of the output, beside the input
+            layer.Save()
+        del layer
+        os.replace(tmp, os.path.join(folder, unit.layer))
+    except SubdivInputError as exc:
+        return {"error": _error_record(exc)}
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return {"unit": unit.number, "reports": [asdict(r) for r in result.reports], "warnings": result.warnings,
+            "times": (min(times), max(times)) if times else None, "seconds": result.seconds}
+
+
+def _plan_keywords(run: dict) -> dict:
+    keep = ("scheme", "rules", "boundary", "precision", "frames", "semi_sharp", "normals", "limit", "device")
+    return {k: run[k] for k in keep if k in run}
+
+
+# ------------------------------------------------------------------------------------------------ stitching
+def _clip_range(layer: Sdf.Layer, frames) -> tuple:
+    """(start, end) stage times a chunk covers: its frames, its own samples where an end is open."""
+    samples = layer.ListAllTimeSamples()
+    lo = frames[0] if frames and frames[0] is not None else (min(samples) if samples else 0.0)
+    hi = frames[1] if frames and frames[1] is not None else (max(samples) if samples else lo)
+    return float(lo), float(hi)
+
+
+def _animated(layer: Sdf.Layer, path: str) -> bool:
+    """Whether ``layer`` holds time samples at or under ``path``."""
+    found = []
+
+    def visit(p):
+        if not found and p.IsPropertyPath() and layer.GetNumTimeSamplesForPath(p):
+            found.append(p)
+
+    spec = layer.GetPrimAtPath(path)
+    if spec is not None:
+        layer.Traverse(spec.path, visit)
+    return bool(found)
+
+
+def stitch_clips(output_layer: Sdf.Layer, folder: str, clips: dict, topology_sources: list) -> list:
+    """Author USD value clips in ``output_layer``: ``clips`` maps a prim path (the clip set's prim) to its
+    chunks, [(file, start, end)] in time order. Writes into ``folder`` the topology layer (everything the
+    chunks hold that is not time-sampled, from ``topology_sources``: UsdUtils.StitchClipsTopology, the first
+    chunk's defaults winning) and one manifest per clip set (UsdUtils.StitchClipsManifest); returns the
+    topology layer's path (None when there are no clips), for the caller to sublayer.
+
+    Each clip set's ``active`` switches to chunk k at its start and ``times`` maps [start, end] of chunk k
+    onto itself; chunk layers may carry any stage time codes (a ``--frames`` run copies the input's)."""
+    if not clips:
+        return None
+    anchor = os.path.dirname(output_layer.realPath or output_layer.identifier)
+    topo_path = os.path.join(folder, "topology.usda")
+    topo = Sdf.Layer.CreateNew(topo_path)
+    UsdUtils.StitchClipsTopology(topo, [f for f in topology_sources])
+    topo.subLayerPaths.clear()
+    topo.customLayerData = {}
+    for key in ("startTimeCode", "endTimeCode"):
+        topo.pseudoRoot.ClearInfo(key)
+    topo.Save()
+    stage = Usd.Stage.Open(output_layer)
+    stage.SetEditTarget(Usd.EditTarget(output_layer))
+    for n, (path, chunks) in enumerate(sorted(clips.items())):
+        files = [c[0] for c in chunks]
+        manifest_path = os.path.join(folder, f"manifest.{n:04d}.usda")
+        manifest = Sdf.Layer.CreateNew(manifest_path)
+        UsdUtils.StitchClipsManifest(manifest, topo, files, Sdf.Path(path))
+        prim = stage.OverridePrim(path)
+        api = Usd.ClipsAPI(prim)
+        api.SetClipAssetPaths(Sdf.AssetPathArray([relative_asset_path(f, anchor) for f in files]))
+        api.SetClipPrimPath(path)
+        api.SetClipActive(Vt.Vec2dArray([(start, k) for k, (_, start, _) in enumerate(chunks)]))
+        times = []
+        for _, start, end in chunks:
+            times += [(start, start), (end, end)]
+        api.SetClipTimes(Vt.Vec2dArray(times))
+        api.SetClipManifestAssetPath(Sdf.AssetPath(relative_asset_path(manifest_path, anchor)))
+    del stage
+    return topo_path
+
+
+# ------------------------------------------------------------------------------------------------ the bake
+class _Folder:
+    """A temporary folder next to the output, renamed to ``final`` (default ``<stem>.chunks``) when it is
+    complete."""
+
+    def __init__(self, output: str, final: str | None = None):
+        self.output = output
+        parent = os.path.dirname(output)
+        self.created = make_folders(parent)
+        self.final = final or os.path.splitext(output)[0] + ".chunks"
+        self.path = tempfile.mkdtemp(prefix="." + os.path.basename(self.final) + "-", dir=parent)
+        self.old = None
+
+    def keep_only(self, names) -> None:
+        """Remove files that are not ``names`` (temporary files of tasks whose worker died)."""
+        keep = set(names)
+        for name in os.listdir(self.path):
+            if name not in keep:
+                full = os.path.join(self.path, name)
+                shutil.rmtree(full) if os.path.isdir(full) else os.unlink(full)
+
+    def publish(self) -> None:
+        """Move the finished folder to its final name (an older one aside, removed by :meth:`done`)."""
+        if os.path.lexists(self.final):
+            self.old = tempfile.mkdtemp(prefix="." + os.path.basename(self.final) + "-old-",
+                                        dir=os.path.dirname(self.final))
+            os.replace(self.final, os.path.join(self.old, "chunks"))
+        os.replace(self.path, self.final)
+        self.path = self.final
+
+    def done(self) -> None:
+        if self.old:
+            shutil.rmtree(self.old, ignore_errors=True)
+            self.old = None
+
+    def discard(self) -> None:
+        """Remove everything this bake wrote (and put an older chunk folder back)."""
+        for _ in range(20):  # a task that was cancelled while it saved may add a file meanwhile
+            shutil.rmtree(self.path, ignore_errors=True)
+            if not os.path.exists(self.path):
+                break
+            _time.sleep(0.1)
+        if self.old:
+            os.replace(os.path.join(self.old, "chunks"), self.final)
+            shutil.rmtree(self.old, ignore_errors=True)
+            self.old = None
+        remove_folders(self.created)
+
+
+def _client(workers, scheduler):
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise SubdivInputError("--workers and --scheduler need Dask: pip install 'warp-subdiv[distributed]' "
+                               "(or 'distributed')", option="workers") from None
+    if scheduler:
+        try:
+            return Client(scheduler, timeout="20s"), None
+        except (OSError, TimeoutError) as exc:
+            raise SubdivInputError(f"scheduler {scheduler}: cannot connect ({exc})", option="scheduler",
+                                   value=scheduler) from None
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                           silence_logs=50)
+    return Client(cluster), cluster
+
+
+def bake(input_path: str, output_path: str, levels: int, *, workers: int | None = None,
+         scheduler: str | None = None, chunk_frames: int | None = None, threads: int | None = None,
+         progress=None, client=None, **run):
+    """Refine the subdivision meshes of ``input_path`` on a Dask cluster and write ``output_path`` (see the
+    module docstring). ``run``: :func:`warp_subdiv.usd.refine_usd`'s keywords (prims, scheme, rules, boundary,
+    device, precision, frames, limit, normals, max_memory, flatten, semi_sharp). ``workers``: worker processes
+    of a local cluster (default: the cores this process may use); ``scheduler``: the address of an existing
+    cluster's scheduler instead; ``client``: an existing ``distributed.Client``. ``threads``: evaluation
+    threads per task (default: the local cluster's share of the cores, a remote worker's own cores).
+    Returns a :class:`warp_subdiv.usd.Result`."""
+    from . import threads as th
+    from .usd import PrimReport, Result, plan
+    from .usd_write import OutputLayer
+
+    start = _time.perf_counter()
+    if isinstance(levels, bool) or not isinstance(levels, int) or levels < 0:
+        raise SubdivInputError(f"levels must be an integer >= 0, got {levels!r}", option="levels", value=levels)
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise SubdivInputError(f"workers must be an integer >= 1, got {workers!r}", option="workers",
+                               value=workers)
+    if chunk_frames is not None and (not isinstance(chunk_frames, int) or chunk_frames < 1):
+        raise SubdivInputError(f"chunk_frames must be an integer >= 1, got {chunk_frames!r}",
+                               option="chunk_frames", value=chunk_frames)
+    threads = th.check_threads(threads)
+    if not os.path.exists(input_path):
+        raise SubdivInputError(f"{input_path}: no such file")
+    check_output_path(output_path)
+    flatten = bool(run.pop("flatten", False))
+    run.setdefault("max_memory", None)
+    p = plan(input_path, levels, **{k: v for k, v in _plan_keywords(run).items()}, prims=run.get("prims"))
+    out_abs = check_output_path(output_path, p.stage)
+    run.pop("prims", None)
+    run.pop("progress", None)
+
+    own = None
+    if client is None:
+        client, own = _client(workers or th.available_cores(), scheduler)
+    try:
+        n_workers = max(1, len(client.scheduler_info().get("workers", {})) or (workers or 1))
+        if threads is None and own is not None:
+            threads = max(1, th.available_cores() // n_workers)
+        ext = ".usdc"
+        units = plan_units(p.prims, run.get("frames"), n_workers, chunk_frames, ext)
+        folder = _Folder(out_abs)
+        try:
+            results = _run_units(client, input_path, folder.path, units, p, levels, run, threads, progress)
+            reports, warnings = _merge(p, units, results, PrimReport)
+            names = {u.layer for u in units}
+            folder.keep_only(names)
+            out = _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, OutputLayer)
+        except BaseException:
+            folder.discard()
+            raise
+        folder.done()
+        if flatten:
+            shutil.rmtree(folder.final, ignore_errors=True)
+    finally:
+        if own is not None:
+            client.close()
+            own.close()
+    return Result(out, reports, list(dict.fromkeys(p.warnings + warnings)), _time.perf_counter() - start,
+                  p.predicted_bytes)
+
+
+def _run_units(client, input_path, folder, units, p, levels, run, threads, progress) -> dict:
+    """Submit the topology and unit tasks; wait for all of them. The first failure cancels the rest and is
+    raised (input errors as SubdivInputError)."""
+    from distributed import as_completed
+
+    topo = {}
+    for u in units:
+        if u.kind == "frames" and u.mesh not in topo:
+            topo[u.mesh] = client.submit(topology_task, input_path, u.path, levels, run, threads, pure=False,
+                                         key=f"warp-subdiv-topology-{u.mesh}-{uuid.uuid4().hex}")
+    futures = [client.submit(unit_task, input_path, folder, u, levels, run, topo.get(u.mesh), threads,
+                             pure=False, key=f"warp-subdiv-unit-{u.number}-{uuid.uuid4().hex}") for u in units]
+    results = {}
+    try:
+        for done, (future, value) in enumerate(as_completed(futures, with_results=True), 1):
+            if isinstance(value, dict) and "error" in value:
+                raise _reraise(value["error"])
+            results[value["unit"]] = value
+            if progress is not None:
+                progress(done / (len(units) + 1), f"[{done}/{len(units)}] {units[value['unit']].label}")
+    except BaseException:
+        client.cancel(futures + list(topo.values()))
+        _wait_idle(client, {f.key for f in futures})
+        raise
+    finally:
+        for f in topo.values():
+            f.release()
+    return results
+
+
+def _executing(dask_worker=None):
+    """The keys of the tasks a worker is running (cancelled ones too: Dask cannot interrupt a task)."""
+    return [str(ts.key) for ts in dask_worker.state.executing]
+
+
+def _wait_idle(client, keys, timeout: float = 60.0) -> None:
+    """Wait until no worker runs any of ``keys`` (cancelled tasks run to their end), so that none writes into
+    the folder after it is removed."""
+    end = _time.monotonic() + timeout
+    while _time.monotonic() < end:
+        try:
+            running = client.run(_executing)
+        except Exception:  # noqa: BLE001 (a cluster going away: nothing runs any more)
+            return
+        if not any(k in keys for ks in running.values() for k in ks):
+            return
+        _time.sleep(0.1)
+
+
+def _reraise(record: dict) -> SubdivInputError:
+    from .estimate import MemoryGuardError
+
+    cls = MemoryGuardError if record["type"] == "MemoryGuardError" else SubdivInputError
+    return cls(record["message"], option=record["option"], element=record["element"], index=record["index"],
+               value=record["value"])
+
+
+def _merge(p, units, results, PrimReport):
+    """One report per mesh (samples counted once where chunks share a boundary) and the tasks' warnings."""
+    reports, warnings = [], []
+    for i, sp in enumerate(p.prims):
+        mine = [results[u.number] for u in units if u.mesh == i]
+        rows = [r for res in mine for r in res["reports"] if r["path"] == sp.path]
+        first = dict(rows[0])
+        first["seconds"] = sum(r["seconds"] for r in rows)
+        first["samples"] = max(1, len(sp.point_times)) if len(rows) > 1 else first["samples"]
+        reports.append(PrimReport(**first))
+        for res in mine:
+            warnings += [w for w in res["warnings"] if w not in p.warnings]
+    return reports, warnings
+
+
+def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, OutputLayer) -> str:
+    """Stitch the chunks, move the folder into place and write the output layer (last)."""
+    frames = run.get("frames")
+    custom = {"warpSubdiv": {
+        "version": __version__, "levels": int(levels), "source": os.path.basename(p.input),
+        "prims": Vt.StringArray([sp.path for sp in p.prims]),
+        "rules": Vt.StringArray(sorted({sp.rules for sp in p.prims})),
+        "schemes": Vt.StringArray(sorted({sp.scheme for sp in p.prims})), "limitPoints": bool(run.get("limit")),
+        "normals": bool(run.get("normals")), "flattened": bool(flatten),
+        "distributed": {"workers": int(n_workers), "tasks": len(units)},
+    }}
+    if frames is not None:
+        custom["warpSubdiv"]["frames"] = ":".join("" if v is None else f"{v:g}" for v in frames)
+    layer = OutputLayer(out_abs, p.stage, custom)
+    try:
+        final = folder.final
+        clips, chunk_files = {}, []
+        for u in units:
+            if u.kind != "frames":
+                continue
+            rng = results[u.number]["times"]
+            start = u.frames[0] if u.frames[0] is not None else (rng[0] if rng else 0.0)
+            end = u.frames[1] if u.frames[1] is not None else (rng[1] if rng else start)
+            path = os.path.join(folder.path, u.layer)
+            clips.setdefault(u.path, []).append((path, float(start), float(end)))
+            chunk_files.append(path)
+        topo = stitch_clips(layer.layer, folder.path, clips, chunk_files) if clips else None
+        # asset paths were written for the temporary folder: point them at the final one
+        _retarget(layer.layer, folder.path, final)
+        subs = [os.path.join(final, "topology.usda")] if topo else []
+        subs += [os.path.join(final, u.layer) for u in units if u.kind == "mesh"]
+        anchor = os.path.dirname(out_abs)
+        for k, s in enumerate(subs):
+            layer.layer.subLayerPaths.insert(k, relative_asset_path(s, anchor))
+        folder.publish()
+        hints = getattr(layer, "override_extents_hints", None)
+        if hints is not None:
+            hints(p.stage, {sp.path: sp.point_times for sp in p.prims}, frames)
+        layer.commit(flatten=flatten)
+    except BaseException:
+        layer.discard()
+        raise
+    return out_abs
+
+
+def _retarget(layer: Sdf.Layer, old_dir: str, new_dir: str) -> None:
+    """Rewrite the clip asset paths of ``layer`` that point into ``old_dir`` to point into ``new_dir``."""
+    anchor = os.path.dirname(layer.realPath or layer.identifier)
+    old_rel = relative_asset_path(old_dir, anchor)
+    new_rel = relative_asset_path(new_dir, anchor)
+
+    def fix(value):
+        return value.replace(old_rel + "/", new_rel + "/", 1) if value.startswith(old_rel + "/") else value
+
+    def visit(path):
+        if not path.IsPrimPath():
+            return
+        spec = layer.GetPrimAtPath(path)
+        if "clips" not in spec.ListInfoKeys():
+            return
+        clips = dict(spec.GetInfo("clips"))
+        for name, data in clips.items():
+            data = dict(data)
+            data["assetPaths"] = Sdf.AssetPathArray([fix(a.path) for a in data["assetPaths"]])
+            data["manifestAssetPath"] = Sdf.AssetPath(fix(data["manifestAssetPath"].path))
+            clips[name] = data
+        spec.SetInfo("clips", clips)
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+
+
+# ------------------------------------------------------------------------------------------------ stitch
+def _plain(value):
+    return list(value) if isinstance(value, Vt.StringArray) else value
+
+
+def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
+    """Assemble the layers that ``warp-subdiv refine IN -o CHUNK --frames A:B`` runs wrote (the same input,
+    levels and options, frame ranges in any order) into ``output_path``: each animated refined mesh gets a
+    clip set over the chunks, everything else comes from the first chunk (``<stem>.stitch/topology.usda``).
+    Chunks stay where they are and are referenced by relative paths. Ranges that share their ends (1:25,
+    25:50) interpolate across chunk boundaries; with 1:25, 26:50 values between 25 and 26 hold at 25.
+    Returns a :class:`warp_subdiv.usd.Result` (no reports)."""
+    from .usd import Result
+    from .usd_write import OutputLayer
+
+    start = _time.perf_counter()
+    if not chunk_paths:
+        raise SubdivInputError("stitch needs at least one chunk layer")
+    chunks = []
+    for path in chunk_paths:
+        if os.path.splitext(path)[1].lower() not in USD_EXTENSIONS:
+            raise SubdivInputError(f"{path}: a chunk must be a .usd, .usda or .usdc layer")
+        if not os.path.isfile(path):
+            raise SubdivInputError(f"{path}: no such file")
+        layer = Sdf.Layer.FindOrOpen(os.path.abspath(path))
+        info = dict(layer.customLayerData).get("warpSubdiv") if layer is not None else None
+        if not info:
+            raise SubdivInputError(f"{path}: not a layer written by warp-subdiv refine")
+        if len(layer.subLayerPaths) != 1:
+            raise SubdivInputError(f"{path}: a flattened layer cannot be stitched (refine without --flatten)")
+        source = os.path.normpath(os.path.join(os.path.dirname(layer.realPath), layer.subLayerPaths[0]))
+        frames = None
+        if info.get("frames"):
+            a, _, b = info["frames"].partition(":")
+            frames = (float(a) if a else None, float(b) if b else None)
+        chunks.append((layer, info, source, frames))
+    first = chunks[0]
+    for layer, info, source, _ in chunks[1:]:
+        for key in ("levels", "prims", "rules", "schemes", "limitPoints", "normals"):
+            if _plain(info.get(key)) != _plain(first[1].get(key)):
+                raise SubdivInputError(f"{layer.realPath}: {key} differs from {first[0].realPath}'s; chunks must "
+                                       "come from one refinement")
+        if source != first[2]:
+            raise SubdivInputError(f"{layer.realPath}: refines {source}, {first[0].realPath} refines {first[2]}")
+    ranges = [(_clip_range(layer, frames), layer) for layer, _, _, frames in chunks]
+    ranges.sort(key=lambda r: r[0])
+    for (r0, l0), (r1, l1) in zip(ranges, ranges[1:]):
+        if r1[0] < r0[1] or r0 == r1:
+            raise SubdivInputError(f"{l1.realPath}: its frames {r1[0]:g}:{r1[1]:g} overlap those of {l0.realPath} "
+                                   f"({r0[0]:g}:{r0[1]:g}) beyond a shared end")
+    out_abs = check_output_path(output_path)
+    if not os.path.exists(first[2]):
+        raise SubdivInputError(f"{first[2]}: the chunks' input is missing")
+    stage = Usd.Stage.Open(first[2])
+    out_abs = check_output_path(output_path, stage)
+    files = [layer.realPath for _, layer in ranges]
+    prims = list(first[1].get("prims") or [])
+    clips = {}
+    for path in prims:
+        if any(_animated(layer, path) for _, layer in ranges):
+            clips[path] = [(layer.realPath, r[0], r[1]) for r, layer in ranges]
+    custom = {"warpSubdiv": dict(first[1])}
+    custom["warpSubdiv"]["frames"] = f"{ranges[0][0][0]:g}:{ranges[-1][0][1]:g}"
+    custom["warpSubdiv"]["stitched"] = Vt.StringArray([relative_asset_path(f, os.path.dirname(out_abs))
+                                                       for f in files])
+    custom["warpSubdiv"]["flattened"] = bool(flatten)
+    folder = _Folder(out_abs, os.path.splitext(out_abs)[0] + ".stitch")
+    layer = OutputLayer(out_abs, stage, custom)
+    try:
+        try:
+            topo = stitch_clips(layer.layer, folder.path, clips, files)
+            if topo is None:  # nothing animated: the first chunk's content is the topology
+                topo = os.path.join(folder.path, "topology.usda")
+                t = Sdf.Layer.CreateNew(topo)
+                UsdUtils.StitchClipsTopology(t, files[:1])
+                t.subLayerPaths.clear()
+                t.customLayerData = {}
+                t.Save()
+            _retarget(layer.layer, folder.path, folder.final)
+            layer.layer.subLayerPaths.insert(0, relative_asset_path(os.path.join(folder.final, "topology.usda"),
+                                                                    os.path.dirname(out_abs)))
+            folder.publish()
+            layer.commit(flatten=flatten)
+        except BaseException:
+            layer.discard()
+            raise
+    except BaseException:
+        folder.discard()
+        raise
+    folder.done()
+    if flatten:
+        shutil.rmtree(folder.final, ignore_errors=True)
+    return Result(out_abs, [], [], _time.perf_counter() - start, 0)
