@@ -70,6 +70,7 @@ def _fault(client, spec):
             os.environ[dist.FAULT_ENV] = value
 
     client.run(set_env)
+    client.run(set_env, nanny=True)  # and in the nannies, for the worker processes they start again
 
 
 @pytest.fixture(scope="module")
@@ -178,3 +179,46 @@ def test_stitch_farm_chunks(single, tmp_path):
     with pytest.raises(dist.SubdivInputError, match="overlap"):
         dist.stitch(files + [bad], str(tmp_path / "nope.usda"))
     assert not os.path.exists(tmp_path / "nope.usda") and not os.path.exists(tmp_path / "nope.stitch")
+
+
+def test_cli_scheduler_threads_and_stitch(client, single, tmp_path):
+    """`refine --scheduler ADDRESS --threads 1` bakes on an existing cluster; `stitch` assembles chunk layers;
+    bad counts are usage errors (exit 2)."""
+    from warp_subdiv.cli import main
+
+    out = tmp_path / "cli.usda"
+    assert main(["refine", ANIMATED, "-o", str(out), "--levels", "1", "--scheduler", client.scheduler.address,
+                 "--threads", "1", "--chunk-frames", "6", "--quiet"]) == 0
+    assert_same_composition(str(single / "animated.usda"), str(out))
+    for k, frames in enumerate(["1:12", "12:24"]):
+        assert main(["refine", ANIMATED, "-o", str(tmp_path / f"c{k}.usdc"), "--levels", "1", "--frames", frames,
+                     "--quiet"]) == 0
+    assert main(["stitch", str(tmp_path / "c1.usdc"), str(tmp_path / "c0.usdc"), "-o", str(tmp_path / "s.usda"),
+                 "--quiet"]) == 0
+    assert_same_composition(str(single / "animated.usda"), str(tmp_path / "s.usda"))
+    for bad in (["--workers", "0"], ["--threads", "0"], ["--chunk-frames", "0"]):
+        assert main(["refine", ANIMATED, "-o", str(tmp_path / "x.usda"), "--levels", "1"] + bad) == 2
+    assert main(["stitch", str(tmp_path / "x.usda"), "-o", str(tmp_path / "y.usda")]) == 2
+
+
+def test_quick_start_without_dask(tmp_path):
+    """Without Dask importable, refining works as before and --workers is an input error naming the extra."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "class Block:\n"
+            "    def find_spec(self, name, path=None, target=None):\n"
+            "        if name.split('.')[0] in ('dask', 'distributed'):\n"
+            "            raise ImportError(name)\n"
+            "sys.meta_path.insert(0, Block())\n"
+            "from warp_subdiv.cli import main\n"
+            "if __name__ == '__main__':\n"
+            f"    assert main(['refine', {STATIC!r}, '-o', {str(tmp_path / 'a.usda')!r}, '--levels', '2', "
+            "'--quiet']) == 0\n"
+            f"    assert main(['refine', {STATIC!r}, '-o', {str(tmp_path / 'b.usda')!r}, '--levels', '1', "
+            "'--workers', '2']) == 2\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "pip install 'warp-subdiv[distributed]'" in proc.stderr
+    assert sorted(os.listdir(tmp_path)) == ["a.usda"]

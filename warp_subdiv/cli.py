@@ -1,6 +1,7 @@
 """The ``warp-subdiv`` command line.
 
     warp-subdiv refine IN -o OUT --levels N [options]   refine OBJ or USD (.usd/.usda/.usdc) meshes
+    warp-subdiv stitch CHUNK... -o OUT                   stitch the layers of `refine --frames A:B` runs
     warp-subdiv info IN [--levels N]                     the subdivision meshes of a file and predicted sizes
     warp-subdiv render IN -o OUT.png [options]           a shaded preview, ray-cast with Warp
 
@@ -27,6 +28,7 @@ PROG = "warp-subdiv"
 #: The library's option keywords that the command line sets, and their flags.
 FLAGS = {"levels": "--levels", "prims": "--prim", "scheme": "--scheme", "rules": "--rules", "boundary": "--boundary",
          "device": "--device", "precision": "--precision", "frames": "--frames", "max_memory": "--max-memory",
+         "threads": "--threads", "workers": "--workers", "scheduler": "--scheduler", "chunk_frames": "--chunk-frames",
          "camera": "--camera", "view": "--view", "size": "--size", "time": "--time", "samples": "--samples"}
 
 
@@ -80,6 +82,26 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--progress", default="auto", choices=["auto", "on", "off"],
                    help="progress bar on stderr (auto: when stderr is a terminal)")
     r.add_argument("--quiet", action="store_true", help="print nothing on success (warnings still go to stderr)")
+    r.add_argument("--threads", type=int, default=None, metavar="N",
+                   help="CPU threads for evaluation (default: the cores this process may use); results do not "
+                        "depend on it")
+    r.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="bake on a local Dask cluster of N worker processes (USD; needs the 'distributed' extra)")
+    r.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="bake on the Dask cluster whose scheduler is at ADDRESS (e.g. tcp://host:8786)")
+    r.add_argument("--chunk-frames", type=int, default=None, metavar="N",
+                   help="with --workers/--scheduler: time samples per frame task of an animated mesh "
+                        "(default: about 3 tasks per worker)")
+
+    s = sub.add_parser("stitch", help="stitch the layers of `refine --frames A:B` runs into one output",
+                       description="Assemble chunk layers written by `warp-subdiv refine IN -o CHUNK --frames A:B` "
+                                   "runs (same input, levels and options) into OUT: each animated mesh's chunks "
+                                   "become USD value clips. Give the ranges shared ends (1:25 25:50) for values "
+                                   "between frames to interpolate across chunks.")
+    s.add_argument("chunks", nargs="+", metavar="CHUNK", help="chunk layers (.usd, .usda, .usdc), any order")
+    s.add_argument("-o", "--output", required=True, help="output layer (.usd, .usda, .usdc)")
+    s.add_argument("--flatten", action="store_true", help="write one self-contained layer (clips baked in)")
+    s.add_argument("--quiet", action="store_true", help="print nothing on success")
 
     i = sub.add_parser("info", help="list the subdivision meshes of a file with predicted output sizes")
     i.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
@@ -227,6 +249,15 @@ def _refine(args) -> int:
         raise UsageError(f"{args.output}: give the output an extension (.obj, .usd, .usda or .usdc)")
     max_memory = _max_memory(args.max_memory)
     _check_device(args.device)
+    counts = (("--threads", args.threads), ("--workers", args.workers), ("--chunk-frames", args.chunk_frames))
+    for flag, value in counts:
+        if value is not None and value < 1:
+            raise UsageError(f"{flag} must be >= 1, got {value}")
+    if kind == "obj" and (args.workers or args.scheduler):
+        raise UsageError("--workers and --scheduler apply to USD input only")
+    from .threads import set_default_threads
+
+    set_default_threads(args.threads)
     progress = ProgressBar(not args.quiet and (args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())))
     try:
         if kind == "obj":
@@ -244,12 +275,17 @@ def _refine_usd(args, max_memory, progress) -> int:
     from .usd_read import parse_frames
 
     frames = parse_frames(args.frames)
-    result = refine_usd(
-        args.input, args.output, args.levels, prims=args.prim, scheme=args.scheme, rules=args.rules,
-        boundary=args.boundary, device=args.device, precision=args.precision, frames=frames, limit=args.limit,
-        normals=args.normals, max_memory=max_memory, flatten=args.flatten,
-        semi_sharp="sharp" if args.semi_sharp_as_sharp else "keep", progress=progress,
-    )
+    run = dict(prims=args.prim, scheme=args.scheme, rules=args.rules, boundary=args.boundary, device=args.device,
+               precision=args.precision, frames=frames, limit=args.limit, normals=args.normals,
+               max_memory=max_memory, flatten=args.flatten, semi_sharp="sharp" if args.semi_sharp_as_sharp else "keep",
+               progress=progress)
+    if args.workers or args.scheduler:
+        from .distributed import bake
+
+        result = bake(args.input, args.output, args.levels, workers=args.workers, scheduler=args.scheduler,
+                      chunk_frames=args.chunk_frames, threads=args.threads, **run)
+    else:
+        result = refine_usd(args.input, args.output, args.levels, **run)
     progress.clear()
     for w in result.warnings:
         _warn(w)
@@ -312,6 +348,18 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
         print(f"{args.input}: {scheme}, {rules} rules, {args.levels} levels on {refiner.device}")
         print(f"  faces {mesh.num_faces} -> {refined.num_faces}, vertices {mesh.num_vertices} -> "
               f"{refined.num_vertices}, {time.perf_counter() - start:.2f} s; wrote {args.output}")
+    return 0
+
+
+# -- stitch --------------------------------------------------------------------------------------------
+
+def _stitch(args) -> int:
+    from .distributed import stitch
+
+    result = stitch(args.chunks, args.output, flatten=args.flatten)
+    if not args.quiet:
+        print(f"{len(args.chunks)} chunk layer{'s' if len(args.chunks) != 1 else ''} -> {args.output}, "
+              f"{result.seconds:.2f} s; wrote {args.output}")
     return 0
 
 
@@ -433,7 +481,7 @@ def main(argv=None) -> int:
     try:
         parser = _parser()
         args = parser.parse_args(argv)
-        run = {"refine": _refine, "info": _info, "render": _render}[args.command]
+        run = {"refine": _refine, "info": _info, "render": _render, "stitch": _stitch}[args.command]
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             code = run(args)

@@ -305,8 +305,8 @@ def _client(workers, scheduler):
     try:
         from distributed import Client, LocalCluster
     except ImportError:
-        raise SubdivInputError("--workers and --scheduler need Dask: pip install 'warp-subdiv[distributed]' "
-                               "(or 'distributed')", option="workers") from None
+        raise SubdivInputError("a distributed bake (workers, scheduler) needs Dask: pip install "
+                               "'warp-subdiv[distributed]' (or 'distributed')", option="workers") from None
     if scheduler:
         try:
             return Client(scheduler, timeout="20s"), None
@@ -352,12 +352,13 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     run.pop("prims", None)
     run.pop("progress", None)
 
-    own = None
-    if client is None:
-        client, own = _client(workers or th.available_cores(), scheduler)
+    own = client is None
+    cluster = None
+    if own:
+        client, cluster = _client(workers or th.available_cores(), scheduler)
     try:
         n_workers = max(1, len(client.scheduler_info().get("workers", {})) or (workers or 1))
-        if threads is None and own is not None:
+        if threads is None and cluster is not None:
             threads = max(1, th.available_cores() // n_workers)
         ext = ".usdc"
         units = plan_units(p.prims, run.get("frames"), n_workers, chunk_frames, ext)
@@ -375,9 +376,10 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
         if flatten:
             shutil.rmtree(folder.final, ignore_errors=True)
     finally:
-        if own is not None:
+        if own:
             client.close()
-            own.close()
+        if cluster is not None:
+            cluster.close()
     return Result(out, reports, list(dict.fromkeys(p.warnings + warnings)), _time.perf_counter() - start,
                   p.predicted_bytes)
 
