@@ -556,7 +556,7 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
         if not info:
             raise SubdivInputError(f"{path}: not a layer written by warp-subdiv refine")
         if len(layer.subLayerPaths) != 1:
-            raise SubdivInputError(f"{path}: a flattened layer cannot be stitched (refine without --flatten)")
+            raise SubdivInputError(f"{path}: a flattened layer cannot be stitched (refine the chunks without flattening)")
         source = os.path.normpath(os.path.join(os.path.dirname(layer.realPath), layer.subLayerPaths[0]))
         frames = None
         if info.get("frames"):
