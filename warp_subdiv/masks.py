@@ -13,15 +13,29 @@ with the ring listed counter-clockwise around the outward normal. ``l0`` is the 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
-from .rules import CATMULL_CLARK, LOOP, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, gamma, loop_beta
+from .rules import (
+    CATMULL_CLARK,
+    LOOP,
+    SECTOR_CONCAVE,
+    SECTOR_CONVEX,
+    SECTOR_CREASE,
+    SECTOR_STRAIGHT,
+    gamma,
+    loop_beta,
+)
 
 
 @dataclass
 class LocalMasks:
-    """Masks and eigenvectors of a group of neighbourhoods, each (S, n)."""
+    """Masks and eigenvectors of a group of neighbourhoods, each (S, n).
+
+    ``l3``/``x3`` (sector masks only): a third pair of the eigenvalue 1/2, the kink of a straight sector's
+    creases (docs/rules.md section 8.7); zero for every other sector, None for rings. The projection of flatness
+    and normal control is ``x^0 l^0 + x^1 l^1 + x^2 l^2 + x^3 l^3``."""
 
     l0: np.ndarray
     l1: np.ndarray
@@ -30,6 +44,15 @@ class LocalMasks:
     x2: np.ndarray
     tu: np.ndarray
     tv: np.ndarray
+    l3: np.ndarray | None = None
+    x3: np.ndarray | None = None
+
+    def projector_row(self, r: int) -> np.ndarray:
+        """(S, n): row r of P = x^0 l^0 + x^1 l^1 + x^2 l^2 (+ x^3 l^3), i.e. the weights of (P p)_r."""
+        row = self.l0 + self.x1[:, r:r + 1] * self.l1 + self.x2[:, r:r + 1] * self.l2
+        if self.l3 is not None:
+            row = row + self.x3[:, r:r + 1] * self.l3
+        return row
 
 
 def crease_limit_weights():
@@ -185,7 +208,104 @@ def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatn
     convex = (kind == SECTOR_CONVEX)[:, None]
     tu = np.where(concave, l1, np.where(convex, l2, crease_uv[0]))
     tv = np.where(concave, l2, np.where(convex, l1, crease_uv[1]))
-    return LocalMasks(l0, l1, l2, x1, x2, tu, tv)
+
+    # --- straight sectors (docs/rules.md section 8.7): l1/x1 along, l2/x2 across, l3/x3 the kink; tu x tv =
+    # along x across points outward, as at a Loop crease
+    l3, x3 = z(), z()
+    straight = kind == SECTOR_STRAIGHT
+    if np.any(straight):
+        v = straight_sector_vectors(scheme, k)
+        for dst, src in ((l0, v["l0"]), (l1, v["l1"]), (l2, v["l2"]), (l3, v["l3"]), (x1, v["x1"]),
+                         (x2, v["x2"]), (x3, v["x3"]), (tu, v["l1"]), (tv, v["l2"])):
+            dst[straight] = src
+    return LocalMasks(l0, l1, l2, x1, x2, tu, tv, l3, x3)
+
+
+# --------------------------------------------------------------------------------------------------------
+# local subdivision matrices and the masks that have no closed form (straight sectors)
+
+
+def sector_matrix(scheme: str, k: int, theta: float, centre: str = "corner") -> np.ndarray:
+    """Local subdivision matrix of a sector of k faces over ``[c, p_0..p_k, (q_0..q_{k-1})]``.
+
+    The rules of docs/rules.md sections 3 to 5: ``centre`` "corner" (c' = c) or "crease" (B-spline); crease
+    edges are midpoints; the non-crease edges use the crease/corner-neighbour rule with gamma(theta); CC face
+    points are centroids."""
+    n = local_size(scheme, k, sector=True)
+    S = np.zeros((n, n))
+    if centre == "corner":
+        S[0, 0] = 1.0
+    else:
+        S[0, 0], S[0, 1], S[0, 1 + k] = 0.75, 0.125, 0.125
+    for end in (1, 1 + k):
+        S[end, 0] = S[end, end] = 0.5
+    g = float(gamma(scheme, theta))
+    if scheme == LOOP:
+        for i in range(1, k):
+            r = 1 + i
+            S[r, 0] += 0.75 - g
+            S[r, r] += g
+            S[r, r - 1] += 0.125
+            S[r, r + 1] += 0.125
+        return S
+    faces = np.zeros((k, n))
+    for i in range(k):
+        faces[i, [0, 1 + i, 2 + i, k + 2 + i]] = 0.25
+        S[k + 2 + i] = faces[i]
+    for i in range(1, k):
+        r = 1 + i
+        S[r, 0] += 0.625 - g
+        S[r, r] += g - 0.125
+        S[r] += 0.25 * (faces[i - 1] + faces[i])
+    return S
+
+
+def _null_space(a: np.ndarray, dim: int) -> np.ndarray:
+    """(n, dim) orthonormal basis of the ``dim`` smallest singular directions of ``a``."""
+    _, sv, vt = np.linalg.svd(a)
+    sv = np.concatenate([sv, np.zeros(a.shape[1] - len(sv))])  # a wide matrix: the missing values are 0
+    if sv[-dim] > 1e-8 * max(1.0, sv[0]) or (len(sv) > dim and sv[-dim - 1] < 1e-8):
+        raise ArithmeticError(f"expected a null space of dimension {dim}, singular values {sv}")
+    return vt[-dim:].T
+
+
+def _frozen(d: dict) -> dict:
+    for v in d.values():
+        v.flags.writeable = False
+    return d
+
+
+@lru_cache(maxsize=None)
+def straight_sector_vectors(scheme: str, k: int) -> dict:
+    """Masks and right vectors of a straight sector of k >= 2 faces (docs/rules.md section 8.7), (n,) each.
+
+    The sector's matrix is the corner matrix at k theta = pi (``sector_matrix(scheme, k, pi/k)``): eigenvalue
+    1/2 is triple with a Jordan block of size 2. Its generalised left space is spanned by the along mask
+    (e_p0 - e_pk)/2, the kink mask (e_p0 + e_pk)/2 - e_c and one vector with no weight on p_0 and p_k, the
+    across mask, scaled so that its right vector is sin(i pi/k) on p_i like a crease's. The right vectors are
+    the dual basis inside the generalised right space, so x^0 l^0 + sum x^m l^m is its spectral projector."""
+    if k < 2:
+        raise ValueError("a straight sector has at least two faces")
+    S = sector_matrix(scheme, k, np.pi / k)
+    n = len(S)
+    a = S - 0.5 * np.eye(n)
+    right = _null_space(a @ a, 3)
+    left = _null_space((a @ a).T, 3)
+    ends = [1, 1 + k]
+    across = left @ _null_space(left[ends], 1)[:, 0]
+    across[ends] = 0.0  # exactly (the null space leaves rounding there)
+    along = np.zeros(n)
+    along[1], along[1 + k] = 0.5, -0.5
+    kink = np.zeros(n)
+    kink[0], kink[1], kink[1 + k] = -1.0, 0.5, 0.5
+    lefts = np.stack([along, across, kink])
+    xs = right @ np.linalg.inv(lefts @ right)  # (n, 3) with lefts @ xs = I
+    scale = np.sin(np.pi / k) / xs[2, 1]  # x^2 at p_1 = sin(pi/k)
+    lefts[1] /= scale
+    xs[:, 1] *= scale
+    l0 = np.zeros(n)
+    l0[0] = 1.0
+    return _frozen(dict(l0=l0, l1=lefts[0], l2=lefts[1], l3=lefts[2], x1=xs[:, 0], x2=xs[:, 1], x3=xs[:, 2]))
 
 
 def use_opensubdiv_tangents(m: LocalMasks, scheme: str, kind: np.ndarray, k: int) -> None:
@@ -243,7 +363,8 @@ def optimal_flatness(scheme: str, kind, k, theta):
     else:
         mu_crease = np.where(k >= 3, np.maximum(0.25, _mu_plus(tk, 2 * tk)), 0.25)
         mu_corner = np.where(k >= 2, np.maximum(0.25, _mu_plus(theta, tk)), 0.25)
-    mu = np.where(kind == SECTOR_CREASE, mu_crease, mu_corner)
+    # a straight sector's scaled spectrum is a crease's of the same k without the crease's 1/4 (section 8.7)
+    mu = np.where((kind == SECTOR_CREASE) | (kind == SECTOR_STRAIGHT), mu_crease, mu_corner)
     s = 1.0 - 1.0 / (4.0 * mu)
     return np.where(s > 1e-12, s, 0.0)  # exactly 0 where mu_max = 1/4 (regular creases), despite rounding
 

@@ -130,7 +130,7 @@ def flatness_table(level: Level, flatness: np.ndarray) -> DisplacementTable | No
         m = M.sector_masks(level.scheme, level.sector_kind[sel], int(k), level.sector_theta[sel])
         s = flatness[sel][:, None]
         for r in M.flattened_points(level.scheme, int(k)):
-            row = m.l0 + m.x1[:, r:r + 1] * m.l1 + m.x2[:, r:r + 1] * m.l2  # (P p)_r
+            row = m.projector_row(r)  # (P p)_r
             row[:, r] -= 1.0
             free = ~on_crease[local[:, r]]
             targets.append(local[free, r])
@@ -156,7 +156,9 @@ def check_normal_vertices(level: Level, vertices: np.ndarray) -> None:
 
 def normal_table(level: Level, vertices: np.ndarray, normals: np.ndarray, strength: float,
                  flatness: np.ndarray, beta_variant: str) -> DisplacementTable | None:
-    """Normal control (docs/rules.md section 7, corrected: no x^0 term, q points too) on ``level``."""
+    """Normal control (docs/rules.md section 7, corrected: no x^0 term, q points too) on ``level``.
+
+    Straight sectors use their three 1/2-modes (section 8.7)."""
     targets, sources, weights, nids = [], [], [], []
     normal_of = np.full(level.num_vertices, -1, dtype=np.int64)
     normal_of[vertices] = np.arange(len(vertices))
@@ -164,7 +166,10 @@ def normal_table(level: Level, vertices: np.ndarray, normals: np.ndarray, streng
     def add(local, m, ids):
         n = local.shape[1]
         for r in range(1, n):
-            coeff = -strength * (m.x1[:, r:r + 1] * m.l1 + m.x2[:, r:r + 1] * m.l2)
+            coeff = m.x1[:, r:r + 1] * m.l1 + m.x2[:, r:r + 1] * m.l2
+            if m.l3 is not None:
+                coeff = coeff + m.x3[:, r:r + 1] * m.l3
+            coeff = -strength * coeff
             if not np.any(coeff):
                 continue
             targets.append(local[:, r])

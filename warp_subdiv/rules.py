@@ -31,12 +31,18 @@ SCHEMES = (CATMULL_CLARK, LOOP)
 #: Smallest distance of a corner sector angle from 0 and from pi (docs/rules.md section 2: k*theta != pi).
 ALPHA_EPSILON = 1e-4
 
+#: A corner sector of two or more faces whose crease edges are within STRAIGHT_EPSILON (5 degrees) of a straight
+#: line seen in the plane of its own faces, and within STRAIGHT_EPSILON_3D (20 degrees) in space, is a straight
+#: sector (docs/rules.md section 2.1). Radians.
+STRAIGHT_EPSILON = np.pi / 36
+STRAIGHT_EPSILON_3D = np.pi / 9
+
 # vertex classes (docs/rules.md section 1)
 SMOOTH, DART, CREASE, CORNER = 0, 1, 2, 3
 VERTEX_CLASS_NAMES = {SMOOTH: "interior", DART: "dart", CREASE: "crease", CORNER: "corner"}
 
-# sector kinds (docs/rules.md section 2)
-SECTOR_CREASE, SECTOR_CONVEX, SECTOR_CONCAVE = 0, 1, 2
+# sector kinds (docs/rules.md section 2; straight: a corner sector whose creases are collinear, section 2.1)
+SECTOR_CREASE, SECTOR_CONVEX, SECTOR_CONCAVE, SECTOR_STRAIGHT = 0, 1, 2, 3
 
 
 def loop_beta(valence, variant: str = "loop"):
@@ -159,7 +165,8 @@ def tagged_edge_move(shift_a, shift_b, tagged_a, tagged_b):
 
 
 def sector_theta(kind, k, alpha=None):
-    """theta of a sector (docs/rules.md section 2): pi/k (smooth crease), alpha/k (convex), (2 pi - alpha)/k (concave).
+    """theta of a sector (docs/rules.md section 2): pi/k (smooth crease and straight sector), alpha/k (convex),
+    (2 pi - alpha)/k (concave).
 
     ``alpha`` is the angle between the sector's two crease edges, clamped to [eps, pi - eps] so that
     k*theta != pi for corners.
@@ -170,7 +177,7 @@ def sector_theta(kind, k, alpha=None):
         alpha = np.full(np.shape(k), np.pi / 2)
     a = np.clip(np.asarray(alpha, dtype=np.float64), ALPHA_EPSILON, np.pi - ALPHA_EPSILON)
     return np.where(
-        kind == SECTOR_CREASE,
+        (kind == SECTOR_CREASE) | (kind == SECTOR_STRAIGHT),
         np.pi / k,
         np.where(kind == SECTOR_CONVEX, a / k, (2.0 * np.pi - a) / k),
     )

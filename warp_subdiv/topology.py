@@ -533,7 +533,8 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
 
     A sector is a run of faces around a vertex between two crease edges; its corners are found by walking
     clockwise to the first face (whose outgoing edge is a crease) with pointer jumping. alpha is measured
-    here, once. Returns (vertex, offsets, ordered corners, theta, kind) per sector.
+    here, once, and so is which corner sectors are straight (docs/rules.md section 2.1). Returns (vertex,
+    offsets, ordered corners, theta, kind) per sector.
     """
     C = len(corner_vert)
     idx = np.arange(C, dtype=np.int64)
@@ -565,8 +566,30 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
                                               ecorners, edges, vclass, sharp_count, head, k_of_head[head])
         if rule_set == RuleSet.PIECEWISE_SMOOTH:
             kind[sector_of_head[concave_heads]] = rules.SECTOR_CONCAVE
+    # straight sectors: corner sectors of k >= 2 faces whose crease edges are nearly collinear, in space and
+    # in the plane of the sector's own faces (the sum of the face normals at c, (p_i - c) x (p_{i+1} - c))
+    sector_of_member = sector_of_head[head[members]]
+    fan = np.cross(pts[corner_vert[nxt[members]]] - pts[corner_vert[members]],
+                   pts[corner_vert[prv[members]]] - pts[corner_vert[members]])
+    plane = np.stack([np.bincount(sector_of_member, weights=fan[:, j], minlength=len(heads)) for j in range(3)], 1)
+    straight = ((kind != rules.SECTOR_CREASE) & (k >= 2) & (np.pi - alpha < rules.STRAIGHT_EPSILON_3D)
+                & (_in_plane_gap(u, w, plane, alpha) < rules.STRAIGHT_EPSILON))
+    kind[straight] = rules.SECTOR_STRAIGHT
     theta = rules.sector_theta(kind, np.maximum(k, 1), alpha)
     return c, offsets, ordered, theta, kind
+
+
+def _in_plane_gap(u, w, normal, alpha):
+    """pi minus the angle between u and w seen along ``normal`` (all (S, 3)); pi - alpha where the projection
+    is degenerate (no normal, or u or w along it)."""
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    n = normal / np.where(length > 0, length, 1.0)
+    up = u - np.einsum("ij,ij->i", u, n)[:, None] * n
+    wp = w - np.einsum("ij,ij->i", w, n)[:, None] * n
+    scale = np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1)
+    ok = (length[:, 0] > 0) & (np.linalg.norm(up, axis=1) * np.linalg.norm(wp, axis=1) > 1e-6 * scale)
+    seen = np.arctan2(np.linalg.norm(np.cross(up, wp), axis=1), np.einsum("ij,ij->i", up, wp))
+    return np.pi - np.where(ok, seen, alpha)
 
 
 def _sector_flatness(flatness, sector_vertex, num_vertices):
