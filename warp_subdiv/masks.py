@@ -24,6 +24,7 @@ from .rules import (
     SECTOR_CONVEX,
     SECTOR_CREASE,
     SECTOR_STRAIGHT,
+    catmull_clark_interior_vertex_weights,
     gamma,
     loop_beta,
 )
@@ -222,7 +223,7 @@ def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatn
 
 
 # --------------------------------------------------------------------------------------------------------
-# local subdivision matrices and the masks that have no closed form (straight sectors)
+# local subdivision matrices and the masks that have no closed form (straight sectors, darts)
 
 
 def sector_matrix(scheme: str, k: int, theta: float, centre: str = "corner") -> np.ndarray:
@@ -258,6 +259,41 @@ def sector_matrix(scheme: str, k: int, theta: float, centre: str = "corner") -> 
         S[r, r] += g - 0.125
         S[r] += 0.25 * (faces[i - 1] + faces[i])
     return S
+
+
+def dart_matrix(scheme: str, k: int, beta_variant: str = "loop") -> np.ndarray:
+    """Local subdivision matrix of a dart of valence k over ``[c, p_0..p_{k-1}, (q_0..q_{k-1})]`` with p_0 on the
+    crease edge: the interior vertex rule, the midpoint on the crease edge, smooth rules elsewhere (docs/rules.md
+    sections 1, 3 to 5)."""
+    n = local_size(scheme, k, sector=False)
+    S = np.zeros((n, n))
+    p = 1 + np.arange(k)
+    if scheme == LOOP:
+        centre, beta = (float(w) for w in _loop_interior(k, beta_variant))
+        S[0, 0], S[0, p] = centre, beta
+        for i in range(1, k):
+            S[p[i], [0, p[i]]] = 0.375
+            S[p[i], p[(i - 1) % k]] += 0.125
+            S[p[i], p[(i + 1) % k]] += 0.125
+    else:
+        faces = np.zeros((k, n))
+        for i in range(k):
+            faces[i, [0, p[i], p[(i + 1) % k], 1 + k + i]] = 0.25
+            S[1 + k + i] = faces[i]
+        wc, wp, wf = (float(w) for w in catmull_clark_interior_vertex_weights(k))
+        S[0, 0] = wc
+        S[0, p] += wp
+        S[0] += wf * faces.sum(axis=0)
+        for i in range(1, k):
+            S[p[i], [0, p[i]]] += 0.25
+            S[p[i]] += 0.25 * (faces[i - 1] + faces[i])
+    S[p[0], 0] = S[p[0], p[0]] = 0.5
+    return S
+
+
+def _loop_interior(k, beta_variant):
+    beta = float(loop_beta(k, beta_variant))
+    return 1.0 - k * beta, beta
 
 
 def _null_space(a: np.ndarray, dim: int) -> np.ndarray:
@@ -306,6 +342,76 @@ def straight_sector_vectors(scheme: str, k: int) -> dict:
     l0 = np.zeros(n)
     l0[0] = 1.0
     return _frozen(dict(l0=l0, l1=lefts[0], l2=lefts[1], l3=lefts[2], x1=xs[:, 0], x2=xs[:, 1], x3=xs[:, 2]))
+
+
+def _reflection(scheme: str, k: int) -> np.ndarray:
+    """Permutation of a ring's local vector mirroring it across the line through c and p_0."""
+    idx = [0] + [1 + (-i) % k for i in range(k)]
+    if scheme == CATMULL_CLARK:
+        idx += [1 + k + (-i - 1) % k for i in range(k)]
+    return np.array(idx)
+
+
+@lru_cache(maxsize=None)
+def dart_vectors(scheme: str, k: int, beta_variant: str = "loop") -> dict:
+    """Masks and right vectors of a dart of valence k (docs/rules.md section 8.8), (n,) each, p_0 on the crease.
+
+    Computed from ``dart_matrix``: the matrix commutes with the mirror across the crease edge, so its left
+    eigenvectors are symmetric or antisymmetric. l0 is the left eigenvector of 1 (summing to 1); l1 the leading
+    symmetric one (the tangent along the crease), l2 the leading antisymmetric one (across it); each right
+    vector is scaled to l^m . x^m = 1, and signs are fixed so that for a ring laid out counter-clockwise in the
+    plane, l1 . p points toward p_0 and l2 . p to the side of p_1: tu x tv = l1 x l2 is the outward normal."""
+    S = dart_matrix(scheme, k, beta_variant)
+    n = len(S)
+    perm = _reflection(scheme, k)
+    mirror = np.eye(n)[perm]
+    vals, vecs = np.linalg.eigh(0.5 * (mirror + mirror.T))
+    out = {}
+    found = []
+    for sign, name in ((1.0, "sym"), (-1.0, "anti")):
+        basis = vecs[:, np.isclose(vals, sign)]
+        block = basis.T @ S @ basis
+        lam, y = np.linalg.eig(block.T)
+        lam_r, z_r = np.linalg.eig(block)
+        order = np.argsort(-np.abs(lam))
+        if name == "sym":
+            if not np.isclose(lam[order[0]], 1.0):
+                raise ArithmeticError("dart matrix: eigenvalue 1 must lead")
+            l0 = np.real(basis @ y[:, order[0]])
+            out["l0"] = l0 / l0.sum()
+            order = order[1:]
+        mu = lam[order[0]]
+        if abs(mu.imag) > 1e-12:
+            raise ArithmeticError(f"dart matrix: complex subdominant eigenvalue {mu}")
+        left = np.real(basis @ y[:, order[0]])
+        right = np.real(basis @ z_r[:, np.argmin(np.abs(lam_r - mu))])
+        right /= left @ right
+        found.append((float(mu.real), left, right, np.abs(lam[order[1:]])))
+    # tangent plane: the two leading modes must dominate everything else
+    rest = np.concatenate([f[3] for f in found])
+    if len(rest) and rest.max() >= min(found[0][0], found[1][0]) - 1e-12:
+        raise ArithmeticError(f"dart of valence {k}: the symmetric and antisymmetric modes do not lead")
+    ang = 2.0 * np.pi * np.arange(k) / k
+    ring = [np.zeros(2)] + [np.array([np.cos(a), np.sin(a)]) for a in ang]
+    if scheme == CATMULL_CLARK:
+        ring += [1.5 * np.array([np.cos(a + np.pi / k), np.sin(a + np.pi / k)]) for a in ang]
+    ring = np.array(ring)
+    for m, (mu, left, right, _) in enumerate(found, start=1):
+        axis = m - 1  # sym: along x (toward p_0); anti: along y (toward p_1)
+        if left @ ring[:, axis] < 0:
+            left, right = -left, -right
+        out[f"l{m}"], out[f"x{m}"] = left, right
+        out[f"lambda{m}"] = np.array(mu)
+    return _frozen(out)
+
+
+def dart_masks(scheme: str, k: int, count: int, beta_variant: str = "loop") -> LocalMasks:
+    """A dart of valence k (docs/rules.md section 8.8), over ``[c, p_0..p_{k-1}, (q_0..q_{k-1})]`` with p_0 the
+    far end of the crease edge; (count, n) read-only broadcasts of one row, as :func:`interior_masks`."""
+    v = dart_vectors(scheme, k, beta_variant)
+    n = local_size(scheme, k, sector=False)
+    rows = {m: np.broadcast_to(v[m], (count, n)) for m in ("l0", "l1", "l2", "x1", "x2")}
+    return LocalMasks(rows["l0"], rows["l1"], rows["l2"], rows["x1"], rows["x2"], tu=rows["l1"], tv=rows["l2"])
 
 
 def use_opensubdiv_tangents(m: LocalMasks, scheme: str, kind: np.ndarray, k: int) -> None:

@@ -20,7 +20,7 @@ import numpy as np
 from . import masks as M
 from .errors import SubdivInputError
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, SMOOTH
-from .mesh import face_offsets_of
+from .mesh import INFINITE_SHARPNESS, face_offsets_of
 from .tables import StencilTable, crease_neighbours
 from .topology import Level
 
@@ -73,10 +73,45 @@ def sector_local_vectors(level: Level, sectors: np.ndarray, k: int) -> np.ndarra
     return _local_vector(level, level.sector_vertex[sectors], corners, sector=True)
 
 
-def ring_local_vectors(level: Level, vertices: np.ndarray, k: int) -> np.ndarray:
-    """(V, n) vertex ids of the local vectors [c, p_0..p_{k-1}, (q_0..q_{k-1})] of closed rings of valence k."""
+def ring_local_vectors(level: Level, vertices: np.ndarray, k: int, start_at_sharp: bool = False) -> np.ndarray:
+    """(V, n) vertex ids of the local vectors [c, p_0..p_{k-1}, (q_0..q_{k-1})] of closed rings of valence k.
+
+    ``start_at_sharp``: the ring starts at the vertex's first sharp edge (p_0 is its far end; a dart's crease)."""
     corners = level.vert_corners[level.vert_corner_offsets[vertices][:, None] + np.arange(k)]
+    if start_at_sharp and len(corners):
+        first = np.argmax(level.edge_sharp[level.corner_edge[corners]], axis=1)
+        corners = np.take_along_axis(corners, (first[:, None] + np.arange(k)) % k, axis=1)
     return _local_vector(level, vertices, corners, sector=False)
+
+
+def exact_darts(level: Level, rule_set: str) -> np.ndarray:
+    """(V,) bool: darts whose masks are the dart's own (docs/rules.md section 8.8): piecewise-smooth rules, a
+    closed ring and an infinitely sharp crease edge. Darts of a semi-sharp edge, whose rule changes when the edge
+    decays, and every dart under ``rule_set="opensubdiv"`` (as OpenSubdiv) keep the interior masks."""
+    darts = level.vert_class == DART
+    if rule_set == "opensubdiv" or not np.any(darts):
+        return np.zeros(level.num_vertices, bool)
+    infinite = level.edge_sharpness >= INFINITE_SHARPNESS
+    ends = level.edge_verts[infinite].reshape(-1)
+    on_infinite = np.zeros(level.num_vertices, bool)
+    on_infinite[ends] = True
+    return darts & on_infinite
+
+
+def ring_masks(level: Level, vertices: np.ndarray, k: int, beta_variant: str, darts: np.ndarray):
+    """Local vectors and masks of closed rings of valence k: interior masks (docs/rules.md sections 8.1, 8.4),
+    dart masks where ``darts[v]`` (section 8.8; the ring starts at the crease). Yields (vertices, local, masks)
+    per group."""
+    is_dart = darts[vertices]
+    for dart in (False, True):
+        vs = vertices[is_dart == dart]
+        if len(vs) == 0:
+            continue
+        local = ring_local_vectors(level, vs, k, start_at_sharp=dart)
+        if dart:
+            yield vs, local, M.dart_masks(level.scheme, k, len(vs), beta_variant)
+        else:
+            yield vs, local, M.interior_masks(level.scheme, k, len(vs), beta_variant)
 
 
 def _local_vector(level, centre, corners, sector):
@@ -155,10 +190,11 @@ def check_normal_vertices(level: Level, vertices: np.ndarray) -> None:
 
 
 def normal_table(level: Level, vertices: np.ndarray, normals: np.ndarray, strength: float,
-                 flatness: np.ndarray, beta_variant: str) -> DisplacementTable | None:
+                 flatness: np.ndarray, beta_variant: str, rule_set: str = "piecewise-smooth"
+                 ) -> DisplacementTable | None:
     """Normal control (docs/rules.md section 7, corrected: no x^0 term, q points too) on ``level``.
 
-    Straight sectors use their three 1/2-modes (section 8.7)."""
+    Darts use their own masks (section 8.8), straight sectors their three 1/2-modes (section 8.7)."""
     targets, sources, weights, nids = [], [], [], []
     normal_of = np.full(level.num_vertices, -1, dtype=np.int64)
     normal_of[vertices] = np.arange(len(vertices))
@@ -180,10 +216,10 @@ def normal_table(level: Level, vertices: np.ndarray, normals: np.ndarray, streng
     # interior and dart vertices: their whole ring
     inner = vertices[np.isin(level.vert_class[vertices], [SMOOTH, DART])]
     valence = np.diff(level.vert_corner_offsets)[inner]
+    darts = exact_darts(level, rule_set)
     for k in np.unique(valence):
-        vs = inner[valence == k]
-        add(ring_local_vectors(level, vs, int(k)),
-            M.interior_masks(level.scheme, int(k), len(vs), beta_variant), normal_of[vs])
+        for vs, local, m in ring_masks(level, inner[valence == k], int(k), beta_variant, darts):
+            add(local, m, normal_of[vs])
     # crease and corner vertices: each sector with k >= 2 (l_cross(s) where flatness is on)
     owner = normal_of[level.sector_vertex]
     k_all = level.sector_k()
@@ -226,13 +262,13 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
     boundary_vertex[level.edge_verts[counts != 2].reshape(-1)] = True
     closed = ~boundary_vertex & (valence >= 3)
     ring_vertices = np.flatnonzero(~sectored & closed)
+    darts = exact_darts(level, rule_set)
     for k in np.unique(valence[ring_vertices]):
-        vs = ring_vertices[valence[ring_vertices] == k]
-        local = ring_local_vectors(level, vs, int(k))
-        m = M.interior_masks(level.scheme, int(k), len(vs), beta_variant)
-        smooth = np.isin(cls[vs], [SMOOTH, DART])
-        pos_rows.append(vs[smooth]), pos_local.append(local[smooth]), pos_w.append(m.l0[smooth])
-        tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
+        for vs, local, m in ring_masks(level, ring_vertices[valence[ring_vertices] == k], int(k), beta_variant,
+                                       darts):
+            smooth = np.isin(cls[vs], [SMOOTH, DART])
+            pos_rows.append(vs[smooth]), pos_local.append(local[smooth]), pos_w.append(m.l0[smooth])
+            tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
 
     # sectors: crease and corner vertices
     k_all = level.sector_k()
