@@ -107,3 +107,42 @@ def test_threaded_evaluator_serves_several_python_threads(small_ranges):
         t.join()
     for k, pts in enumerate(inputs):
         np.testing.assert_array_equal(out[k], ref.evaluate(pts))
+
+
+@pytest.mark.parametrize("name,scheme", [("cube_creased", "catmull-clark"), ("quad_lshape", "catmull-clark"),
+                                         ("tri_hexfan", "loop"), ("mixed_prism", "loop")])
+def test_threaded_build_is_bitwise_one_thread(name, scheme):
+    """The hierarchy built with 2 threads (step tables and the next level at once) has, array for array,
+    the tables, displacements and final topology of the one-thread build."""
+    from warp_subdiv.hierarchy import Hierarchy
+    from warp_subdiv.options import Options
+
+    mesh = load_mesh(name)
+    one, two = (Hierarchy(mesh, 3, Options(scheme=scheme), threads=t) for t in (1, 2))
+
+    def arrays(obj, prefix="", seen=None):
+        seen = set() if seen is None else seen
+        if obj is None or id(obj) in seen:
+            return {}
+        seen.add(id(obj))
+        if isinstance(obj, np.ndarray):
+            return {prefix: obj}
+        if isinstance(obj, (list, tuple)):
+            out = {}
+            for i, x in enumerate(obj):
+                out.update(arrays(x, f"{prefix}[{i}]", seen))
+            return out
+        if hasattr(obj, "__dict__"):
+            out = {}
+            for k, v in vars(obj).items():
+                out.update(arrays(v, f"{prefix}.{k}", seen))
+            return out
+        return {prefix: obj} if isinstance(obj, (int, float, str, bool)) else {}
+
+    for what in ("steps", "flatness_tables", "normal_tables", "final"):
+        a, b = arrays(getattr(one, what)), arrays(getattr(two, what))
+        assert a.keys() == b.keys() and (len(a) > 10 or what != "steps")
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=f"{what}{key}")
+    for x, y in zip(one.topology(), two.topology()):
+        np.testing.assert_array_equal(x, y)

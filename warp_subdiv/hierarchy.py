@@ -56,6 +56,7 @@ from .mesh import Mesh
 from .options import Options, Scheme
 from .rules import edge_gamma_shift
 from .tables import StencilTable, build_regular, build_stencils
+from .threads import run as run_jobs
 from .topology import Level, Refinement, base_faces, base_level, refine_level, small_pages
 
 
@@ -89,10 +90,17 @@ class Hierarchy:
         self.parentage = Parentage([], level.face_hole, level.control_face)
         penultimate = level
         for step in range(levels):
-            self.steps.append(self._step_tables(level))
+            faces_only = (step == levels - 1) and not self.projects
+            # the step's tables and the next level both read only this level: with threads they are built at
+            # once (numpy releases the GIL inside large array operations and page faults; the results do not
+            # depend on it)
+            tables, child = run_jobs([lambda lv=level: self._step_tables(lv),
+                                      lambda lv=level, fo=faces_only: refine_level(lv, faces_only=fo)],
+                                     min(self.threads, 2))
+            self.steps.append(tables)
             self.parentage.steps.append(Refinement.of_level(level))
             penultimate = level
-            level = refine_level(level, faces_only=(step == levels - 1) and not self.projects)
+            level = child
             flat, norm = self._projections(level)
             self.flatness_tables.append(flat)
             self.normal_tables.append(norm)
