@@ -157,20 +157,26 @@ def test_frames_select_time_samples(tmp_path):
                                expected_refined(spec, spec.time_points[24.0], 1).points, atol=2e-6)
 
 
-def test_time_varying_topology_is_refused_unless_the_frames_hold_one_topology(tmp_path):
+def test_time_varying_topology_is_refined_per_sample(tmp_path):
+    """A mesh whose faceVertexIndices change at time 3 is refined with the topology of each sample (time-sampled
+    faceVertexCounts / faceVertexIndices in the output); --frames within one topology still works."""
     pts, counts, idx = grid(2, 1)
+    swapped = idx[4:] + idx[:4]
 
     def setup(stage, mesh):
         attr = mesh.GetFaceVertexIndicesAttr()
         attr.Set(Vt.IntArray(idx), 1.0)
-        attr.Set(Vt.IntArray(idx[4:] + idx[:4]), 3.0)  # faces swapped at time 3
+        attr.Set(Vt.IntArray(swapped), 3.0)  # faces swapped at time 3
 
-    src = write_mesh(tmp_path / "topo.usda", pts, counts, idx, time_points={t: pts + [0, 0, 0.1 * t] for t in
-                                                                          (1.0, 2.0, 3.0, 4.0)}, setup=setup)
-    with pytest.raises(SubdivInputError,
-                       match=r"/World/Mesh: faceVertexIndices changes over time.*\(the frames option\)"):
-        refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
-    assert not (tmp_path / "out.usda").exists()
+    frames = {t: pts + [0, 0, 0.1 * t] for t in (1.0, 2.0, 3.0, 4.0)}
+    src = write_mesh(tmp_path / "topo.usda", pts, counts, idx, time_points=frames, setup=setup)
+    refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
+    mesh = UsdGeom.Mesh(opened(tmp_path / "out.usda").GetPrimAtPath("/World/Mesh"))
+    assert mesh.GetFaceVertexIndicesAttr().GetTimeSamples() == [1.0, 3.0]
+    for t, p in frames.items():
+        expected = ws.refine(ws.Mesh(p, counts, idx if t < 3 else swapped), 1, device="cpu")
+        np.testing.assert_array_equal(np.asarray(mesh.GetFaceVertexIndicesAttr().Get(t)), expected.face_vertex_indices)
+        np.testing.assert_allclose(np.asarray(mesh.GetPointsAttr().Get(t)), expected.points, atol=2e-6)
     refine_usd(src, str(tmp_path / "first.usda"), 1, device="cpu", frames=(1.0, 2.0))
     refine_usd(src, str(tmp_path / "last.usda"), 1, device="cpu", frames=(3.0, None))
 

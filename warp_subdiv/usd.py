@@ -356,77 +356,73 @@ def refine_usd(
     return Result(out_abs, reports, warnings, _time.perf_counter() - start, p.predicted_bytes)
 
 
-def _refine_prim(sp: SubdivPrim, options: Options, layer: OutputLayer, levels, device, limit, normals, warnings,
-                 work, weights, label) -> PrimReport:
-    refiner = make_refiner(sp, levels, options=options, device=device)
-    counts, indices = refiner.topology()
-    fmap = FaceMap(sp.mesh, levels, sp.scheme, options.boundary.value, hierarchy=refiner.hierarchy)
-    fmap.check(counts)
-    n_out = refiner.num_vertices
-    w_tables, w_sample = weights
-    work.step(w_tables, f"{label}: {levels} levels")
-    prim = layer.prim(sp.path)
-    mesh = sp.mesh
-    complete = vertices_used(indices, n_out)
+class _Context:
+    """The refiner of one control mesh of a prim (its only one, or one of a time-varying topology) and what the
+    writer derives from it: refined topology, face map, linear refinement and edge map."""
 
-    def linear_field(values):
+    def __init__(self, sp: SubdivPrim, options: Options, levels, device, limit, normals):
+        self.sp = sp
+        self.refiner = refiner = make_refiner(sp, levels, options=options, device=device)
+        self.counts, self.indices = refiner.topology()
+        self.fmap = FaceMap(sp.mesh, levels, sp.scheme, options.boundary.value, hierarchy=refiner.hierarchy)
+        self.fmap.check(self.counts)
+        self.complete = vertices_used(self.indices, refiner.num_vertices)
+        self.limit, self.normals = limit, normals
+        self._edges = None
+
+    def linear_field(self, values):
         """Bilinear refinement of per-vertex data (varying primvars, bilinear meshes)."""
-        return linear_vertex_data(refiner, fmap, values, indices, complete)
+        return linear_vertex_data(self.refiner, self.fmap, values, self.indices, self.complete)
 
-    def positions(pts):
+    def positions(self, pts):
         """Refined (or limit) points and limit normals (or None) of control points ``pts``."""
+        sp, refiner = self.sp, self.refiner
         if sp.scheme == "bilinear":
-            return linear_field(pts), None
+            return self.linear_field(pts), None
         refined = refiner.evaluate(pts)
-        nrm = refiner.limit_normals(refined) if normals else None
+        nrm = refiner.limit_normals(refined) if self.normals else None
         if nrm is not None and sp.orientation == "leftHanded":
             nrm = -nrm  # refined as right-handed: the front of a left-handed mesh is the other side
-        return (refiner.limit_points(refined) if limit else refined), nrm
+        return (refiner.limit_points(refined) if self.limit else refined), nrm
 
-    def vectors(data):
+    def vectors(self, data):
         """Velocities / accelerations: the derivatives of the points, so the same linear maps."""
-        if sp.scheme == "bilinear":
-            return linear_field(data)
-        refined = refiner.evaluate(data)
-        return refiner.limit_points(refined) if limit else refined
+        if self.sp.scheme == "bilinear":
+            return self.linear_field(data)
+        refined = self.refiner.evaluate(data)
+        return self.refiner.limit_points(refined) if self.limit else refined
 
-    # topology and subdivision attributes
+    @property
+    def edges(self):
+        if self._edges is None:
+            self._edges = EdgeMap(self.sp.mesh, self.refiner, self.indices, self.counts)
+        return self._edges
+
+
+def _refine_prim(sp: SubdivPrim, options: Options, layer: OutputLayer, levels, device, limit, normals, warnings,
+                 work, weights, label) -> PrimReport:
+    """Refine one mesh and write it at :attr:`SubdivPrim.output_path` of ``layer``. A mesh whose topology changes
+    over time gets one refiner per distinct control mesh (built once, used for every time that has it), and
+    time-sampled topology: each written time takes the refiner of its control mesh."""
+    prim = layer.prim(sp.output_path)
+    varying = bool(sp.topologies)
+    groups = range(len(sp.topologies)) if varying else [0]
+    w_tables, w_sample = weights
+
+    # the subdivision attributes and every subdiv: tag are blocked; authored normals too (unless written)
     layer.set(layer.attr(prim, "subdivisionScheme", T.Token, uniform=True), "none")
-    layer.set(layer.attr(prim, "faceVertexCounts", T.IntArray), int_array(counts))
-    layer.set(layer.attr(prim, "faceVertexIndices", T.IntArray), int_array(indices))
     for name in SUBDIVISION_ATTRIBUTES:
         attr = sp.prim.GetAttribute(name)
         layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
     for name in sp.subdiv_attributes:
         attr = sp.prim.GetAttribute(name)
         layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform, custom=True)
-
-    # points, extent, normals: the default, then every selected time sample
-    times = [DEFAULT] + list(sp.point_times)
-    pts_spec = layer.attr(prim, "points", T.Point3fArray)
-    ext_spec = layer.attr(prim, "extent", T.Float3Array)
     nrm_spec = None
     if normals and sp.scheme != "bilinear":
         nrm_spec = layer.attr(prim, "normals", T.Normal3fArray)
         nrm_spec.SetInfo("interpolation", "vertex")
     elif normals:
         warnings.append(f"{sp.path}: a bilinear mesh has no limit normals; none written")
-    for t in times:
-        pos, nrm = positions(sp.points_at(t))
-        value = vec3f_array(pos)
-        if t == DEFAULT:
-            layer.set(pts_spec, value)
-            layer.set(ext_spec, extent_of(pos))
-            if nrm_spec is not None:
-                layer.set(nrm_spec, vec3f_array(nrm))
-        else:
-            layer.set(pts_spec, samples=[(t, value)])
-            layer.set(ext_spec, samples=[(t, extent_of(pos))])
-            if nrm_spec is not None:
-                layer.set(nrm_spec, samples=[(t, vec3f_array(nrm))])
-            work.step(w_sample, f"{label}: time {t:g}")
-    if not sp.point_times:
-        work.step(w_sample, f"{label}: points")
     for name in sp.authored_normals:
         if name == "normals" and nrm_spec is not None:
             continue
@@ -434,36 +430,79 @@ def _refine_prim(sp: SubdivPrim, options: Options, layer: OutputLayer, levels, d
         layer.block(prim, name, attr.GetTypeName())
         if name == "primvars:normals" and sp.prim.GetAttribute(name + ":indices"):
             layer.block(prim, name + ":indices", T.IntArray)
-
-    # velocities and accelerations: derivatives of the points, refined by the same (linear) rules
-    for name, arr_times in sp.point_arrays.items():
-        spec = layer.attr(prim, name, sp.prim.GetAttribute(name).GetTypeName())
-        for t in [DEFAULT] + list(arr_times):
-            data = sp.vector_array_at(name, t)
-            value = vec3f_array(vectors(data))
-            layer.set(spec, value if t == DEFAULT else None, None if t == DEFAULT else [(t, value)])
     for name, reason in sp.dropped:
         _drop(sp, layer, prim, name, reason, warnings)
 
-    # primvars; face-varying ones by the refiner's face-varying channels where it has them (OpenSubdiv's
-    # FVarLinearInterpolation modes), else linearly per face
-    fvar_mode = sp.face_varying_mode if sp.scheme != "bilinear" else None
-    fv_refined = []
-    for pv in sp.primvars:
-        try:
-            _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode, warnings, limit)
-        except SubdivInputError as exc:
-            _drop(sp, layer, prim, pv.name, str(exc).split(": ", 1)[-1], warnings)
-            continue
-        if pv.interpolation == "faceVarying":
-            fv_refined.append(pv.name.split(":", 1)[1])
-    # face and edge subsets
-    edges = EdgeMap(sp.mesh, refiner, indices, counts) if any(s.element == "edge" for s in sp.subsets) else None
-    for subset in sp.subsets:
-        _write_subset(sp, subset, layer, fmap, warnings, edges)
+    def times_of(own):
+        """[DEFAULT] and the written times of an attribute with time samples ``own``: with a time-varying
+        topology, also every time where the topology changes (the refined value changes there)."""
+        own = set(own) | (set(sp.topology_changes) if varying else set())
+        return [DEFAULT] + sorted(own)
 
-    return PrimReport(sp.path, sp.scheme, sp.rules if sp.scheme != "bilinear" else "-", mesh.num_faces, len(counts),
-                      mesh.num_vertices, n_out, len(sp.point_times) or 1)
+    def mine(times, group):
+        return [t for t in times if sp.topology_index(t) == group] if varying else list(times)
+
+    fvar_mode = sp.face_varying_mode if sp.scheme != "bilinear" else None
+    dropped = set()
+    report = None
+    for group in groups:
+        spg = sp.with_topology(group)
+        ctx = _Context(spg, options, levels, device, limit, normals)
+        counts, indices = ctx.counts, ctx.indices
+        work.step(w_tables / len(groups), f"{label}: {levels} levels" + (f" (topology {group + 1})" if varying else ""))
+
+        # topology: the default, and with a time-varying topology a sample wherever it changes
+        cnt_spec = layer.attr(prim, "faceVertexCounts", T.IntArray)
+        idx_spec = layer.attr(prim, "faceVertexIndices", T.IntArray)
+        for t in mine([DEFAULT] + list(sp.topology_changes if varying else []), group):
+            layer.set(cnt_spec, *_default_or_sample(t, int_array(counts)))
+            layer.set(idx_spec, *_default_or_sample(t, int_array(indices)))
+
+        # points, extent, normals: the default, then every selected time sample
+        pts_spec = layer.attr(prim, "points", T.Point3fArray)
+        ext_spec = layer.attr(prim, "extent", T.Float3Array)
+        for t in mine([DEFAULT] + list(sp.point_times), group):
+            pos, nrm = ctx.positions(spg.points_at(t))
+            layer.set(pts_spec, *_default_or_sample(t, vec3f_array(pos)))
+            layer.set(ext_spec, *_default_or_sample(t, extent_of(pos)))
+            if nrm_spec is not None:
+                layer.set(nrm_spec, *_default_or_sample(t, vec3f_array(nrm)))
+            if t != DEFAULT:
+                work.step(w_sample, f"{label}: time {t:g}")
+        if not sp.point_times:
+            work.step(w_sample, f"{label}: points")
+
+        # velocities and accelerations: derivatives of the points, refined by the same (linear) rules
+        for name, arr_times in sp.point_arrays.items():
+            spec = layer.attr(prim, name, sp.prim.GetAttribute(name).GetTypeName())
+            for t in mine(times_of(arr_times) if varying else [DEFAULT] + list(arr_times), group):
+                layer.set(spec, *_default_or_sample(t, vec3f_array(ctx.vectors(spg.vector_array_at(name, t)))))
+
+        # primvars; face-varying ones by the refiner's face-varying channels where it has them (OpenSubdiv's
+        # FVarLinearInterpolation modes), else linearly per face
+        for pv in sp.primvars:
+            if pv.name in dropped:
+                continue
+            times = mine(times_of(pv.times) if varying else [DEFAULT] + list(pv.times), group)
+            try:
+                _write_primvar(spg, pv, layer, prim, ctx.refiner, ctx.fmap, ctx.linear_field, fvar_mode, warnings,
+                               limit, times)
+            except SubdivInputError as exc:
+                dropped.add(pv.name)
+                _drop(sp, layer, prim, pv.name, str(exc).split(": ", 1)[-1], warnings)
+        # face and edge subsets
+        for subset in sp.subsets:
+            if subset.path in dropped:
+                continue
+            times = mine(times_of(subset.times) if varying else [DEFAULT] + list(subset.times), group)
+            if not _write_subset(spg, subset, layer, ctx.fmap, warnings, ctx if subset.element == "edge" else None,
+                                 times):
+                dropped.add(subset.path)
+        if group == sp.default_topology or not varying:
+            report = PrimReport(sp.path, sp.scheme, sp.rules if sp.scheme != "bilinear" else "-", spg.mesh.num_faces,
+                                len(counts), spg.mesh.num_vertices, ctx.refiner.num_vertices, len(sp.point_times) or 1)
+        del ctx
+    return report
 
 
 def _drop(sp, layer, prim, name, reason, warnings):
@@ -474,11 +513,12 @@ def _drop(sp, layer, prim, name, reason, warnings):
     warnings.append(f"{sp.path}: {name} dropped ({reason})")
 
 
-def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=None, warnings=None, limit=False):
-    """Refine one primvar at the default time and at each of its selected samples. A default that does not
-    fit the mesh beside time samples gives way to the first selected sample (with a warning). ``limit``: vertex
-    and face-varying values are limit values (as the points are with ``limit``)."""
-    for t in [DEFAULT] + list(pv.times):
+def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=None, warnings=None, limit=False,
+                   times=None):
+    """Refine one primvar at ``times`` (default: the default time and each of its selected samples). A default
+    that does not fit the mesh beside time samples gives way to the first selected sample (with a warning).
+    ``limit``: vertex and face-varying values are limit values (as the points are with ``limit``)."""
+    for t in ([DEFAULT] + list(pv.times)) if times is None else times:
         try:
             _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode, limit)
         except SubdivInputError as exc:
@@ -641,11 +681,13 @@ class EdgeMap:
         return self.pairs[keep], None
 
 
-def _write_subset(sp, subset, layer, fmap, warnings, edges=None):
-    prim = layer.prim(subset.path)
+def _write_subset(sp, subset, layer, fmap, warnings, context=None, times=None) -> bool:
+    """Remap the indices of a face or edge subset at ``times`` (default: the default time and its samples),
+    written under the mesh's output path; False (the subset blocked, with a warning) when they do not fit."""
+    prim = layer.prim(sp.output_path + subset.path[len(sp.path):])
     spec = layer.attr(prim, "indices", T.IntArray)
     n = sp.mesh.num_faces
-    for t in [DEFAULT] + list(subset.times):
+    for t in ([DEFAULT] + list(subset.times)) if times is None else times:
         value = subset.attr.Get(t)
         if value is None and t == DEFAULT and subset.times:
             value = subset.attr.Get(subset.times[0])  # no default: the first selected sample stands in
@@ -653,13 +695,13 @@ def _write_subset(sp, subset, layer, fmap, warnings, edges=None):
             continue
         ids = np.asarray(value, dtype=np.int64)
         if subset.element == "edge":
-            refined, bad = edges.children(ids) if len(ids) % 2 == 0 else (None, None)
+            refined, bad = context.edges.children(ids) if len(ids) % 2 == 0 else (None, None)
             if refined is None:
                 layer.block(prim, "indices", T.IntArray)
                 why = (f"edge {bad} ({ids[2 * bad]}, {ids[2 * bad + 1]}) is not an edge of the mesh" if bad is not None
                        else f"has {len(ids)} indices, not pairs of points")
                 warnings.append(f"{subset.path}: {why}; the subset is dropped")
-                return
+                return False
             layer.set(spec, *_default_or_sample(t, int_array(refined.reshape(-1))))
             continue
         bad = np.flatnonzero((ids < 0) | (ids >= n))
@@ -667,10 +709,11 @@ def _write_subset(sp, subset, layer, fmap, warnings, edges=None):
             layer.block(prim, "indices", T.IntArray)
             warnings.append(f"{subset.path}: indices[{bad[0]}] = {ids[bad[0]]} is not a face of the mesh; the subset "
                             "is dropped")
-            return
+            return False
         member = np.zeros(n, dtype=bool)
         member[ids] = True
         layer.set(spec, *_default_or_sample(t, int_array(np.flatnonzero(member[fmap.parent]))))
+    return True
 
 
 __all__ = ["plan", "refine_usd", "options_for", "make_refiner", "check_memory", "Plan", "Result", "PrimReport",

@@ -12,9 +12,10 @@ their structured fields.
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom
@@ -66,7 +67,8 @@ SUBDIV_ATTRIBUTES = {
     "subdiv:normalStrength": (("float", "double"), "normal control strength s in [0, 1]"),
 }
 
-#: Attributes whose values define the control mesh's topology and tags: they must not change over time.
+#: Attributes whose values define the control mesh's topology and tags: where any of them is time-sampled and
+#: changes, the mesh has one control mesh per distinct value (:attr:`SubdivPrim.topologies`).
 TOPOLOGY_ATTRIBUTES = ("faceVertexCounts", "faceVertexIndices", "holeIndices", "creaseIndices", "creaseLengths",
                        "creaseSharpnesses", "cornerIndices", "cornerSharpnesses", "subdiv:concave",
                        "subdiv:normalIndices", "subdiv:normals")
@@ -169,6 +171,16 @@ class FaceSubset:
 
 
 @dataclass
+class Topology:
+    """One control mesh of a mesh whose topology changes over time, and the written times that use it."""
+
+    mesh: Mesh
+    crease_of_edge: np.ndarray | None
+    key: str
+    times: list = field(default_factory=list)
+
+
+@dataclass
 class SubdivPrim:
     """One subdivision mesh of the stage, read and validated."""
 
@@ -196,6 +208,39 @@ class SubdivPrim:
     smooth_triangles: bool = False  # triangleSubdivisionRule "smooth" on a Catmull-Clark mesh with triangles
     face_varying_mode: FaceVaryingMode = FaceVaryingMode.CORNERS_PLUS1  # faceVaryingLinearInterpolation
     crease_of_edge: np.ndarray | None = None  # the USD crease (creaseLengths entry) of each of mesh.creases
+    # time-varying topology: one control mesh per distinct topology ([] when it never changes); the one of the
+    # default time; the times where the topology differs from the previous written time
+    topologies: list = field(default_factory=list)
+    default_topology: int = 0
+    topology_changes: list = field(default_factory=list)
+    target: str | None = None  # where the refined mesh is written in the output layer (None: at path)
+    _topology_keys: dict = field(default_factory=dict, repr=False)
+    _build_topology: object = field(default=None, repr=False)
+
+    @property
+    def output_path(self) -> str:
+        return self.target or self.path
+
+    def topology_index(self, time) -> int:
+        """The control mesh (an index into :attr:`topologies`) at ``time``; 0 for a constant topology."""
+        if not self.topologies:
+            return 0
+        if time == DEFAULT:
+            return self.default_topology
+        return self._build_topology(time)
+
+    def mesh_at(self, time) -> Mesh:
+        """The control mesh at ``time`` (:attr:`mesh` unless the topology changes over time)."""
+        if not self.topologies:
+            return self.mesh
+        return self.topologies[self.topology_index(time)].mesh
+
+    def with_topology(self, index: int) -> "SubdivPrim":
+        """This mesh with control mesh ``index`` as its :attr:`mesh` (for the refiner of that topology)."""
+        if not self.topologies:
+            return self
+        top = self.topologies[index]
+        return replace(self, mesh=top.mesh, crease_of_edge=top.crease_of_edge)
 
     def error(self, exc: SubdivInputError) -> SubdivInputError:
         """``exc``, an error of the library about this mesh, in USD terms (see :func:`usd_error`)."""
@@ -224,10 +269,9 @@ class SubdivPrim:
         if pts is None:
             raise SubdivInputError(f"{self.path}: {name} has no value{when}")
         pts = pts.reshape(len(pts), -1) if pts.size else pts.reshape(0, 3)
-        if pts.shape != (self.mesh.num_vertices, 3):
-            raise SubdivInputError(
-                f"{self.path}: {name}{when} has {len(pts)} entries, the mesh has {self.mesh.num_vertices} points"
-            )
+        n = self.mesh_at(time).num_vertices
+        if pts.shape != (n, 3):
+            raise SubdivInputError(f"{self.path}: {name}{when} has {len(pts)} entries, the mesh has {n} points")
         bad = np.flatnonzero(~np.all(np.isfinite(pts), axis=1))
         if len(bad):
             raise SubdivInputError(f"{self.path}: {name}[{bad[0]}]{when} is not finite")
@@ -390,35 +434,41 @@ def _check_traversable(prim: Usd.Prim, where: str) -> None:
 
 
 def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: str = "auto",
-              rules: str | None = None, boundary: str | None = None) -> SubdivPrim | None:
+              rules: str | None = None, boundary: str | None = None, force: bool = False) -> SubdivPrim | None:
     """Read one UsdGeom.Mesh; None when its subdivisionScheme is "none" (or it is empty).
 
     ``scheme``: "auto" (the mesh's subdivisionScheme), "catmull-clark" or "loop" (forced); ``rules`` and
-    ``boundary`` override the mesh's ``subdiv:rules`` and ``interpolateBoundary`` when given.
+    ``boundary`` override the mesh's ``subdiv:rules`` and ``interpolateBoundary`` when given. ``force``: with
+    an explicit ``scheme``, a mesh whose subdivisionScheme is "none" (a polygonal mesh) is refined too.
     ``semi_sharp``: "keep" (finite sharpness is semi-sharp) or "sharp" (treat finite sharpness as infinite, with
     a warning).
+
+    Topology and tags that are time-sampled (:data:`TOPOLOGY_ATTRIBUTES`) make a mesh with several control
+    meshes (:attr:`SubdivPrim.topologies`): one per distinct topology, each with the times it holds.
     """
     path = str(prim.GetPath())
     geom = UsdGeom.Mesh(prim)
     warn: list = []
     usd_scheme = geom.GetSubdivisionSchemeAttr().Get() or "catmullClark"
-    if usd_scheme == "none":
+    if usd_scheme == "none" and not (force and scheme != "auto"):
         return None
-    if usd_scheme not in USD_SCHEMES:
+    if usd_scheme not in USD_SCHEMES and usd_scheme != "none":
         raise SubdivInputError(
             f"{path}: subdivisionScheme {usd_scheme!r} is not one of catmullClark, loop, bilinear, none",
             value=usd_scheme,
         )
     chosen = USD_SCHEMES[usd_scheme] if scheme == "auto" else scheme
 
-    # times: points samples in the selected frames decide what is written
+    # times: points samples in the selected frames decide what is written (and topology samples, where the
+    # topology changes over time)
     points_attr = geom.GetPointsAttr()
     all_times = points_attr.GetTimeSamples()
     point_times = _in_frames(all_times, frames)
     if all_times and frames is not None and not any(_within(t, frames) for t in all_times):
         warn.append(f"frames {_frames_text(frames)} hold no time sample of points (its {len(all_times)} samples run "
                     f"from {all_times[0]:g} to {all_times[-1]:g}): the value USD holds there is refined")
-    ref_time = point_times[0] if point_times else DEFAULT
+    topology_times = _topology_times(prim, frames)
+    ref_time = point_times[0] if point_times else (topology_times[0] if topology_times else DEFAULT)
 
     counts = _get(geom.GetFaceVertexCountsAttr(), ref_time)
     indices = _get(geom.GetFaceVertexIndicesAttr(), ref_time)
@@ -429,8 +479,6 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
         raise SubdivInputError(f"{path}: faceVertexCounts / faceVertexIndices have no value")
     if pts is None:
         raise SubdivInputError(f"{path}: points has no value")
-    counts = _ints(counts)
-    indices = _ints(indices)
     points = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
 
     # boundary, orientation, rules
@@ -444,22 +492,89 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     if orientation not in ("rightHanded", "leftHanded"):
         raise SubdivInputError(f"{path}: orientation {orientation!r} is not rightHanded or leftHanded")
 
-    subdiv = _read_subdiv_attributes(prim, path, len(points), ref_time, warn)
+    control = _control_mesh(prim, geom, path, ref_time, points, chosen, semi_sharp, orientation, warn)
+    subdiv = control.subdiv
     if rules is None:
         rules = subdiv.get("rules", "piecewise-smooth")
+    counts = control.mesh.face_vertex_counts
+
+    tri_rule = geom.GetTriangleSubdivisionRuleAttr().Get() or "catmullClark"
+    if tri_rule not in ("catmullClark", "smooth"):
+        raise SubdivInputError(f"{path}: triangleSubdivisionRule {tri_rule!r} is not catmullClark or smooth",
+                               value=tri_rule)
+    fvar = prim.GetAttribute("faceVaryingLinearInterpolation").Get() or USD_FVAR_DEFAULT
+    if fvar not in USD_FVAR_MODES:
+        raise SubdivInputError(f"{path}: faceVaryingLinearInterpolation {fvar!r} is not one of "
+                               f"{', '.join(USD_FVAR_MODES)}", value=fvar)
+    if chosen == "loop" and not np.all(counts == 3):
+        warn.append(f"{int(np.count_nonzero(counts != 3))} non-triangle faces are fan-triangulated for Loop")
+
+    sp = SubdivPrim(
+        path=path, prim=prim, usd_scheme=usd_scheme, scheme=chosen, mesh=control.mesh, boundary=boundary,
+        rules=rules, flatness=subdiv.get("flatness"), normal_strength=subdiv.get("normalStrength"),
+        orientation=orientation, point_times=point_times, warnings=warn,
+        semi_sharp=control.semi if semi_sharp != "sharp" else 0, subdiv_attributes=subdiv.get("_names", []),
+        smooth_triangles=chosen == "catmull-clark" and tri_rule == "smooth" and bool(np.any(counts == 3)),
+        face_varying_mode=USD_FVAR_MODES[fvar], crease_of_edge=control.crease_of_edge,
+    )
+    if topology_times:
+        _read_topologies(sp, geom, control, ref_time, topology_times, semi_sharp)
+    # the default written: the input's, unless it is missing or does not fit the mesh beside time samples
+    # (an empty default is common in exports): then the first selected sample stands in for it
+    default_mesh = sp.mesh_at(DEFAULT)
+    default = (None if _stands_in(points_attr, sp.point_times, default_mesh.num_vertices, warn)
+               else points_attr.Get(DEFAULT))
+    if default is None and sp.topologies:
+        sp.default_topology = sp.topology_index(sp.point_times[0])  # the stand-in's topology
+        sp.mesh = sp.topologies[sp.default_topology].mesh
+        sp.crease_of_edge = sp.topologies[sp.default_topology].crease_of_edge
+    sp.points_default = np.asarray(pts if default is None and not sp.topologies else
+                                   (points_attr.Get(sp.point_times[0]) if default is None else default),
+                                   dtype=np.float64).reshape(-1, 3)
+    for name in ("velocities", "accelerations"):
+        attr = prim.GetAttribute(name)
+        if attr and attr.HasAuthoredValue():
+            sp.point_arrays[name] = _in_frames(attr.GetTimeSamples(), frames)
+            if _stands_in(attr, sp.point_arrays[name], sp.mesh_at(DEFAULT).num_vertices, warn):
+                sp.stand_in_defaults.add(name)
+    for name in ("normals", "primvars:normals"):
+        attr = prim.GetAttribute(name)
+        if attr and attr.HasAuthoredValue():
+            sp.authored_normals.append(name)
+    _read_primvars(sp, geom, frames)
+    _read_subsets(sp, geom, frames)
+    return sp
+
+
+@dataclass
+class ControlMesh:
+    """The control mesh of a USD mesh at one time: the Mesh, the USD crease of each of its crease edges, the
+    number of semi-sharp tags and the subdiv: attributes read with it."""
+
+    mesh: Mesh
+    crease_of_edge: np.ndarray | None
+    semi: int
+    subdiv: dict
+
+
+def _control_mesh(prim, geom, path, time, points, chosen, semi_sharp, orientation, warn) -> ControlMesh:
+    """The tagged :class:`Mesh` of ``prim`` at ``time`` (topology and tags there) with control ``points``."""
+    counts = _ints(_get(geom.GetFaceVertexCountsAttr(), time))
+    indices = _ints(_get(geom.GetFaceVertexIndicesAttr(), time))
+    subdiv = _read_subdiv_attributes(prim, path, len(points), time, warn)
 
     # creases: one sharpness per crease or per crease edge; sharpness <= 0 means smooth (not tagged)
-    c_idx = _ints(_get(geom.GetCreaseIndicesAttr(), ref_time))
-    c_len = _ints(_get(geom.GetCreaseLengthsAttr(), ref_time))
-    c_sharp = _floats(_get(geom.GetCreaseSharpnessesAttr(), ref_time))
+    c_idx = _ints(_get(geom.GetCreaseIndicesAttr(), time))
+    c_len = _ints(_get(geom.GetCreaseLengthsAttr(), time))
+    c_sharp = _floats(_get(geom.GetCreaseSharpnessesAttr(), time))
     pairs, pair_sharp, pair_crease = _crease_pairs(path, c_idx, c_len, c_sharp)
-    k_idx = _ints(_get(geom.GetCornerIndicesAttr(), ref_time))
-    k_sharp = _floats(_get(geom.GetCornerSharpnessesAttr(), ref_time))
+    k_idx = _ints(_get(geom.GetCornerIndicesAttr(), time))
+    k_sharp = _floats(_get(geom.GetCornerSharpnessesAttr(), time))
     if len(k_sharp) != len(k_idx):
         raise SubdivInputError(
             f"{path}: cornerSharpnesses has {len(k_sharp)} values for {len(k_idx)} cornerIndices", element="corner"
         )
-    holes = _ints(_get(geom.GetHoleIndicesAttr(), ref_time))
+    holes = _ints(_get(geom.GetHoleIndicesAttr(), time))
     _check_range(path, "creaseIndices", c_idx, len(points), "crease")
     _check_range(path, "cornerIndices", k_idx, len(points), "corner")
     _check_range(path, "holeIndices", holes, len(counts), "hole", what="face")
@@ -496,45 +611,74 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     try:
         mesh = Mesh(points, counts, indices, **kwargs)
     except SubdivInputError as exc:
-        raise usd_error(path, exc, crease_of_edge) from None
+        at = "" if time == DEFAULT else f" (at time {time:g})"
+        raise usd_error(path + at, exc, crease_of_edge) from None
+    return ControlMesh(mesh, crease_of_edge, semi, subdiv)
 
-    tri_rule = geom.GetTriangleSubdivisionRuleAttr().Get() or "catmullClark"
-    if tri_rule not in ("catmullClark", "smooth"):
-        raise SubdivInputError(f"{path}: triangleSubdivisionRule {tri_rule!r} is not catmullClark or smooth",
-                               value=tri_rule)
-    fvar = prim.GetAttribute("faceVaryingLinearInterpolation").Get() or USD_FVAR_DEFAULT
-    if fvar not in USD_FVAR_MODES:
-        raise SubdivInputError(f"{path}: faceVaryingLinearInterpolation {fvar!r} is not one of "
-                               f"{', '.join(USD_FVAR_MODES)}", value=fvar)
-    if chosen == "loop" and not np.all(counts == 3):
-        warn.append(f"{int(np.count_nonzero(counts != 3))} non-triangle faces are fan-triangulated for Loop")
 
-    sp = SubdivPrim(
-        path=path, prim=prim, usd_scheme=usd_scheme, scheme=chosen, mesh=mesh, boundary=boundary, rules=rules,
-        flatness=subdiv.get("flatness"), normal_strength=subdiv.get("normalStrength"), orientation=orientation,
-        point_times=point_times, warnings=warn, semi_sharp=semi if semi_sharp != "sharp" else 0,
-        subdiv_attributes=subdiv.get("_names", []),
-        smooth_triangles=chosen == "catmull-clark" and tri_rule == "smooth" and bool(np.any(counts == 3)),
-        face_varying_mode=USD_FVAR_MODES[fvar], crease_of_edge=crease_of_edge,
-    )
-    # the default written: the input's, unless it is missing or does not fit the mesh beside time samples
-    # (an empty default is common in exports): then the first selected sample stands in for it
-    default = None if _stands_in(points_attr, point_times, len(points), warn) else points_attr.Get(DEFAULT)
-    sp.points_default = np.asarray(pts if default is None else default, dtype=np.float64).reshape(-1, 3)
-    _check_topology_constant(sp, geom, ref_time, frames)
-    for name in ("velocities", "accelerations"):
+def topology_key(prim: Usd.Prim, time) -> str:
+    """A digest of the topology and tags (:data:`TOPOLOGY_ATTRIBUTES`) of a mesh at ``time``: equal keys, equal
+    control meshes."""
+    h = hashlib.sha1()
+    for name in TOPOLOGY_ATTRIBUTES:
         attr = prim.GetAttribute(name)
-        if attr and attr.HasAuthoredValue():
-            sp.point_arrays[name] = _in_frames(attr.GetTimeSamples(), frames)
-            if _stands_in(attr, sp.point_arrays[name], len(points), warn):
-                sp.stand_in_defaults.add(name)
-    for name in ("normals", "primvars:normals"):
-        attr = prim.GetAttribute(name)
-        if attr and attr.HasAuthoredValue():
-            sp.authored_normals.append(name)
-    _read_primvars(sp, geom, frames)
-    _read_subsets(sp, geom, frames)
-    return sp
+        value = _get(attr, time) if attr else None
+        h.update(name.encode())
+        h.update(b"-" if value is None else np.ascontiguousarray(np.asarray(value)).tobytes())
+    return h.hexdigest()
+
+
+def _topology_times(prim: Usd.Prim, frames) -> list:
+    """The selected time samples of the topology and tags, where any of them is time-sampled and changes over
+    time ([] when the topology is the same at every time: one control mesh)."""
+    sampled = [prim.GetAttribute(n) for n in TOPOLOGY_ATTRIBUTES]
+    sampled = [a for a in sampled if a and a.GetNumTimeSamples() > 0]
+    if not sampled:
+        return []
+    times = set()
+    for attr in sampled:
+        times.update(_in_frames(attr.GetTimeSamples(), frames))
+    if frames is not None and frames[0] is not None and times and frames[0] not in times:
+        times.add(float(frames[0]))  # the topology held at the start of the range
+    times = sorted(t for t in times if frames is None or _within(t, frames))
+    keys = {topology_key(prim, t) for t in times} | {topology_key(prim, DEFAULT)}
+    return times if len(keys) > 1 else []
+
+
+def _read_topologies(sp: SubdivPrim, geom, base: ControlMesh, ref_time, topology_times, semi_sharp) -> None:
+    """Time-varying topology: every selected time sample of points or topology is written, each with the
+    control mesh of its time; control meshes are built once per distinct topology."""
+    prim, path = sp.prim, sp.path
+    times = sorted(set(sp.point_times) | set(topology_times))
+    sp.point_times = times
+    points_attr = geom.GetPointsAttr()
+    sp.topologies = []
+    sp._topology_keys = {}
+
+    def build(time):
+        key = topology_key(prim, time)
+        if key in sp._topology_keys:
+            return sp._topology_keys[key]
+        if time == ref_time:
+            control = base
+        else:
+            value = _get(points_attr, time)
+            if value is None:
+                raise SubdivInputError(f"{path}: points has no value at time {time:g}")
+            control = _control_mesh(prim, geom, path, time, np.asarray(value, dtype=np.float64).reshape(-1, 3),
+                                    sp.scheme, semi_sharp, sp.orientation, [])
+        sp.topologies.append(Topology(control.mesh, control.crease_of_edge, key))
+        sp._topology_keys[key] = len(sp.topologies) - 1
+        return sp._topology_keys[key]
+
+    sp._build_topology = build
+    for t in times:
+        sp.topologies[build(t)].times.append(t)
+    sp.default_topology = build(DEFAULT)
+    sp.mesh = sp.topologies[sp.default_topology].mesh
+    sp.crease_of_edge = sp.topologies[sp.default_topology].crease_of_edge
+    changes = [t for i, t in enumerate(times) if i == 0 or sp.topology_index(t) != sp.topology_index(times[i - 1])]
+    sp.topology_changes = changes
 
 
 def _stands_in(attr, times, num_points: int, warn: list) -> bool:
@@ -664,27 +808,6 @@ def _check_unit_interval(path, name, values, allow_nan=False):
         raise SubdivInputError(f"{path}: {name}{where} = {values[bad[0]]:g} is not in [0, 1]",
                                element="vertex" if len(values) > 1 else None,
                                index=int(bad[0]) if len(values) > 1 else None, value=float(values[bad[0]]))
-
-
-def _check_topology_constant(sp: SubdivPrim, geom: UsdGeom.Mesh, ref_time, frames) -> None:
-    """Refuse topology or tags that change over the selected frames (see the README: one topology per run)."""
-    for name in TOPOLOGY_ATTRIBUTES:
-        attr = sp.prim.GetAttribute(name)
-        if not attr or attr.GetNumTimeSamples() == 0:
-            continue
-        times = _in_frames(attr.GetTimeSamples(), frames)
-        if frames is not None and frames[0] is not None:
-            times = [frames[0]] + times  # the value held at the start of the range
-        ref = np.asarray(_get(attr, ref_time))
-        for t in times:
-            value = np.asarray(attr.Get(t))
-            if value.shape != ref.shape or not np.array_equal(value, ref):
-                at = "the default time" if ref_time == DEFAULT else f"time {ref_time:g}"
-                raise SubdivInputError(
-                    f"{sp.path}: {name} changes over time (its value at time {t:g} differs from {at}); "
-                    "time-varying topology is not supported: refine each stretch of time with one topology "
-                    "separately (the frames option)", option="frames",
-                )
 
 
 def _read_primvars(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
