@@ -75,11 +75,18 @@ def vertex_normals(
     zero: Any,
     out: wp.array(dtype=Any),
 ):
-    """Unit normal per vertex (vec3): the normalised sum of the unit normals tu x tv of its contributions."""
+    """Unit normal per vertex (vec3): the normalised sum of the unit normals tu x tv of its contributions; where
+    they cancel exactly, the first non-zero one (docs/rules.md section 9)."""
     i = wp.tid()
     acc = zero
+    first = zero
     for j in range(vertex_offsets[i], vertex_offsets[i + 1]):
-        acc += wp.normalize(wp.cross(tangent_u[j], tangent_v[j]))
+        n = wp.normalize(wp.cross(tangent_u[j], tangent_v[j]))
+        if wp.length_sq(first) == wp.length_sq(zero):
+            first = n
+        acc += n
+    if wp.length_sq(acc) == wp.length_sq(zero):
+        acc = first
     out[i] = wp.normalize(acc)
 
 

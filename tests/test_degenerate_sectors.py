@@ -4,12 +4,18 @@
   a straight crease or boundary) is a straight sector (docs/rules.md sections 2.1 and 8.7); flatness no longer
   pulls its ring onto the crease line.
 * Item 2: darts use their own limit and tangent masks (docs/rules.md section 8.8).
+* Item 3: ``limit_normals()`` is a unit vector at every vertex: straight corners, two opposite corner sectors,
+  semi-sharp features at the boundary (docs/rules.md section 9).
 
 Helpers: ``grid()`` is a 4 x 4 quad plate, vertex id = 5 row + column, points (column, row, z) with
 z = 0.3 sin(x) cos(0.7 y); ``cube`` is the unit cube with vertex id = 4x + 2y + z.
 """
+import os
+import sys
+
 import numpy as np
 import pytest
+import warp as wp
 
 import warp_subdiv as ws
 from warp_subdiv import masks as M
@@ -140,6 +146,18 @@ def test_flatness_at_a_straight_sector_scales_all_but_one_and_one_half(scheme, k
         np.testing.assert_allclose(got[4:], (1.0 - s) * rest, atol=1e-6)
 
 
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_straight_boundary_corner_normal(scheme):
+    """Item 3 (a): at a corner tag on the straight boundary of a flat plate the limit normal is (0, 0, 1) under
+    both rule sets. Before: (0, 0, 0) under the piecewise-smooth rules (the corner's tangents p_0 - c and p_k - c
+    are collinear)."""
+    mesh = grid(flat=True, corners=[2])
+    for rules in ("piecewise-smooth", "opensubdiv"):
+        for level in (1, 2):
+            np.testing.assert_allclose(refine(mesh, level, scheme=scheme, rules=rules).limit_normals()[2],
+                                       [0, 0, 1], atol=1e-12)
+
+
 # ============================================================== item 2: darts
 @pytest.mark.parametrize("scheme", SCHEMES)
 @pytest.mark.parametrize("k", range(3, 11))
@@ -210,3 +228,92 @@ def test_dart_keeps_opensubdiv_limit_under_opensubdiv_rules(scheme):
     osd = refine(mesh, 1, scheme=scheme, rules="opensubdiv").limit_points()[4]
     exact = refine(mesh, 1, scheme=scheme).limit_points()[4]
     assert np.abs(osd - exact).max() > 1e-3
+
+
+# ============================================================== item 3: limit normals are unit vectors
+def test_two_opposite_corner_sectors_do_not_cancel():
+    """Item 3 (b): the outline of the cube's face x = 0 creased and vertex 0 tagged a corner: vertex 0 has two
+    convex sectors bounded by the same creases, whose corner normals are exact opposites. Both are turned to the
+    side the vertex's faces face, so the normal is the unit vector (-1, 0, 0), outward. Before: (0, 0, 0)."""
+    mesh = cube(creases=[[0, 1], [1, 3], [3, 2], [2, 0]], corners=[0])
+    for scheme in SCHEMES:
+        for level in (1, 2):
+            np.testing.assert_allclose(refine(mesh, level, scheme=scheme).limit_normals()[0], [-1, 0, 0],
+                                       atol=1e-12)
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+@pytest.mark.parametrize("rules", ["piecewise-smooth", "opensubdiv"])
+def test_semi_sharp_crease_ending_on_the_boundary(scheme, rules):
+    """Item 3 (c): a semi-sharp crease (2, 7, 12) of sharpness 1.5 ending on the boundary at vertex 2: on level 1
+    vertex 2 is a semi-sharp corner (three sharp edges) without sectors; its normal comes from its fan, with
+    OpenSubdiv's corner tangents. OpenSubdiv (Catmull-Clark): (0.224, 0.062, 0.973). Before: (0, 0, 0)."""
+    mesh = grid(creases=[[2, 7], [7, 12]], crease_sharpness=[1.5, 1.5])
+    n = refine(mesh, 1, scheme=scheme, rules=rules).limit_normals()[2]
+    assert np.linalg.norm(n) == pytest.approx(1.0)
+    assert n[2] > 0.9
+    if scheme == "catmull-clark":
+        np.testing.assert_allclose(n, [0.22412966, 0.0623883, 0.97256033], atol=1e-6)
+
+
+def test_semi_sharp_crease_ending_on_the_boundary_matches_opensubdiv():
+    """Item 3 (c) against OpenSubdiv itself (the peer; skipped without it), both schemes, levels 1 and 2."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    if root not in sys.path:
+        sys.path.append(root)
+    from peers import osd_peer
+
+    if not osd_peer.available():
+        pytest.skip("OpenSubdiv peer unavailable")
+    pts, counts, idx = grid_data()
+    mesh = grid(creases=[[2, 7], [7, 12]], crease_sharpness=[1.5, 1.5])
+    for scheme, name in (("catmull-clark", "catmark"), ("loop", None)):
+        for level in (1, 2):
+            if name is None:  # Loop: the fan triangulation warp-subdiv documents
+                quads = idx.reshape(-1, 4)
+                tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=1).reshape(-1)
+                peer = osd_peer.refine(pts, [3] * 32, tris, level, scheme="loop", creases=[[2, 7], [7, 12]],
+                                       crease_sharpness=[1.5, 1.5], limit=True)
+            else:
+                peer = osd_peer.refine(pts, counts, idx, level, scheme=name, creases=[[2, 7], [7, 12]],
+                                       crease_sharpness=[1.5, 1.5], limit=True)
+            ours = refine(mesh, level, scheme=scheme, rules="opensubdiv").limit_normals()
+            np.testing.assert_allclose(ours[2], peer.limit_normals()[2], atol=1e-6)
+
+
+UNIT_CASES = {
+    "t-junction": lambda: grid(**PLATES["t-junction"][0]),
+    "corner on a straight crease": lambda: grid(**PLATES["corner on a straight crease"][0]),
+    "flat boundary corner": lambda: grid(flat=True, corners=[2]),
+    "cube outline corner": lambda: cube(creases=[[0, 1], [1, 3], [3, 2], [2, 0]], corners=[0]),
+    "semi-sharp to boundary": lambda: grid(creases=[[2, 7], [7, 12]], crease_sharpness=[1.5, 1.5]),
+    "dart": lambda: cube(creases=[[0, 4]]),
+}
+
+
+@pytest.mark.parametrize("case", list(UNIT_CASES))
+def test_limit_normals_are_unit_everywhere(case):
+    """Every vertex of the refined mesh gets a unit limit normal, both schemes and rule sets, levels 1 and 2."""
+    mesh = UNIT_CASES[case]()
+    for scheme in SCHEMES:
+        for rules in ("piecewise-smooth", "opensubdiv"):
+            for level in (1, 2):
+                n = refine(mesh, level, scheme=scheme, rules=rules).limit_normals()
+                np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
+
+
+def test_vertex_normals_kernel_falls_back_when_contributions_cancel():
+    """The vertex_normals kernel: where the unit normals of a vertex's tangent pairs cancel exactly it reports the
+    first non-zero one instead of normalize(0) = (0, 0, 0); otherwise their normalised sum."""
+    from warp_subdiv.kernels import projection
+
+    tu = wp.array(np.array([[1, 0, 0], [0, 1, 0], [0, 0, 0], [1, 0, 0], [1, 0, 0]], float), dtype=wp.vec3d,
+                  device="cpu")
+    tv = wp.array(np.array([[0, 1, 0], [1, 0, 0], [0, 0, 0], [0, 1, 0], [0, 0, 1]], float), dtype=wp.vec3d,
+                  device="cpu")
+    offsets = wp.array(np.array([0, 2, 5], np.int32), dtype=wp.int32, device="cpu")
+    out = wp.empty(2, dtype=wp.vec3d, device="cpu")
+    wp.launch(projection.vertex_normals, dim=2, inputs=[offsets, tu, tv, wp.vec3d(), out], device="cpu")
+    got = out.numpy()
+    np.testing.assert_allclose(got[0], [0, 0, 1], atol=1e-15)  # +z and -z cancel: the first
+    np.testing.assert_allclose(got[1], np.array([0, -1, 1]) / np.sqrt(2), atol=1e-15)

@@ -58,10 +58,6 @@ SEMI_SHARP_BOUNDARY_NONE = (
     "boundary='none' with semi-sharp tags on boundary edges: OpenSubdiv keeps a face at the boundary only "
     "where every boundary edge at its boundary vertices is tagged infinitely sharp; warp_subdiv counts "
     "semi-sharp tags too and keeps more faces")
-SEMI_SHARP_BOUNDARY_NORMAL = (
-    "limit_normals() is (0, 0, 0) at a boundary vertex that is or was semi-sharp (a semi-sharp corner tag or "
-    "interior crease edge there, on any level, even after it has decayed); OpenSubdiv gives its crease or "
-    "corner normal")
 REPEATED_VERTEX = (
     "a face that uses a vertex twice (catmark_nonman_edges face 24: 41 42 52 52, degenerate non-manifold "
     "topology OpenSubdiv accepts); warp_subdiv.Mesh refuses it with SubdivInputError")
@@ -205,10 +201,10 @@ def assert_normals(actual, expected, mask, what=""):
 
 def assert_limit(refined, peer, what=""):
     """Limit points everywhere; T1 x T2 normals at one-sector vertices (PeerLevel.single_sector; see
-    MULTI_SECTOR_NORMAL) but the boundary vertices of SEMI_SHARP_BOUNDARY_NORMAL."""
+    MULTI_SECTOR_NORMAL), semi-sharp boundary vertices included (issue 15 item 3)."""
     __tracebackhide__ = True
     assert_points(refined.limit_points(), peer.limit_points, what + " limit points")
-    mask = peer.last.single_sector() & ~(semi_sharp_vertices(peer) & (peer.last.vertex_boundary == 1))
+    mask = peer.last.single_sector()
     assert_normals(refined.limit_normals(), peer.limit_normals(), mask, what + " limit normals")
 
 

@@ -280,18 +280,22 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
         sel = np.flatnonzero(k_all == k)
         local = sector_local_vectors(level, sel, int(k))
         m = M.sector_masks(level.scheme, level.sector_kind[sel], int(k), level.sector_theta[sel], flatness[sel])
+        tu, tv = m.tu, m.tv
         if rule_set == "opensubdiv":
             M.use_opensubdiv_tangents(m, level.scheme, level.sector_kind[sel], int(k))
+            tu, tv = m.tu, m.tv
+        else:  # two opposite corner sectors: both turned to the side the vertex's faces face (section 9)
+            flip = level.sector_flip[sel][:, None]
+            tu, tv = np.where(flip, m.tv, m.tu), np.where(flip, m.tu, m.tv)
         once = first_sector[sel]
         vs = level.sector_vertex[sel].astype(np.int64)
         pos_rows.append(vs[once]), pos_local.append(local[once]), pos_w.append(m.l0[once])
-        tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
+        tan_rows.append(vs), tan_local.append(local), tan_u.append(tu), tan_v.append(tv)
 
-    # boundary crease/corner vertices without sectors (semi-sharp features): their one fan, from boundary to
-    # boundary, is their sector; tangents as OpenSubdiv's for that rule (the paper's tags are not involved)
-    sharp_count = np.bincount(level.edge_verts[level.edge_sharp].reshape(-1), minlength=V)
-    fan = np.flatnonzero(~sectored & boundary_vertex & np.isin(cls, [CREASE, CORNER]) & (sharp_count == 2)
-                         & (valence >= 1))
+    # boundary crease/corner vertices without sectors (semi-sharp features, also a semi-sharp edge inside the
+    # fan): their one fan, from boundary to boundary, is their sector; tangents as OpenSubdiv's for that rule
+    # (the paper's tags are not involved)
+    fan = np.flatnonzero(~sectored & boundary_vertex & np.isin(cls, [CREASE, CORNER]) & (valence >= 1))
     first = level.vert_corners[level.vert_corner_offsets[fan]].astype(np.int64) if len(fan) else fan
     fan = fan[counts[level.corner_edge[first]] == 1] if len(fan) else fan  # the ring starts at the boundary
     for k in np.unique(valence[fan]):
@@ -303,6 +307,19 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
         m = M.sector_masks(level.scheme, kind, int(k), theta)
         M.use_opensubdiv_tangents(m, level.scheme, kind, int(k))
         tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
+
+    # any other vertex with a face (non-manifold leftovers, rings of fewer than three faces): the normal of its
+    # first face at it, so that every vertex of the surface has a unit normal
+    has_pair = np.zeros(V, dtype=bool)
+    for r in tan_rows:
+        has_pair[r] = True
+    bare = np.flatnonzero(~has_pair & (valence >= 1))
+    if len(bare):
+        h = level.vert_corners[level.vert_corner_offsets[bare]].astype(np.int64)
+        cv = level.corner_vert
+        local = np.column_stack([bare, cv[level.corner_next(h)], cv[level.corner_prev(h)]])
+        one = np.tile([-1.0, 1.0, 0.0], (len(bare), 1))
+        tan_rows.append(bare), tan_local.append(local), tan_u.append(one), tan_v.append(one[:, [0, 2, 1]])
 
     # crease vertices without sectors (semi-sharp features): the crease limit mask of their rule on this
     # level, as OpenSubdiv's PrimvarRefiner::Limit

@@ -76,6 +76,8 @@ class Level:
     sector_theta: np.ndarray | None = None  # (S,) float64
     sector_kind: np.ndarray | None = None  # (S,) int8, rules.SECTOR_*
     sector_flatness: np.ndarray | None = None  # (S,) float64
+    # (S,) bool: the sector's limit normal is reversed (two opposite corner sectors, docs/rules.md section 9)
+    sector_flip: np.ndarray | None = None
     new_sector_flatness: float = float("nan")  # s of the regular crease sectors that later levels create
     # level 0 of a fan-triangulated polygon mesh (Loop) only: the control polygon of each triangle
     control_face: np.ndarray | None = None  # (F,) int64; None: face f is control face f
@@ -472,7 +474,8 @@ def base_level(
         face_offsets=None if uniform else offsets, corner_next_table=None if uniform else nxt,
         corner_edge=corner_edge, edge_verts=edge_verts, edge_corner_offsets=eoff, edge_corners=ecorners,
         vert_corner_offsets=voff, vert_corners=vcorners, vert_class=vclass, edge_sharpness=edge_sharpness,
-        vert_sharpness=vert_sharpness, sectors=Sectors(*sectors, sector_flatness), crease_method=crease_method,
+        vert_sharpness=vert_sharpness, sectors=Sectors(*sectors[:5], sector_flatness, sectors[5]),
+        crease_method=crease_method,
         linear=linear, new_sector_flatness=new_flatness, control_face=faces.control_face,
     )
 
@@ -486,6 +489,7 @@ class Sectors(NamedTuple):
     theta: np.ndarray  # (S,) float64
     kind: np.ndarray  # (S,) int8
     flatness: np.ndarray  # (S,) float64
+    flip: np.ndarray | None = None  # (S,) bool; None: no sector is flipped
 
 
 def _full_level(scheme, num_vertices: int, face_size: int, corner_vert, face_hole, *, corner_edge, edge_verts,
@@ -522,6 +526,7 @@ def _full_level(scheme, num_vertices: int, face_size: int, corner_vert, face_hol
         sector_theta=sectors.theta,
         sector_kind=sectors.kind,
         sector_flatness=sectors.flatness,
+        sector_flip=np.zeros(len(sectors.vertex), bool) if sectors.flip is None else sectors.flip,
         new_sector_flatness=new_sector_flatness,
         control_face=control_face,
     )
@@ -533,8 +538,8 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
 
     A sector is a run of faces around a vertex between two crease edges; its corners are found by walking
     clockwise to the first face (whose outgoing edge is a crease) with pointer jumping. alpha is measured
-    here, once, and so is which corner sectors are straight (docs/rules.md section 2.1). Returns (vertex,
-    offsets, ordered corners, theta, kind) per sector.
+    here, once, and so is which corner sectors are straight (docs/rules.md section 2.1) and which limit normals are
+    reversed (section 9). Returns (vertex, offsets, ordered corners, theta, kind, flip) per sector.
     """
     C = len(corner_vert)
     idx = np.arange(C, dtype=np.int64)
@@ -576,7 +581,8 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
                 & (_in_plane_gap(u, w, plane, alpha) < rules.STRAIGHT_EPSILON))
     kind[straight] = rules.SECTOR_STRAIGHT
     theta = rules.sector_theta(kind, np.maximum(k, 1), alpha)
-    return c, offsets, ordered, theta, kind
+    flip = _opposite_corner_normals(mesh, corner_vert, nxt, prv, c, kind, np.cross(u, w))
+    return c, offsets, ordered, theta, kind, flip
 
 
 def _in_plane_gap(u, w, normal, alpha):
@@ -590,6 +596,41 @@ def _in_plane_gap(u, w, normal, alpha):
     ok = (length[:, 0] > 0) & (np.linalg.norm(up, axis=1) * np.linalg.norm(wp, axis=1) > 1e-6 * scale)
     seen = np.arctan2(np.linalg.norm(np.cross(up, wp), axis=1), np.einsum("ij,ij->i", up, wp))
     return np.pi - np.where(ok, seen, alpha)
+
+
+def _opposite_corner_normals(mesh, corner_vert, nxt, prv, c, kind, crease_cross):
+    """(S,) bool: sectors whose limit normal is reversed (docs/rules.md section 9).
+
+    A vertex with exactly two sectors, both convex or both concave corners, has two sectors bounded by the same
+    two creases, and their corner normals (p_0 - c) x (p_k - c) (reversed when concave) are exact opposites:
+    one sector folds onto the other (paper Fig. 2). Each is turned to the side the vertex's faces face (the sum
+    of its faces' normals at c on the control mesh); where that does not decide, the second takes the first's."""
+    flip = np.zeros(len(c), bool)
+    corner_kind = (kind == rules.SECTOR_CONVEX) | (kind == rules.SECTOR_CONCAVE)
+    per_vertex = np.bincount(c, minlength=mesh.num_vertices)
+    corner_sectors = np.bincount(c, weights=corner_kind, minlength=mesh.num_vertices)
+    pairs = np.flatnonzero((per_vertex[c] == 2) & (corner_sectors[c] == 2))
+    if len(pairs) == 0:
+        return flip
+    order = pairs[np.lexsort((pairs, c[pairs]))]
+    first, second = order[0::2], order[1::2]
+    sign = np.where(kind == rules.SECTOR_CONCAVE, -1.0, 1.0)[:, None]
+    normal = sign * crease_cross
+    opposite = np.einsum("ij,ij->i", normal[first], normal[second]) < 0
+    first, second = first[opposite], second[opposite]
+    if len(first) == 0:
+        return flip
+    pts = mesh.points
+    at = np.isin(corner_vert, c[first])
+    h = np.flatnonzero(at)
+    fan = np.cross(pts[corner_vert[nxt[h]]] - pts[corner_vert[h]], pts[corner_vert[prv[h]]] - pts[corner_vert[h]])
+    side = np.stack([np.bincount(corner_vert[h], weights=fan[:, j], minlength=mesh.num_vertices)
+                     for j in range(3)], 1)[c[first]]
+    d1 = np.einsum("ij,ij->i", normal[first], side)
+    d2 = np.einsum("ij,ij->i", normal[second], side)
+    flip[first[d1 < 0]] = True
+    flip[second[(d2 < 0) | ((d1 == 0) & (d2 == 0))]] = True
+    return flip
 
 
 def _sector_flatness(flatness, sector_vertex, num_vertices):
@@ -930,12 +971,14 @@ def _assemble(level: Level, *, num_vertices: int, face_size: int, corner_vert, c
     sector_theta = np.concatenate([level.sector_theta, np.full(n_new, regular)])
     sector_kind = np.concatenate([level.sector_kind, np.full(n_new, rules.SECTOR_CREASE, np.int8)])
     sector_flatness = np.concatenate([level.sector_flatness, np.full(n_new, level.new_sector_flatness)])
+    sector_flip = np.concatenate([level.sector_flip, np.zeros(n_new, bool)])
     return _full_level(
         level.scheme, nV, face_size, cv, child_hole,
         corner_edge=ce, edge_verts=child_edge_verts, edge_corner_offsets=child_eoff, edge_corners=child_ecorners,
         vert_corner_offsets=child_voff, vert_corners=child_vcorners, vert_class=child_class,
         edge_sharpness=child_edge_sharpness, vert_sharpness=child_vert_sharpness,
-        sectors=Sectors(sector_vertex, sector_offsets, sector_corners, sector_theta, sector_kind, sector_flatness),
+        sectors=Sectors(sector_vertex, sector_offsets, sector_corners, sector_theta, sector_kind, sector_flatness,
+                        sector_flip),
         crease_method=level.crease_method, linear=level.linear, new_sector_flatness=level.new_sector_flatness,
     )
 
