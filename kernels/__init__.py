@@ -19,3 +19,4 @@ from .regular import (  # noqa: F401
     tri_vertex_points,
 )
 from .stencil import stencil_rows  # noqa: F401
+from .limit import limit_evaluate  # noqa: F401

@@ -344,3 +344,119 @@ def bench(points, face_counts, face_indices, level: int, *, reps: int = 5, budge
         proc = _run(["bench", src, "--level", str(level), "--reps", str(reps), "--budget-mb", str(budget_mb),
                      "--factorized", factorized], timeout)
     return json.loads(proc.stdout)
+
+
+# ------------------------------------------------------------------------------------------ Bfr (bfr_peer)
+# A second program, peers/osd/bfr_peer.cpp (built by peers/osd/build_bfr.sh into peers/osd/build/bfr_peer, or
+# named by BFR_PEER_BIN), drives OpenSubdiv's Bfr: RefinerSurfaceFactory, Surface::Evaluate and Tessellation.
+# Its header documents the records; the mesh part of a request is the same as for osd_peer (``request``).
+
+BFR_SOURCE = os.path.join(HERE, "osd", "bfr_peer.cpp")
+BFR_BUILD_SCRIPT = os.path.join(HERE, "osd", "build_bfr.sh")
+BFR_DEFAULT_BINARY = os.path.join(HERE, "osd", "build", "bfr_peer")
+BFR_HEADER = "/usr/include/opensubdiv/bfr/surface.h"
+
+
+def bfr_binary(build: bool = True) -> Optional[str]:
+    """Path of a runnable bfr_peer, built first when missing or older than its sources and OpenSubdiv's Bfr
+    headers are installed; None when there is none (a failed build is remembered: ``bfr_build_log()``)."""
+    env = os.environ.get("BFR_PEER_BIN")
+    if env:
+        return env if os.access(env, os.X_OK) else None
+    exe = BFR_DEFAULT_BINARY
+    built = os.access(exe, os.X_OK)
+    stale = not built or any(os.path.getmtime(exe) < os.path.getmtime(src) for src in (BFR_SOURCE, SOURCE))
+    if built and not stale:
+        return exe
+    can_build = build and os.path.isfile(BFR_HEADER) and shutil.which(os.environ.get("CXX", "g++")) is not None
+    if not can_build or "bfr_build_error" in _state:
+        return exe if built else None
+    proc = subprocess.run(["bash", BFR_BUILD_SCRIPT], capture_output=True, text=True)
+    if proc.returncode != 0 or not os.access(exe, os.X_OK):
+        _state["bfr_build_error"] = proc.stdout + proc.stderr
+        return None
+    return exe
+
+
+def bfr_build_log() -> str:
+    """The compiler's output of a failed bfr_peer build in this process ('' when none failed)."""
+    return _state.get("bfr_build_error", "")
+
+
+def bfr_available() -> bool:
+    """Whether bfr_peer can run here (a binary exists or can be built, and it answers ``version``)."""
+    if "bfr_available" not in _state:
+        exe = bfr_binary()
+        ok = False
+        if exe:
+            try:
+                ok = subprocess.run([exe, "version"], capture_output=True, text=True, timeout=30).returncode == 0
+            except OSError:
+                ok = False
+        _state["bfr_available"] = ok
+    return _state["bfr_available"]
+
+
+def _run_bfr(args: Sequence[str], timeout: float) -> subprocess.CompletedProcess:
+    exe = bfr_binary()
+    if exe is None:
+        raise PeerError("bfr_peer is not available (install libosd-dev 3.5+: peers/install_osd.sh)\n"
+                        + bfr_build_log())
+    proc = subprocess.run([exe, *args], capture_output=True, text=True, timeout=timeout)
+    if proc.returncode != 0:
+        raise PeerError(f"bfr_peer {args[0]} failed with exit status {proc.returncode}:\n{proc.stderr.strip()}")
+    return proc
+
+
+def _bfr_records(rec: dict, approx_smooth: Optional[int], approx_sharp: Optional[int]) -> dict:
+    rec = dict(rec)
+    if approx_smooth is not None:
+        rec["approx_smooth"] = np.int32(approx_smooth)
+    if approx_sharp is not None:
+        rec["approx_sharp"] = np.int32(approx_sharp)
+    return rec
+
+
+def bfr_evaluate(rec: dict, faces, uv, *, approx_smooth: Optional[int] = None, approx_sharp: Optional[int] = None,
+                 timeout: float = 600) -> dict:
+    """Bfr's limit surface at (face, u, v): ``rec`` a mesh ``request`` (or ``mesh_request``; its level and limit
+    are ignored), ``faces`` (n,), ``uv`` (n, 2). Returns the output records (points, du, dv, duu, duv, dvv,
+    valid, face_regular, face_vertex_uv, face_center_uv, face_subfaces) as numpy arrays."""
+    rec = _bfr_records(rec, approx_smooth, approx_sharp)
+    rec["query_faces"] = np.asarray(faces, dtype=np.int32).reshape(-1)
+    rec["query_uv"] = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    with tempfile.TemporaryDirectory(prefix="bfr_peer_") as tmp:
+        src, dst = os.path.join(tmp, "in.osdp"), os.path.join(tmp, "out.osdp")
+        write_records(src, rec)
+        _run_bfr(["evaluate", src, dst], timeout)
+        return read_records(dst)
+
+
+def bfr_tessellate(rec: dict, rates, *, edge_rates=None, preserve_quads: bool = True,
+                   approx_smooth: Optional[int] = None, approx_sharp: Optional[int] = None,
+                   timeout: float = 600) -> dict:
+    """Bfr::Tessellation of every face (``rates`` one per face; ``edge_rates`` optionally one per face edge) and
+    the surface at its coordinates: records coord_offsets, coords, points, facet_offsets, facets."""
+    rec = _bfr_records(rec, approx_smooth, approx_sharp)
+    rec["rates"] = np.asarray(rates, dtype=np.int32).reshape(-1)
+    if edge_rates is not None:
+        rec["edge_rates"] = np.asarray(edge_rates, dtype=np.int32).reshape(-1)
+    rec["preserve_quads"] = np.int32(bool(preserve_quads))
+    with tempfile.TemporaryDirectory(prefix="bfr_peer_") as tmp:
+        src, dst = os.path.join(tmp, "in.osdp"), os.path.join(tmp, "out.osdp")
+        write_records(src, rec)
+        _run_bfr(["tessellate", src, dst], timeout)
+        return read_records(dst)
+
+
+def bfr_bench(rec: dict, faces, uv, *, reps: int = 3, approx_smooth: Optional[int] = None,
+              approx_sharp: Optional[int] = None, timeout: float = 600) -> dict:
+    """Time Bfr on the query points (see bfr_peer.cpp's header); returns the JSON as a dict."""
+    rec = _bfr_records(rec, approx_smooth, approx_sharp)
+    rec["query_faces"] = np.asarray(faces, dtype=np.int32).reshape(-1)
+    rec["query_uv"] = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    with tempfile.TemporaryDirectory(prefix="bfr_peer_") as tmp:
+        src = os.path.join(tmp, "in.osdp")
+        write_records(src, rec)
+        proc = _run_bfr(["bench", src, "--reps", str(reps)], timeout)
+    return json.loads(proc.stdout)

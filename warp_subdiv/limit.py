@@ -1,0 +1,273 @@
+"""Evaluation of the limit surface at arbitrary (face, u, v): :class:`LimitSurface`.
+
+Parameterisation (as OpenSubdiv's ``Bfr::Parameterization``):
+
+* a quad (Catmull-Clark) is the unit square, corner i at (0,0), (1,0), (1,1), (0,1);
+* a triangle (Loop) is barycentric: corner 0 at (0,0), corner 1 at (1,0), corner 2 at (0,1), the point
+  (1 - u - v) c0 + u c1 + v c2;
+* a Catmull-Clark n-gon (n != 4, triangles included) is partitioned into its n quad sub-faces (the level-1 quad
+  at each corner), laid out as tiles: sub-face i occupies the half-unit square with corner (i mod W, i div W),
+  W = ceil(sqrt(n)); inside it, 2 (u - i mod W, v - i div W) is the sub-face's own unit square, with the
+  n-gon's corner i at (0,0), the middle of edge i (toward corner i + 1) at (1,0), the face's centre at (1,1)
+  and the middle of edge i - 1 at (0,1). This is Bfr's QUAD_SUBFACES parameterisation; as in Bfr, a (u, v)
+  within a quarter tile beyond a sub-face's square belongs to the nearest sub-face (coordinates are clamped
+  to it);
+* a Loop polygon (n > 3; Loop fan-triangulates polygons, (v0, v_k+1, v_k+2)) is its fan triangles laid side by
+  side: triangle k occupies u in [k, k + 1], with barycentric (u - k, v).
+
+Derivatives ``du``, ``dv`` (and ``duu``, ``duv``, ``dvv``) are with respect to these (u, v); normals are the unit
+``du x dv`` (outward for counter-clockwise faces).
+
+How it is computed and how exact it is: :mod:`warp_subdiv.limit_patches` (a tree of Bezier patches per face:
+exact polynomial patches wherever the surface is one, local refinement with the library's own rules and
+projections near irregular features down to ``depth`` levels, end caps below that). The tree is built once;
+:meth:`LimitSurface.evaluate` runs one Warp kernel (:mod:`warp_subdiv.kernels.limit`) on the CPU or CUDA.
+"""
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from . import limit_patches
+from .errors import SubdivInputError
+from .evaluator import default_device
+from .mesh import Mesh
+from .options import Options, Scheme
+
+#: Default depth of local refinement below a base face before end caps (see README "Limit surface").
+DEFAULT_DEPTH = 8
+
+DIRECT, SUBFACES, FAN = 0, 1, 2
+
+
+@dataclass
+class LimitEvaluation:
+    """Results of :meth:`LimitSurface.evaluate`, numpy float64 arrays of shape (n, 3): ``points``, first
+    derivatives ``du``, ``dv``, unit ``normals``, and with ``derivatives=2`` the second derivatives ``duu``,
+    ``duv``, ``dvv`` (None otherwise). ``patch``: the leaf patch each point was evaluated on (internal)."""
+
+    points: np.ndarray
+    du: np.ndarray
+    dv: np.ndarray
+    normals: np.ndarray
+    duu: np.ndarray | None = None
+    duv: np.ndarray | None = None
+    dvv: np.ndarray | None = None
+    patch: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+class LimitSurface:
+    """The limit surface of ``mesh`` under ``options`` (or the option keywords of :func:`warp_subdiv.refine`),
+    evaluable at any (face, u, v) of the control faces.
+
+    ``depth`` (>= 1): how many levels below a control face the surface near irregular features (extraordinary
+    vertices, irregular creases and corners, semi-sharp tags, flatness and normal control, n-gons) is refined
+    locally before end caps take over; the surface is exact everywhere except inside the end caps, which cover
+    the sub-faces of size 2^-depth at the irregular points (README "Limit surface" gives the error).
+    ``device``: a Warp device for :meth:`evaluate` (None: CUDA when present, else the CPU).
+    """
+
+    def __init__(self, mesh: Mesh, *, depth: int = DEFAULT_DEPTH, options: Options | None = None, device=None,
+                 **option_keywords):
+        if not isinstance(mesh, Mesh):
+            raise TypeError(f"mesh must be a warp_subdiv.Mesh, got {type(mesh).__name__}")
+        if isinstance(depth, bool) or not isinstance(depth, numbers.Integral) or not 1 <= depth <= 30:
+            raise SubdivInputError(f"depth must be an integer in [1, 30], got {depth!r}", option="depth",
+                                   value=depth)
+        if options is None:
+            options = Options(**option_keywords)
+        elif option_keywords:
+            raise TypeError(f"pass either options= or option keywords, not both ({', '.join(option_keywords)})")
+        if options.linear:
+            raise SubdivInputError("LimitSurface evaluates Catmull-Clark and Loop surfaces, not bilinear ones",
+                                   option="linear", value=True)
+        if not options.piecewise_smooth and len(mesh.normal_vertices):
+            raise SubdivInputError("prescribed normals need rules='piecewise-smooth' (OpenSubdiv has no normal "
+                                   "control)", option="rules", element="normal")
+        self.mesh = mesh
+        self.options = options
+        self.depth = int(depth)
+        self.device = wp.get_device(device if device is not None else default_device())
+        self.tree = limit_patches.build(mesh, options, self.depth)
+        self._parameterisation()
+        self._device_arrays = None
+
+    scheme = property(lambda self: self.options.scheme)
+    rules = property(lambda self: self.options.rules)
+
+    # ------------------------------------------------------------------------------------------ faces
+    def _parameterisation(self) -> None:
+        mesh, tree = self.mesh, self.tree
+        counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
+        F = len(counts)
+        roots = tree.root_offsets
+        if self.options.scheme == Scheme.LOOP:
+            tris = counts - 2
+            first = np.concatenate([[0], np.cumsum(tris)[:-1]]).astype(np.int64)
+            kind = np.where(counts == 3, DIRECT, FAN)
+            root = roots[first]
+        else:
+            kind = np.where(counts == 4, DIRECT, SUBFACES)
+            root = roots[:F]
+        self.face_kind = kind.astype(np.int32)
+        self.face_root = root.astype(np.int32)
+        self.face_size = counts.astype(np.int32)
+        self.face_tiles = np.ceil(np.sqrt(counts)).astype(np.int32)
+        # a control face is a hole when its (first) root is
+        self.holes = tree.node_patch[root] == limit_patches.HOLE
+        self.holes |= self._all_holes(kind, root, counts)
+
+    def _all_holes(self, kind, root, counts) -> np.ndarray:
+        out = np.zeros(len(kind), bool)
+        multi = np.flatnonzero(kind != DIRECT)
+        patch = self.tree.node_patch
+        for f in multi:
+            n = counts[f] if kind[f] == SUBFACES else counts[f] - 2
+            out[f] = bool(np.all(patch[root[f]:root[f] + n] == limit_patches.HOLE))
+        return out
+
+    @property
+    def num_faces(self) -> int:
+        return len(self.face_kind)
+
+    @property
+    def edges(self) -> np.ndarray:
+        """(E, 2) int32 vertex pairs of the control mesh's edges: the order of per-edge tessellation rates."""
+        return self.mesh.edges.edge_verts
+
+    def vertex_uv(self, faces, corners) -> np.ndarray:
+        """(n, 2) parametric coordinates of corner ``corners[i]`` of face ``faces[i]`` (Bfr's GetVertexCoord)."""
+        faces = np.asarray(faces, dtype=np.int64).reshape(-1)
+        corners = np.asarray(corners, dtype=np.int64).reshape(-1)
+        kind = self.face_kind[faces]
+        out = np.zeros((len(faces), 2))
+        quad = (kind == DIRECT) & (self.face_size[faces] == 4)
+        tri = (kind == DIRECT) & (self.face_size[faces] == 3)
+        out[quad] = np.array([(0, 0), (1, 0), (1, 1), (0, 1)], float)[corners[quad]]
+        out[tri] = np.array([(0, 0), (1, 0), (0, 1)], float)[corners[tri]]
+        sub = kind == SUBFACES
+        w = self.face_tiles[faces]
+        out[sub, 0] = (corners % w)[sub]
+        out[sub, 1] = (corners // w)[sub]
+        fan = kind == FAN  # corner i < n - 1 at (i, 0) (triangle i - 1's second corner), the last at (n - 3, 1)
+        last = corners == self.face_size[faces] - 1
+        out[fan, 0] = np.where(last, corners - 2, corners)[fan]
+        out[fan, 1] = last[fan]
+        return out
+
+    # ------------------------------------------------------------------------------------------ evaluation
+    def _arrays(self):
+        if self._device_arrays is None:
+            t, dev = self.tree, self.device
+
+            def up(a, dtype):
+                a = np.ascontiguousarray(a)
+                return wp.array(a, dtype=dtype, device=dev, copy=not dev.is_cpu)
+
+            index = t.patch_index if len(t.patch_index) else np.zeros((1, 16), np.int32)
+            basis = t.patch_basis if len(t.patch_basis) else np.zeros(1, np.int32)
+            self._device_arrays = dict(
+                face_kind=up(self.face_kind, wp.int32), face_root=up(self.face_root, wp.int32),
+                face_size=up(self.face_size, wp.int32), face_tiles=up(self.face_tiles, wp.int32),
+                node_child=up(t.node_child.astype(np.int32), wp.int32),
+                node_patch=up(t.node_patch.astype(np.int32), wp.int32),
+                patch_index=up(index.astype(np.int32), wp.int32), patch_basis=up(basis.astype(np.int32), wp.int32),
+                points=wp.array(np.ascontiguousarray(t.points, dtype=np.float64), dtype=wp.vec3d, device=dev))
+        return self._device_arrays
+
+    def _queries(self, faces, u, v):
+        try:
+            faces_a = np.asarray(faces)
+            u_a = np.asarray(u, dtype=np.float64)
+            v_a = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise SubdivInputError("u and v must be numbers", option="uv") from None
+        if faces_a.size and faces_a.dtype.kind not in "iu":
+            if faces_a.dtype.kind == "f" and np.all(faces_a == np.round(faces_a)):
+                faces_a = faces_a.astype(np.int64)
+            else:
+                raise SubdivInputError(f"faces must be integer face ids, got dtype {faces_a.dtype}", option="faces")
+        try:
+            faces_a, u_a, v_a = np.broadcast_arrays(faces_a, u_a, v_a)
+        except ValueError:
+            raise SubdivInputError(f"faces, u and v have incompatible shapes {np.shape(faces)}, {np.shape(u)}, "
+                                   f"{np.shape(v)}", option="faces") from None
+        faces_a = faces_a.reshape(-1).astype(np.int64)
+        u_a = u_a.reshape(-1)
+        v_a = v_a.reshape(-1)
+        bad = np.flatnonzero((faces_a < 0) | (faces_a >= self.num_faces))
+        if len(bad):
+            raise SubdivInputError(f"face {faces_a[bad[0]]} (query {bad[0]}) is outside [0, {self.num_faces})",
+                                   option="faces", element="face", index=int(bad[0]), value=int(faces_a[bad[0]]))
+        bad = np.flatnonzero(~(np.isfinite(u_a) & np.isfinite(v_a)))
+        if len(bad):
+            raise SubdivInputError(f"(u, v) of query {bad[0]} is not finite", option="uv", index=int(bad[0]))
+        hole = np.flatnonzero(self.holes[faces_a])
+        if len(hole):
+            f = int(faces_a[hole[0]])
+            raise SubdivInputError(f"face {f} (query {hole[0]}) is a hole: it has no limit surface", option="faces",
+                                   element="face", index=f)
+        return faces_a, u_a, v_a
+
+    def evaluate(self, faces, u, v, *, derivatives: int = 1) -> LimitEvaluation:
+        """The limit surface at control faces ``faces`` and parameters ``u``, ``v`` (arrays broadcast together;
+        see the module docstring for the parameterisation). ``derivatives``: 1 (points, first derivatives,
+        normals) or 2 (also second derivatives). Hole faces are refused (:attr:`holes` says which)."""
+        if derivatives not in (1, 2):
+            raise SubdivInputError(f"derivatives must be 1 or 2, got {derivatives!r}", option="derivatives",
+                                   value=derivatives)
+        faces_a, u_a, v_a = self._queries(faces, u, v)
+        n = len(faces_a)
+        second = derivatives == 2
+        if n == 0:
+            empty = np.zeros((0, 3))
+            return LimitEvaluation(empty, empty.copy(), empty.copy(), empty.copy(),
+                                   *((empty.copy(),) * 3 if second else (None,) * 3), np.zeros(0, np.int32))
+        from . import kernels
+
+        dev = self.device
+        a = self._arrays()
+
+        def query(x, dtype):
+            x = np.ascontiguousarray(x, dtype=dtype)
+            return wp.array(x, device=dev, copy=not dev.is_cpu)
+
+        out = [wp.empty(n, dtype=wp.vec3d, device=dev) for _ in range(7)] if second else \
+            [wp.empty(n, dtype=wp.vec3d, device=dev) for _ in range(3)]
+        if second:
+            p, du, dv, duu, duv, dvv, nrm = out
+        else:
+            p, du, dv, nrm = out[0], out[1], out[2], wp.empty(n, dtype=wp.vec3d, device=dev)
+            duu = duv = dvv = wp.empty(1, dtype=wp.vec3d, device=dev)
+        patch = wp.empty(n, dtype=wp.int32, device=dev)
+        wp.launch(kernels.limit_evaluate, dim=n,
+                  inputs=[a["face_kind"], a["face_root"], a["face_size"], a["face_tiles"],
+                          query(faces_a, np.int32), query(u_a, np.float64), query(v_a, np.float64),
+                          a["node_child"], a["node_patch"], a["patch_index"], a["patch_basis"], a["points"],
+                          int(self.tree.triangles),
+                          int(second), p, du, dv, duu, duv, dvv, nrm, patch], device=dev)
+
+        def host(x):
+            return x.numpy().reshape(n, 3)
+
+        return LimitEvaluation(host(p), host(du), host(dv), host(nrm),
+                               host(duu) if second else None, host(duv) if second else None,
+                               host(dvv) if second else None, patch.numpy())
+
+    def tessellate(self, *, rate=None, edge_length=None, quads: bool = True):
+        """A watertight tessellation of the limit surface (see :func:`warp_subdiv.tessellate.tessellate`)."""
+        from .tessellate import tessellate
+
+        return tessellate(self, rate=rate, edge_length=edge_length, quads=quads)
+
+    def __repr__(self) -> str:
+        t = self.tree
+        return (f"LimitSurface({self.num_faces} faces, {self.options.scheme.value}, {self.options.rules.value}, "
+                f"depth {self.depth}: {t.num_patches} patches, {int(np.sum(t.patch_kind == 1))} end caps)")
+
