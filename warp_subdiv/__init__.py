@@ -10,6 +10,7 @@ from .mesh import Mesh
 from .options import (Boundary, CreaseMethod, FaceVaryingMode, LoopBeta, Options, Precision, RuleSet, Scheme,
                       TriangleSubdivision)
 from .refiner import Refined, Refiner, refine
+from .limit import LimitEvaluation, LimitSurface  # noqa: F401  (issue 13: limit evaluation and tessellation)
 
 __all__ = ["Mesh", "Options", "Refiner", "Refined", "refine", "default_device", "SubdivInputError",
            "NonManifoldWarning", "Scheme", "RuleSet", "Boundary", "Precision", "LoopBeta", "CreaseMethod",
