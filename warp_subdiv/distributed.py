@@ -142,24 +142,32 @@ def _error_record(exc: SubdivInputError) -> dict:
 
 
 def topology_task(input_path, path, levels, run, threads=None):
-    """The hierarchy (topology and tables) of the mesh at ``path``, built as the single-process bake builds it
-    (``run``: refine_usd's keywords), for the mesh's frame tasks."""
+    """(hierarchy, seconds): the topology and tables of the mesh at ``path``, built as the single-process bake
+    builds them (``run``: refine_usd's keywords), for the mesh's frame tasks."""
     from .usd import make_refiner, plan
 
+    start = _time.perf_counter()
     limit = _worker_setup(threads)
     p = plan(input_path, levels, prims=[path], **_plan_keywords(run))
     i = [sp.path for sp in p.prims].index(path)
     refiner = make_refiner(p.prims[i], levels, options=p.options[i], device=run.get("device"),
                            max_memory=_memory(run.get("max_memory"), limit))
-    return refiner.hierarchy
+    return refiner.hierarchy, _time.perf_counter() - start
 
 
-def unit_task(input_path, folder, unit: Unit, levels, run, hierarchy=None, threads=None) -> dict:
-    """Refine one unit into ``folder/unit.layer`` (written under a private name, then renamed). Returns its
-    reports and warnings, or {"error": ...} for input errors (the driver raises them)."""
+def _seconds_of(topology):
+    return topology[1]
+
+
+def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, threads=None) -> dict:
+    """Refine one unit into ``folder/unit.layer`` (written under a private name, then renamed); ``topology``:
+    the mesh's (hierarchy, seconds) from :func:`topology_task`, or None. Returns its reports and warnings, or
+    {"error": ...} for input errors (the driver raises them)."""
     from .hierarchy import shipped
     from .usd import refine_usd
 
+    start = _time.perf_counter()
+    hierarchy = topology[0] if topology is not None else None
     limit = _worker_setup(threads)
     tmp = os.path.join(folder, f".{unit.layer}.{uuid.uuid4().hex}{os.path.splitext(unit.layer)[1]}")
     try:
@@ -180,7 +188,8 @@ def unit_task(input_path, folder, unit: Unit, levels, run, hierarchy=None, threa
         if os.path.exists(tmp):
             os.unlink(tmp)
     return {"unit": unit.number, "reports": [asdict(r) for r in result.reports], "warnings": result.warnings,
-            "times": (min(times), max(times)) if times else None, "seconds": result.seconds}
+            "times": (min(times), max(times)) if times else None, "seconds": result.seconds,
+            "wall": _time.perf_counter() - start}
 
 
 def _plan_keywords(run: dict) -> dict:
@@ -352,10 +361,13 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     run.pop("prims", None)
     run.pop("progress", None)
 
+    timings = {"plan_s": _time.perf_counter() - start}
     own = client is None
     cluster = None
     if own:
+        t = _time.perf_counter()
         client, cluster = _client(workers or th.available_cores(), scheduler)
+        timings["cluster_s"] = _time.perf_counter() - t
     try:
         n_workers = max(1, len(client.scheduler_info().get("workers", {})) or (workers or 1))
         if threads is None and cluster is not None:
@@ -364,11 +376,15 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
         units = plan_units(p.prims, run.get("frames"), n_workers, chunk_frames, ext)
         folder = _Folder(out_abs)
         try:
-            results = _run_units(client, input_path, folder.path, units, p, levels, run, threads, progress)
+            t = _time.perf_counter()
+            results = _run_units(client, input_path, folder.path, units, p, levels, run, threads, progress,
+                                 timings)
+            timings["tasks_s"] = _time.perf_counter() - t
             reports, warnings = _merge(p, units, results, PrimReport)
             names = {u.layer for u in units}
             folder.keep_only(names)
-            out = _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, OutputLayer)
+            out = _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, OutputLayer,
+                                timings)
         except BaseException:
             folder.discard()
             raise
@@ -380,11 +396,16 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
             client.close()
         if cluster is not None:
             cluster.close()
-    return Result(out, reports, list(dict.fromkeys(p.warnings + warnings)), _time.perf_counter() - start,
-                  p.predicted_bytes)
+    result = Result(out, reports, list(dict.fromkeys(p.warnings + warnings)), _time.perf_counter() - start,
+                    p.predicted_bytes)
+    timings["units"] = [{"kind": u.kind, "path": u.path, "frames": u.frames, "seconds": results[u.number]["seconds"],
+                         "wall": results[u.number]["wall"]} for u in units]
+    timings["workers"] = n_workers
+    result.timings = timings  # where the time went (bench/bench_distributed.py reads it)
+    return result
 
 
-def _run_units(client, input_path, folder, units, p, levels, run, threads, progress) -> dict:
+def _run_units(client, input_path, folder, units, p, levels, run, threads, progress, timings) -> dict:
     """Submit the topology and unit tasks; wait for all of them. The first failure cancels the rest and is
     raised (input errors as SubdivInputError)."""
     from distributed import as_completed
@@ -396,6 +417,7 @@ def _run_units(client, input_path, folder, units, p, levels, run, threads, progr
                                          key=f"warp-subdiv-topology-{u.mesh}-{uuid.uuid4().hex}")
     futures = [client.submit(unit_task, input_path, folder, u, levels, run, topo.get(u.mesh), threads,
                              pure=False, key=f"warp-subdiv-unit-{u.number}-{uuid.uuid4().hex}") for u in units]
+    seconds = [client.submit(_seconds_of, f, pure=False) for f in topo.values()]
     results = {}
     try:
         for done, (future, value) in enumerate(as_completed(futures, with_results=True), 1):
@@ -404,6 +426,7 @@ def _run_units(client, input_path, folder, units, p, levels, run, threads, progr
             results[value["unit"]] = value
             if progress is not None:
                 progress(done / (len(units) + 1), f"[{done}/{len(units)}] {units[value['unit']].label}")
+        timings["topology_s"] = client.gather(seconds)
     except BaseException:
         client.cancel(futures + list(topo.values()))
         _wait_idle(client, {f.key for f in futures})
@@ -456,7 +479,7 @@ def _merge(p, units, results, PrimReport):
     return reports, warnings
 
 
-def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, OutputLayer) -> str:
+def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, OutputLayer, timings) -> str:
     """Stitch the chunks, move the folder into place and write the output layer (last)."""
     frames = run.get("frames")
     custom = {"warpSubdiv": {
@@ -482,7 +505,10 @@ def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_wo
             path = os.path.join(folder.path, u.layer)
             clips.setdefault(u.path, []).append((path, float(start), float(end)))
             chunk_files.append(path)
+        t = _time.perf_counter()
         topo = stitch_clips(layer.layer, folder.path, clips, chunk_files) if clips else None
+        timings["stitch_s"] = _time.perf_counter() - t
+        t = _time.perf_counter()
         # asset paths were written for the temporary folder: point them at the final one
         _retarget(layer.layer, folder.path, final)
         subs = [os.path.join(final, "topology.usda")] if topo else []
@@ -495,6 +521,7 @@ def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_wo
         if hints is not None:
             hints(p.stage, {sp.path: sp.point_times for sp in p.prims}, frames)
         layer.commit(flatten=flatten)
+        timings["commit_s"] = _time.perf_counter() - t
     except BaseException:
         layer.discard()
         raise
@@ -556,7 +583,8 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
         if not info:
             raise SubdivInputError(f"{path}: not a layer written by warp-subdiv refine")
         if len(layer.subLayerPaths) != 1:
-            raise SubdivInputError(f"{path}: a flattened layer cannot be stitched (refine the chunks without flattening)")
+            raise SubdivInputError(f"{path}: a flattened layer cannot be stitched (refine the chunks without "
+                                   "flattening)")
         source = os.path.normpath(os.path.join(os.path.dirname(layer.realPath), layer.subLayerPaths[0]))
         frames = None
         if info.get("frames"):
