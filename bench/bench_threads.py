@@ -1,0 +1,143 @@
+"""Threaded CPU evaluation and build: threads 1 against all cores, per mesh and level, in one run.
+
+    python bench/bench_threads.py                         # both bench meshes, levels 4-5, 1 vs all cores
+    python bench/bench_threads.py --levels 4-6 --frames 5 --json out/bench_threads.json
+    python bench/bench_threads.py --quick                 # level 2 only (smoke test)
+
+Every (mesh, level, threads) runs in a fresh subprocess (its memory is its own, nothing is warm from the
+other thread count): ``Refiner(mesh, L, threads=T)`` (build), a first ``evaluate`` (warm-up), the median of
+``--frames`` further ``evaluate`` calls with different points (numpy in and out), and ``ws.refine(mesh, L,
+threads=T)`` end to end after the refiner is freed. The table gives each figure for 1 thread and for all
+cores, and their ratio (1-thread time / all-cores time) from the same run; the 1-minute load average at the
+start and end tells how busy the machine was.
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+import statistics
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+sys.path.insert(0, HERE)
+from benchutil import mem_available_bytes, parse_levels, peak_rss_bytes, quiet_warp, run_child  # noqa: E402
+
+MESHES = {"cube64_noisy": ("cube64_noisy.obj", "catmull-clark"),
+          "icosphere5_noisy": ("icosphere5_noisy.obj", "loop")}
+MARK = "BENCH_RESULT "
+
+
+def worker(args) -> dict:
+    import numpy as np
+
+    quiet_warp()
+    sys.path.insert(0, ROOT)
+    import warp_subdiv as ws
+    from warp_subdiv.objio import read_obj
+
+    file, scheme = MESHES[args.mesh]
+    mesh = read_obj(os.path.join(HERE, "meshes", file)).mesh
+    rng = np.random.default_rng(0)
+    frames = [mesh.points + 1e-3 * rng.standard_normal(mesh.points.shape) for _ in range(args.frames)]
+    ws.refine(mesh, 1, scheme=scheme, device="cpu", threads=args.threads)  # Warp's module loaded, pool made
+    gc.collect()
+    res = {"mesh": args.mesh, "scheme": scheme, "level": args.level, "threads": args.threads}
+    t = time.perf_counter()
+    r = ws.Refiner(mesh, args.level, scheme=scheme, device="cpu", threads=args.threads)
+    res["build_s"] = time.perf_counter() - t
+    res["vertices"] = int(r.num_vertices)
+    t = time.perf_counter()
+    r.evaluate(mesh.points)
+    res["warmup_s"] = time.perf_counter() - t
+    times = []
+    for pts in frames:
+        t = time.perf_counter()
+        r.evaluate(pts)
+        times.append(time.perf_counter() - t)
+    res["eval_s"] = statistics.median(times)
+    del r
+    gc.collect()
+    t = time.perf_counter()
+    out = ws.refine(mesh, args.level, scheme=scheme, device="cpu", threads=args.threads)
+    res["refine_s"] = time.perf_counter() - t
+    del out
+    res["peak_rss"] = peak_rss_bytes()
+    return res
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--meshes", default=",".join(MESHES))
+    ap.add_argument("--levels", default="4-5")
+    ap.add_argument("--threads", default=None, help="comma-separated thread counts (default: 1 and all cores)")
+    ap.add_argument("--frames", type=int, default=5)
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--timeout", type=float, default=600)
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--mesh", help=argparse.SUPPRESS)
+    ap.add_argument("--level", type=int, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.worker:
+        args.threads = int(args.threads)
+        print(MARK + json.dumps(worker(args)), flush=True)
+        return 0
+
+    sys.path.insert(0, ROOT)
+    from warp_subdiv.threads import available_cores
+
+    cores = available_cores()
+    counts = [int(x) for x in args.threads.split(",")] if args.threads else sorted({1, cores})
+    levels = [2] if args.quick else parse_levels(args.levels)
+    load0 = os.getloadavg()[0]
+    start = time.perf_counter()
+    rows, failed = [], False
+    for name in args.meshes.split(","):
+        for level in levels:
+            row = {"mesh": name, "scheme": MESHES[name][1], "level": level, "runs": {}}
+            for t in counts:
+                cmd = [sys.executable, os.path.abspath(__file__), "--worker", "--mesh", name, "--level", str(level),
+                       "--threads", str(t), "--frames", str(args.frames)]
+                avail = mem_available_bytes()
+                res, why = run_child(cmd, args.timeout, int(0.9 * avail) if avail else None, MARK)
+                if res is None:
+                    row["runs"][t] = {"error": why}
+                    failed = failed or why.startswith("exit code")
+                else:
+                    row["runs"][t] = res
+                print(f"{name} L{level} threads {t}: " + (why if res is None else
+                      f"build {res['build_s']:.3f} s, eval {1e3 * res['eval_s']:.1f} ms, refine "
+                      f"{res['refine_s']:.3f} s"), file=sys.stderr, flush=True)
+            rows.append(row)
+    load1 = os.getloadavg()[0]
+    seconds = time.perf_counter() - start
+    lo, hi = counts[0], counts[-1]
+    print(f"Threads {lo} against {hi} ({cores} cores available); {seconds:.1f} s; 1-minute load average "
+          f"{load0:.2f} at the start, {load1:.2f} at the end.\n")
+    print(f"| mesh (scheme) | level | output verts | build s ({lo} / {hi}) | ratio | eval ms ({lo} / {hi}) | ratio "
+          f"| refine s ({lo} / {hi}) | ratio |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for row in rows:
+        a, b = row["runs"].get(lo, {}), row["runs"].get(hi, {})
+        if "error" in a or "error" in b:
+            print(f"| {row['mesh']} ({row['scheme']}) | {row['level']} | – | {a.get('error') or b.get('error')} "
+                  "| | | | | |")
+            continue
+        print(f"| {row['mesh']} ({row['scheme']}) | {row['level']} | {a['vertices']:,} | {a['build_s']:.3f} / "
+              f"{b['build_s']:.3f} | {a['build_s'] / b['build_s']:.2f}x | {1e3 * a['eval_s']:.1f} / "
+              f"{1e3 * b['eval_s']:.1f} | {a['eval_s'] / b['eval_s']:.2f}x | {a['refine_s']:.3f} / "
+              f"{b['refine_s']:.3f} | {a['refine_s'] / b['refine_s']:.2f}x |")
+    if args.json:
+        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
+        with open(args.json, "w") as f:
+            json.dump({"cores": cores, "threads": counts, "load_start": load0, "load_end": load1,
+                       "seconds": seconds, "rows": rows}, f, indent=1)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
