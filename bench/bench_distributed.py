@@ -2,6 +2,7 @@
 
     python bench/bench_distributed.py                     # 50k control faces, 200 frames, level 2, 1 and 2 workers
     python bench/bench_distributed.py --faces 5000 --frames 40 --workers 1,2 --json out/bench_dist.json
+    python bench/bench_distributed.py --commit HEAD       # a commit's library (git archive), not the work tree
 
 The scene (a grid of quads waving over ``--frames`` time samples, written once as .usdc into ``--work``) is
 baked by ``warp-subdiv refine`` in one process, then by ``warp_subdiv.distributed.bake`` (what ``refine
@@ -23,6 +24,9 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
+sys.path.insert(0, HERE)
+from benchutil import export_commit  # noqa: E402 (the scripts run as files; their folder holds the helpers)
+
 MARK = "BENCH_RESULT "
 
 
@@ -59,9 +63,12 @@ def make_scene(path: str, faces: int, frames: int) -> None:
 
 def child(args) -> None:
     """In a fresh process: one bake with ``args.workers`` workers; prints its timings."""
-    sys.path.insert(0, ROOT)
+    sys.path.insert(0, args.lib_root)
     from warp_subdiv.distributed import bake
 
+    import warp_subdiv
+
+    assert os.path.abspath(warp_subdiv.__file__).startswith(os.path.abspath(args.lib_root)), warp_subdiv.__file__
     t = time.perf_counter()
     res = bake(args.scene, args.output, args.levels, workers=args.workers, chunk_frames=args.chunk_frames)
     wall = time.perf_counter() - t
@@ -131,6 +138,8 @@ def main(argv=None) -> int:
     ap.add_argument("--work", default=os.path.join(ROOT, "out", "bench_distributed"))
     ap.add_argument("--no-single", action="store_true", help="skip the single-process bake")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--commit", default=None, help="measure this commit's library (git archive)")
+    ap.add_argument("--lib-root", default=ROOT, help=argparse.SUPPRESS)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--scene", help=argparse.SUPPRESS)
     ap.add_argument("--output", help=argparse.SUPPRESS)
@@ -140,6 +149,9 @@ def main(argv=None) -> int:
         child(args)
         return 0
 
+    sha = None
+    if args.commit:
+        args.lib_root, sha = export_commit(args.commit)
     os.makedirs(args.work, exist_ok=True)
     scene = os.path.join(args.work, f"wave_{args.faces}f_{args.frames}t.usdc")
     if not os.path.exists(scene):
@@ -148,8 +160,8 @@ def main(argv=None) -> int:
         print(f"wrote {scene} in {time.perf_counter() - t:.1f} s", file=sys.stderr)
     load0 = os.getloadavg()[0]
     start = time.perf_counter()
-    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    result = {"faces": args.faces, "frames": args.frames, "levels": args.levels, "runs": {}}
+    env = dict(os.environ, PYTHONPATH=args.lib_root + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    result = {"commit": sha, "faces": args.faces, "frames": args.frames, "levels": args.levels, "runs": {}}
     out_dir = os.path.join(args.work, "run")
     if not args.no_single:
         shutil.rmtree(out_dir, ignore_errors=True)
@@ -165,7 +177,8 @@ def main(argv=None) -> int:
         shutil.rmtree(out_dir, ignore_errors=True)
         os.makedirs(out_dir)
         cmd = [sys.executable, os.path.abspath(__file__), "--child", "--scene", scene, "--output",
-               os.path.join(out_dir, "dist.usdc"), "--levels", str(args.levels), "--workers", str(w)]
+               os.path.join(out_dir, "dist.usdc"), "--levels", str(args.levels), "--workers", str(w),
+               "--lib-root", args.lib_root]
         if args.chunk_frames:
             cmd += ["--chunk-frames", str(args.chunk_frames)]
         proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
@@ -183,7 +196,7 @@ def main(argv=None) -> int:
     result.update(load_start=load0, load_end=load1, seconds=time.perf_counter() - start)
 
     # the tables a frame task is shipped, pickled (as Dask sends them)
-    sys.path.insert(0, ROOT)
+    sys.path.insert(0, args.lib_root)
     import pickle
 
     import warp as wp
@@ -200,7 +213,8 @@ def main(argv=None) -> int:
 
     runs = result["runs"]
     base = runs[min(runs)]
-    print(f"{args.faces:,}-face grid, {args.frames} frames, level {args.levels}; {result['seconds']:.0f} s; 1-minute "
+    print(f"Library: {'commit ' + sha[:7] if sha else 'working tree'}. "
+          f"{args.faces:,}-face grid, {args.frames} frames, level {args.levels}; {result['seconds']:.0f} s; 1-minute "
           f"load average {load0:.2f} at the start, {load1:.2f} at the end.\n")
     if "single_s" in result:
         print(f"single process (`warp-subdiv refine`): {result['single_s']:.2f} s, output "

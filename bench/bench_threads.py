@@ -3,6 +3,7 @@
     python bench/bench_threads.py                         # both bench meshes, levels 4-5, 1 vs all cores
     python bench/bench_threads.py --levels 4-6 --frames 5 --json out/bench_threads.json
     python bench/bench_threads.py --quick                 # level 2 only (smoke test)
+    python bench/bench_threads.py --commit HEAD           # a commit's library (git archive), not the work tree
 
 Every (mesh, level, threads) runs in a fresh subprocess (its memory is its own, nothing is warm from the
 other thread count): ``Refiner(mesh, L, threads=T)`` (build), a first ``evaluate`` (warm-up), the median of
@@ -24,7 +25,8 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
-from benchutil import mem_available_bytes, parse_levels, peak_rss_bytes, quiet_warp, run_child  # noqa: E402
+from benchutil import (  # noqa: E402 (the scripts run as files; their folder holds the shared helpers)
+    export_commit, mem_available_bytes, parse_levels, peak_rss_bytes, quiet_warp, run_child)
 
 MESHES = {"cube64_noisy": ("cube64_noisy.obj", "catmull-clark"),
           "icosphere5_noisy": ("icosphere5_noisy.obj", "loop")}
@@ -35,8 +37,10 @@ def worker(args) -> dict:
     import numpy as np
 
     quiet_warp()
-    sys.path.insert(0, ROOT)
+    sys.path.insert(0, args.lib_root)
     import warp_subdiv as ws
+
+    assert os.path.abspath(ws.__file__).startswith(os.path.abspath(args.lib_root)), ws.__file__
     from warp_subdiv.objio import read_obj
 
     file, scheme = MESHES[args.mesh]
@@ -78,6 +82,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--timeout", type=float, default=600)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--commit", default=None, help="measure this commit's library (git archive)")
+    ap.add_argument("--lib-root", default=ROOT, help=argparse.SUPPRESS)
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--mesh", help=argparse.SUPPRESS)
     ap.add_argument("--level", type=int, help=argparse.SUPPRESS)
@@ -87,7 +93,10 @@ def main(argv=None) -> int:
         print(MARK + json.dumps(worker(args)), flush=True)
         return 0
 
-    sys.path.insert(0, ROOT)
+    sha = None
+    if args.commit:
+        args.lib_root, sha = export_commit(args.commit)
+    sys.path.insert(0, args.lib_root)
     from warp_subdiv.threads import available_cores
 
     cores = available_cores()
@@ -101,7 +110,7 @@ def main(argv=None) -> int:
             row = {"mesh": name, "scheme": MESHES[name][1], "level": level, "runs": {}}
             for t in counts:
                 cmd = [sys.executable, os.path.abspath(__file__), "--worker", "--mesh", name, "--level", str(level),
-                       "--threads", str(t), "--frames", str(args.frames)]
+                       "--threads", str(t), "--frames", str(args.frames), "--lib-root", args.lib_root]
                 avail = mem_available_bytes()
                 res, why = run_child(cmd, args.timeout, int(0.9 * avail) if avail else None, MARK)
                 if res is None:
@@ -116,7 +125,8 @@ def main(argv=None) -> int:
     load1 = os.getloadavg()[0]
     seconds = time.perf_counter() - start
     lo, hi = counts[0], counts[-1]
-    print(f"Threads {lo} against {hi} ({cores} cores available); {seconds:.1f} s; 1-minute load average "
+    print(f"Library: {'commit ' + sha[:7] if sha else 'working tree'}. "
+          f"Threads {lo} against {hi} ({cores} cores available); {seconds:.1f} s; 1-minute load average "
           f"{load0:.2f} at the start, {load1:.2f} at the end.\n")
     print(f"| mesh (scheme) | level | output verts | build s ({lo} / {hi}) | ratio | eval ms ({lo} / {hi}) | ratio "
           f"| refine s ({lo} / {hi}) | ratio |")
@@ -134,7 +144,7 @@ def main(argv=None) -> int:
     if args.json:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         with open(args.json, "w") as f:
-            json.dump({"cores": cores, "threads": counts, "load_start": load0, "load_end": load1,
+            json.dump({"commit": sha, "cores": cores, "threads": counts, "load_start": load0, "load_end": load1,
                        "seconds": seconds, "rows": rows}, f, indent=1)
     return 1 if failed else 0
 
