@@ -76,6 +76,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--flatten", action="store_true",
                    help="write one self-contained layer (the composed, flattened stage) instead of an "
                         "override layer that sublayers the input")
+    r.add_argument("--all-variants", action="store_true",
+                   help="USD: refine every variant of the variant sets that change a subdivision mesh (nested "
+                        "sets too) and write each inside the same variant set and variant (default: the "
+                        "selected variants, as composed)")
     r.add_argument("--semi-sharp-as-sharp", action="store_true",
                    help="make semi-sharp creases and corners (0 < sharpness < 10) infinitely sharp, with a warning "
                         "(default: they are refined as semi-sharp, with OpenSubdiv's semantics)")
@@ -279,6 +283,10 @@ def _refine_usd(args, max_memory, progress) -> int:
                precision=args.precision, frames=frames, limit=args.limit, normals=args.normals,
                max_memory=max_memory, flatten=args.flatten, semi_sharp="sharp" if args.semi_sharp_as_sharp else "keep",
                progress=progress)
+    if args.all_variants:
+        if args.workers or args.scheduler:
+            raise UsageError("--all-variants does not combine with --workers or --scheduler")
+        run["all_variants"] = True
     if args.workers or args.scheduler:
         from .distributed import bake
 
@@ -309,8 +317,8 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
 
     if args.prim or args.frames:
         raise UsageError("--prim and --frames apply to USD input only")
-    if args.limit or args.normals or args.flatten:
-        raise UsageError("--limit, --normals and --flatten apply to USD input only")
+    if args.limit or args.normals or args.flatten or args.all_variants:
+        raise UsageError("--limit, --normals, --flatten and --all-variants apply to USD input only")
     start = time.perf_counter()
     data = read_obj(args.input)
     mesh = data.mesh
@@ -534,10 +542,12 @@ def _phrase(exc: SubdivInputError) -> str:
 
 
 def _flagged(text: str, option) -> str:
-    """``text`` with the library's keyword ``option`` (when the command line has it) named by its flag."""
-    flag = FLAGS.get(option) if isinstance(option, str) else None
-    if flag:
-        text = re.sub(rf"(?<![\w:./-]){re.escape(option)}(?![\w./-])", flag, text)
+    """``text`` with the library's keyword ``option`` (or each of a tuple of them, where the command line has
+    it) named by its flag."""
+    for name in option if isinstance(option, tuple) else (option,):
+        flag = FLAGS.get(name) if isinstance(name, str) else None
+        if flag:
+            text = re.sub(rf"(?<![\w:./-]){re.escape(name)}(?![\w./-])", flag, text)
     return text
 
 

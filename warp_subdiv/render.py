@@ -228,55 +228,121 @@ def _soup(points, counts, indices, normals_per_corner, colors_per_corner) -> Sou
                 colors_per_corner[corners])
 
 
-def stage_soup(stage, prims=None, time=None, levels: int = 0, device=None) -> Soup:
-    """Every visible mesh at or under ``prims`` as a world-space triangle soup (subdivision meshes refined
-    ``levels`` times first)."""
-    from pxr import Usd, UsdGeom
+def mesh_placements(stage, prims=None, time=None, where: str = "render"):
+    """(mesh prim, local-to-world matrix) of every mesh at or under ``prims`` as a renderer draws it: meshes in
+    place (inside scene-graph instances too, through their instance proxies), except the prototypes of
+    PointInstancers, which are drawn once per instance instead: at the instance's position, orientation and
+    scale (``ComputeInstanceTransformsAtTime``, the prototype root's own transform included) in the
+    instancer's space, without the instances its ``invisibleIds`` / ``inactiveIds`` mask."""
+    from pxr import Gf, Usd, UsdGeom
 
-    from .usd_read import mesh_prims
+    from .usd_read import check_roots
 
     t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
-    meshes, instanced = mesh_prims(stage, prims, where="render")
+    roots = check_roots(stage, prims, where) or [stage.GetPseudoRoot().GetPath()]
     cache = UsdGeom.XformCache(t)
+    placed, instancers, proto_roots, seen = [], [], set(), set()
+    for root in roots:
+        for prim in Usd.PrimRange(stage.GetPrimAtPath(root), Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
+            if prim.GetPath() in seen:
+                continue
+            seen.add(prim.GetPath())
+            if prim.IsA(UsdGeom.PointInstancer):
+                instancers.append(prim)
+                proto_roots.update(UsdGeom.PointInstancer(prim).GetPrototypesRel().GetForwardedTargets())
+            elif prim.IsA(UsdGeom.Mesh):
+                placed.append(prim)
+    out = [(prim, cache.GetLocalToWorldTransform(prim)) for prim in placed
+           if not any(prim.GetPath().HasPrefix(p) for p in proto_roots)]
+    for prim in instancers:
+        if any(prim.GetPath().HasPrefix(p) for p in proto_roots):
+            continue  # a PointInstancer inside another's prototype: not drawn on its own
+        pi = UsdGeom.PointInstancer(prim)
+        protos = pi.GetPrototypesRel().GetForwardedTargets()
+        ids = pi.GetProtoIndicesAttr().Get(t)
+        if ids is None or not protos:
+            continue
+        xforms = pi.ComputeInstanceTransformsAtTime(t, t, UsdGeom.PointInstancer.IncludeProtoXform,
+                                                    UsdGeom.PointInstancer.IgnoreMask)
+        mask = pi.ComputeMaskAtTime(t)
+        to_world = cache.GetLocalToWorldTransform(prim)
+        for k, path in enumerate(protos):
+            proto = stage.GetPrimAtPath(path)
+            if not proto:
+                continue
+            members = []  # the prototype's meshes, relative to the prototype root (its own transform excluded)
+            for mesh in Usd.PrimRange(proto, Usd.TraverseInstanceProxies(Usd.PrimIsActive & Usd.PrimIsLoaded)):
+                if mesh.IsA(UsdGeom.Mesh):
+                    rel = (Gf.Matrix4d(1.0) if mesh == proto
+                           else cache.ComputeRelativeTransform(mesh, proto)[0])
+                    members.append((mesh, rel))
+            for i, index in enumerate(ids):
+                if index != k or i >= len(xforms) or (mask and not mask[i]):
+                    continue
+                for mesh, rel in members:
+                    out.append((mesh, rel * xforms[i] * to_world))
+    return out
+
+
+def stage_soup(stage, prims=None, time=None, levels: int = 0, device=None) -> Soup:
+    """Every visible mesh at or under ``prims`` as a world-space triangle soup (subdivision meshes refined
+    ``levels`` times first, each distinct mesh once: instances of one prototype share it), PointInstancer
+    prototypes once per instance (:func:`mesh_placements`)."""
+    from pxr import Usd, UsdGeom
+
+    t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     parts = []
-    for prim in meshes + instanced:
+    made: dict = {}  # a mesh's local-space soup pieces, by prim (instance proxies: by their prototype's prim)
+    for prim, matrix in mesh_placements(stage, prims, time, where="render"):
         img = UsdGeom.Imageable(prim)
         if img.ComputeVisibility(t) == UsdGeom.Tokens.invisible or img.ComputePurpose() == UsdGeom.Tokens.guide:
             continue
-        mesh = UsdGeom.Mesh(prim)
-        pts = mesh.GetPointsAttr().Get(t)
-        counts = mesh.GetFaceVertexCountsAttr().Get(t)
-        indices = mesh.GetFaceVertexIndicesAttr().Get(t)
-        if pts is None or counts is None or indices is None or len(counts) == 0:
+        key = str(prim.GetPrimInPrototype().GetPath() if prim.IsInstanceProxy() else prim.GetPath())
+        if key not in made:
+            made[key] = _local_mesh(prim, t, levels, device)
+        local = made[key]
+        if local is None:
             continue
-        pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
-        counts = np.asarray(counts, dtype=np.int64)
-        indices = np.asarray(indices, dtype=np.int64)
-        valid, why = UsdGeom.Mesh.ValidateTopology(mesh.GetFaceVertexIndicesAttr().Get(t),
-                                                   mesh.GetFaceVertexCountsAttr().Get(t), len(pts))
-        if not valid or np.any(counts < 3):
-            raise SubdivInputError(f"{prim.GetPath()}: cannot render: {why or 'a face has fewer than 3 vertices'}")
-        try:
-            colors = _mesh_colors(prim, mesh, counts, indices, t)
-        except Exception:  # noqa: BLE001 (a preview keeps going in grey)
-            colors = np.tile(DEFAULT_COLOR, (len(indices), 1))
-        normals = None
-        scheme = mesh.GetSubdivisionSchemeAttr().Get()
-        if levels > 0 and scheme in ("catmullClark", "loop", "bilinear") and not prim.IsInstanceProxy():
-            # refine for the preview; each refined face takes the mean colour of its control face
-            face_color = np.add.reduceat(colors, np.concatenate([[0], np.cumsum(counts)[:-1]])) / counts[:, None]
-            pts, counts, indices, parent = _refined(prim, t, levels, device)
-            colors = np.repeat(face_color[parent], counts, axis=0)
-        elif scheme == "none":
-            normals = _authored_normals(mesh, counts, indices, len(pts), t)
-        matrix = cache.GetLocalToWorldTransform(prim)
+        pts, counts, indices, normals, colors = local
         world = _world(pts, matrix)
-        if normals is None:
-            normals = corner_normals(world, counts, indices)
-        else:
-            normals = _world_normals(normals, matrix)
+        normals = corner_normals(world, counts, indices) if normals is None else _world_normals(normals, matrix)
         parts.append(_soup(world, counts, indices, normals, colors))
     return Soup.join(parts)
+
+
+def _local_mesh(prim, t, levels, device):
+    """(points, counts, indices, per-corner normals or None, per-corner colours) of a mesh in its own space,
+    refined ``levels`` times when it is a subdivision mesh (as ``warp-subdiv refine`` refines it); None when
+    it has nothing to draw."""
+    from pxr import UsdGeom
+
+    mesh = UsdGeom.Mesh(prim)
+    pts = mesh.GetPointsAttr().Get(t)
+    counts = mesh.GetFaceVertexCountsAttr().Get(t)
+    indices = mesh.GetFaceVertexIndicesAttr().Get(t)
+    if pts is None or counts is None or indices is None or len(counts) == 0:
+        return None
+    pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
+    counts = np.asarray(counts, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    valid, why = UsdGeom.Mesh.ValidateTopology(mesh.GetFaceVertexIndicesAttr().Get(t),
+                                               mesh.GetFaceVertexCountsAttr().Get(t), len(pts))
+    if not valid or np.any(counts < 3):
+        raise SubdivInputError(f"{prim.GetPath()}: cannot render: {why or 'a face has fewer than 3 vertices'}")
+    try:
+        colors = _mesh_colors(prim, mesh, counts, indices, t)
+    except Exception:  # noqa: BLE001 (a preview keeps going in grey)
+        colors = np.tile(DEFAULT_COLOR, (len(indices), 1))
+    normals = None
+    scheme = mesh.GetSubdivisionSchemeAttr().Get()
+    if levels > 0 and scheme in ("catmullClark", "loop", "bilinear"):
+        # refine for the preview; each refined face takes the mean colour of its control face
+        face_color = np.add.reduceat(colors, np.concatenate([[0], np.cumsum(counts)[:-1]])) / counts[:, None]
+        pts, counts, indices, parent = _refined(prim, t, levels, device)
+        colors = np.repeat(face_color[parent], counts, axis=0)
+    elif scheme == "none":
+        normals = _authored_normals(mesh, counts, indices, len(pts), t)
+    return pts, counts, indices, normals, colors
 
 
 def _authored_normals(mesh, counts, indices, n_points, t):
@@ -298,11 +364,13 @@ def _refined(prim, t, levels, device):
     refined as ``warp-subdiv refine`` refines it (same options, same bilinear handling)."""
     from .primvars import FaceMap
     from .usd import linear_vertex_data, make_refiner
-    from .usd_read import read_mesh
+    from .usd_read import DEFAULT, read_mesh
 
     sp = read_mesh(prim)
+    time = DEFAULT if t.IsDefault() else t.GetValue()
+    pts = sp.points_at(time)
+    sp = sp.with_topology(sp.topology_index(time))  # the control mesh at that time (topology may change)
     refiner = make_refiner(sp, levels, device=device)
-    pts = sp.points_default if t.IsDefault() else sp.points_at(t.GetValue())
     counts, indices = refiner.topology()
     fmap = FaceMap(sp.mesh, levels, sp.scheme, refiner.options.boundary.value, hierarchy=refiner.hierarchy)
     if sp.scheme == "bilinear":
@@ -317,11 +385,8 @@ def first_points_sample(stage, prims=None):
     value (only time samples), or None: what to render when the stage has no start time and none is asked."""
     from pxr import Usd, UsdGeom
 
-    from .usd_read import mesh_prims
-
-    meshes, instanced = mesh_prims(stage, prims, where="render")
     first = []
-    for prim in meshes + instanced:
+    for prim, _ in mesh_placements(stage, prims, where="render"):
         attr = UsdGeom.Mesh(prim).GetPointsAttr()
         if attr.GetNumTimeSamples() and attr.Get(Usd.TimeCode.Default()) is None:
             first.append(attr.GetTimeSamples()[0])
@@ -332,13 +397,9 @@ def cage_edges(stage, time=None, prims=None) -> np.ndarray:
     """World-space control-mesh edges of the subdivision meshes of ``stage``: (E, 2, 3)."""
     from pxr import Usd, UsdGeom
 
-    from .usd_read import mesh_prims
-
     t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
-    cache = UsdGeom.XformCache(t)
     out = []
-    meshes, _ = mesh_prims(stage, prims, where="cage")
-    for prim in meshes:
+    for prim, matrix in mesh_placements(stage, prims, time, where="cage"):
         mesh = UsdGeom.Mesh(prim)
         if mesh.GetSubdivisionSchemeAttr().Get() == "none":
             continue
@@ -346,7 +407,7 @@ def cage_edges(stage, time=None, prims=None) -> np.ndarray:
                                 mesh.GetFaceVertexIndicesAttr().Get(t))
         if pts is None or counts is None or indices is None:
             continue
-        pts = _world(np.asarray(pts, dtype=np.float64).reshape(-1, 3), cache.GetLocalToWorldTransform(prim))
+        pts = _world(np.asarray(pts, dtype=np.float64).reshape(-1, 3), matrix)
         counts = np.asarray(counts, dtype=np.int64)
         idx = np.asarray(indices, dtype=np.int64)
         if len(idx) == 0 or idx.max() >= len(pts):

@@ -40,8 +40,8 @@ from .objio import ObjData
 from .options import Boundary, Options, Precision, RuleSet, Scheme
 from .primvars import FaceMap, corners_to_vertices, vertices_used
 from .refiner import Refiner
-from .usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, mesh_prims, open_stage,
-                       read_mesh)
+from .usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, open_stage, read_mesh,
+                       read_scene)
 from .usd_write import OutputLayer, check_output_path, extent_of, int_array, vec3f_array, vt_array
 
 T = Sdf.ValueTypeNames
@@ -71,6 +71,8 @@ class Plan:
     options: list = field(default_factory=list)  # the Options of each of prims
     left_alone: list = field(default_factory=list)  # (path, reason)
     warnings: list = field(default_factory=list)  # "path: message"
+    scene: object = None  # the usd_read.Scene: where each mesh's refined data goes
+    keys: list = field(default_factory=list)  # the input digest of each of prims (its unit in scene)
 
     @property
     def predicted_bytes(self) -> int:
@@ -106,8 +108,15 @@ def plan(
     limit: bool = False,
     require_meshes: bool = True,
     device=None,
+    all_variants: bool = False,
 ) -> Plan:
     """Open ``input_path`` and read every subdivision mesh at or under ``prims``; predict output sizes.
+
+    Meshes inside scene-graph instances and PointInstancer prototypes are read once per prototype, meshes
+    whose composed inputs are identical once (:func:`~warp_subdiv.usd_read.read_scene`; :attr:`Plan.scene`
+    says where each one's refined data goes). ``all_variants``: every variant of the variant sets that change
+    a mesh is read too. An explicit ``scheme`` with ``prims`` refines the meshes there whatever their
+    subdivisionScheme says (polygonal meshes too).
 
     Every control mesh is analysed with the run's options (``make_refiner(sp, 0)``), so bad tags, options or
     devices fail here, before any refinement."""
@@ -115,22 +124,21 @@ def plan(
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     stage = open_stage(input_path)
-    meshes, instanced = mesh_prims(stage, prims, where=input_path)
-    out = Plan(input_path, stage, [], [])
-    for prim in instanced:
-        reason = "inside an instance (make it non-instanceable to refine it)"
-        out.left_alone.append((str(prim.GetPath()), reason))
-        out.warnings.append(f"{prim.GetPath()}: not refined: {reason}")
-    for prim in meshes:
-        sp = read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme or "auto", rules=rules,
-                       boundary=boundary)
+    force = bool(prims) and scheme is not None  # an explicit scheme on named prims: polygonal meshes too
+
+    def read(prim):
+        return read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme or "auto", rules=rules,
+                         boundary=boundary, force=force)
+
+    scene = read_scene(stage, prims, read=read, all_variants=all_variants, where=input_path)
+    out = Plan(input_path, stage, [], [], scene=scene)
+    out.left_alone.extend(scene.left_alone)
+    for key, sp in scene.units.items():
         if sp is None:
-            scheme_token = prim.GetAttribute("subdivisionScheme").Get()
-            out.left_alone.append((str(prim.GetPath()), "empty mesh" if scheme_token != "none"
-                                   else "subdivisionScheme none"))
             continue
         options = options_for(sp, precision=precision)
         out.prims.append(sp)
+        out.keys.append(key)
         out.options.append(options)
         out.warnings.extend(f"{sp.path}: {w}" for w in sp.warnings)
         out.estimates.append(estimate_prim(sp, levels, precision, normals, limit,
@@ -138,9 +146,14 @@ def plan(
     if require_meshes and not out.prims:
         where = f"under {', '.join(prims)}" if prims else "in the file"
         why = "; ".join(f"{p} ({r})" for p, r in out.left_alone[:3])
-        if prims and not meshes and not instanced:
+        if prims and not scene.units:
             raise SubdivInputError(f"{input_path}: {', '.join(prims)} is not a mesh and holds no meshes")
-        raise SubdivInputError(f"{input_path}: no subdivision meshes {where}" + (f": {why}" if why else ""))
+        how = ""
+        if any(r == "subdivisionScheme none" for _, r in out.left_alone):
+            how = ("; polygonal meshes (subdivisionScheme none) are refined on request: give scheme loop or "
+                   "catmull-clark with prims naming them (or a prim above them)")
+        raise SubdivInputError(f"{input_path}: no subdivision meshes {where}" + (f": {why}" if why else "") + how,
+                               option=("scheme", "prims") if how else None)
     return out
 
 
@@ -303,9 +316,15 @@ def refine_usd(
     flatten: bool = False,
     semi_sharp: str = "keep",
     progress=None,
+    all_variants: bool = False,
 ) -> Result:
     """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) ``levels`` times and
     write the layer ``output_path`` (.usd, .usda or .usdc) that sublayers the input and overrides them.
+
+    Meshes inside instances are refined once per prototype and written once per distinct refined prototype,
+    which the instances reference (they stay instances); meshes with identical inputs are refined once.
+    ``all_variants``: every variant of the variant sets that change a mesh is refined and written inside the
+    same variant set and variant (see :func:`plan` and the README's USD section).
 
     ``frames``: (start, end) time codes (None for an open end) selecting the time samples to refine.
     ``max_memory``: bytes; refuse (MemoryGuardError) when the prediction is larger; None for no limit.
@@ -321,7 +340,7 @@ def refine_usd(
     check_output_path(output_path)
     p = plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
              precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit,
-             device=device)
+             device=device, all_variants=all_variants)
     out_abs = check_output_path(output_path, p.stage)
     check_memory(p.estimates, max_memory, levels)
 
@@ -330,7 +349,7 @@ def refine_usd(
         "prims": Vt.StringArray([sp.path for sp in p.prims]),
         "rules": Vt.StringArray(sorted({sp.rules for sp in p.prims})),
         "schemes": Vt.StringArray(sorted({sp.scheme for sp in p.prims})), "limitPoints": bool(limit),
-        "normals": bool(normals), "flattened": bool(flatten),
+        "normals": bool(normals), "flattened": bool(flatten), "allVariants": bool(all_variants),
     }}
     if frames is not None:
         custom["warpSubdiv"]["frames"] = ":".join("" if v is None else f"{v:g}" for v in frames)
@@ -339,14 +358,21 @@ def refine_usd(
     layer = OutputLayer(out_abs, p.stage, custom)
     reports = []
     try:
+        out_layout = layout(p)
         for i, sp in enumerate(p.prims):
             t0 = _time.perf_counter()
+            key = p.keys[i]
+            sp.target = str(out_layout.homes[key])
             rep = _refine_prim(sp, p.options[i], layer, levels, device, limit, normals, warnings, work,
                                work.weights[i], f"[{i + 1}/{len(p.prims)}] {sp.path}")
+            for dst in out_layout.copies[key]:
+                layer.copy(out_layout.homes[key], dst)
             rep.seconds = _time.perf_counter() - t0
             reports.append(rep)
+        out_layout.write(layer)
+        out_layout.check(layer, p, reports)
         # bounding-box hints above the refined meshes: recomputed for the refined surfaces
-        layer.override_extents_hints(p.stage, {sp.path: sp.point_times for sp in p.prims}, frames)
+        layer.override_extents_hints(p.stage, out_layout.hint_roots(p), frames)
         if progress is not None:
             progress(1.0, "writing " + os.path.basename(out_abs))
         layer.commit(flatten=flatten)
@@ -354,6 +380,141 @@ def refine_usd(
         layer.discard()
         raise
     return Result(out_abs, reports, warnings, _time.perf_counter() - start, p.predicted_bytes)
+
+
+#: The root prim of the output layer that holds refined prototypes and shared meshes (a class: not part of the
+#: scene; a suffix is added where the input has a prim of that name).
+CONTAINER = "__warpSubdiv"
+#: The attributes whose composed values must come from the refined data (checked on the output).
+_CHECKED = ("subdivisionScheme", "faceVertexCounts", "faceVertexIndices", "points")
+
+
+@dataclass
+class Layout:
+    """Where the refined data goes in the output layer.
+
+    * ``homes``: the path each unit (a distinct input, :attr:`Plan.keys`) is written at; ``copies``: further
+      paths that get a copy of it (inside variants, or in other prototypes' content);
+    * ``refs``: internal references (path, target): each top-level instance prim references the refined
+      content of its prototype (``<container>/Prototype_<n>``; nested instances reference theirs from inside
+      it), and meshes outside instances with identical inputs reference one shared refined mesh
+      (``<container>/Mesh_<n>``) written once;
+    * ``shared``: those meshes' paths (a reference that the composed output shows to lose against a stronger
+      opinion of the input becomes a copy).
+    """
+
+    container: Sdf.Path
+    homes: dict
+    copies: dict
+    refs: list
+    shared: dict
+    prototypes: dict
+
+    def write(self, layer: OutputLayer) -> None:
+        """The container and the references (the refined data is written already)."""
+        if self.prototypes or any(h.HasPrefix(self.container) for h in self.homes.values()):
+            layer.container(self.container)
+        for path, target in self.refs:
+            layer.reference(path, target)
+
+    def check(self, layer: OutputLayer, p: Plan, reports) -> None:
+        """Compose the output (in each variant configuration that was read) and check that every refined mesh
+        composes to its refined data: the strongest opinion of its topology, points and scheme must be the
+        output layer's. A shared mesh that fails gets its own copy; anything else is an error naming the
+        input's opinion that wins."""
+        scene = p.scene
+        faces = {key: rep.faces_out for key, rep in zip(p.keys, reports)}
+        todo = [(o.composed, o.config, o.key, o.dest if o.dest in self.shared else None) for o in scene.top.meshes]
+        for key in self.prototypes:
+            todo += [(o.composed, o.config, o.key, None) for o in scene.sites[key].meshes]
+        by_config: dict = {}
+        for item in todo:
+            by_config.setdefault(item[1], []).append(item)
+        for config, items in by_config.items():
+            stage = config.open(layer.layer)
+            for composed, _, key, shared in items:
+                bad = _losing_opinion(stage.GetPrimAtPath(composed), layer.layer, faces[key])
+                if bad is None:
+                    continue
+                if shared is not None:  # the reference loses: write the mesh's own copy instead
+                    layer.unreference(shared, self.homes[key])
+                    layer.copy(self.homes[key], shared)
+                    continue
+                where = "".join(f" with {vset} = {v} on {path}" for path, vset, v in config.selections)
+                raise SubdivInputError(
+                    f"{composed}: the refined mesh written for it{where} does not compose: {bad} is stronger "
+                    "(an opinion outside the variant or instance that carries the refined data); refine without "
+                    "all_variants, or move the mesh into a referenced asset")
+            del stage
+
+    def hint_roots(self, p: Plan) -> dict:
+        """Composed prims whose ancestors' extentsHint is recomputed, with the times written under them: the
+        refined meshes outside instances and the instance prims that reference refined prototypes."""
+        scene = p.scene
+        times_of = {key: sp.point_times for key, sp in zip(p.keys, p.prims)}
+        memo: dict = {}
+
+        def site_times(key):
+            if key not in memo:
+                site = scene.sites[key]
+                out = set()
+                for o in site.meshes:
+                    out.update(times_of[o.key])
+                for r in site.refs:
+                    out.update(site_times(r.site))
+                memo[key] = out
+            return memo[key]
+
+        roots: dict = {}
+        for o in scene.top.meshes:
+            roots.setdefault(o.composed, set()).update(times_of[o.key])
+        for r in scene.top.refs:
+            roots.setdefault(r.composed, set()).update(site_times(r.site))
+        return {path: sorted(times) for path, times in roots.items()}
+
+
+def _losing_opinion(prim, layer: Sdf.Layer, faces: int):
+    """None when the composed ``prim`` takes its refined attributes from ``layer`` (and has ``faces`` faces);
+    else the stronger opinion (layer and spec path) that wins, as text."""
+    if not prim:
+        return "nothing (the prim does not compose)"
+    for name in _CHECKED:
+        attr = prim.GetAttribute(name)
+        stack = [s for s in attr.GetPropertyStack(DEFAULT)
+                 if s.HasDefaultValue() or s.layer.GetNumTimeSamplesForPath(s.path)] if attr else []
+        if stack and stack[0].layer != layer:
+            return f"{stack[0].layer.identifier} {stack[0].path}"
+    counts = prim.GetAttribute("faceVertexCounts").Get()
+    if counts is None or len(counts) != faces:
+        return f"a faceVertexCounts of {0 if counts is None else len(counts)} faces (not {faces})"
+    return None
+
+
+def layout(p: Plan) -> Layout:
+    """The output layout of a plan: prototypes named in the order the top level reaches them, each unit's home
+    and copies, the references (see :class:`Layout`)."""
+    name, n = CONTAINER, 1
+    while p.stage.GetPrimAtPath("/" + name):
+        n += 1
+        name = f"{CONTAINER}_{n}"
+    container = Sdf.Path("/" + name)
+    targets, refs, prototypes = p.scene.layout(container)
+    homes, copies, shared = {}, {}, {}
+    count = 0
+    for key in p.keys:
+        paths = targets[key]
+        plain = [t for t in paths if not t.ContainsPrimVariantSelection() and not t.HasPrefix(container)]
+        if len(plain) >= 2:  # identical meshes outside instances: written once, referenced from each
+            count += 1
+            home = container.AppendChild(f"Mesh_{count}")
+            for t in plain:
+                refs.append((t, home))
+                shared[t] = key
+            copies[key] = [t for t in paths if t not in plain]
+        else:
+            home, copies[key] = paths[0], paths[1:]
+        homes[key] = home
+    return Layout(container, homes, copies, refs, shared, prototypes)
 
 
 class _Context:

@@ -141,6 +141,30 @@ class OutputLayer:
         for time, value in samples or ():
             self.layer.SetTimeSample(spec.path, time, value)
 
+    def copy(self, source, dest) -> None:
+        """Copy the spec at ``source`` (a refined mesh, its attributes, time samples and children) to ``dest``
+        (which may lie inside a variant), replacing what ``dest`` held."""
+        dest = Sdf.Path(str(dest))
+        Sdf.CreatePrimInLayer(self.layer, dest)  # its parents, variant sets and variants
+        if not Sdf.CopySpec(self.layer, Sdf.Path(str(source)), self.layer, dest):
+            raise SubdivInputError(f"{self.output}: could not copy {source} to {dest}")
+
+    def reference(self, path, target) -> None:
+        """Prepend an internal reference to ``target`` (a prim of this layer) on ``path``: stronger than the
+        prim's own references, weaker than its local opinions."""
+        self.prim(str(path)).referenceList.Prepend(Sdf.Reference("", Sdf.Path(str(target))))
+
+    def unreference(self, path, target) -> None:
+        """Remove the reference :meth:`reference` authored."""
+        spec = self.layer.GetPrimAtPath(Sdf.Path(str(path)))
+        if spec is not None:
+            spec.referenceList.prependedItems.remove(Sdf.Reference("", Sdf.Path(str(target))))
+
+    def container(self, path) -> None:
+        """The root prim that holds refined prototypes and shared meshes: a class, so that it is not part of
+        the scene (nothing traverses or renders it; only references bring its content in)."""
+        self.prim(str(path)).specifier = Sdf.SpecifierClass
+
     def block(self, prim: Sdf.PrimSpec, name: str, type_name, uniform: bool = False, custom: bool = False) -> None:
         """Block the attribute: weaker layers' values (defaults and time samples) no longer show through, and
         neither do time samples this layer may already hold for it."""
