@@ -2,7 +2,10 @@
 
 No stencil weights are stored for these rows: a face point is the mean of its corners, a smooth edge point
 weighs its endpoints and its two wings, a smooth vertex point weighs itself and its ring, with weights
-looked up per valence. Rows marked 0 in the ``regular`` masks are left for :func:`explicit_rows`.
+looked up per valence. Rows marked 0 in the ``regular`` masks are left for :func:`explicit_rows`; an empty
+mask means every row is regular. On a level of quads what index arithmetic gives is not stored: corner h
+lies in face h // 4 and is followed by corner :func:`next_quad_corner` (h), so an edge is read as its two
+corners and a vertex's ring as its corners.
 Output layout: child vertices [vertex children, face children (Catmull-Clark), edge children].
 
 Vertex data comes in either layout of :mod:`warp_subdiv.kernels.layout` (vec3 rows, or (rows, width)
@@ -17,6 +20,20 @@ import warp as wp
 from .layout import columns, data_types, load, store
 
 wp.set_module_options({"enable_backward": False})
+
+
+@wp.func
+def next_quad_corner(h: int):
+    """The corner after ``h`` in its quad (corners 4f..4f+3 belong to face f)."""
+    return h - h % 4 + (h + 1) % 4
+
+
+@wp.func
+def skipped(regular: wp.array(dtype=wp.uint8), row: int):
+    """Whether ``row`` is left to the explicit rows (an empty mask: every row is regular)."""
+    if regular.shape[0] == 0:
+        return False
+    return regular[row] == wp.uint8(0)
 
 
 @wp.kernel
@@ -35,18 +52,21 @@ def quad_face_points(corner_vert: wp.array(dtype=wp.int32), src: Any, dst: Any, 
 
 
 @wp.kernel
-def quad_edge_points(neighbours: wp.array2d(dtype=wp.int32), regular: wp.array(dtype=wp.uint8), src: Any,
-                     dst: Any, face_row: int, first_row: int, weights: wp.array(dtype=Any), row0: int):
+def quad_edge_points(edge_corners: wp.array2d(dtype=wp.int32), corner_vert: wp.array(dtype=wp.int32),
+                     regular: wp.array(dtype=wp.uint8), src: Any, dst: Any, face_row: int, first_row: int,
+                     weights: wp.array(dtype=Any), row0: int):
     """Smooth Catmull-Clark edge points: w0 (a + b) + w1 (f0 + f1), f the new face points already in dst.
 
-    ``neighbours[e]`` = (a, b, face 0, face 1)."""
+    ``edge_corners[e]`` = (h0, h1), the edge's corners: a, b are h0's vertex and the next one, f0, f1 the
+    faces of h0 and h1."""
     e = wp.tid() + row0
-    if regular[e] == wp.uint8(0):
+    if skipped(regular, e):
         return
-    a = neighbours[e, 0]
-    b = neighbours[e, 1]
-    f0 = face_row + neighbours[e, 2]
-    f1 = face_row + neighbours[e, 3]
+    h0 = edge_corners[e, 0]
+    a = corner_vert[h0]
+    b = corner_vert[next_quad_corner(h0)]
+    f0 = face_row + h0 / 4
+    f1 = face_row + edge_corners[e, 1] / 4
     for c in range(columns(dst)):
         store(dst, first_row + e, c, weights[0] * (load(src, a, c) + load(src, b, c)) + weights[1] * (
             load(dst, f0, c) + load(dst, f1, c)))
@@ -54,19 +74,23 @@ def quad_edge_points(neighbours: wp.array2d(dtype=wp.int32), regular: wp.array(d
 
 @wp.kernel
 def quad_vertex_points(offsets: wp.array(dtype=wp.int32), ring: wp.array(dtype=wp.int32),
-                       ring_faces: wp.array(dtype=wp.int32), regular: wp.array(dtype=wp.uint8), src: Any, dst: Any,
-                       face_row: int, weights: wp.array2d(dtype=Any), row0: int):
-    """Smooth Catmull-Clark vertex points: w0(n) v + w1(n) (sum of ring vertices + sum of new face points)."""
+                       corner_vert: wp.array(dtype=wp.int32), regular: wp.array(dtype=wp.uint8), src: Any,
+                       dst: Any, face_row: int, weights: wp.array2d(dtype=Any), row0: int):
+    """Smooth Catmull-Clark vertex points: w0(n) v + w1(n) (sum of ring vertices + sum of new face points).
+
+    ``ring`` lists the vertex's corners h: each adds the vertex after it and the face point of face h // 4."""
     v = wp.tid() + row0
-    if regular[v] == wp.uint8(0):
+    if skipped(regular, v):
         return
     start = offsets[v]
     end = offsets[v + 1]
     n = end - start
     for c in range(columns(dst)):
-        acc = load(src, ring[start], c) + load(dst, face_row + ring_faces[start], c)
+        h = ring[start]
+        acc = load(src, corner_vert[next_quad_corner(h)], c) + load(dst, face_row + h / 4, c)
         for j in range(start + 1, end):
-            acc += load(src, ring[j], c) + load(dst, face_row + ring_faces[j], c)
+            h = ring[j]
+            acc += load(src, corner_vert[next_quad_corner(h)], c) + load(dst, face_row + h / 4, c)
         store(dst, v, c, weights[n, 0] * load(src, v, c) + weights[n, 1] * acc)
 
 
@@ -76,7 +100,7 @@ def tri_edge_points(neighbours: wp.array2d(dtype=wp.int32), regular: wp.array(dt
     """Smooth Loop edge points: w0 (a + b) + w1 (o0 + o1). ``neighbours[e]`` = (a, b, o0, o1), o the vertices
     opposite the edge."""
     e = wp.tid() + row0
-    if regular[e] == wp.uint8(0):
+    if skipped(regular, e):
         return
     a = neighbours[e, 0]
     b = neighbours[e, 1]
@@ -93,7 +117,7 @@ def tri_vertex_points(offsets: wp.array(dtype=wp.int32), ring: wp.array(dtype=wp
                       row0: int):
     """Smooth Loop vertex points: (1 - n beta) v + beta (sum of ring vertices); ``ring`` lists the vertices."""
     v = wp.tid() + row0
-    if regular[v] == wp.uint8(0):
+    if skipped(regular, v):
         return
     start = offsets[v]
     end = offsets[v + 1]
@@ -131,7 +155,7 @@ for _s, _a in data_types():
     _w2 = wp.array2d(dtype=_s)
     REGULAR_OVERLOADS += [
         wp.overload(quad_face_points, [_i, _a, _a, int, _w, int]),
-        wp.overload(quad_edge_points, [_i2, _u, _a, _a, int, int, _w, int]),
+        wp.overload(quad_edge_points, [_i2, _i, _u, _a, _a, int, int, _w, int]),
         wp.overload(quad_vertex_points, [_i, _i, _i, _u, _a, _a, int, _w2, int]),
         wp.overload(tri_edge_points, [_i2, _u, _a, _a, int, _w, int]),
         wp.overload(tri_vertex_points, [_i, _i, _u, _a, _a, _w2, int]),

@@ -77,11 +77,10 @@ class QuadStep:
     num_edges: int
     num_rows: int
     corner_vert: wp.array
-    edge_neighbours: wp.array  # (E, 4) int32: a, b, face 0, face 1
+    edge_neighbours: wp.array  # (E, 2) int32: the edge's two corners
     ring_offsets: wp.array
-    ring: wp.array
-    ring_faces: wp.array
-    vertex_regular: wp.array
+    ring: wp.array  # each vertex's corners
+    vertex_regular: wp.array  # empty: every row regular
     edge_regular: wp.array
     ring_weights: wp.array  # (max valence + 1, 2)
     edge_weights: wp.array  # (2,)
@@ -206,8 +205,8 @@ class _Uploader:
                       edge_regular=self(t.edge_regular, u8), ring_weights=self(t.ring_weights),
                       edge_weights=self(t.edge_weights), explicit=self.explicit(t.explicit))
         if t.face_size == 4:
-            return QuadStep(num_faces=t.num_faces, corner_vert=self(t.corner_vert, i32),
-                            ring_faces=self(t.ring_faces, i32), quarter=self([0.25]), **common)
+            return QuadStep(num_faces=t.num_faces, corner_vert=self(t.corner_vert, i32), quarter=self([0.25]),
+                            **common)
         return TriangleStep(**common)
 
     def displacement(self, t) -> Displacement | None:
@@ -320,9 +319,10 @@ def _(record: QuadStep, src, dst, device) -> None:
     # face points first: edge and vertex points read them from dst (each launch ends before the next starts)
     run.rows(k.quad_face_points, F, [record.corner_vert, src, dst, V, record.quarter])
     run.rows(k.quad_edge_points, record.num_edges,
-             [record.edge_neighbours, record.edge_regular, src, dst, V, V + F, record.edge_weights])
+             [record.edge_neighbours, record.corner_vert, record.edge_regular, src, dst, V, V + F,
+              record.edge_weights])
     run.rows(k.quad_vertex_points, V,
-             [record.ring_offsets, record.ring, record.ring_faces, record.vertex_regular, src, dst, V,
+             [record.ring_offsets, record.ring, record.corner_vert, record.vertex_regular, src, dst, V,
               record.ring_weights])
     apply(record.explicit, src, dst, run)
 

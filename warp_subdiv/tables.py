@@ -308,44 +308,57 @@ def _put_smooth_vertices(level, out, selected, pos, weight, loop_beta, slot_vert
 class RegularTables:
     """What the regular kernels need to compute the smooth rows of one step from the level's index tables.
 
-    Uniform levels only (all quads or all triangles). ``vertex_regular`` and ``edge_regular`` (uint8) mark
-    the rows they compute; every other row is in ``explicit``. ``ring_weights`` are per-valence weights
-    (centre, each ring term) from :mod:`warp_subdiv.rules`; ``edge_weights`` are the smooth edge weights
-    (each endpoint, each wing term).
+    Uniform levels only (all quads or all triangles). Only what index arithmetic cannot give is stored
+    (issue 17): on a level of quads corner h belongs to face h // 4 and its next corner is
+    h - h % 4 + (h + 1) % 4, so an edge is its two corners (its endpoints, the corner vertex and the next
+    one, and its faces follow) and a vertex's ring is its corners (each one's next vertex and its face's face
+    point); triangles keep each edge's four vertices and each vertex's ring vertices. ``vertex_regular`` and
+    ``edge_regular`` (uint8) mark the rows the kernels compute, and are empty where every row is regular;
+    every other row is in ``explicit``. ``ring_weights`` are per-valence weights (centre, each ring term) from
+    :mod:`warp_subdiv.rules`; ``edge_weights`` are the smooth edge weights (each endpoint, each wing term).
     """
 
     face_size: int
     num_vertices: int
     num_faces: int
-    corner_vert: np.ndarray
-    edge_neighbours: np.ndarray  # (E, 4): endpoints a, b, then the two face ids (quads) or opposite vertices
+    corner_vert: np.ndarray  # quads: the level's face corners (empty for triangles: their kernels never read it)
+    edge_neighbours: np.ndarray  # quads (E, 2): the edge's two corners; triangles (E, 4): a, b, opposite 0, 1
     vert_corner_offsets: np.ndarray
-    ring: np.ndarray  # per vertex (CSR by vert_corner_offsets): its ring vertices
-    ring_faces: np.ndarray  # the faces around it, in the same order (quads; empty for triangles)
-    vertex_regular: np.ndarray
-    edge_regular: np.ndarray
+    ring: np.ndarray  # per vertex (CSR by vert_corner_offsets): quads its corners, triangles its ring vertices
+    vertex_regular: np.ndarray  # (V,) uint8, or (0,): every vertex row is regular
+    edge_regular: np.ndarray  # (E,) uint8, or (0,): every edge row is regular
     ring_weights: np.ndarray  # (max valence + 1, 2)
     edge_weights: np.ndarray  # (2,)
     explicit: StencilTable
     num_rows: int  # child vertices of the step
 
+    @property
+    def num_edges(self) -> int:
+        return len(self.edge_neighbours)
+
     def nbytes(self, weight_bytes: int = 4) -> int:
-        arrays = (self.corner_vert, self.edge_neighbours, self.vert_corner_offsets,
-                  self.ring, self.ring_faces, self.vertex_regular, self.edge_regular)
+        """Bytes of the tables the kernels read on the device (the weights per valence aside)."""
+        arrays = (self.corner_vert, self.edge_neighbours, self.vert_corner_offsets, self.ring,
+                  self.vertex_regular, self.edge_regular)
         return sum(a.nbytes for a in arrays) + self.explicit.nbytes(weight_bytes)
 
 
 def _edge_neighbours(level: Level, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
-    """(E, 4) int32 per edge: its endpoints, then the faces on its two sides (quads: their face points) or the
-    vertices opposite it (triangles), so the edge kernels read four indices in a row."""
+    """Per edge what the edge kernels read: on quads (E, 2) int32 its two corners (endpoints and face points
+    follow by index arithmetic); on triangles (E, 4) int32 its endpoints, then the vertices opposite it, so
+    the kernel reads four indices in a row."""
+    if level.face_size == 4:
+        return np.ascontiguousarray(np.column_stack([h0, h1]), dtype=np.int32)
     out = np.empty((level.num_edges, 4), dtype=np.int32)
     out[:, :2] = level.edge_verts
-    if level.face_size == 4:
-        out[:, 2], out[:, 3] = h0 // 4, h1 // 4
-    else:
-        out[:, 2] = level.corner_vert[level.corner_prev(h0)]
-        out[:, 3] = level.corner_vert[level.corner_prev(h1)]
+    out[:, 2] = level.corner_vert[level.corner_prev(h0)]
+    out[:, 3] = level.corner_vert[level.corner_prev(h1)]
     return out
+
+
+def _flags(regular: np.ndarray) -> np.ndarray:
+    """A row mask as the kernels read it: uint8, or empty where every row is regular."""
+    return np.zeros(0, np.uint8) if regular.all() else regular.astype(np.uint8)
 
 
 def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop") -> RegularTables:
@@ -381,17 +394,17 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
         assert np.allclose(ring_mask.edge, ring_mask.face)
     ring = np.stack([ring_mask.centre, ring_mask.edge], axis=1)
     edge_weights = np.array([w, w_wing])  # Catmull-Clark: (a + b + f0 + f1) / 4
+    quads = level.face_size == 4
     return RegularTables(
         face_size=level.face_size,
         num_vertices=level.num_vertices,
         num_faces=level.num_faces,
-        corner_vert=level.corner_vert,
+        corner_vert=level.corner_vert if quads else np.zeros(0, np.int32),
         edge_neighbours=_edge_neighbours(level, h0, h1),
         vert_corner_offsets=level.vert_corner_offsets.astype(np.int32),
-        ring=level.at_next(level.corner_vert)[level.vert_corners],
-        ring_faces=level.vert_corners // 4 if level.face_size == 4 else np.zeros(0, np.int32),
-        vertex_regular=vertex_regular.astype(np.uint8),
-        edge_regular=edge_regular.astype(np.uint8),
+        ring=level.vert_corners if quads else level.at_next(level.corner_vert)[level.vert_corners],
+        vertex_regular=_flags(vertex_regular),
+        edge_regular=_flags(edge_regular),
         ring_weights=ring,
         edge_weights=edge_weights,
         explicit=explicit,
