@@ -67,6 +67,7 @@ class Scene:
     view: tuple = (-60.0, 35.0)  # preview camera: azimuth, elevation (degrees)
     levels: int = 4  # preview levels
     time_range: tuple | None = None
+    writer: object = None  # writes the scene itself (meshes then lists the meshes as they compose)
 
 
 # -- geometry -------------------------------------------------------------------------------------------
@@ -312,6 +313,89 @@ def animated_meshes():
                      time_points=frames, primvars=True, color=(0.5, 0.75, 0.5))]
 
 
+STUD = CUBE * [1.6, 1.6, 0.8]  # a flat box
+STUD_CREASES = [[4, 5, 7, 6, 4], [0, 1, 3, 2, 0]]  # its top and bottom squares: closed creases when "creased"
+STUDS = (("Stud_1", "soft"), ("Stud_2", "creased"), ("Stud_3", "soft"), ("Stud_4", "creased"))
+PEBBLES = ((0.0, 0.55, 0.0), (1.5, 0.7, 40.0), (3.0, 0.5, 80.0), (4.5, 0.8, 120.0), (6.0, 0.6, 160.0))
+
+
+def instanced_meshes():
+    """Production structure: four instances of one asset (a Catmull-Clark box) whose variant set edges =
+    soft | creased creases its top and bottom squares, and a PointInstancer scattering a Loop pebble (an instance of a
+    second asset). The meshes as they compose (instance proxies), for the tests."""
+    counts, idx = [4] * 6, [i for f in CUBE_FACES for i in f]
+    out = [MeshSpec(f"{name}/Mesh", STUD, counts, idx, creases=STUD_CREASES if edges == "creased" else [],
+                    color=(0.85, 0.55, 0.35)) for name, edges in STUDS]
+    faces = _outward_faces(ICOSAHEDRON, ICOSAHEDRON_FACES)
+    out.append(MeshSpec("Pebbles/Prototypes/Pebble/Mesh", ICOSAHEDRON, [3] * len(faces),
+                        [i for f in faces for i in f], scheme="loop", color=(0.45, 0.6, 0.85)))
+    return out
+
+
+def write_instanced_scene(scene: "Scene", path: str) -> None:
+    """The assets are classes (/Assets, not part of the scene) that the instances reference internally."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    stage = Usd.Stage.Open(layer)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    layer.documentation = (f"warp-subdiv scene {scene.name}: {scene.title}. Written by scenes/make_scenes.py.")
+    stage.CreateClassPrim("/Assets")
+
+    def mesh_of(prim_path, spec):
+        mesh = UsdGeom.Mesh.Define(stage, prim_path)
+        mesh.CreateSubdivisionSchemeAttr(spec.scheme)
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray(list(spec.counts)))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(list(spec.indices)))
+        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(spec.points.astype(np.float32)))
+        lo, hi = spec.points.min(0), spec.points.max(0)
+        mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]))
+        mesh.CreateDisplayColorAttr(Vt.Vec3fArray([Gf.Vec3f(*spec.color)]))
+        return mesh
+
+    # the stud asset and its variant set
+    soft = next(s for s in scene.meshes if not s.creases)
+    stud = UsdGeom.Xform.Define(stage, "/Assets/Stud").GetPrim()
+    mesh = mesh_of("/Assets/Stud/Mesh", soft)
+    edges = stud.GetVariantSets().AddVariantSet("edges")
+    for name in ("soft", "creased"):
+        edges.AddVariant(name)
+        edges.SetVariantSelection(name)
+        if name == "creased":
+            with edges.GetVariantEditContext():
+                mesh.CreateCreaseIndicesAttr(Vt.IntArray([i for loop in STUD_CREASES for i in loop]))
+                mesh.CreateCreaseLengthsAttr(Vt.IntArray([len(loop) for loop in STUD_CREASES]))
+                mesh.CreateCreaseSharpnessesAttr(Vt.FloatArray([10.0] * len(STUD_CREASES)))
+    edges.SetVariantSelection("soft")
+    # the pebble asset
+    UsdGeom.Xform.Define(stage, "/Assets/Pebble")
+    mesh_of("/Assets/Pebble/Mesh", scene.meshes[-1])
+    # four stud instances, two variants
+    for i, (name, variant) in enumerate(STUDS):
+        prim = UsdGeom.Xform.Define(stage, f"/World/{name}")
+        prim.AddTranslateOp().Set(Gf.Vec3d(2.5 * i, 0.0, 0.0))
+        prim.GetPrim().GetReferences().AddInternalReference("/Assets/Stud")
+        prim.GetPrim().SetInstanceable(True)
+        prim.GetPrim().GetVariantSets().GetVariantSet("edges").SetVariantSelection(variant)
+    # a PointInstancer scattering the pebble (its prototype an instance of the pebble asset)
+    pebbles = UsdGeom.PointInstancer.Define(stage, "/World/Pebbles")
+    UsdGeom.Scope.Define(stage, "/World/Pebbles/Prototypes")
+    proto = UsdGeom.Xform.Define(stage, "/World/Pebbles/Prototypes/Pebble").GetPrim()
+    proto.GetReferences().AddInternalReference("/Assets/Pebble")
+    proto.SetInstanceable(True)
+    pebbles.CreatePrototypesRel().SetTargets([proto.GetPath()])
+    pebbles.CreateProtoIndicesAttr(Vt.IntArray([0] * len(PEBBLES)))
+    pebbles.CreatePositionsAttr(Vt.Vec3fArray([Gf.Vec3f(x + 0.75, -2.2, 0.0) for x, _, _ in PEBBLES]))
+    pebbles.CreateScalesAttr(Vt.Vec3fArray([Gf.Vec3f(s, s, s) for _, s, _ in PEBBLES]))
+    pebbles.CreateOrientationsAttr(Vt.QuathArray([Gf.Quath(Gf.Rotation(Gf.Vec3d(0, 0, 1), a).GetQuat())
+                                                  for _, _, a in PEBBLES]))
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(layer.ExportToString())
+
+
 SCENES = {s.name: s for s in (
     Scene("concave_corner", "Concave corners: an L-shaped plate and a plate with a hole", "Fig. 2, 11",
           concave_corner_meshes(), view=(-135.0, 35.0)),
@@ -329,6 +413,8 @@ SCENES = {s.name: s for s in (
           cube_normals_meshes(), view=(-90.0, 20.0)),
     Scene("animated", "An animated creased plate with primvars and a material subset", "-",
           animated_meshes(), view=(-70.0, 35.0), levels=3, time_range=(1.0, 24.0)),
+    Scene("instanced", "Instances of a box asset with a crease variant (soft, creased) and point-instanced "
+          "Loop pebbles", "-", instanced_meshes(), view=(-62.0, 38.0), levels=3, writer=write_instanced_scene),
 )}
 
 
@@ -336,6 +422,10 @@ SCENES = {s.name: s for s in (
 
 def write_scene(scene: Scene, path: str) -> None:
     from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+
+    if scene.writer is not None:
+        scene.writer(scene, path)
+        return
 
     layer = Sdf.Layer.CreateAnonymous(".usda")
     stage = Usd.Stage.Open(layer)
