@@ -312,9 +312,9 @@ def test_nested_instances_reference_their_prototypes_from_inside(assets, tmp_pat
 
 
 def test_point_instancer_prototypes_are_refined(assets, tmp_path):
-    """A PointInstancer with a subdivision prototype defined under it and an instanceable reference as a second
-    prototype: both are refined (the first in place, the second through its prototype), the instancer's
-    prototypes and indices are unchanged."""
+    """A PointInstancer with a subdivision prototype defined under it, an instanceable reference as a second
+    prototype and a third authored as an over (not drawn on its own): all are refined (the first and third in
+    place, the second through its prototype), the instancer's prototypes and indices are unchanged."""
     folder = tmp_path / "in"
     folder.mkdir()
     stage = new_stage(folder / "scene.usda")
@@ -322,18 +322,22 @@ def test_point_instancer_prototypes_are_refined(assets, tmp_path):
     UsdGeom.Scope.Define(stage, "/World/Scatter/Prototypes")
     define_mesh(stage, "/World/Scatter/Prototypes/Plate", PLATE, PLATE_FACES)
     place(stage, "/World/Scatter/Prototypes/Cube", assets["cube"], instanceable=True)
-    pi.CreatePrototypesRel().SetTargets(["/World/Scatter/Prototypes/Plate", "/World/Scatter/Prototypes/Cube"])
-    pi.CreateProtoIndicesAttr(Vt.IntArray([0, 1, 0]))
-    pi.CreatePositionsAttr(Vt.Vec3fArray([(0, 0, 0), (3, 0, 0), (6, 0, 0)]))
+    hidden = define_mesh(stage, "/World/Scatter/Prototypes/Hidden", PLATE * 2.0, PLATE_FACES)
+    hidden.GetPrim().SetSpecifier(Sdf.SpecifierOver)
+    pi.CreatePrototypesRel().SetTargets(["/World/Scatter/Prototypes/Plate", "/World/Scatter/Prototypes/Cube",
+                                         "/World/Scatter/Prototypes/Hidden"])
+    pi.CreateProtoIndicesAttr(Vt.IntArray([0, 1, 0, 2]))
+    pi.CreatePositionsAttr(Vt.Vec3fArray([(0, 0, 0), (3, 0, 0), (6, 0, 0), (9, 0, 0)]))
     stage.Save()
     src, dst = folder / "scene.usda", tmp_path / "out.usda"
     refine(src, dst)
     before, after = Usd.Stage.Open(str(src)), Usd.Stage.Open(str(dst))
-    for path in ("/World/Scatter/Prototypes/Plate", "/World/Scatter/Prototypes/Cube/Geo/Mesh"):
+    for path in ("/World/Scatter/Prototypes/Plate", "/World/Scatter/Prototypes/Cube/Geo/Mesh",
+                 "/World/Scatter/Prototypes/Hidden"):
         assert_refined(after.GetPrimAtPath(path), expected_of(before.GetPrimAtPath(path)))
     out_pi = UsdGeom.PointInstancer(after.GetPrimAtPath("/World/Scatter"))
     assert out_pi.GetPrototypesRel().GetTargets() == pi.GetPrototypesRel().GetTargets()
-    assert list(out_pi.GetProtoIndicesAttr().Get()) == [0, 1, 0]
+    assert list(out_pi.GetProtoIndicesAttr().Get()) == [0, 1, 0, 2]
     assert_instancing_kept(before, after)
     assert_valid(src, dst)
 
