@@ -10,7 +10,7 @@ whose frame is turned by 180 degrees) is applied on the way out. Kernels know no
 """
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "max_unroll": 1})
 
 #: face kinds of the parameterisation
 DIRECT, SUBFACES, FAN = 0, 1, 2
@@ -19,12 +19,7 @@ SPLIT = wp.constant(-1)
 HOLE = wp.constant(-2)
 
 
-@wp.func
-def _ipow(x: wp.float64, k: int) -> wp.float64:
-    r = wp.float64(1.0)
-    for _ in range(k):
-        r = r * x
-    return r
+vec5d = wp.types.vector(length=5, dtype=wp.float64)
 
 
 @wp.func
@@ -58,11 +53,11 @@ def _cubic_basis(t: wp.float64, bspline: int):
 
 
 @wp.func
-def _mono(w0: wp.float64, w1: wp.float64, w2: wp.float64, a: int, b: int, c: int) -> wp.float64:
-    """w0^a w1^b w2^c, 0 where an exponent is negative."""
+def _mono(pw0: vec5d, pw1: vec5d, pw2: vec5d, a: int, b: int, c: int) -> wp.float64:
+    """w0^a w1^b w2^c from the powers of the barycentric coordinates, 0 where an exponent is negative."""
     if a < 0 or b < 0 or c < 0:
         return wp.float64(0.0)
-    return _ipow(w0, a) * _ipow(w1, b) * _ipow(w2, c)
+    return pw0[a] * pw1[b] * pw2[c]
 
 
 @wp.kernel
@@ -120,10 +115,16 @@ def limit_evaluate(
         t = two * (v - tv)
         js = two
         jt = two
-    elif kind == 2:  # Loop polygon: its fan triangles, triangle k on u in [k, k + 1]
-        k = wp.clamp(int(wp.floor(u)), 0, face_size[f] - 3)
+    elif kind == 2:  # Loop polygon: fan triangle k on the half-unit tile at (k, 0), as Bfr's sub-face tiles
+        tu = wp.floor(u)
+        if u - tu > wp.float64(0.75):
+            tu = tu + one
+        k = wp.clamp(int(tu), 0, face_size[f] - 3)
         node = node + k
-        s = u - wp.float64(k)
+        s = two * (u - wp.float64(k))
+        t = two * v
+        js = two
+        jt = two
     s = wp.clamp(s, zero, one)
     t = wp.clamp(t, zero, one)
     if triangles != 0 and s + t > one:
@@ -187,31 +188,33 @@ def limit_evaluate(
     dst = wp.vec3d()
     dtt = wp.vec3d()
     if triangles != 0:
+        # powers 0..4 of the barycentric coordinates; monomial w0^a w1^b w2^c, exponents below 0 give 0
         w0 = one - s - t
+        pw0 = vec5d(one, w0, w0 * w0, w0 * w0 * w0, w0 * w0 * w0 * w0)
+        pw1 = vec5d(one, s, s * s, s * s * s, s * s * s * s)
+        pw2 = vec5d(one, t, t * t, t * t * t, t * t * t * t)
         k = int(0)
-        for ia in range(5):
-            a = 4 - ia
-            for ib in range(5 - a):
-                b = 4 - a - ib
+        for a in range(4, -1, -1):
+            for b in range(4 - a, -1, -1):
                 c = 4 - a - b
                 cp = points[patch_index[patch, k]]
                 coef = wp.float64(24.0) / (_fact(a) * _fact(b) * _fact(c))
-                p += coef * _mono(w0, s, t, a, b, c) * cp
-                d0 = wp.float64(a) * _mono(w0, s, t, a - 1, b, c)
-                d1 = wp.float64(b) * _mono(w0, s, t, a, b - 1, c)
-                d2 = wp.float64(c) * _mono(w0, s, t, a, b, c - 1)
-                ds += coef * (d1 - d0) * cp
-                dt += coef * (d2 - d0) * cp
+                p += (coef * _mono(pw0, pw1, pw2, a, b, c)) * cp
+                d0 = wp.float64(a) * _mono(pw0, pw1, pw2, a - 1, b, c)
+                d1 = wp.float64(b) * _mono(pw0, pw1, pw2, a, b - 1, c)
+                d2 = wp.float64(c) * _mono(pw0, pw1, pw2, a, b, c - 1)
+                ds += (coef * (d1 - d0)) * cp
+                dt += (coef * (d2 - d0)) * cp
                 if second != 0:
-                    d00 = wp.float64(a * (a - 1)) * _mono(w0, s, t, a - 2, b, c)
-                    d11 = wp.float64(b * (b - 1)) * _mono(w0, s, t, a, b - 2, c)
-                    d22 = wp.float64(c * (c - 1)) * _mono(w0, s, t, a, b, c - 2)
-                    d01 = wp.float64(a * b) * _mono(w0, s, t, a - 1, b - 1, c)
-                    d02 = wp.float64(a * c) * _mono(w0, s, t, a - 1, b, c - 1)
-                    d12 = wp.float64(b * c) * _mono(w0, s, t, a, b - 1, c - 1)
-                    dss += coef * (d11 - two * d01 + d00) * cp
-                    dst += coef * (d12 - d02 - d01 + d00) * cp
-                    dtt += coef * (d22 - two * d02 + d00) * cp
+                    d00 = wp.float64(a * (a - 1)) * _mono(pw0, pw1, pw2, a - 2, b, c)
+                    d11 = wp.float64(b * (b - 1)) * _mono(pw0, pw1, pw2, a, b - 2, c)
+                    d22 = wp.float64(c * (c - 1)) * _mono(pw0, pw1, pw2, a, b, c - 2)
+                    d01 = wp.float64(a * b) * _mono(pw0, pw1, pw2, a - 1, b - 1, c)
+                    d02 = wp.float64(a * c) * _mono(pw0, pw1, pw2, a - 1, b, c - 1)
+                    d12 = wp.float64(b * c) * _mono(pw0, pw1, pw2, a, b - 1, c - 1)
+                    dss += (coef * (d11 - two * d01 + d00)) * cp
+                    dst += (coef * (d12 - d02 - d01 + d00)) * cp
+                    dtt += (coef * (d22 - two * d02 + d00)) * cp
                 k = k + 1
     else:
         bspline = int(0)

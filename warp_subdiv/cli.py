@@ -4,6 +4,7 @@
     warp-subdiv stitch CHUNK... -o OUT                   stitch the layers of `refine --frames A:B` runs
     warp-subdiv info IN [--levels N]                     the subdivision meshes of a file and predicted sizes
     warp-subdiv render IN -o OUT.png [options]           a shaded preview, ray-cast with Warp
+    warp-subdiv tessellate IN -o OUT (--edge-length L | --rate N)   tessellate the limit surfaces
 
 Exit codes: 0 success, 2 usage or input errors (one line on stderr, no traceback), 1 internal errors
 (one line; WARP_SUBDIV_DEBUG=1 shows the traceback), 130 interrupted. Outputs are written to a temporary file
@@ -131,6 +132,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="draw the control meshes of this USD file (e.g. the input of a refinement) as lines")
     g.add_argument("--samples", type=int, default=2, help="samples per pixel along each axis (default 2)")
     g.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
+    from .tessellate import add_arguments as tessellate_arguments
+
+    tessellate_arguments(sub)
     return p
 
 
@@ -462,6 +466,13 @@ def _print_levels(estimate_at, levels: int) -> None:
 
 # -- render --------------------------------------------------------------------------------------------
 
+def _tessellate(args) -> int:
+    _quiet_warp()
+    from .tessellate import run_command
+
+    return run_command(args)
+
+
 def _render(args) -> int:
     if os.path.splitext(args.output)[1].lower() != ".png":
         raise UsageError(f"{args.output}: the preview is written as .png")
@@ -489,7 +500,8 @@ def main(argv=None) -> int:
     try:
         parser = _parser()
         args = parser.parse_args(argv)
-        run = {"refine": _refine, "info": _info, "render": _render, "stitch": _stitch}[args.command]
+        run = {"refine": _refine, "info": _info, "render": _render, "stitch": _stitch,
+               "tessellate": _tessellate}[args.command]
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             code = run(args)

@@ -12,8 +12,9 @@ Parameterisation (as OpenSubdiv's ``Bfr::Parameterization``):
   and the middle of edge i - 1 at (0,1). This is Bfr's QUAD_SUBFACES parameterisation; as in Bfr, a (u, v)
   within a quarter tile beyond a sub-face's square belongs to the nearest sub-face (coordinates are clamped
   to it);
-* a Loop polygon (n > 3; Loop fan-triangulates polygons, (v0, v_k+1, v_k+2)) is its fan triangles laid side by
-  side: triangle k occupies u in [k, k + 1], with barycentric (u - k, v).
+* a Loop polygon (n > 3; Loop fan-triangulates polygons into (v0, v_k+1, v_k+2)) is its fan triangles laid out
+  as tiles in the same way: triangle k occupies the half-unit square with corner (k, 0), and 2 (u - k, v) is its
+  own barycentric (u, v). (OpenSubdiv's Loop has no polygons; this mirrors its sub-face tiles.)
 
 Derivatives ``du``, ``dv`` (and ``duu``, ``duv``, ``dvv``) are with respect to these (u, v); normals are the unit
 ``du x dv`` (outward for counter-clockwise faces).
@@ -155,10 +156,10 @@ class LimitSurface:
         w = self.face_tiles[faces]
         out[sub, 0] = (corners % w)[sub]
         out[sub, 1] = (corners // w)[sub]
-        fan = kind == FAN  # corner i < n - 1 at (i, 0) (triangle i - 1's second corner), the last at (n - 3, 1)
-        last = corners == self.face_size[faces] - 1
-        out[fan, 0] = np.where(last, corners - 2, corners)[fan]
-        out[fan, 1] = last[fan]
+        fan = kind == FAN  # corner 0 at (0, 0); corner i < n - 1: triangle i - 1's second corner; the last corner:
+        last = corners == self.face_size[faces] - 1  # triangle n - 3's third
+        out[fan, 0] = np.where(last, corners - 2, np.where(corners == 0, 0.0, corners - 0.5))[fan]
+        out[fan, 1] = np.where(last, 0.5, 0.0)[fan]
         return out
 
     # ------------------------------------------------------------------------------------------ evaluation

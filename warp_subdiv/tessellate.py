@@ -1,0 +1,795 @@
+"""Watertight tessellation of a :class:`~warp_subdiv.limit.LimitSurface`, and the ``tessellate`` command.
+
+Every control face is tessellated in its own parameterisation (:mod:`warp_subdiv.limit`): a quad or triangle as
+one *cell*, a Catmull-Clark n-gon as its n quad sub-faces, a Loop polygon as its fan triangles. A cell's sides
+lie on *lines*: the control edges, the n-gon's spokes (from an edge's middle to the face centre) and a fan's
+diagonals. Every line has one rate (number of segments) and its points are shared by the cells on both sides,
+so the output has no T-junctions whatever the rates of neighbouring faces:
+
+* a cell whose opposite sides have equal rates is a uniform grid (quads, or triangles under Loop or
+  ``quads=False``);
+* otherwise an inner grid (rates: the larger of opposite sides; a triangle: the largest side) is joined to the
+  sides by a ring of triangles (each side zipped to the inner grid's boundary row in parameter order); a cell
+  too coarse for an inner grid is a fan around its centre.
+
+Rates: ``rate`` an integer (every line), one integer per control face (an edge gets the larger rate of its
+faces), or one per control edge (``LimitSurface.edges`` order; a face's inner rate is its largest edge rate);
+or ``edge_length``, a target length in object space: each control edge gets ceil(length of its limit curve /
+edge_length), the curve measured at 16 points. A Catmull-Clark n-gon's edges get even rates (each half is a
+side of a sub-face) and its spokes half its inner rate. Diagonals of a Loop fan get the polygon's inner rate.
+
+Output (:class:`Tessellation`): ``points`` and unit ``normals`` of the limit surface (float64), faces
+(``face_vertex_counts``, ``face_vertex_indices``, int32), and for every vertex the control face and (u, v) it
+was evaluated at (``base_face``, ``uv``); face-varying: ``face_base_face`` (per output face) and ``face_uv``
+(per face corner: the (u, v) of that corner in the face's own control face, which differs from ``uv`` for
+vertices on an edge between control faces).
+"""
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from .errors import SubdivInputError
+
+#: Refuse tessellations with more vertices than this (before any allocation of their size).
+MAX_VERTICES = 50_000_000
+#: Largest rate of one line.
+MAX_RATE = 4096
+
+QUAD, TRI = 4, 3
+
+
+@dataclass
+class Tessellation:
+    """A tessellated limit surface (see the module docstring)."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    face_vertex_counts: np.ndarray
+    face_vertex_indices: np.ndarray
+    base_face: np.ndarray
+    uv: np.ndarray
+    face_base_face: np.ndarray
+    face_uv: np.ndarray
+    edge_rates: np.ndarray
+
+    @property
+    def num_vertices(self) -> int:
+        return len(self.points)
+
+    @property
+    def num_faces(self) -> int:
+        return len(self.face_vertex_counts)
+
+
+# ----------------------------------------------------------------------------------------- cell patterns
+@dataclass(frozen=True)
+class _Pattern:
+    """A cell's tessellation in its own (s, t): local vertices are the boundary points (side k, index i;
+    i = 0 is corner k), then interior points; faces index them (-1 pads triangles)."""
+
+    boundary: np.ndarray  # (B, 2) int: (side, index)
+    interior_st: np.ndarray  # (I, 2)
+    boundary_st: np.ndarray  # (B, 2)
+    faces: np.ndarray  # (m, 4) int, -1 padded
+
+    @property
+    def num_local(self) -> int:
+        return len(self.boundary) + len(self.interior_st)
+
+
+def _side_st(kind: int, k: int, x: float) -> tuple:
+    """(s, t) of the point at fraction x along side k of a cell (counter-clockwise sides from corner k)."""
+    if kind == QUAD:
+        return [(x, 0.0), (1.0, x), (1.0 - x, 1.0), (0.0, 1.0 - x)][k]
+    return [(x, 0.0), (1.0 - x, x), (0.0, 1.0 - x)][k]
+
+
+def _zip(outer: list, inner: list, t_outer: list, t_inner: list) -> list:
+    """Triangles joining a side (outer points, parameters along it) to the inner grid's row beside it, both in
+    the side's direction; counter-clockwise when the inner row lies to the left."""
+    tris = []
+    i = j = 0
+    while i < len(outer) - 1 or j < len(inner) - 1:
+        take_outer = j == len(inner) - 1 or (
+            i < len(outer) - 1 and 0.5 * (t_outer[i] + t_outer[i + 1]) <= 0.5 * (t_inner[j] + t_inner[j + 1]))
+        if take_outer:
+            tris.append((outer[i], outer[i + 1], inner[j]))
+            i += 1
+        else:
+            tris.append((outer[i], inner[j + 1], inner[j]))
+            j += 1
+    return tris
+
+
+@lru_cache(maxsize=4096)
+def _pattern(kind: int, rates: tuple, quads: bool) -> _Pattern:
+    n = kind
+    boundary = [(k, i) for k in range(n) for i in range(rates[k])]
+    index = {key: m for m, key in enumerate(boundary)}
+    boundary_st = [_side_st(kind, k, i / rates[k]) for k, i in boundary]
+    interior: dict = {}
+    interior_st: list = []
+
+    def inner(key, st):
+        if key not in interior:
+            interior[key] = len(boundary) + len(interior_st)
+            interior_st.append(st)
+        return interior[key]
+
+    def side_point(k, i):  # i may equal rates[k]: the next corner
+        return index[((k + 1) % n, 0)] if i == rates[k] else index[(k, i)]
+
+    faces = []
+    if kind == QUAD:
+        r0, r1, r2, r3 = rates
+        ru, rv = max(r0, r2), max(r1, r3)
+
+        def grid(a, b, R_u, R_v):  # a point of the uniform (R_u, R_v) grid
+            if b == 0:
+                return side_point(0, a)
+            if a == R_u:
+                return side_point(1, b)
+            if b == R_v:
+                return side_point(2, R_u - a)
+            if a == 0:
+                return side_point(3, R_v - b)
+            return inner((a, b), (a / R_u, b / R_v))
+
+        if r0 == r2 and r1 == r3:
+            for b in range(rv):
+                for a in range(ru):
+                    faces.append((grid(a, b, ru, rv), grid(a + 1, b, ru, rv), grid(a + 1, b + 1, ru, rv),
+                                  grid(a, b + 1, ru, rv)))
+        elif ru >= 2 and rv >= 2:
+            for b in range(1, rv - 1):
+                for a in range(1, ru - 1):
+                    faces.append((grid(a, b, ru, rv), grid(a + 1, b, ru, rv), grid(a + 1, b + 1, ru, rv),
+                                  grid(a, b + 1, ru, rv)))
+            rows = [[(a, 1) for a in range(1, ru)], [(ru - 1, b) for b in range(1, rv)],
+                    [(a, rv - 1) for a in range(ru - 1, 0, -1)], [(1, b) for b in range(rv - 1, 0, -1)]]
+            along = [lambda a, b: a / ru, lambda a, b: b / rv, lambda a, b: 1 - a / ru, lambda a, b: 1 - b / rv]
+            for k in range(4):
+                outer = [side_point(k, i) for i in range(rates[k] + 1)]
+                t_outer = [i / rates[k] for i in range(rates[k] + 1)]
+                row = [grid(a, b, ru, rv) for a, b in rows[k]]
+                t_row = [along[k](a, b) for a, b in rows[k]]
+                faces.extend(_zip(outer, row, t_outer, t_row))
+        else:
+            centre = inner("centre", (0.5, 0.5))
+            ring = [side_point(k, i) for k in range(4) for i in range(rates[k])]
+            faces.extend((ring[m], ring[(m + 1) % len(ring)], centre) for m in range(len(ring)))
+    else:
+        R = max(rates)
+
+        def tri(a, b):  # a point of the uniform rate-R triangle grid, a along s, b along t
+            if b == 0:
+                return side_point(0, a)
+            if a + b == R:
+                return side_point(1, b)
+            if a == 0:
+                return side_point(2, R - b)
+            return inner((a, b), (a / R, b / R))
+
+        if rates[0] == rates[1] == rates[2]:
+            for b in range(R):
+                for a in range(R - b):
+                    faces.append((tri(a, b), tri(a + 1, b), tri(a, b + 1)))
+                    if a + b <= R - 2:
+                        faces.append((tri(a + 1, b), tri(a + 1, b + 1), tri(a, b + 1)))
+        elif R >= 3:
+            for b in range(1, R):
+                for a in range(1, R - b):
+                    if a + b <= R - 2:
+                        faces.append((tri(a, b), tri(a + 1, b), tri(a, b + 1)))
+                    if a + b <= R - 3:
+                        faces.append((tri(a + 1, b), tri(a + 1, b + 1), tri(a, b + 1)))
+            rows = [[(a, 1) for a in range(1, R - 1)], [(R - 1 - b, b) for b in range(1, R - 1)],
+                    [(1, b) for b in range(R - 2, 0, -1)]]
+            along = [lambda a, b: a / R, lambda a, b: b / R, lambda a, b: 1 - b / R]
+            for k in range(3):
+                outer = [side_point(k, i) for i in range(rates[k] + 1)]
+                t_outer = [i / rates[k] for i in range(rates[k] + 1)]
+                row = [tri(a, b) for a, b in rows[k]]
+                t_row = [along[k](a, b) for a, b in rows[k]]
+                faces.extend(_zip(outer, row, t_outer, t_row))
+        else:
+            centre = inner("centre", (1.0 / 3.0, 1.0 / 3.0))
+            ring = [side_point(k, i) for k in range(3) for i in range(rates[k])]
+            faces.extend((ring[m], ring[(m + 1) % len(ring)], centre) for m in range(len(ring)))
+    if not quads:  # quads split along their diagonal (0, 2)
+        faces = [t for f in faces for t in ([(f[0], f[1], f[2]), (f[0], f[2], f[3])] if len(f) == 4 else [f])]
+    out = np.full((len(faces), 4), -1, dtype=np.int64)
+    for m, f in enumerate(faces):
+        out[m, :len(f)] = f
+    return _Pattern(np.array(boundary, dtype=np.int64).reshape(-1, 2),
+                    np.array(interior_st, dtype=np.float64).reshape(-1, 2),
+                    np.array(boundary_st, dtype=np.float64).reshape(-1, 2), out)
+
+
+# ----------------------------------------------------------------------------------------- cells and lines
+@dataclass
+class _Cells:
+    """Cells (one row each): kind, control face, transform (u, v) = offset + scale (s, t), and per side the
+    line it lies on, its start index on the line, its direction (+1 / -1) and its rate."""
+
+    kind: np.ndarray
+    face: np.ndarray
+    offset: np.ndarray  # (C, 2)
+    scale: np.ndarray  # (C,)
+    line: np.ndarray  # (C, 4)
+    start: np.ndarray  # (C, 4)
+    step: np.ndarray  # (C, 4)
+    rate: np.ndarray  # (C, 4)
+
+
+def _face_corners(counts):
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return offsets
+
+
+def _rates(surface, rate, edge_length) -> tuple:
+    """(edge rates (E,), face inner rates (F,)) from the arguments."""
+    mesh = surface.mesh
+    counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
+    F = len(counts)
+    E = len(mesh.edges.edge_verts)
+    corner_edge = np.asarray(mesh.edges.corner_edge, dtype=np.int64)
+    corner_face = np.repeat(np.arange(F), counts)
+    if (rate is None) == (edge_length is None):
+        raise SubdivInputError("give either rate or edge_length", option="rate")
+    if edge_length is not None:
+        if isinstance(edge_length, bool) or not isinstance(edge_length, numbers.Real) or not edge_length > 0 \
+                or not np.isfinite(edge_length):
+            raise SubdivInputError(f"edge_length must be a positive number, got {edge_length!r}",
+                                   option="edge_length", value=edge_length)
+        lengths = _edge_lengths(surface)
+        edge = np.clip(np.ceil(lengths / float(edge_length)), 1, MAX_RATE).astype(np.int64)
+        face = _max_per_face(edge[corner_edge], corner_face, F)
+        return edge, face
+    if isinstance(rate, dict):
+        if set(rate) - {"faces", "edges"} or len(rate) != 1:
+            raise SubdivInputError("rate as a dict must be {'faces': [...]} or {'edges': [...]}", option="rate")
+        which, values = next(iter(rate.items()))
+    else:
+        which, values = None, rate
+    arr = np.asarray(values)
+    if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
+        arr = arr.astype(np.int64)
+    if arr.dtype.kind not in "iu" or arr.ndim > 1:
+        raise SubdivInputError(f"rate must be an integer or a 1-D array of integers, got {values!r}", option="rate")
+    if np.any(arr < 1) or np.any(arr > MAX_RATE):
+        raise SubdivInputError(f"rates must lie in [1, {MAX_RATE}]", option="rate")
+    arr = arr.astype(np.int64)
+    if arr.ndim == 0:
+        return np.full(E, int(arr)), np.full(F, int(arr))
+    if which is None:
+        if len(arr) == F and len(arr) == E:
+            raise SubdivInputError(f"{len(arr)} rates: this mesh has as many faces as edges; pass "
+                                   "rate={'faces': ...} or rate={'edges': ...}", option="rate")
+        which = "faces" if len(arr) == F else "edges" if len(arr) == E else None
+    if which == "faces" and len(arr) == F:
+        edge = np.zeros(E, dtype=np.int64)
+        np.maximum.at(edge, corner_edge, arr[corner_face])
+        return edge, arr
+    if which == "edges" and len(arr) == E:
+        return arr, _max_per_face(arr[corner_edge], corner_face, F)
+    raise SubdivInputError(f"rate has {len(arr)} entries; give one per face ({F}) or per edge ({E})", option="rate")
+
+
+def _max_per_face(values, corner_face, F):
+    out = np.zeros(F, dtype=np.int64)
+    np.maximum.at(out, corner_face, values)
+    return out
+
+
+def _edge_points(surface, faces, corners, t) -> tuple:
+    """(u, v) at fraction ``t`` along edge ``corners`` (corner j to j + 1) of control ``faces``."""
+    n = surface.face_size[faces].astype(np.int64)
+    j = np.asarray(corners, dtype=np.int64)
+    a = surface.vertex_uv(faces, j)
+    b = surface.vertex_uv(faces, (j + 1) % n)
+    uv = a + (b - a) * t[:, None]
+    kind = surface.face_kind[faces]
+    sub = kind == 1
+    if sub.any():  # n-gon: first half in sub-face j (side a), second half in sub-face j + 1 (side d)
+        w = surface.face_tiles[faces]
+        jn = (j + 1) % n
+        first = t < 0.5
+        tile_j = np.stack([j % w, j // w], 1).astype(np.float64)
+        tile_n = np.stack([jn % w, jn // w], 1).astype(np.float64)
+        uv_sub = np.where(first[:, None], tile_j + np.stack([t, 0 * t], 1),
+                          tile_n + np.stack([0 * t, 1.0 - t], 1))
+        uv[sub] = uv_sub[sub]
+    fan = kind == 2
+    if fan.any():  # Loop polygon: edge 0 in triangle 0, edge j in triangle j - 1, the last in triangle n - 3
+        k = np.clip(j - 1, 0, n - 3).astype(np.float64)
+        st = np.where((j == 0)[:, None], np.stack([t, 0 * t], 1),
+                      np.where((j == n - 1)[:, None], np.stack([0 * t, 1.0 - t], 1), np.stack([1.0 - t, t], 1)))
+        uv[fan] = (0.5 * st + np.stack([k, 0 * k], 1))[fan]
+    return uv
+
+
+def _edge_lengths(surface) -> np.ndarray:
+    """Length of every control edge's limit curve, from 16 segments evaluated on one of its faces."""
+    mesh = surface.mesh
+    counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
+    corner_edge = np.asarray(mesh.edges.corner_edge, dtype=np.int64)
+    E = len(mesh.edges.edge_verts)
+    corner_face = np.repeat(np.arange(len(counts)), counts)
+    corner_index = np.arange(len(corner_face)) - np.repeat(_face_corners(counts)[:-1], counts)
+    usable = ~surface.holes[corner_face]
+    owner = np.full(E, -1, dtype=np.int64)
+    order = np.flatnonzero(usable)[::-1]
+    owner[corner_edge[order]] = order  # the first usable corner of each edge
+    lengths = np.zeros(E)
+    has = owner >= 0
+    h = owner[has]
+    samples = 17
+    t = np.tile(np.linspace(0.0, 1.0, samples), len(h))
+    hh = np.repeat(h, samples)
+    uv = _edge_points(surface, corner_face[hh], corner_index[hh], t)
+    p = surface.evaluate(corner_face[hh], uv[:, 0], uv[:, 1]).points.reshape(len(h), samples, 3)
+    lengths[has] = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
+    return lengths
+
+
+def _cells(surface, edge_rate, face_rate) -> tuple:
+    """The cells of every non-hole face, and the lines (start vertex, end vertex, rate, first interior id)."""
+    mesh = surface.mesh
+    counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
+    indices = np.asarray(mesh.face_vertex_indices, dtype=np.int64)
+    offsets = _face_corners(counts)
+    corner_edge = np.asarray(mesh.edges.corner_edge, dtype=np.int64)
+    edge_verts = np.asarray(mesh.edges.edge_verts, dtype=np.int64)
+    E = len(edge_verts)
+    V = mesh.num_vertices
+    loop = surface.tree.triangles
+    keep = ~surface.holes
+    # lines: control edges first
+    line_start = [edge_verts[:, 0]]
+    line_end = [edge_verts[:, 1]]
+    line_rate = [edge_rate.copy()]
+    # n-gons (Catmull-Clark): even rates on their edges
+    polygon = keep & (counts != (3 if loop else 4))
+    if not loop and polygon.any():
+        pc = np.repeat(polygon, counts)
+        line_rate[0][corner_edge[pc]] += line_rate[0][corner_edge[pc]] % 2
+    edge_rate = line_rate[0]
+    next_id = V
+    edge_base = next_id + np.concatenate([[0], np.cumsum(edge_rate - 1)[:-1]]).astype(np.int64)
+    next_id += int(np.sum(edge_rate - 1))
+    line_base = [edge_base]
+    rows = []  # per cell: kind, face, offset (2), scale, then per side line, start, step, rate
+    n_lines = E
+
+    def forward(h):
+        """Whether corner h's edge runs from its vertex to the next corner's (the edge's own direction)."""
+        return edge_verts[corner_edge[h], 0] == indices[h]
+
+    # plain cells: quads (Catmull-Clark) or triangles (Loop)
+    plain = np.flatnonzero(keep & ~polygon)
+    n = 3 if loop else 4
+    if len(plain):
+        h = offsets[plain][:, None] + np.arange(n)
+        e = corner_edge[h]
+        fwd = forward(h)
+        r = edge_rate[e]
+        start = np.where(fwd, 0, r)
+        step = np.where(fwd, 1, -1)
+        rows.append((np.full(len(plain), n), plain, np.zeros((len(plain), 2)), np.ones(len(plain)),
+                     _pad(e), _pad(start), _pad(step), _pad(r)))
+    polys = np.flatnonzero(polygon)
+    if len(polys) and not loop:
+        # sub-face j: side a = first half of edge j, b = spoke j (middle -> centre), c = spoke j - 1 reversed,
+        # d = second half of edge j - 1
+        centre = next_id + np.arange(len(polys))
+        next_id += len(polys)
+        cnt = counts[polys]
+        face = np.repeat(polys, cnt)
+        j = np.arange(int(cnt.sum())) - np.repeat(np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
+        h = offsets[face] + j
+        e = corner_edge[h]
+        fwd = forward(h)
+        R = edge_rate[e]
+        middle = edge_base[e] + R // 2 - 1  # the edge's point R/2
+        spoke_rate = np.maximum(1, -(-face_rate[face] // 2))
+        spoke = n_lines + np.arange(len(face))
+        line_start.append(middle)
+        line_end.append(np.repeat(centre, cnt))
+        line_rate.append(spoke_rate)
+        line_base.append(next_id + np.concatenate([[0], np.cumsum(spoke_rate - 1)[:-1]]).astype(np.int64))
+        next_id += int(np.sum(spoke_rate - 1))
+        n_lines += len(face)
+        first = np.repeat(np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
+        prev = first + (j - 1) % np.repeat(cnt, cnt)  # row of sub-face j - 1
+        half = R // 2
+        a_start = np.where(fwd, 0, R)
+        a_step = np.where(fwd, 1, -1)
+        e_prev, R_prev, fwd_prev = e[prev], R[prev], fwd[prev]
+        d_start = np.where(fwd_prev, R_prev // 2, R_prev // 2)
+        d_step = np.where(fwd_prev, 1, -1)
+        w = surface.face_tiles[face].astype(np.int64)
+        offset = np.stack([j % w, j // w], 1).astype(np.float64)
+        rows.append((np.full(len(face), 4), face, offset, np.full(len(face), 0.5),
+                     np.stack([e, spoke, spoke[prev], e_prev], 1),
+                     np.stack([a_start, np.zeros_like(j), spoke_rate[prev], d_start], 1),
+                     np.stack([a_step, np.ones_like(j), -np.ones_like(j), d_step], 1),
+                     np.stack([half, spoke_rate, spoke_rate[prev], R_prev // 2], 1)))
+    if len(polys) and loop:
+        # fan triangle k = (v0, v_k+1, v_k+2): sides edge 0 or diagonal k - 1, edge k + 1, diagonal k or the
+        # last edge; diagonals run from v0 to v_k+2 with the face's inner rate
+        cnt = counts[polys]
+        ntri = cnt - 2
+        face = np.repeat(polys, ntri)
+        k = np.arange(int(ntri.sum())) - np.repeat(np.concatenate([[0], np.cumsum(ntri)[:-1]]), ntri)
+        nf = counts[face]
+        ndiag = cnt - 3
+        dface = np.repeat(polys, ndiag)
+        dk = np.arange(int(ndiag.sum())) - np.repeat(np.concatenate([[0], np.cumsum(ndiag)[:-1]]), ndiag)
+        diag_first = n_lines + np.concatenate([[0], np.cumsum(ndiag)[:-1]])
+        dbase = dict(zip(polys.tolist(), diag_first.tolist()))
+        drate = np.maximum(face_rate[dface], 1)
+        line_start.append(indices[offsets[dface]])
+        line_end.append(indices[offsets[dface] + dk + 2])
+        line_rate.append(drate)
+        line_base.append(next_id + np.concatenate([[0], np.cumsum(drate - 1)[:-1]]).astype(np.int64))
+        next_id += int(np.sum(drate - 1))
+        n_lines += len(dface)
+        diag0 = np.array([dbase[f] for f in face.tolist()], dtype=np.int64)
+
+        def edge_side(corner):
+            hh = offsets[face] + corner
+            ee = corner_edge[hh]
+            ff = forward(hh)
+            rr = edge_rate[ee]
+            return ee, np.where(ff, 0, rr), np.where(ff, 1, -1), rr
+
+        e0, s0, t0, r0 = edge_side(np.zeros_like(k))
+        d_prev = diag0 + k - 1
+        side0 = (np.where(k == 0, e0, d_prev), np.where(k == 0, s0, 0), np.where(k == 0, t0, 1),
+                 np.where(k == 0, r0, face_rate[face]))
+        side1 = edge_side(k + 1)
+        el, sl, tl, rl = edge_side(nf - 1)
+        last = k == nf - 3
+        d_here = diag0 + k
+        side2 = (np.where(last, el, d_here), np.where(last, sl, face_rate[face]), np.where(last, tl, -1),
+                 np.where(last, rl, face_rate[face]))
+        rows.append((np.full(len(face), 3), face, np.stack([k, 0 * k], 1).astype(np.float64), np.full(len(face), 0.5),
+                     *(_pad(np.stack([s[i] for s in (side0, side1, side2)], 1)) for i in range(4))))
+    cells = _Cells(*(np.concatenate([r[i] for r in rows]) if rows else None for i in range(8)))
+    lines = (np.concatenate(line_start), np.concatenate(line_end), np.concatenate(line_rate),
+             np.concatenate(line_base))
+    return cells, lines, next_id, edge_rate
+
+
+def _pad(a):
+    a = np.asarray(a)
+    if a.shape[1] == 4:
+        return a
+    return np.concatenate([a, np.zeros((len(a), 4 - a.shape[1]), a.dtype)], 1)
+
+
+# ----------------------------------------------------------------------------------------- tessellate
+def tessellate(surface, *, rate=None, edge_length=None, quads: bool = True) -> Tessellation:
+    """A watertight tessellation of ``surface`` (a :class:`~warp_subdiv.limit.LimitSurface`); see the module
+    docstring for ``rate``, ``edge_length`` and the output. ``quads``: uniform cells of Catmull-Clark faces as
+    quads (else every face a triangle)."""
+    edge_rate, face_rate = _rates(surface, rate, edge_length)
+    cells, (l_start, l_end, l_rate, l_base), next_id, edge_rate = _cells(surface, edge_rate, face_rate)
+    if cells.kind is None:
+        empty = np.zeros((0, 3))
+        return Tessellation(empty, empty.copy(), np.zeros(0, np.int32), np.zeros(0, np.int32),
+                            np.zeros(0, np.int32), np.zeros((0, 2)), np.zeros(0, np.int32), np.zeros((0, 2)),
+                            edge_rate)
+    estimate = int(np.sum(np.where(cells.kind == 4, 1, 0.5) * np.max(cells.rate, axis=1) ** 2)) + next_id
+    if estimate > MAX_VERTICES:
+        raise SubdivInputError(f"the tessellation would have about {estimate} vertices (more than {MAX_VERTICES}); "
+                               "use a lower rate or a longer edge_length", option="rate", value=estimate)
+    quad_cells = bool(quads) and not surface.tree.triangles
+    n_sides = np.where(cells.kind == 4, 4, 3)
+    key = np.concatenate([cells.kind[:, None], cells.rate * (np.arange(4) < n_sides[:, None])], 1)
+    keys, group = np.unique(key, axis=0, return_inverse=True)
+    group = group.reshape(-1)
+    all_faces, all_face_cell, all_corner_uv = [], [], []
+    emit_id, emit_face, emit_uv = [], [], []
+    interior_next = next_id
+    for g, k in enumerate(keys):
+        kind = int(k[0])
+        rates = tuple(int(x) for x in k[1:1 + kind])
+        pat = _pattern(kind, rates, quad_cells)
+        sel = np.flatnonzero(group == g)
+        G = len(sel)
+        side = pat.boundary[:, 0]
+        idx = pat.boundary[:, 1]
+        line = cells.line[sel][:, side]
+        x = cells.start[sel][:, side] + cells.step[sel][:, side] * idx
+        R = l_rate[line]
+        bid = np.where(x == 0, l_start[line], np.where(x == R, l_end[line], l_base[line] + x - 1))
+        n_int = len(pat.interior_st)
+        iid = interior_next + np.arange(G * n_int).reshape(G, n_int)
+        interior_next += G * n_int
+        gid = np.concatenate([bid, iid], 1)
+        st = np.concatenate([pat.boundary_st, pat.interior_st], 0)
+        uv = cells.offset[sel][:, None, :] + cells.scale[sel][:, None, None] * st[None]
+        emit_id.append(gid.reshape(-1))
+        emit_face.append(np.repeat(cells.face[sel], pat.num_local))
+        emit_uv.append(uv.reshape(-1, 2))
+        f = pat.faces
+        valid = f >= 0
+        fg = np.where(valid[None], gid[:, np.maximum(f, 0)], -1)  # (G, m, 4)
+        fuv = uv[:, np.maximum(f, 0)]  # (G, m, 4, 2)
+        all_faces.append(fg.reshape(-1, 4))
+        all_face_cell.append(np.repeat(cells.face[sel], len(f)))
+        all_corner_uv.append(fuv.reshape(-1, 4, 2))
+    faces = np.concatenate(all_faces)
+    face_base = np.concatenate(all_face_cell)
+    corner_uv = np.concatenate(all_corner_uv)
+    ids = np.concatenate(emit_id)
+    used, first = np.unique(ids, return_index=True)
+    remap = np.full(interior_next, -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    vface = np.concatenate(emit_face)[first]
+    vuv = np.concatenate(emit_uv)[first]
+    ev = surface.evaluate(vface, vuv[:, 0], vuv[:, 1])
+    valid = faces >= 0
+    counts = valid.sum(axis=1).astype(np.int32)
+    fvi = remap[faces[valid]].astype(np.int32)
+    return Tessellation(points=ev.points, normals=ev.normals, face_vertex_counts=counts, face_vertex_indices=fvi,
+                        base_face=vface.astype(np.int32), uv=vuv, face_base_face=face_base.astype(np.int32),
+                        face_uv=corner_uv[valid], edge_rates=edge_rate)
+
+
+# ----------------------------------------------------------------------------------------- the command
+@dataclass
+class MeshReport:
+    """One tessellated mesh, for the command's summary."""
+
+    path: str
+    scheme: str
+    rules: str
+    faces_in: int
+    faces_out: int
+    vertices_out: int
+    seconds: float
+
+
+def add_arguments(sub) -> None:
+    """The ``tessellate`` subcommand's arguments (added to the CLI's subparsers)."""
+    t = sub.add_parser("tessellate", help="tessellate the limit surfaces of an OBJ or USD file (watertight, "
+                                          "adaptive by edge length or a rate)",
+                       description="Evaluate the limit surface of every subdivision mesh of IN (or those at or under "
+                                   "--prim) and write a watertight tessellation to OUT, with the conventions of "
+                                   "refine (USD: a layer that sublayers IN and overrides the meshes).")
+    t.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
+    t.add_argument("-o", "--output", required=True, help="output file (.obj for OBJ input; .usd/.usda/.usdc)")
+    how = t.add_mutually_exclusive_group(required=True)
+    how.add_argument("--edge-length", type=float, metavar="L",
+                     help="target edge length in object space: each control edge gets ceil(limit length / L) "
+                          "segments")
+    how.add_argument("--rate", type=int, metavar="N", help="segments per control edge (uniform)")
+    t.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path (USD)")
+    t.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
+                   help="as for refine: auto takes each mesh's subdivisionScheme (OBJ: Loop for all triangles)")
+    t.add_argument("--rules", default=None, choices=["piecewise-smooth", "opensubdiv"])
+    t.add_argument("--boundary", default=None, choices=["edge-and-corner", "edge-only", "none"])
+    t.add_argument("--depth", type=int, default=None,
+                   help="levels of local refinement near irregular features before end caps (default 8)")
+    t.add_argument("--triangles", action="store_true", help="triangles only (default: quads where uniform)")
+    t.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
+    t.add_argument("--flatten", action="store_true", help="write one self-contained layer (USD)")
+    t.add_argument("--quiet", action="store_true", help="print nothing on success")
+
+
+def run_command(args) -> int:
+    """``warp-subdiv tessellate``: the CLI entry point (errors propagate to the CLI's handler)."""
+    import time
+
+    from .cli import UsageError
+
+    if args.rate is not None and args.rate < 1:
+        raise UsageError(f"--rate must be at least 1, got {args.rate}")
+    if args.edge_length is not None and not args.edge_length > 0:
+        raise UsageError(f"--edge-length must be positive, got {args.edge_length}")
+    kind = _kind(args.input)
+    out_kind = _kind(args.output)
+    start = time.perf_counter()
+    options = dict(rate=args.rate, edge_length=args.edge_length, scheme=args.scheme, rules=args.rules,
+                   boundary=args.boundary, depth=args.depth, quads=not args.triangles, device=args.device)
+    if kind == "obj":
+        if args.prim or args.flatten:
+            raise UsageError("--prim and --flatten apply to USD input only")
+        reports, warnings_ = tessellate_obj(args.input, args.output, out_kind, **options)
+    else:
+        if out_kind != "usd":
+            raise UsageError(f"{args.output}: USD input is written as .usd, .usda or .usdc")
+        reports, warnings_ = tessellate_usd(args.input, args.output, prims=args.prim, flatten=args.flatten, **options)
+    for w in warnings_:
+        print(f"warp-subdiv: warning: {w}", file=__import__("sys").stderr)
+    if not args.quiet:
+        how = f"rate {args.rate}" if args.rate is not None else f"edge length {args.edge_length:g}"
+        print(f"{args.input} -> {args.output}: limit surfaces tessellated ({how})")
+        for r in reports:
+            print(f"  {r.path}: {r.scheme}, {r.rules}, faces {r.faces_in:,} -> {r.faces_out:,}, "
+                  f"vertices {r.vertices_out:,}, {r.seconds:.2f} s")
+        print(f"  total: {len(reports)} mesh{'es' if len(reports) != 1 else ''}, "
+              f"{time.perf_counter() - start:.2f} s; wrote {args.output}")
+    return 0
+
+
+def _kind(path: str) -> str:
+    ext = path.lower().rsplit(".", 1)[-1] if "." in path else ""
+    if ext == "obj":
+        return "obj"
+    if ext in ("usd", "usda", "usdc"):
+        return "usd"
+    raise SubdivInputError(f"{path}: unknown file type (use .obj, .usd, .usda or .usdc)")
+
+
+def _surface(mesh, options, depth, device):
+    from .limit import DEFAULT_DEPTH, LimitSurface
+
+    return LimitSurface(mesh, options=options, depth=DEFAULT_DEPTH if depth is None else depth, device=device)
+
+
+def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, scheme, rules, boundary, depth, quads,
+                   device):
+    """Tessellate an OBJ file's mesh; write OBJ or a USD layer holding one mesh (as ``refine`` does)."""
+    import os
+    import time
+
+    from .objio import read_obj, write_obj
+    from .usd import options_for
+
+    t0 = time.perf_counter()
+    data = read_obj(input_path)
+    options = options_for(data, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+    surface = _surface(data.mesh, options, depth, device)
+    t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
+    if out_kind == "obj":
+        write_obj(output_path, t.points, t.face_vertex_counts, t.face_vertex_indices)
+    else:
+        from .usd_write import write_mesh_layer
+
+        name = os.path.splitext(os.path.basename(input_path))[0]
+        write_mesh_layer(output_path, name, t.points, t.face_vertex_counts, t.face_vertex_indices)
+    report = MeshReport(os.path.basename(input_path), options.scheme.value, options.rules.value,
+                        len(data.mesh.face_vertex_counts), t.num_faces, t.num_vertices, time.perf_counter() - t0)
+    return [report], []
+
+
+def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length, scheme, rules, boundary, depth,
+                   quads, device):
+    """Tessellate every subdivision mesh of a USD file and write a layer over it (the conventions of refine:
+    an ``over`` at each mesh's path with ``subdivisionScheme = "none"``, its points, faces, vertex normals and
+    extent, the subdivision attributes and ``subdiv:`` tags blocked). Uniform primvars and face subsets follow
+    their control faces; the tessellation's control face and face-varying (u, v) are written as
+    ``primvars:tessellation:baseFace`` (uniform) and ``primvars:tessellation:uv`` (faceVarying); other primvars
+    (vertex, varying, face-varying) are blocked with a warning, and only the default time is tessellated."""
+    import os
+    import time
+
+    from pxr import Sdf, UsdGeom, Vt
+
+    from . import __version__
+    from .usd import options_for
+    from .usd_read import SUBDIVISION_ATTRIBUTES, mesh_prims, open_stage, read_mesh
+    from .usd_write import OutputLayer, check_output_path, extent_of
+
+    T = Sdf.ValueTypeNames
+    if not os.path.exists(input_path):
+        raise SubdivInputError(f"{input_path}: no such file")
+    stage = open_stage(input_path)
+    out_abs = check_output_path(output_path, stage)
+    meshes, instanced = mesh_prims(stage, prims, where=input_path)
+    warnings_ = [f"{p.GetPath()}: inside an instance; left alone" for p in instanced]
+    custom = {"warpSubdiv": {"version": __version__, "command": "tessellate", "source": os.path.basename(input_path),
+                             "rate": int(rate) if rate is not None else 0,
+                             "edgeLength": float(edge_length) if edge_length is not None else 0.0}}
+    layer = OutputLayer(out_abs, stage, custom)
+    reports = []
+    try:
+        for usd_prim in meshes:
+            t0 = time.perf_counter()
+            sp = read_mesh(usd_prim, scheme=scheme, rules=rules, boundary=boundary)
+            if sp is None:
+                continue
+            if sp.scheme == "bilinear":
+                warnings_.append(f"{sp.path}: a bilinear mesh has no smooth limit surface; left alone")
+                continue
+            if sp.topologies:
+                raise SubdivInputError(f"{sp.path}: its topology changes over time; tessellate takes one topology")
+            if sp.point_times:
+                warnings_.append(f"{sp.path}: points are time-sampled; the default time is tessellated")
+            options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+            try:
+                surface = _surface(sp.mesh, options, depth, device)
+                t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
+            except SubdivInputError as exc:
+                raise sp.error(exc) from None
+            prim = layer.prim(sp.path)
+            layer.set(layer.attr(prim, "subdivisionScheme", T.Token, uniform=True), "none")
+            layer.set(layer.attr(prim, "points", T.Point3fArray), Vt.Vec3fArray.FromNumpy(t.points.astype(np.float32)))
+            layer.set(layer.attr(prim, "faceVertexCounts", T.IntArray), Vt.IntArray.FromNumpy(t.face_vertex_counts))
+            layer.set(layer.attr(prim, "faceVertexIndices", T.IntArray), Vt.IntArray.FromNumpy(t.face_vertex_indices))
+            normals = -t.normals if sp.orientation == "leftHanded" else t.normals
+            spec = layer.attr(prim, "normals", T.Normal3fArray)
+            spec.SetInfo("interpolation", "vertex")
+            layer.set(spec, Vt.Vec3fArray.FromNumpy(normals.astype(np.float32)))
+            layer.set(layer.attr(prim, "extent", T.Float3Array), extent_of(t.points))
+            for name in SUBDIVISION_ATTRIBUTES:
+                attr = usd_prim.GetAttribute(name)
+                layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
+            for name in sp.subdiv_attributes:
+                attr = usd_prim.GetAttribute(name)
+                layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform,
+                            custom=True)
+            for name in list(sp.authored_normals) + ["velocities", "accelerations"]:
+                if name == "normals" or not usd_prim.GetAttribute(name).HasAuthoredValue():
+                    continue
+                layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
+            _write_primvars(sp, layer, prim, t, warnings_)
+            _write_subsets(sp, layer, t)
+            base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
+            base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
+            layer.set(base, Vt.IntArray.FromNumpy(t.face_base_face))
+            uv = layer.attr(prim, "primvars:tessellation:uv", T.TexCoord2fArray, custom=False)
+            uv.SetInfo("interpolation", UsdGeom.Tokens.faceVarying)
+            layer.set(uv, Vt.Vec2fArray.FromNumpy(t.face_uv.astype(np.float32)))
+            reports.append(MeshReport(sp.path, options.scheme.value, options.rules.value,
+                                      len(sp.mesh.face_vertex_counts), t.num_faces, t.num_vertices,
+                                      time.perf_counter() - t0))
+        if not reports:
+            raise SubdivInputError(f"{input_path}: no subdivision meshes to tessellate"
+                                   + (f" under {', '.join(prims)}" if prims else ""))
+        layer.commit(flatten=flatten)
+    except BaseException:
+        layer.discard()
+        raise
+    return reports, warnings_
+
+
+def _write_primvars(sp, layer, prim, t, warnings_) -> None:
+    """Uniform primvars follow their control faces; constant ones are left as they are; others are blocked."""
+    from pxr import Sdf
+
+    for pv in sp.primvars:
+        if pv.interpolation == "constant":
+            continue
+        attr = pv.primvar.GetAttr()
+        if pv.interpolation == "uniform" and not pv.times:
+            values = pv.primvar.ComputeFlattened()
+            if values is not None and len(values) == len(sp.mesh.face_vertex_counts) * max(pv.element_size, 1):
+                arr = np.asarray(values)
+                per_face = arr.reshape(len(sp.mesh.face_vertex_counts), -1) if pv.element_size > 1 else arr
+                out = per_face[t.face_base_face].reshape((-1,) + arr.shape[1:])
+                spec = layer.attr(prim, pv.name, pv.type_name)
+                spec.SetInfo("interpolation", "uniform")
+                try:
+                    value = type(values).FromNumpy(np.ascontiguousarray(out))
+                except (AttributeError, TypeError):
+                    value = type(values)(out.tolist())
+                layer.set(spec, value)
+                if pv.indexed:
+                    layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)
+                continue
+        warnings_.append(f"{sp.path}: primvar {pv.name} ({pv.interpolation}) is not tessellated; blocked")
+        layer.block(prim, pv.name, attr.GetTypeName(), custom=attr.IsCustom())
+        if pv.indexed:
+            layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)
+
+
+def _write_subsets(sp, layer, t) -> None:
+    """Face subsets: the output faces whose control face is in the subset."""
+    from pxr import Sdf, Vt
+
+    for subset in sp.subsets:
+        if subset.element != "face" or subset.times:
+            continue
+        ids = np.asarray(subset.attr.Get() or [], dtype=np.int64)
+        keep = np.flatnonzero(np.isin(t.face_base_face, ids)).astype(np.int32)
+        spec = layer.attr(layer.prim(subset.path), "indices", Sdf.ValueTypeNames.IntArray)
+        layer.set(spec, Vt.IntArray.FromNumpy(keep))
