@@ -25,7 +25,11 @@ class MeshEdges:
     """The control mesh's edges, in OpenSubdiv's order (order of first appearance around the faces).
 
     ``corner_edge[h]`` is the edge from corner ``h`` to the next corner of the same face;
-    ``edge_verts[e]`` is oriented as first met. ``sorted_keys``/``sorted_ids`` look edges up by vertex pair.
+    ``edge_verts[e]`` is oriented as first met. ``sorted_keys``/``sorted_ids`` look edges up by vertex pair
+    (the first instance of a pair that has several). As OpenSubdiv's ``Vtr::Level`` builds them, a corner whose
+    two vertices are the same makes a degenerate edge of its own, and a face that uses a vertex pair again
+    (after its first use of that pair) makes a new instance of the edge; ``nonmanifold`` flags those edges
+    and the first instance of every pair that has several (OpenSubdiv's edge tag, as built).
     """
 
     corner_next: np.ndarray
@@ -33,9 +37,11 @@ class MeshEdges:
     edge_verts: np.ndarray
     sorted_keys: np.ndarray
     sorted_ids: np.ndarray
+    nonmanifold: np.ndarray | None = None  # (E,) bool; None: no edge is flagged
 
     def find(self, pairs: np.ndarray, num_vertices: int) -> np.ndarray:
-        """Edge ids of vertex pairs (m, 2); -1 where the pair is not an edge."""
+        """Edge ids of vertex pairs (m, 2); -1 where the pair is not an edge (a pair with several instances:
+        the first, as OpenSubdiv's ``FindEdge``)."""
         pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         keys = np.minimum(pairs[:, 0], pairs[:, 1]) * num_vertices + np.maximum(pairs[:, 0], pairs[:, 1])
         pos = np.searchsorted(self.sorted_keys, keys)
@@ -60,26 +66,73 @@ def next_corner_of(counts: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     return nxt
 
 
+def faces_with_repeats(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """(F,) bool: faces that use some vertex more than once."""
+    counts = np.asarray(counts, dtype=np.int64)
+    F = len(counts)
+    if F and np.all(counts == counts[0]) and counts[0] <= 8:  # one face size: compare columns
+        n = int(counts[0])
+        v = np.asarray(indices).reshape(F, n)
+        out = np.zeros(F, dtype=bool)
+        for i in range(n):
+            for j in range(i + 1, n):
+                out |= v[:, i] == v[:, j]
+        return out
+    face = np.repeat(np.arange(F, dtype=np.int64), counts)
+    order = np.lexsort((indices, face))
+    same = (face[order][1:] == face[order][:-1]) & (np.asarray(indices)[order][1:] == np.asarray(indices)[order][:-1])
+    out = np.zeros(F, dtype=bool)
+    out[face[order][1:][same]] = True
+    return out
+
+
 def find_edges(counts: np.ndarray, indices: np.ndarray, num_vertices: int) -> MeshEdges:
-    """Discover the edges of a polygon mesh (level 0 only; refined levels derive theirs by index arithmetic)."""
+    """Discover the edges of a polygon mesh (level 0 only; refined levels derive theirs by index arithmetic).
+
+    As ``Vtr::Level::completeTopologyFromFaceVertices``: walking the corners in order, a corner makes a new
+    edge when its vertex pair has none yet, when its two vertices are the same (a degenerate edge), or when its
+    face has used the pair before (a repeated edge in a face); otherwise it joins the pair's first edge. Edge ids
+    follow the corners that make them."""
+    counts = np.asarray(counts, dtype=np.int64)
     offsets = face_offsets_of(counts)
     nxt = next_corner_of(counts, offsets)
     a = indices.astype(np.int64)
     b = a[nxt]
+    C = len(a)
     keys = np.minimum(a, b) * num_vertices + np.maximum(a, b)
     uniq, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-    order = np.argsort(first, kind="stable")  # edge ids in order of first appearance
-    rank = np.empty(len(order), dtype=np.int64)
-    rank[order] = np.arange(len(order))
-    corner_edge = rank[inverse.reshape(-1)]
-    first_corner = first[order]
-    edge_verts = np.stack([a[first_corner], b[first_corner]], axis=1)
+    inverse = inverse.reshape(-1)
+    degenerate = a == b
+    makes = np.zeros(C, dtype=bool)
+    makes[first] = True
+    makes |= degenerate
+    repeated = np.zeros(C, dtype=bool)
+    odd = np.flatnonzero(faces_with_repeats(counts, a))
+    if len(odd):  # only a face that uses a vertex twice can use a vertex pair twice
+        h = np.concatenate([np.arange(offsets[f], offsets[f + 1]) for f in odd])
+        face = np.repeat(odd, counts[odd])
+        order = np.lexsort((h, keys[h], face))
+        again = (face[order[1:]] == face[order[:-1]]) & (keys[h][order[1:]] == keys[h][order[:-1]])
+        repeated[h[order[1:][again]]] = True
+        repeated &= ~degenerate
+        makes |= repeated
+    rank = np.cumsum(makes) - 1  # edge id made at each making corner
+    corner_edge = np.where(makes, rank, rank[first[inverse]])
+    makers = np.flatnonzero(makes)
+    edge_verts = np.stack([a[makers], b[makers]], axis=1)
+    nonmanifold = None
+    if np.any(degenerate) or np.any(repeated):
+        nonmanifold = np.zeros(len(makers), dtype=bool)
+        nonmanifold[rank[degenerate]] = True
+        nonmanifold[rank[repeated]] = True
+        nonmanifold[rank[first[inverse[repeated]]]] = True  # the first instance of a repeated pair
     return MeshEdges(
         corner_next=nxt,
         corner_edge=corner_edge.astype(np.int32),
         edge_verts=edge_verts.astype(np.int32),
         sorted_keys=uniq,
-        sorted_ids=rank,
+        sorted_ids=rank[first],
+        nonmanifold=nonmanifold,
     )
 
 
@@ -165,10 +218,17 @@ def _sharpness(values, count: int, name: str, element: str) -> np.ndarray:
     return np.minimum(arr, INFINITE_SHARPNESS)
 
 
-def check_rows(data, rows: int, what: str, *, at_least: bool = False) -> np.ndarray:
+#: The largest magnitude of data a refiner of each precision takes (``check_rows(bound=)``): refinement sums
+#: weighted values and limit normals multiply tangents, so data near the type's range would overflow to
+#: infinity; beyond these bounds it is refused instead (a float64 refiner takes up to 1e150).
+DATA_BOUND = {"float32": 1e18, "float64": 1e150}
+
+
+def check_rows(data, rows: int, what: str, *, at_least: bool = False, bound: float | None = None) -> np.ndarray:
     """Per-vertex (or per-value) data as a finite real array (rows, d), d >= 1 ((rows,) becomes (rows, 1));
-    ``at_least``: any number of rows >= ``rows``. Else :class:`SubdivInputError` (``element`` "data") naming
-    ``what`` and the shape, the dtype or the first row that is not finite."""
+    ``at_least``: any number of rows >= ``rows``; ``bound``: the largest magnitude allowed (:data:`DATA_BOUND`).
+    Else :class:`SubdivInputError` (``element`` "data") naming ``what`` and the shape, the dtype or the first
+    row that is not finite or too large."""
     try:
         arr = np.asarray(data)
         if arr.dtype.kind == "O":
@@ -188,6 +248,16 @@ def check_rows(data, rows: int, what: str, *, at_least: bool = False) -> np.ndar
     if not np.all(finite):
         bad = int(np.flatnonzero(~finite)[0])
         raise SubdivInputError(f"{what} row {bad} is not finite", element="data", index=bad)
+    if bound is not None and arr.size:
+        big = np.max(np.abs(arr), axis=1) > bound
+        if np.any(big):
+            bad = int(np.flatnonzero(big)[0])
+            precision = next((k for k, v in DATA_BOUND.items() if v == bound), None)
+            hint = (" (precision='float64' takes up to 1e150)" if precision == "float32" else
+                    "; scale the data down")
+            raise SubdivInputError(f"{what} row {bad} has a value of magnitude {float(np.max(np.abs(arr[bad]))):.3g}, "
+                                   f"beyond the {bound:g} that {precision or 'this'} refinement takes{hint}",
+                                   element="data", index=bad, value=float(np.max(np.abs(arr[bad]))))
     return arr
 
 
@@ -252,15 +322,8 @@ class Mesh:
                 f"[0, {nv})",
                 option="face_vertex_indices", element="face", index=int(f), value=_given(face_vertex_indices, h),
             )
-        # repeated vertices inside one face
-        order = np.lexsort((indices, corner_face))
-        same = (corner_face[order][1:] == corner_face[order][:-1]) & (indices[order][1:] == indices[order][:-1])
-        if np.any(same):
-            h = order[1:][np.flatnonzero(same)[0]]
-            raise SubdivInputError(f"face {corner_face[h]} uses vertex {indices[h]} more than once",
-                                   option="face_vertex_indices", element="face", index=int(corner_face[h]),
-                                   value=int(indices[h]))
-
+        # faces that use a vertex more than once are accepted, as OpenSubdiv accepts them: their repeated
+        # vertex pairs and degenerate edges are non-manifold edges (find_edges; topology.base_level)
         self.points = pts
         self.face_vertex_counts = counts.astype(np.int32)
         self.face_vertex_indices = indices.astype(np.int32)

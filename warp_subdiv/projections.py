@@ -270,7 +270,18 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
             pos_rows.append(vs[smooth]), pos_local.append(local[smooth]), pos_w.append(m.l0[smooth])
             tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
 
+    # closed rings of two faces (a "pillow" of two faces, which OpenSubdiv accepts): Loop's smooth limit mask
+    # of valence 2; Catmull-Clark's is its corner mask (the point itself), as OpenSubdiv's. Tangents as at the
+    # "bare" vertices below (the ring's own tangent masks degenerate at valence 2)
+    pillow = np.flatnonzero(~sectored & ~boundary_vertex & (valence == 2) & np.isin(cls, [SMOOTH, DART]))
+    if len(pillow) and level.scheme != CATMULL_CLARK:
+        ring = 8.0 * float(M.loop_beta(2, beta_variant)) / 3.0
+        row = np.array([1.0, ring, ring]) / (1.0 + 2.0 * ring)
+        pos_rows.append(pillow), pos_w.append(np.broadcast_to(row, (len(pillow), 3)))
+        pos_local.append(ring_local_vectors(level, pillow, 2, start_at_sharp=False))
+
     # sectors: crease and corner vertices
+    neighbours = crease_neighbours(level)
     k_all = level.sector_k()
     first_sector = np.zeros(level.num_sectors, dtype=bool)
     if level.num_sectors:
@@ -289,6 +300,10 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
             tu, tv = np.where(flip, m.tv, m.tu), np.where(flip, m.tu, m.tv)
         once = first_sector[sel]
         vs = level.sector_vertex[sel].astype(np.int64)
+        # a non-manifold crease vertex (a fin) can have a sector whose ends are not its two crease neighbours:
+        # its position takes the crease limit mask below instead
+        ends = np.sort(local[:, [1, k + 1]], axis=1)
+        once &= (cls[vs] != CREASE) | np.all(ends == np.sort(neighbours[vs], axis=1), axis=1)
         pos_rows.append(vs[once]), pos_local.append(local[once]), pos_w.append(m.l0[once])
         tan_rows.append(vs), tan_local.append(local), tan_u.append(tu), tan_v.append(tv)
 
@@ -326,9 +341,9 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
     covered = np.zeros(V, dtype=bool)
     for r in pos_rows:
         covered[r] = True
-    crease = np.flatnonzero(~sectored & (cls == CREASE))
+    crease = np.flatnonzero(~covered & (cls == CREASE))
     if len(crease):
-        nb = crease_neighbours(level)[crease]
+        nb = neighbours[crease]
         ok = np.all(nb >= 0, axis=1)
         crease, nb = crease[ok], nb[ok]
         pos_rows.append(crease)

@@ -16,7 +16,7 @@ from .errors import SubdivInputError
 from .evaluator import Evaluator, default_device
 from .facevarying import FaceVaryingChannel, check_indices
 from .hierarchy import Hierarchy
-from .mesh import Mesh, check_rows
+from .mesh import DATA_BOUND, Mesh, check_rows
 from .options import FaceVaryingMode, Options
 from .tables import StencilTable
 from .threads import resolve as resolve_threads
@@ -134,7 +134,7 @@ class Refiner:
         return self.evaluator.table_bytes()
 
     def _check_data(self, data) -> np.ndarray:
-        return check_rows(data, self.base_num_vertices, "vertex data")
+        return check_rows(data, self.base_num_vertices, "vertex data", bound=DATA_BOUND[self.precision.value])
 
     def evaluate_device(self, points, normal_control: bool = True) -> wp.array:
         """Refine (n, 3) positions; returns the final level's device array of vec3 (no copy to the host).
@@ -169,7 +169,8 @@ class Refiner:
         ``refined_points`` (N,) or (N, d) of any width (positions, primvars, face-varying values); the result
         has the same shape. Where this level's masks are not exact (:meth:`limit_reads_deeper`) one more level
         is refined first (with normal control for (N, 3) data)."""
-        points = check_rows(refined_points, self.num_vertices, "refined points")
+        points = check_rows(refined_points, self.num_vertices, "refined points",
+                            bound=DATA_BOUND[self.precision.value])
         if self.limit_reads_deeper():
             deeper = self._one_more_level()
             out = deeper.evaluator.limit_points(points, last_step=True)[: self.num_vertices]
@@ -184,7 +185,8 @@ class Refiner:
         A crease or corner vertex has one tangent plane per sector; its normal is the normalised sum of the
         sectors' unit normals (exact where there is one sector, e.g. on a boundary).
         """
-        refined_points = check_rows(refined_points, self.num_vertices, "refined points")
+        refined_points = check_rows(refined_points, self.num_vertices, "refined points",
+                                    bound=DATA_BOUND[self.precision.value])
         if refined_points.shape[1] != 3:
             raise SubdivInputError(f"limit normals take (N, 3) positions, got {np.shape(refined_points)}",
                                    element="data", value=np.shape(refined_points))

@@ -88,9 +88,13 @@ def crease_neighbours(level: Level, sharp_ends: np.ndarray | None = None) -> np.
     a = np.concatenate([ev[sharp_ends[:, 0], 0], ev[sharp_ends[:, 1], 1]])
     b = np.concatenate([ev[sharp_ends[:, 0], 1], ev[sharp_ends[:, 1], 0]])
     nb = np.full((level.num_vertices, 2), -1, dtype=np.int64)
-    nb[a, 0] = b
-    other = nb[a, 0] != b
-    nb[a[other], 1] = b[other]
+    # slot: rank among the vertex's sharp edges from the last one (a pair can repeat: the two halves of a
+    # degenerate control edge)
+    order = np.argsort(a, kind="stable")
+    a, b = a[order], b[order]
+    slot = np.searchsorted(a, a, side="right") - 1 - np.arange(len(a))
+    keep = slot < 2
+    nb[a[keep], slot[keep]] = b[keep]
     return nb
 
 
@@ -388,7 +392,7 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
     else:
         explicit = build_stencils(level, rule_set, loop_beta, regular=(vertex_regular, edge_regular))
     valence = np.arange(np.diff(level.vert_corner_offsets).max() + 1, dtype=np.float64)
-    valence[valence < 3] = 3  # unused entries (valence < 3 is never a smooth vertex)
+    valence[valence < 2] = 3  # unused entries (a smooth vertex has 2 faces or more: 2 in a closed pillow)
     ring_mask = rules.smooth_vertex_mask(scheme, valence, loop_beta)
     if scheme == CATMULL_CLARK:  # the quad kernels weigh ring and face-point terms alike: 1/n^2
         assert np.allclose(ring_mask.edge, ring_mask.face)

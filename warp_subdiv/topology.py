@@ -79,6 +79,7 @@ class Level:
     # (S,) bool: the sector's limit normal is reversed (two opposite corner sectors, docs/rules.md section 9)
     sector_flip: np.ndarray | None = None
     new_sector_flatness: float = float("nan")  # s of the regular crease sectors that later levels create
+    degenerate_edges: bool = False  # some edge has one vertex at both ends (level 0 only)
     # level 0 of a fan-triangulated polygon mesh (Loop) only: the control polygon of each triangle
     control_face: np.ndarray | None = None  # (F,) int64; None: face f is control face f
 
@@ -389,9 +390,12 @@ def base_level(
     first = ecorners[eoff[:-1]]
     second = ecorners[np.minimum(eoff[:-1] + 1, C - 1)]
     two = ecount == 2
-    opposite = two & (corner_vert[first] == corner_vert[nxt[second]])
+    built_nonmanifold = edges.nonmanifold if edges.nonmanifold is not None else np.zeros(E, dtype=bool)
+    opposite = two & (corner_vert[first] == corner_vert[nxt[second]]) & ~built_nonmanifold
     boundary_edge = ecount == 1
-    nonmanifold_edge = (ecount > 2) | (two & ~opposite)
+    # non-manifold: more than two faces, two faces that agree on orientation, degenerate edges and repeated
+    # vertex pairs (as built by find_edges), as OpenSubdiv tags them
+    nonmanifold_edge = (ecount > 2) | (two & ~opposite) | built_nonmanifold
     twin = np.full(C, -1, dtype=np.int64)
     twin[first[opposite]] = second[opposite]
     twin[second[opposite]] = first[opposite]
@@ -449,8 +453,8 @@ def base_level(
     edges_at = np.bincount(ends, minlength=nv)
     fin = (nonmanifold_edges_at == 2) & (boundary_edges_at == 0) & (vcount > edges_at)
     forced = nonmanifold_vert & ~fin
-    if boundary == Boundary.EDGE_AND_CORNER:
-        forced |= on_boundary & (vcount == 1)
+    if boundary == Boundary.EDGE_AND_CORNER:  # a topological corner: one face, two edges
+        forced |= (vcount == 1) & (edges_at == 2)
     forced |= vcount == 0  # unused vertices keep their position
     vert_sharpness[forced] = INFINITE_SHARPNESS
     if linear:  # bilinear refinement (face-varying "all"): corners and sharp edges everywhere
@@ -469,7 +473,7 @@ def base_level(
     sector_flatness, new_flatness = _sector_flatness(flatness, sectors[0], nv)
 
     uniform = faces.face_size
-    return _full_level(
+    level = _full_level(
         scheme, nv, uniform, corner_vert, face_hole,
         face_offsets=None if uniform else offsets, corner_next_table=None if uniform else nxt,
         corner_edge=corner_edge, edge_verts=edge_verts, edge_corner_offsets=eoff, edge_corners=ecorners,
@@ -478,6 +482,8 @@ def base_level(
         crease_method=crease_method,
         linear=linear, new_sector_flatness=new_flatness, control_face=faces.control_face,
     )
+    level.degenerate_edges = bool(np.any(edge_verts[:, 0] == edge_verts[:, 1]))
+    return level
 
 
 class Sectors(NamedTuple):
@@ -547,7 +553,9 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
     cw = np.where(smooth_edge & (twin >= 0), nxt[np.maximum(twin, 0)], idx)
     head, pos = _list_rank(cw, max_valence)
     tagged_vertex = ((vclass == CREASE) | (vclass == CORNER)) & (sharp_count >= 2)
-    sel = tagged_vertex[corner_vert]
+    # a fan without a crease edge (a closed fan of a non-manifold vertex) walks in a circle: it has no head
+    # and belongs to no sector
+    sel = tagged_vertex[corner_vert] & (cw[head] == head)
     k_of_head = np.bincount(head[sel], minlength=C)
     heads = np.flatnonzero(sel & (pos == 0))
     sector_of_head = np.full(C, -1, dtype=np.int64)
@@ -745,9 +753,15 @@ def _side(level: Level, h: np.ndarray, e: np.ndarray) -> np.ndarray:
     return (level.corner_vert[h] != level.edge_verts[e, 0]).astype(np.int32)
 
 
-def _side_all(level: Level, e: np.ndarray) -> np.ndarray:
-    """``_side(level, h, e[h])`` for every corner h (no gather of the corners' own vertices)."""
-    return (level.corner_vert != level.edge_verts[e, 0]).astype(np.int32)
+def _side_all(level: Level, e: np.ndarray, entering: bool = False) -> np.ndarray:
+    """``_side(level, h, e[h])`` for every corner h (no gather of the corners' own vertices). ``entering``:
+    ``e[h]`` is the edge that enters corner h; a degenerate edge (one vertex at both ends, level 0 only) has
+    the corner it leaves at its end 0 and the corner it enters at its end 1, as OpenSubdiv's refinements."""
+    side = level.corner_vert != level.edge_verts[e, 0]
+    if entering and level.degenerate_edges:
+        ev = level.edge_verts
+        side |= (ev[:, 0] == ev[:, 1])[e]
+    return side.astype(np.int32)
 
 
 class _QuadChildren:
@@ -816,7 +830,7 @@ def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
     children.put(ce, 0, per_corner(C + 2 * e_h + _side_all(level, e_h)))
     children.put(ce, 1, per_corner(h))
     children.put(ce, 2, per_corner(level.at_prev(h)))
-    children.put(ce, 3, per_corner(C + 2 * e_prev + _side_all(level, e_prev)))
+    children.put(ce, 3, per_corner(C + 2 * e_prev + _side_all(level, e_prev, entering=True)))
     interior_verts = np.empty((C, 2), dtype=np.int32)
     interior_verts[:, 0] = np.repeat(face_ids, 4) if quads else face_child
     interior_verts[:, 1] = V + F + e_h
@@ -855,7 +869,7 @@ def _refine_loop(level: Level, faces_only: bool) -> Level:
     e_h = level.corner_edge
     e_prev = level.at_prev(e_h)
     half_at_h = (C + 2 * e_h + _side_all(level, e_h)).reshape(F, 3)  # half of edge h at v_h
-    half_at_prev = (C + 2 * e_prev + _side_all(level, e_prev)).reshape(F, 3)  # half of edge prev(h) at v_h
+    half_at_prev = (C + 2 * e_prev + _side_all(level, e_prev, entering=True)).reshape(F, 3)  # half of edge prev(h) at v_h
     h3 = np.arange(C, dtype=np.int32).reshape(F, 3)
     ce = np.empty((F, 4, 3), dtype=np.int32)
     for jj in range(3):
