@@ -93,8 +93,8 @@ def test_frame_chunks_compose_like_the_single_bake(client, single, tmp_path):
     assert_same_composition(str(single / "animated.usda"), str(out))
     assert sorted(os.listdir(out.parent)) == ["animated.chunks", "animated.usda"]
     chunks = sorted(os.listdir(out.parent / "animated.chunks"))
-    assert chunks == [f"0000_World_Animated_Plate.{k:04d}.usdc" for k in range(5)] + ["manifest.0000.usda",
-                                                                                    "topology.usda"]
+    assert chunks == [f"0000_World_Animated_Plate.{k:04d}.usdc" for k in range(5)] + ["manifest.0000.usdc",
+                                                                                    "topology.usdc"]
     stage = Usd.Stage.Open(str(out))
     clips = Usd.ClipsAPI(stage.GetPrimAtPath("/World/Animated/Plate")).GetClipAssetPaths()
     assert all(a.path.startswith("./animated.chunks/") for a in clips)

@@ -232,7 +232,7 @@ def stitch_clips(output_layer: Sdf.Layer, folder: str, clips: dict, topology_sou
     if not clips:
         return None
     anchor = os.path.dirname(output_layer.realPath or output_layer.identifier)
-    topo_path = os.path.join(folder, "topology.usda")
+    topo_path = os.path.join(folder, "topology.usdc")
     topo = Sdf.Layer.CreateNew(topo_path)
     UsdUtils.StitchClipsTopology(topo, [f for f in topology_sources])
     topo.subLayerPaths.clear()
@@ -244,7 +244,7 @@ def stitch_clips(output_layer: Sdf.Layer, folder: str, clips: dict, topology_sou
     stage.SetEditTarget(Usd.EditTarget(output_layer))
     for n, (path, chunks) in enumerate(sorted(clips.items())):
         files = [c[0] for c in chunks]
-        manifest_path = os.path.join(folder, f"manifest.{n:04d}.usda")
+        manifest_path = os.path.join(folder, f"manifest.{n:04d}.usdc")
         manifest = Sdf.Layer.CreateNew(manifest_path)
         UsdUtils.StitchClipsManifest(manifest, topo, files, Sdf.Path(path))
         prim = stage.OverridePrim(path)
@@ -511,7 +511,7 @@ def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_wo
         t = _time.perf_counter()
         # asset paths were written for the temporary folder: point them at the final one
         _retarget(layer.layer, folder.path, final)
-        subs = [os.path.join(final, "topology.usda")] if topo else []
+        subs = [os.path.join(final, "topology.usdc")] if topo else []
         subs += [os.path.join(final, u.layer) for u in units if u.kind == "mesh"]
         anchor = os.path.dirname(out_abs)
         for k, s in enumerate(subs):
@@ -562,7 +562,7 @@ def _plain(value):
 def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
     """Assemble the layers that ``warp-subdiv refine IN -o CHUNK --frames A:B`` runs wrote (the same input,
     levels and options, frame ranges in any order) into ``output_path``: each animated refined mesh gets a
-    clip set over the chunks, everything else comes from the first chunk (``<stem>.stitch/topology.usda``).
+    clip set over the chunks, everything else comes from the first chunk (``<stem>.stitch/topology.usdc``).
     Chunks stay where they are and are referenced by relative paths. Ranges that share their ends (1:25,
     25:50) interpolate across chunk boundaries; with 1:25, 26:50 values between 25 and 26 hold at 25.
     Returns a :class:`warp_subdiv.usd.Result` (no reports)."""
@@ -627,14 +627,14 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
         try:
             topo = stitch_clips(layer.layer, folder.path, clips, files)
             if topo is None:  # nothing animated: the first chunk's content is the topology
-                topo = os.path.join(folder.path, "topology.usda")
+                topo = os.path.join(folder.path, "topology.usdc")
                 t = Sdf.Layer.CreateNew(topo)
                 UsdUtils.StitchClipsTopology(t, files[:1])
                 t.subLayerPaths.clear()
                 t.customLayerData = {}
                 t.Save()
             _retarget(layer.layer, folder.path, folder.final)
-            layer.layer.subLayerPaths.insert(0, relative_asset_path(os.path.join(folder.final, "topology.usda"),
+            layer.layer.subLayerPaths.insert(0, relative_asset_path(os.path.join(folder.final, "topology.usdc"),
                                                                     os.path.dirname(out_abs)))
             folder.publish()
             layer.commit(flatten=flatten)
