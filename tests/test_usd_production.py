@@ -12,6 +12,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdValidation, Vt
 
 import warp_subdiv as ws
 from warp_subdiv import cli
+from warp_subdiv.errors import SubdivInputError
 from warp_subdiv.usd import refine_usd
 
 from test_usd_support import SCENES_DIR
@@ -233,7 +234,8 @@ def assets(tmp_path_factory):
 
 def instanced_scene(folder, asset):
     """Three instanceable references to the cube asset: two smooth, one sharp (two prototypes)."""
-    path = folder / "instances.usda"
+    (folder / "in").mkdir()
+    path = folder / "in" / "instances.usda"
     stage = new_stage(path)
     place(stage, "/World/I1", asset, instanceable=True, x=0.0)
     place(stage, "/World/I2", asset, instanceable=True, x=2.0)
@@ -246,7 +248,7 @@ def test_instances_are_refined_once_per_prototype_and_stay_instances(assets, tmp
     """Instanceable references with a crease variant (three instances, two variants): each prototype is refined
     once, every instance composes to its variant's refined mesh, and the instances still share two
     prototypes (the output references one refined prototype per distinct prototype)."""
-    src = instanced_scene(assets["folder"], assets["cube"])
+    src = instanced_scene(tmp_path, assets["cube"])
     dst = tmp_path / "out.usda"
     result = refine(src, dst)
     assert len(result.reports) == 2 and result.reports[0].faces_out == 6 * 4 ** LEVELS
@@ -265,12 +267,12 @@ def test_all_variants_bakes_every_variant_inside_the_variant_set(assets, tmp_pat
     """`refine --all-variants` refines both crease variants of the instanced asset into one refined prototype
     that holds them in the same variant set: the output still switches variants (each instance, in each
     variant, composes to that variant's refined mesh) and keeps its two prototypes."""
-    src = instanced_scene(assets["folder"], assets["cube"])
+    src = instanced_scene(tmp_path, assets["cube"])
     dst = tmp_path / "out.usda"
-    before = folder_digest(assets["folder"])
+    before = folder_digest(src.parent), folder_digest(assets["folder"])
     assert cli.main(["refine", str(src), "-o", str(dst), "--levels", str(LEVELS), "--all-variants", "--device",
                      "cpu", "--quiet"]) == 0
-    assert folder_digest(assets["folder"]) == before
+    assert (folder_digest(src.parent), folder_digest(assets["folder"])) == before
     layer = Sdf.Layer.FindOrOpen(str(dst))
     proto = layer.GetPrimAtPath("/__warpSubdiv/Prototype_1")
     assert sorted(proto.variantSets["crease"].variants.keys()) == ["sharp", "smooth"]
@@ -553,8 +555,14 @@ def test_render_levels_refines_instanced_meshes_as_refine_does(assets, tmp_path)
 
 @pytest.mark.parametrize("name", sorted(n[:-5] for n in os.listdir(SCENES_DIR) if n.endswith(".usda")))
 def test_bundled_scenes_refine_to_valid_usd(name, tmp_path):
-    """The refined layer of every scene in scenes/ has no validation error its input does not have."""
+    """The refined layer of every scene in scenes/ has no validation error its input does not have (a scene
+    without subdivision meshes has nothing to refine)."""
     src = os.path.join(SCENES_DIR, name + ".usda")
     dst = tmp_path / "out.usda"
-    refine_usd(src, str(dst), 1, device="cpu")
+    try:
+        refine_usd(src, str(dst), 1, device="cpu")
+    except SubdivInputError as exc:
+        if "no subdivision meshes" not in str(exc):
+            raise
+        pytest.skip(f"{name}: no subdivision meshes")
     assert_valid(src, dst)
