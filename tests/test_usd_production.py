@@ -566,3 +566,20 @@ def test_bundled_scenes_refine_to_valid_usd(name, tmp_path):
             raise
         pytest.skip(f"{name}: no subdivision meshes")
     assert_valid(src, dst)
+
+
+def test_info_and_plan_say_where_one_refinement_goes(assets, tmp_path, capsys):
+    """`info` lists a prototype's mesh once and says how many meshes it is refined for; Plan.one_place_each
+    tells a mesh-by-mesh (distributed) bake whether each refined mesh goes to its own path only."""
+    from warp_subdiv.usd import plan
+
+    src = instanced_scene(tmp_path, assets["cube"])
+    assert cli.main(["info", str(src), "--levels", "1"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("/World/I") == 2 and "refined once for 2 meshes" in out
+    assert not plan(str(src), 1).one_place_each
+    stage = new_stage(tmp_path / "in" / "plain.usda")
+    define_mesh(stage, "/World/A", PLATE, PLATE_FACES)
+    define_mesh(stage, "/World/B", CUBE, CUBE_FACES)
+    stage.Save()
+    assert plan(str(tmp_path / "in" / "plain.usda"), 1).one_place_each

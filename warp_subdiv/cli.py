@@ -411,8 +411,11 @@ def _info(args) -> int:
         times = f", time codes {stage.GetStartTimeCode():g} to {stage.GetEndTimeCode():g}"
     print(f"{args.input}: {len(p.prims)} subdivision mesh{'es' if len(p.prims) != 1 else ''} (upAxis "
           f"{UsdGeom.GetStageUpAxis(stage)}, metersPerUnit {UsdGeom.GetStageMetersPerUnit(stage):g}{times})")
-    for sp, options in zip(p.prims, p.options):
+    uses = p.scene.uses()
+    for sp, options, key in zip(p.prims, p.options, p.keys):
         print(sp.path)
+        if uses.get(key, 1) > 1:
+            print(f"  refined once for {uses[key]} meshes (instances of one prototype, or identical inputs)")
         _print_control(sp.mesh, sp.scheme, sp.boundary, sp.rules, sp.usd_scheme, sp.orientation)
         print(f"  tags: {summarize_tags(sp)}")
         if sp.point_times:

@@ -78,6 +78,17 @@ class Plan:
     def predicted_bytes(self) -> int:
         return total_bytes(self.estimates)
 
+    @property
+    def one_place_each(self) -> bool:
+        """Whether every refined mesh is written at its own path only (no instances, no variants written with
+        all_variants, no identical meshes sharing a refinement): then ``refine_usd(prims=[sp.path])`` of each
+        of :attr:`prims` bakes the whole plan (as a distributed bake does, mesh by mesh)."""
+        scene = self.scene
+        if scene is None:
+            return True
+        return (not scene.top.refs and len(scene.top.meshes) == len(self.prims)
+                and all(not o.dest.ContainsPrimVariantSelection() for o in scene.top.meshes))
+
 
 @dataclass
 class Result:
@@ -263,15 +274,21 @@ def estimate_prim(sp: SubdivPrim, levels: int, precision: str = "float32", norma
         comps = _components(pv) * pv.element_size
         key = "vertex" if pv.interpolation in ("vertex", "varying") else pv.interpolation
         widths[key] += comps
-    return estimate(
-        sp.path, sp.mesh.num_vertices, sp.mesh.face_vertex_counts, sp.mesh.num_edges, levels,
-        "loop" if sp.scheme == "loop" else "catmull-clark", precision=precision, samples=_sample_count(sp),
-        vertex_width=widths["vertex"], face_varying_width=widths["faceVarying"], face_varying_channels=channels,
-        uniform_width=widths["uniform"],
-        extra_point_arrays=len(sp.point_arrays) + (1 if normals else 0), projecting=control.projects,
-        limit=(limit or normals) and sp.scheme != "bilinear", limit_deeper=control.limit_reads_deeper(levels),
-        layer=True,
-    )
+    out = None
+    # a time-varying topology: the largest of its control meshes (their refiners are built one at a time)
+    for mesh in [top.mesh for top in sp.topologies] or [sp.mesh]:
+        e = estimate(
+            sp.path, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, levels,
+            "loop" if sp.scheme == "loop" else "catmull-clark", precision=precision, samples=_sample_count(sp),
+            vertex_width=widths["vertex"], face_varying_width=widths["faceVarying"], face_varying_channels=channels,
+            uniform_width=widths["uniform"],
+            extra_point_arrays=len(sp.point_arrays) + (1 if normals else 0), projecting=control.projects,
+            limit=(limit or normals) and sp.scheme != "bilinear", limit_deeper=control.limit_reads_deeper(levels),
+            layer=True,
+        )
+        if out is None or total_bytes([e]) > total_bytes([out]):
+            out = e
+    return out
 
 
 def _components(pv) -> int:

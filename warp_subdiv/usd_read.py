@@ -965,6 +965,23 @@ class Scene:
     stages: list  # the composed stages the units read from (kept open while they are read)
     instances: list = field(default_factory=list)  # (instance prim path, site key) at the top level
 
+    def uses(self) -> dict:
+        """How many composed meshes (instance proxies of every instance included) each unit refines for."""
+        memo: dict = {}
+
+        def count(site) -> dict:
+            out: dict = {}
+            for o in site.meshes:
+                out[o.key] = out.get(o.key, 0) + 1
+            for r in site.refs:
+                if r.site not in memo:
+                    memo[r.site] = count(self.sites[r.site])
+                for key, n in memo[r.site].items():
+                    out[key] = out.get(key, 0) + n
+            return out
+
+        return count(self.top)
+
     def layout(self, container: Sdf.Path):
         """(targets, references): the output paths of each unit (by key, top-level paths first) and the
         internal references to author ((path, target)), with each prototype's content named
