@@ -205,11 +205,15 @@ def assert_valid(src, dst):
     assert validation_errors(dst) <= validation_errors(src)
 
 
+_ASSET_FOLDERS = []
+
+
 def refine(src, dst, levels=LEVELS, **kw):
-    """refine_usd, checking that the input files are untouched."""
-    before = folder_digest(os.path.dirname(src))
+    """refine_usd, checking that the input files (the scene's folder and the assets') are untouched."""
+    folders = [os.path.dirname(src)] + _ASSET_FOLDERS
+    before = [folder_digest(f) for f in folders]
     result = refine_usd(str(src), str(dst), levels, device="cpu", **kw)
-    assert folder_digest(os.path.dirname(src)) == before
+    assert [folder_digest(f) for f in folders] == before
     return result
 
 
@@ -226,6 +230,7 @@ def with_selections(path, selections):
 @pytest.fixture(scope="module")
 def assets(tmp_path_factory):
     folder = tmp_path_factory.mktemp("assets")
+    _ASSET_FOLDERS[:] = [str(folder)]
     return {"cube": write_asset(folder / "cube.usda"), "nested": write_nested_variant_asset(folder / "lod.usda"),
             "folder": folder}
 
