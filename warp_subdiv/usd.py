@@ -17,6 +17,12 @@ The output layer sublayers the input and holds an ``over`` of every refined mesh
   to the child edges of their edges (:class:`EdgeMap`);
 * the ``extentsHint`` of refined meshes' ancestors is recomputed.
 
+Meshes inside scene-graph instances go into a refined prototype (``/__warpSubdiv/Prototype_<n>``, under a
+class) that every instance of the prototype references; identical meshes elsewhere are refined once and
+written once (``/__warpSubdiv/Mesh_<n>``, referenced); with ``all_variants`` every variant that changes a mesh
+is refined into the same variant set and variant (:class:`Layout`, :func:`warp_subdiv.usd_read.read_scene`).
+Topology that changes over time is refined per sample, with a refiner per distinct control mesh.
+
 Transforms, materials, relationships and every other prim come from the input unchanged.
 
 Every front end gets its refiner here: :func:`options_for` turns what a file says about a control mesh (a USD
