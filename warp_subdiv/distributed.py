@@ -495,7 +495,7 @@ def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_wo
     layer = OutputLayer(out_abs, p.stage, custom)
     try:
         final = folder.final
-        clips, chunk_files = {}, []
+        clips = {}
         for u in units:
             if u.kind != "frames":
                 continue
@@ -504,9 +504,11 @@ def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_wo
             end = u.frames[1] if u.frames[1] is not None else (rng[1] if rng else start)
             path = os.path.join(folder.path, u.layer)
             clips.setdefault(u.path, []).append((path, float(start), float(end)))
-            chunk_files.append(path)
         t = _time.perf_counter()
-        topo = stitch_clips(layer.layer, folder.path, clips, chunk_files) if clips else None
+        # the chunks of one mesh hold the same static content (one plan refined them; the first chunk's
+        # defaults are the single bake's): the first chunk of each mesh is the topology's source
+        firsts = [chunks[0][0] for chunks in clips.values()]
+        topo = stitch_clips(layer.layer, folder.path, clips, firsts) if clips else None
         timings["stitch_s"] = _time.perf_counter() - t
         t = _time.perf_counter()
         # asset paths were written for the temporary folder: point them at the final one
@@ -625,7 +627,9 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
     layer = OutputLayer(out_abs, stage, custom)
     try:
         try:
-            topo = stitch_clips(layer.layer, folder.path, clips, files)
+            # one refinement wrote every chunk: their static content is the same, the first one's defaults
+            # are those of a run over all the frames
+            topo = stitch_clips(layer.layer, folder.path, clips, files[:1])
             if topo is None:  # nothing animated: the first chunk's content is the topology
                 topo = os.path.join(folder.path, "topology.usdc")
                 t = Sdf.Layer.CreateNew(topo)
