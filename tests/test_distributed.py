@@ -128,6 +128,20 @@ def test_failure_leaves_no_output_and_no_chunks(client, tmp_path):
         dist.bake(ANIMATED, str(out), 1, chunk_frames=5, client=client, max_memory=1 << 20)
     assert os.listdir(tmp_path) == []
 
+    def state():
+        return {os.path.join(b, f): os.stat(os.path.join(b, f)).st_mtime_ns
+                for b, _, fs in os.walk(tmp_path) for f in fs}
+
+    dist.bake(ANIMATED, str(out), 1, chunk_frames=8, client=client)  # an earlier output and its chunks
+    before = state()
+    _fault(client, "fail:1")
+    try:
+        with pytest.raises(dist.SubdivInputError, match="unit 1"):
+            dist.bake(ANIMATED, str(out), 1, chunk_frames=5, client=client)
+    finally:
+        _fault(client, None)
+    assert state() == before
+
 
 def test_killed_worker_tasks_are_rerun(client, single, tmp_path):
     """A worker process killed while tasks run has its tasks rerun elsewhere; the bake completes with the
