@@ -236,3 +236,25 @@ def test_quick_start_without_dask(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "pip install 'warp-subdiv[distributed]'" in proc.stderr
     assert sorted(os.listdir(tmp_path)) == ["a.usda"]
+
+
+def test_instanced_scene_is_one_unit(client, tmp_path):
+    """A plan whose meshes are not each written at their own path (an instanced prototype: instances reference
+    its refined content) is baked by one task, as the single process bakes it, and composes the same."""
+    from pxr import Gf, UsdGeom, Vt
+
+    src = str(tmp_path / "in.usda")
+    st = Usd.Stage.CreateNew(src)
+    m = UsdGeom.Mesh.Define(st, "/Proto/Cube")
+    m.GetPointsAttr().Set(Vt.Vec3fArray([Gf.Vec3f(x, y, z) for z in (0, 1) for y in (0, 1) for x in (0, 1)]))
+    m.GetFaceVertexCountsAttr().Set([4] * 6)
+    m.GetFaceVertexIndicesAttr().Set([0, 2, 3, 1, 4, 5, 7, 6, 0, 1, 5, 4, 1, 3, 7, 5, 3, 2, 6, 7, 2, 0, 4, 6])
+    for name in ("A", "B"):
+        prim = st.DefinePrim(f"/World/{name}")
+        prim.GetReferences().AddInternalReference("/Proto")
+        prim.SetInstanceable(True)
+    st.Save()
+    refine_usd(src, str(tmp_path / "single.usda"), 2)
+    res = dist.bake(src, str(tmp_path / "dist.usda"), 2, client=client)
+    assert [u["kind"] for u in res.timings["units"]] == ["scene"]
+    assert_same_composition(str(tmp_path / "single.usda"), str(tmp_path / "dist.usda"), roots=("/World", "/Proto"))

@@ -55,17 +55,20 @@ FAULT_ENV = "WARP_SUBDIV_TEST_FAULT"
 
 @dataclass(frozen=True)
 class Unit:
-    """One task's work: a whole mesh (``kind`` "mesh") or a frame range of one (``kind`` "frames")."""
+    """One task's work: a whole mesh (``kind`` "mesh"), a frame range of one (``kind`` "frames"), or every
+    mesh at once (``kind`` "scene": a plan whose meshes are not each written at their own path only)."""
 
     number: int
     kind: str
-    mesh: int  # index of the mesh in the plan
-    path: str
+    mesh: int  # index of the mesh in the plan (-1: all)
+    path: str | None
     frames: tuple | None  # (start, end), None ends open; the run's own frames for "mesh" units
     layer: str  # file name in the chunk folder
 
     @property
     def label(self) -> str:
+        if self.kind == "scene":
+            return "every mesh"
         if self.kind == "mesh":
             return self.path
         a, b = self.frames
@@ -172,12 +175,14 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
     tmp = os.path.join(folder, f".{unit.layer}.{uuid.uuid4().hex}{os.path.splitext(unit.layer)[1]}")
     try:
         _fault(unit.number)
-        keywords = dict(run, max_memory=_memory(run.get("max_memory"), limit), frames=unit.frames, flatten=False)
+        keywords = {k: v for k, v in run.items() if k != "prims"}
+        keywords.update(max_memory=_memory(run.get("max_memory"), limit), frames=unit.frames, flatten=False)
         with shipped(hierarchy):
-            result = refine_usd(input_path, tmp, levels, prims=[unit.path], **keywords)
+            prims = [unit.path] if unit.path is not None else run.get("prims")
+            result = refine_usd(input_path, tmp, levels, prims=prims, **keywords)
         layer = Sdf.Layer.FindOrOpen(tmp)
         times = layer.ListAllTimeSamples()
-        if unit.kind == "mesh":
+        if unit.kind != "frames":
             layer.subLayerPaths.clear()  # a sublayer of the output, beside the input
             layer.Save()
         del layer
@@ -358,7 +363,6 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     run.setdefault("max_memory", None)
     p = plan(input_path, levels, **{k: v for k, v in _plan_keywords(run).items()}, prims=run.get("prims"))
     out_abs = check_output_path(output_path, p.stage)
-    run.pop("prims", None)
     run.pop("progress", None)
 
     timings = {"plan_s": _time.perf_counter() - start}
@@ -373,7 +377,10 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
         if threads is None and cluster is not None:
             threads = max(1, th.available_cores() // n_workers)
         ext = ".usdc"
-        units = plan_units(p.prims, run.get("frames"), n_workers, chunk_frames, ext)
+        if getattr(p, "one_place_each", True):
+            units = plan_units(p.prims, run.get("frames"), n_workers, chunk_frames, ext)
+        else:  # instances, shared or variant refinements: one task bakes the plan as the single process does
+            units = [Unit(0, "scene", -1, None, run.get("frames"), "scene" + ext)]
         folder = _Folder(out_abs)
         try:
             t = _time.perf_counter()
@@ -467,6 +474,9 @@ def _reraise(record: dict) -> SubdivInputError:
 def _merge(p, units, results, PrimReport):
     """One report per mesh (samples counted once where chunks share a boundary) and the tasks' warnings."""
     reports, warnings = [], []
+    if units[0].kind == "scene":
+        res = results[0]
+        return [PrimReport(**r) for r in res["reports"]], [w for w in res["warnings"] if w not in p.warnings]
     for i, sp in enumerate(p.prims):
         mine = [results[u.number] for u in units if u.mesh == i]
         rows = [r for res in mine for r in res["reports"] if r["path"] == sp.path]
@@ -514,7 +524,7 @@ def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_wo
         # asset paths were written for the temporary folder: point them at the final one
         _retarget(layer.layer, folder.path, final)
         subs = [os.path.join(final, "topology.usdc")] if topo else []
-        subs += [os.path.join(final, u.layer) for u in units if u.kind == "mesh"]
+        subs += [os.path.join(final, u.layer) for u in units if u.kind != "frames"]
         anchor = os.path.dirname(out_abs)
         for k, s in enumerate(subs):
             layer.layer.subLayerPaths.insert(k, relative_asset_path(s, anchor))
