@@ -71,6 +71,11 @@ LIMIT_PEAK = {"catmull-clark": (755, 860), "loop": (680, 865)}
 RUNTIME_BYTES = 64 * 2**20
 #: The refiner's tables are int32: no level may hold this many face corners.
 MAX_CORNERS = 2**31 - 1
+#: The largest count a 32-bit offset, index or array dimension holds (the CSR offsets of stencil and limit
+#: tables, the elements of a level buffer, a launch's rows).
+INT32_MAX = 2**31 - 1
+#: Device memory left free by the guard on CUDA: the context, loaded modules and the allocator's slack.
+DEVICE_RESERVE = 256 * 2**20
 
 
 @dataclass
@@ -224,6 +229,92 @@ def check_memory(estimates, max_memory, levels: int) -> None:
             + (" or fewer meshes" if len(estimates) > 1 else "") + ", or raise max_memory",
             option="max_memory", value=need,
         )
+
+
+def check_int32(count: int, what: str, *, option: str = "levels") -> None:
+    """Refuse, with :class:`MemoryGuardError` (``value`` the count), a count that 32-bit offsets, indices or
+    array sizes cannot hold; ``what`` says what it counts. Called with the computed size before the table or
+    buffer is allocated."""
+    if int(count) > INT32_MAX:
+        raise MemoryGuardError(f"{what}: {int(count):,}, more than 32-bit offsets and indices can hold "
+                               f"({INT32_MAX:,}); refine fewer levels", option=option, value=int(count))
+
+
+def check_buffer_elements(elements: int, what: str) -> None:
+    """A level buffer of ``elements`` values (rows x data width) must fit a 32-bit size."""
+    check_int32(elements, f"{what} needs level buffers of up to this many values", option="data")
+
+
+def limit_entries(num_vertices: int, num_corners: int, scheme: str) -> int:
+    """Entries of a level's limit position table, at least (the tangent tables are as large): a vertex's mask
+    covers it and its ring, 2 vertices per face corner around it for Catmull-Clark (edge neighbour and face
+    diagonal), 1 for Loop. Boundary rings add one more per boundary vertex."""
+    per_corner = 1 if scheme == "loop" else 2
+    return int(num_vertices) + per_corner * int(num_corners)
+
+
+def check_limit_tables(num_vertices: int, num_corners: int, scheme: str, level: int) -> None:
+    """Refuse limit masks of a level whose tables' 32-bit CSR offsets would wrap, before they are built."""
+    check_int32(limit_entries(num_vertices, num_corners, scheme),
+                f"the limit masks of level {level} ({int(num_vertices):,} vertices) need table entries")
+
+
+def device_bytes(counts, scheme: str, precision: str = "float32", width: int = 3, limit: bool = False,
+                 tagged_edges: int = 0) -> dict:
+    """Device memory of a refiner's evaluation, item by item (bytes): the step tables as
+    :class:`~warp_subdiv.tables.RegularTables` stores them (a step over a level that is not all quads or
+    triangles as full stencils, about 10 entries per child vertex), with explicit rows for the boundary
+    (boundary edges B = 2E - C of a manifold mesh, doubling every level: a crease vertex row of 3 entries
+    and a crease edge row of 2 per boundary edge) and twice that per ``tagged_edges`` (interior crease edges:
+    both sides' neighbours), 10% more, the level buffers for data of ``width``, and with ``limit`` the limit
+    masks of the last level and their outputs. ``counts``: :func:`level_counts` of the refinement."""
+    real = 8 if precision == "float64" else 4
+    loop = scheme == "loop"
+    tables = 0
+    boundary = max(0, 2 * counts[0].edges - counts[0].corners) + 2 * int(tagged_edges)
+    for parent, child in zip(counts[:-1], counts[1:]):
+        V, F, E, C = parent.vertices, parent.faces, parent.edges, parent.corners
+        uniform = C == (3 if loop else 4) * F
+        explicit = boundary * (2 * 8 + 5 * (4 + real)) + V + E  # rows, offsets, entries; the row masks
+        boundary *= 2
+        if not uniform:
+            tables += 10 * (4 + real) * child.vertices + 4 * (child.vertices + 1)
+        elif loop:
+            tables += 16 * E + 4 * (V + 1) + 4 * C + explicit
+        else:
+            tables += 4 * C + 8 * E + 4 * (V + 1) + 4 * C + explicit
+    items = {"step tables": int(1.1 * tables),
+             "level buffers": real * width * sum(c.vertices for c in counts)}
+    if limit:
+        last = counts[-1]
+        entries = limit_entries(last.vertices, last.corners, scheme)
+        items["limit masks"] = 3 * (entries * (4 + real) + 4 * (last.vertices + 1))
+        items["limit outputs"] = real * last.vertices * (width + 3) + 2 * 3 * real * last.vertices
+    return items
+
+
+def device_free_memory(device) -> tuple[int, int] | None:
+    """(free, total) bytes of a CUDA device (Warp's ``Device.free_memory`` / ``total_memory``), or None for the
+    CPU (the host guard covers it)."""
+    if not getattr(device, "is_cuda", False):
+        return None
+    return int(device.free_memory), int(device.total_memory)
+
+
+def check_device_memory(need: int, device, what: str) -> None:
+    """On CUDA, refuse (:class:`MemoryGuardError`, ``option`` "device") before allocating when ``need`` bytes
+    and :data:`DEVICE_RESERVE` are more than the device has free; on the CPU nothing (the host memory guard
+    applies). ``device``: a Warp device, or any object with ``is_cuda``, ``free_memory``, ``total_memory``."""
+    memory = device_free_memory(device)
+    if memory is None:
+        return
+    free, total = memory
+    if int(need) + DEVICE_RESERVE > free:
+        name = getattr(device, "alias", str(device))
+        raise MemoryGuardError(
+            f"{what} would need about {format_bytes(need)} of device memory on {name}, which has "
+            f"{format_bytes(free)} free of {format_bytes(total)}; refine fewer levels or use device='cpu'",
+            option="device", value=int(need))
 
 
 def physical_memory() -> int | None:

@@ -29,6 +29,8 @@ lock is released).
 """
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import threading
 from dataclasses import dataclass
 from functools import singledispatch
@@ -53,6 +55,12 @@ def _kernels():
     from . import kernels  # imported late: building a hierarchy needs no Warp module
 
     return kernels
+
+
+def _convert():
+    from .kernels import convert
+
+    return convert
 
 
 # ------------------------------------------------------------------------------------------------ records
@@ -169,6 +177,20 @@ class LimitMasks:
     vertex_offsets: wp.array  # (V+1,): the tangent pairs of each vertex
     num_vertices: int
     num_tangents: int
+    host_vertex_offsets: np.ndarray | None = None  # the same offsets on the host (for :meth:`first`)
+
+    def first(self, rows: int) -> "LimitMasks":
+        """The masks of vertices 0..rows only (views: the rows of a deeper level's vertex children, which come
+        first; each row is computed by the same code as in the full masks)."""
+        if rows >= self.num_vertices:
+            return self
+        tangents = int(self.host_vertex_offsets[rows])
+
+        def cut(step: StencilStep, n: int) -> StencilStep:
+            return StencilStep(step.offsets[: n + 1], step.indices, step.weights, n)
+
+        return LimitMasks(cut(self.position, rows), cut(self.tangent_u, tangents), cut(self.tangent_v, tangents),
+                          self.vertex_offsets[: rows + 1], rows, tangents, self.host_vertex_offsets[: rows + 1])
 
 
 # ------------------------------------------------------------------------------------------------ upload
@@ -238,7 +260,8 @@ def upload_limit(tables, device, precision: str) -> LimitMasks:
     up = _Uploader(device, precision)
     return LimitMasks(up.stencil(tables.position), up.stencil(tables.tangent_u), up.stencil(tables.tangent_v),
                       up(tables.vertex_offsets, np.int32), num_vertices=tables.position.num_rows,
-                      num_tangents=tables.tangent_u.num_rows)
+                      num_tangents=tables.tangent_u.num_rows,
+                      host_vertex_offsets=np.asarray(tables.vertex_offsets))
 
 
 # ------------------------------------------------------------------------------------------------ launches
@@ -255,7 +278,7 @@ def _load_kernels(device) -> None:
     with _load_lock:
         if key not in _loaded:
             k = _kernels()
-            for module in (k.regular, k.stencil, k.projection):
+            for module in (k.regular, k.stencil, k.projection, _convert()):
                 wp.load_module(module, device=device)
             _loaded.add(key)
 
@@ -303,6 +326,135 @@ def launcher(device_or_launcher) -> Launcher:
     if isinstance(device_or_launcher, Launcher):
         return device_or_launcher
     return Launcher(device_or_launcher, 1)
+
+
+class Recorder(Launcher):
+    """A :class:`Launcher` that records its launches (``wp.launch(..., record_cmd=True)``) instead of running
+    them: :func:`apply`, :func:`displace`, :func:`limit_positions` and :func:`limit_normals` issue through it the
+    launches they would run, split into the same row ranges, and a :class:`Plan` replays them. ``groups``: per
+    launch, its recorded row ranges (one, or one per CPU thread)."""
+
+    def __init__(self, device, threads: int = 1):
+        super().__init__(device, threads)
+        self.groups: list[list] = []
+
+    def _spans(self, n: int) -> list[tuple[int, int]]:
+        if self.threads == 1 or n < 2 * _threads.MIN_ROWS:
+            return [(0, n)]
+        return _threads.ranges(n, self.threads, _threads.MIN_ROWS)
+
+    def _record(self, kernel, dim: int, inputs: list):
+        return wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, record_cmd=True)
+
+    def rows(self, kernel, n: int, inputs: list) -> None:
+        if n > 0:
+            self.groups.append([self._record(kernel, b - a, inputs + [a]) for a, b in self._spans(n)])
+
+    def sliced(self, kernel, n: int, inputs_of) -> None:
+        if n > 0:
+            self.groups.append([self._record(kernel, b - a, inputs_of(a, b)) for a, b in self._spans(n)])
+
+
+class Plan:
+    """Launches recorded once by a :class:`Recorder` and replayed by every later call that needs them.
+
+    With ``graphs``, each run of one-range launches is captured once as a Warp graph (``wp.ScopedCapture``: a
+    CUDA graph on CUDA, Warp's replay of the recorded launches on the CPU) and replayed with
+    ``wp.capture_launch``; without, or where a capture fails, the recorded launches run one after another (on
+    the CPU each as one native call with its arguments packed once, :func:`_cpu_call`). A launch split into
+    row ranges (CPU threads) runs its ranges on the thread pool. Either way every launch runs with the
+    arguments it was recorded with, in the recorded order: results are bitwise those of the direct launches.
+    The buffers a plan was recorded over must outlive it and keep their addresses.
+    """
+
+    def __init__(self, device, threads: int, groups: list[list], graphs: bool = False):
+        self.device = wp.get_device(device)
+        self.threads = threads
+        self.groups = groups
+        self.segments: list[tuple[str, object]] = []
+        pending: list = []
+        for group in groups:
+            if len(group) == 1:
+                pending.append(group[0])
+                continue
+            self._add(pending, graphs)
+            pending = []
+            self.segments.append(("ranges", [self._call(launch) for launch in group]))
+        self._add(pending, graphs)
+
+    def _call(self, launch):
+        return _cpu_call(launch) if self.device.is_cpu else launch.launch
+
+    def _add(self, launches: list, graphs: bool) -> None:
+        if not launches:
+            return
+        graph = _capture(self.device, launches) if graphs else None
+        if graph is not None:
+            self.segments.append(("graph", graph))
+        else:
+            self.segments.append(("calls", [self._call(launch) for launch in launches]))
+
+    @property
+    def num_launches(self) -> int:
+        """Recorded launches (row ranges counted one by one)."""
+        return sum(len(g) for g in self.groups)
+
+    @property
+    def graphs(self) -> int:
+        """Captured graphs the plan replays."""
+        return sum(1 for kind, _ in self.segments if kind == "graph")
+
+    def run(self) -> None:
+        for kind, item in self.segments:
+            if kind == "graph":
+                wp.capture_launch(item)
+            elif kind == "calls":
+                for call in item:
+                    call()
+            else:
+                _threads.run(item, self.threads)
+
+
+def _cpu_call(launch):
+    """A no-argument callable that runs a recorded CPU launch as Warp's ``Launch.launch`` does -- the kernel's
+    forward entry point called with the launch bounds and the kernel's argument struct -- with the struct
+    packed once here instead of on every call (about 0.7 us a launch instead of 4-9). Where the launch is not
+    a plain forward CPU launch of the layout this expects, ``launch.launch`` itself."""
+    try:
+        params, kernel, hooks = launch.params, launch.kernel, launch.hooks
+        plain = (not launch.adjoint and getattr(launch, "block_dim", 1) <= 1 and hooks.forward is not None
+                 and len(params) == len(kernel.adj.args) + 1)
+        if not plain:
+            return launch.launch
+        fields = [(arg.label, type(value)) for arg, value in zip(kernel.adj.args, params[1:])]
+        args = type("Args", (ctypes.Structure,), {"_fields_": fields})()
+        for (name, _), value in zip(fields, params[1:]):
+            setattr(args, name, value)
+        forward, bounds, packed = hooks.forward, ctypes.byref(params[0]), ctypes.byref(args)
+    except Exception:  # noqa: BLE001 (another Warp's internals: the recorded launch as Warp runs it)
+        return launch.launch
+
+    def call():
+        forward(bounds, packed)
+
+    call.keep = (launch, args)  # the struct and the arrays it points to live as long as the call
+    return call
+
+
+_capture_lock = threading.Lock()
+
+
+def _capture(device, launches: list):
+    """A Warp graph of ``launches`` replayed in order, or None where Warp cannot capture on ``device``. Captures
+    are serialised: on the CPU Warp records any CPU launch made while a capture is open, from any thread."""
+    with _capture_lock:
+        try:
+            with wp.ScopedCapture(device=device, force_module_load=False) as capture:
+                for launch in launches:
+                    launch.launch()
+        except Exception:  # noqa: BLE001 (no capture here: the plan runs its recorded launches instead)
+            return None
+    return capture.graph
 
 
 @singledispatch
@@ -395,8 +547,8 @@ def refine_step(step: StepRecord, src: wp.array, dst: wp.array, scratch: wp.arra
 
 
 def limit_positions(masks: LimitMasks, src: wp.array, out: wp.array, device) -> None:
-    """Limit values of the last level's vertices from its points ``src`` (any width, ``out`` in the same
-    layout)."""
+    """Limit values of the masks' vertices from the level's points ``src`` (any width, ``out`` in the same
+    layout, ``masks.num_vertices`` rows; see :meth:`LimitMasks.first`)."""
     apply(masks.position, src, out, device)
 
 
@@ -412,6 +564,11 @@ def limit_normals(masks: LimitMasks, src: wp.array, tangent_u: wp.array, tangent
         masks.vertex_offsets[a:b + 1], tangent_u, tangent_v, zero, out[a:b]])
 
 
+def set_normals(ids: wp.array, normals: wp.array, out: wp.array, device) -> None:
+    """out[ids[i]] = normals[i]: prescribed normals replace the computed ones (vec3 arrays)."""
+    launcher(device).sliced(_kernels().scatter_rows, ids.shape[0], lambda a, b: [ids[a:b], normals[a:b], out])
+
+
 def layout(rows_by_width: wp.array) -> wp.array:
     """The kernels' view of a contiguous (rows, d) buffer: a vec3 array for d = 3, else the 2-D array itself."""
     if rows_by_width.shape[1] == 3:
@@ -423,23 +580,28 @@ def layout(rows_by_width: wp.array) -> wp.array:
 # ------------------------------------------------------------------------------------------------ buffers
 class _LevelBuffers:
     """Per-level device buffers for data of any width, allocated once for the widest data seen so far; a
-    call takes views of them for its width (in the kernels' :func:`layout`)."""
+    call takes views of them for its width (in the kernels' :func:`layout`). ``generation`` counts the
+    allocations: plans recorded over older buffers are stale."""
 
     def __init__(self, rows: list[int], moved: list[int], device, scalar):
         self.rows, self.moved, self.device, self.scalar = rows, moved, device, scalar
         self.width = 0
+        self.generation = 0
         self.flat: list[wp.array] = []
         self.scratch_flat: list[wp.array | None] = []
         self._views: dict = {}
+        self._rows: dict = {}
 
     def views(self, width: int):
         """(levels, scratch): per level a (rows, width) view, per step a (moved, width) view or None."""
         if width > self.width:
+            # the old buffers and their views go first (a wider set can need the memory)
+            self.flat, self.scratch_flat, self._views, self._rows = [], [], {}, {}
             self.flat = [wp.empty(n * width, dtype=self.scalar, device=self.device) for n in self.rows]
             self.scratch_flat = [wp.empty(n * width, dtype=self.scalar, device=self.device) if n else None
                                  for n in self.moved]
             self.width = width
-            self._views = {}
+            self.generation += 1
         if width not in self._views:
             def view(flat, n):
                 return layout(flat[: n * width].reshape((n, width)))
@@ -448,24 +610,73 @@ class _LevelBuffers:
                                   [None if f is None else view(f, n) for f, n in zip(self.scratch_flat, self.moved)])
         return self._views[width]
 
+    def rows_view(self, level: int, width: int):
+        """(device view, host view or None): level ``level``'s buffer as (rows, width) scalars, and on the CPU
+        the same memory as a numpy array (made once per level and width)."""
+        key = (level, width)
+        if key not in self._rows:
+            n = self.rows[level]
+            arr = self.flat[level][: n * width].reshape((n, width))
+            self._rows[key] = (arr, arr.numpy() if self.device.is_cpu else None)
+        return self._rows[key]
+
+
+class _Staging:
+    """Pinned host buffers (CUDA), one per role, shape and dtype, reused by every call: host data goes to the
+    device and results come back in one transfer each, at full bandwidth, with no page-locking per call."""
+
+    def __init__(self):
+        self._arrays: dict = {}
+
+    def get(self, role: str, shape: tuple, dtype) -> tuple[wp.array, np.ndarray]:
+        key = (role, tuple(shape), dtype)
+        if key not in self._arrays:
+            for old in [k for k in self._arrays if k[0] == role]:  # one buffer per role: the latest shape
+                del self._arrays[old]
+            arr = wp.empty(shape, dtype=dtype, device="cpu", pinned=True)
+            self._arrays[key] = (arr, arr.numpy())
+        return self._arrays[key]
+
+
+@dataclass
+class Evaluated:
+    """One pass of :meth:`Evaluator.evaluate_with_limits`: the refined ``points``, ``limit_points`` and unit
+    ``limit_normals`` (None where not asked for); numpy arrays, or device arrays (views of the evaluator's
+    buffers, valid until its next call) with ``on_device``."""
+
+    points: object
+    limit_points: object = None
+    limit_normals: object = None
+
 
 # ------------------------------------------------------------------------------------------------ evaluator
 class Evaluator:
     """Applies a hierarchy's steps to vertex data on ``device`` in ``precision``.
 
     The device records are uploaded and the level buffers allocated on first use and reused by every later
-    call. Thread safety: a lock guards every call's use of the shared level buffers (upload, launches and the
+    call. Each kind of call records its launches once (a :class:`Plan`, per data width and normal-control
+    choice) and replays them after: no argument packing per call; on CUDA (and on the CPU with ``graphs=True``)
+    the whole step loop is one captured graph. Input data is host data (a checked numpy array) or a device
+    array as a (rows, width) Warp view (:mod:`warp_subdiv.interop`); it is copied into the level-0 buffer (on
+    CUDA from a reused pinned buffer, or on the device). On CUDA the evaluator works on a stream of its own,
+    ordered after the device's current stream on entry, and the current stream waits for it on exit.
+
+    Thread safety: a lock guards every call's use of the shared level buffers (upload, launches and the
     copy of the result to the host), so concurrent calls from several threads run one after the other and
-    each gets its own result. :meth:`evaluate_device` returns a shared buffer, valid until the next call.
+    each gets its own result. Device results (:meth:`evaluate_device`, ``on_device``) are views of shared
+    buffers, valid until the next call.
 
     ``threads``: CPU threads per launch (None: :func:`warp_subdiv.threads.default_threads`); each launch of
-    many rows is split into that many contiguous row ranges. Results do not depend on it.
+    many rows is split into that many contiguous row ranges. ``graphs``: capture plans as Warp graphs (None:
+    on CUDA only; on the CPU Warp records every CPU launch made while a capture is open, from any thread, so
+    it is an opt-in there). Results depend on neither.
     """
 
-    def __init__(self, hierarchy, *, device, precision: str, threads: int | None = None):
+    def __init__(self, hierarchy, *, device, precision: str, threads: int | None = None, graphs: bool | None = None):
         self.hierarchy = hierarchy
         self.device = wp.get_device(device)
         self.threads = _threads.resolve(threads)
+        self.graphs = self.device.is_cuda if graphs is None else bool(graphs)
         self._launcher = None
         self.precision = str(precision)
         self._scalar_np, self._scalar, self._vec = PRECISIONS[self.precision]
@@ -473,6 +684,13 @@ class Evaluator:
         self._records: list[StepRecord] | None = None
         self._buffers: _LevelBuffers | None = None
         self._limit: LimitMasks | None = None
+        self._plans: dict = {}
+        self._plans_generation = 0
+        self._limit_out: dict = {}
+        self._prescribed: dict = {}
+        self._staging = _Staging()
+        self._stream = None
+        self._staged = None  # CUDA: event after the last upload from the pinned input buffer
 
     # ---------------------------------------------------------------------------------------- state
     @property
@@ -497,35 +715,119 @@ class Evaluator:
                 self._limit = upload_limit(self.hierarchy.limit_tables(), self.device, self.precision)
             return self._limit
 
+    def level_rows(self) -> list[int]:
+        """Vertices of every level 0..levels."""
+        return [self.hierarchy.base_num_vertices] + [r.num_rows for r in self.records()]
+
     def _level_views(self, width: int):
         if self._buffers is None:
             records = self.records()
-            rows = [self.hierarchy.base_num_vertices] + [r.num_rows for r in records]
-            self._buffers = _LevelBuffers(rows, [r.num_moved for r in records], self.device, self._scalar)
-        return self._buffers.views(width)
+            self._buffers = _LevelBuffers(self.level_rows(), [r.num_moved for r in records], self.device,
+                                          self._scalar)
+        if width > self._buffers.width:
+            from . import estimate  # the buffers of this width must fit 32-bit sizes and the device
 
-    def _put(self, dst: wp.array, data: np.ndarray) -> None:
-        """Copy host ``data`` (rows, d) into the device view ``dst``, converting to the evaluation precision."""
-        if self.device.is_cpu:
-            dst.numpy()[...] = data  # one pass: conversion straight into the buffer
+            rows = self._buffers.rows + self._buffers.moved
+            estimate.check_buffer_elements(max(rows) * width, f"data of width {width}")
+            wbytes = np.dtype(self._scalar_np).itemsize
+            estimate.check_device_memory(sum(rows) * (width - self._buffers.width) * wbytes, self.device,
+                                         f"level buffers for data of width {width}")
+            self._plans, self._limit_out = {}, {}  # they hold the old buffers, freed before the new ones come
+        views = self._buffers.views(width)
+        if self._buffers.generation != self._plans_generation:  # new buffers: the recorded launches are stale
+            self._plans, self._limit_out = {}, {}
+            self._plans_generation = self._buffers.generation
+        return views
+
+    @contextlib.contextmanager
+    def _device_scope(self):
+        """The lock, and on CUDA the evaluator's own stream (ordered after the device's current stream; the
+        current stream waits for it at the end)."""
+        with self._lock:
+            if not self.device.is_cuda:
+                yield
+                return
+            if self._stream is None:
+                self._stream = wp.Stream(self.device)
+            with wp.ScopedStream(self._stream, sync_enter=True, sync_exit=True):
+                yield
+
+    def _plan(self, key, issue) -> Plan:
+        """The plan of ``issue(launcher)``'s launches, recorded on first use per ``key`` (lock held)."""
+        plan = self._plans.get(key)
+        if plan is None:
+            recorder = Recorder(self.device, self.threads)
+            issue(recorder)
+            plan = self._plans[key] = Plan(self.device, recorder.threads, recorder.groups, graphs=self.graphs)
+        return plan
+
+    def _steps_plan(self, width: int, controls: tuple, start: int = 0) -> Plan:
+        """Steps ``start``.. of data of ``width``; ``controls[i]``: normal control in step ``start + i``."""
+        records = self.records()
+        levels, scratch = self._level_views(width)
+
+        def issue(run):
+            for i, control in enumerate(controls, start):
+                refine_step(records[i], levels[i], levels[i + 1], scratch[i], control, run)
+
+        return self._plan(("steps", width, start, controls), issue)
+
+    # ---------------------------------------------------------------------------------------- data
+    def _load(self, level: int, data) -> None:
+        """Copy (rows, width) ``data`` -- a checked numpy array, or a Warp view of a device array -- into level
+        ``level``'s buffer, converting to the evaluation precision (lock held)."""
+        width = data.shape[1]
+        self._level_views(width)
+        dst, host_dst = self._buffers.rows_view(level, width)
+        if isinstance(data, wp.array) and data.device != self.device:
+            data = data.numpy()  # an array on another device: through the host
+        if self.device.is_cpu:  # one pass: conversion straight into the buffer
+            np.copyto(host_dst, data.numpy() if isinstance(data, wp.array) else data, casting="unsafe")
+        elif isinstance(data, wp.array):
+            self._copy_rows(data, dst)
+        else:  # host data on CUDA: into the pinned buffer, then one transfer
+            stage, host_stage = self._staging.get("in", dst.shape, self._scalar)
+            if self._staged is not None:  # the previous upload from it must be done before it is overwritten
+                wp.synchronize_event(self._staged)
+            np.copyto(host_stage, data, casting="unsafe")
+            wp.copy(dst, stage)
+            self._staged = wp.get_stream(self.device).record_event()
+
+    def _copy_rows(self, src: wp.array, dst: wp.array) -> None:
+        """Device (rows, width) ``src`` into ``dst`` of the same shape, any strides and precisions."""
+        from . import interop
+
+        if src.dtype == dst.dtype and interop.is_contiguous_rows(src) and interop.is_contiguous_rows(dst):
+            wp.copy(dst, src)
+        elif self.device.is_cpu:
+            np.copyto(dst.numpy(), src.numpy(), casting="unsafe")
         else:
-            host = np.ascontiguousarray(data, dtype=self._scalar_np)
-            wp.copy(dst, wp.array(host, dtype=dst.dtype, device="cpu"))
+            wp.launch(_convert().cast_rows, dim=src.shape[0], inputs=[src, dst], device=self.device)
 
     def _host(self, arr: wp.array) -> np.ndarray:
         """A new numpy array with the contents of device array ``arr`` (written once, read in order: small
-        pages, see topology.small_pages)."""
+        pages, see topology.small_pages). On CUDA one transfer into a reused pinned buffer, then a copy."""
         with small_pages():
-            out = arr.numpy()
-            if not self.device.is_cpu:
-                return out
+            if self.device.is_cpu:
+                out = arr.numpy()
+            else:
+                stage, out = self._staging.get("out", arr.shape, arr.dtype)
+                wp.copy(stage, arr)
+                wp.synchronize_stream(wp.get_stream(self.device))
             if self.threads == 1 or len(out) < 2 * _threads.MIN_ROWS:
                 return np.array(out, copy=True)
             copy = np.empty_like(out)  # copied in row ranges on the evaluator's threads (numpy frees the GIL)
             _threads.map_ranges(lambda a, b: np.copyto(copy[a:b], out[a:b]), len(out), self.threads)
             return copy
 
-    def _input(self, data, rows: int, what: str) -> np.ndarray:
+    def _input(self, data, rows: int, what: str):
+        """Checked data as (rows, d): numpy arrays as they are (callers check values), Warp views checked for
+        shape."""
+        if isinstance(data, wp.array):
+            if data.ndim != 2 or data.shape[0] != rows:
+                raise SubdivInputError(f"{what} must have shape ({rows}, d), got {tuple(data.shape)}",
+                                       element="data", value=tuple(data.shape))
+            return data
         arr = np.asarray(data)
         if arr.ndim == 1:
             arr = arr[:, None]
@@ -535,85 +837,151 @@ class Evaluator:
         return arr
 
     # ---------------------------------------------------------------------------------------- evaluation
-    def _run(self, arr: np.ndarray, normal_control: bool) -> wp.array:
-        """Refine (n, d) data through every step (lock held); returns the last level's view."""
-        records = self.records()
-        levels, scratch = self._level_views(arr.shape[1])
-        self._put(levels[0], arr)
-        for step, src, dst, tmp in zip(records, levels[:-1], levels[1:], scratch):
-            refine_step(step, src, dst, tmp, normal_control, self.launcher)
-        return levels[-1]
+    def _run(self, data, controls) -> wp.array:
+        """Refine (n, d) data through every step (lock held); returns the last level's view. ``controls``:
+        normal control in every step (a bool) or per step (a tuple)."""
+        n = len(self.records())
+        controls = (bool(controls),) * n if isinstance(controls, (bool, np.bool_)) else tuple(controls)
+        self._load(0, data)
+        self._steps_plan(data.shape[1], controls).run()
+        return self._level_views(data.shape[1])[0][-1]
 
-    def evaluate(self, arr: np.ndarray, normal_control: bool) -> np.ndarray:
+    def evaluate(self, data, normal_control: bool) -> np.ndarray:
         """Refine checked (n, d) data of any width in one pass; returns a new numpy array (N, d) of the
         evaluation precision."""
-        with self._lock:
-            return self._host(self._run(arr, normal_control))
+        with self._device_scope():
+            return self._host(self._run(data, normal_control))
 
-    def evaluate_device(self, arr: np.ndarray, normal_control: bool) -> wp.array:
-        """Refine checked (n, 3) positions; returns the last level's device array of vec3 (a view of a shared
-        buffer, overwritten by the next call)."""
-        with self._lock:
-            return self._run(arr, normal_control)
+    def evaluate_device(self, data, normal_control: bool, out: wp.array | None = None) -> wp.array:
+        """Refine checked (n, 3) positions (host data or a device view); returns the last level's device array of
+        vec3 (a view of a shared buffer, overwritten by the next call), or writes it into ``out`` (a (N, 3)
+        device view on this device, any strides and precision) and returns ``out``."""
+        with self._device_scope():
+            result = self._run(data, normal_control)
+            if out is None:
+                return result
+            self._copy_rows(self._buffers.rows_view(len(self._buffers.rows) - 1, data.shape[1])[0], out)
+            return out
 
     def _last_step(self, points) -> wp.array:
         """Points of the second-to-last level (lock held) refined through the last step only; returns the last
         level's view. Normal control acts on (n, 3) data."""
-        records = self.records()
+        n = len(self.records())
         arr = self._input(points, self._level_rows(-2), "points of the second-to-last level")
-        levels, scratch = self._level_views(arr.shape[1])
-        self._put(levels[-2], arr)
-        refine_step(records[-1], levels[-2], levels[-1], scratch[-1], arr.shape[1] == 3, self.launcher)
-        return levels[-1]
+        self._load(n - 1, arr)
+        self._steps_plan(arr.shape[1], (arr.shape[1] == 3,), start=n - 1).run()
+        return self._level_views(arr.shape[1])[0][-1]
 
     def _level_rows(self, level: int) -> int:
-        rows = [self.hierarchy.base_num_vertices] + [r.num_rows for r in self.records()]
-        return rows[level]
+        return self.level_rows()[level]
 
     def evaluate_last_step(self, points_one_level_up) -> np.ndarray:
         """Refine points (n, d) of the second-to-last level through the last step only."""
-        with self._lock:
+        with self._device_scope():
             return self._host(self._last_step(points_one_level_up))
 
     # ------------------------------------------------------------------------------------------ limits
-    def _device_points(self, points) -> wp.array:
-        """Last-level points (N, d) on the device (a fresh array: limit evaluation keeps no shared state)."""
+    def _last_level(self, points) -> wp.array:
+        """Last-level points (N, d) in the last level's buffer (lock held); nothing is copied when they are
+        that buffer already (the result of :meth:`evaluate_device`)."""
         arr = self._input(points, self.hierarchy.num_vertices, "refined points")
-        host = np.ascontiguousarray(arr, dtype=self._scalar_np)
-        return layout(wp.array(host, dtype=self._scalar, device=self.device, copy=not self.device.is_cpu))
+        width = arr.shape[1]
+        levels, _ = self._level_views(width)
+        last = len(levels) - 1
+        own = self._buffers.rows_view(last, width)[0]
+        if not (isinstance(arr, wp.array) and arr.ptr == own.ptr and arr.strides == own.strides
+                and arr.dtype == own.dtype):
+            self._load(last, arr)
+        return levels[-1]
 
-    def limit_points(self, refined_points, *, last_step: bool = False) -> np.ndarray:
+    def _prescribed_arrays(self, prescribed):
+        """Prescribed normals (ids, normals) on the device, uploaded once."""
+        ids, normals = prescribed
+        ids = np.asarray(ids, dtype=np.int32)
+        normals = np.asarray(normals, dtype=self._scalar_np).reshape(-1, 3)
+        key = (ids.tobytes(), normals.tobytes())
+        if key not in self._prescribed:
+            up = _Uploader(self.device, self.precision)
+            self._prescribed[key] = (up(ids, np.int32), wp.array(normals, dtype=self._vec, device=self.device))
+        return self._prescribed[key]
+
+    def _limit_outputs(self, width: int, rows: int, tangents: int):
+        """Reused device outputs of the limit plans: (points (rows, width) layout, tangent u, tangent v, normals)."""
+        key = (width, rows)
+        if key not in self._limit_out:
+            dev, scalar = self.device, self._scalar
+            self._limit_out[key] = (
+                layout(wp.empty((rows, width), dtype=scalar, device=dev)),
+                wp.empty(tangents, dtype=self._vec, device=dev), wp.empty(tangents, dtype=self._vec, device=dev),
+                wp.empty(rows, dtype=self._vec, device=dev))
+        return self._limit_out[key]
+
+    def _limits(self, width: int, rows: int | None, points: bool, normals: bool, prescribed):
+        """Limit points and/or normals of the first ``rows`` vertices from the last level's buffer (lock held):
+        (points, normals) device views, None where not asked for."""
+        masks = self.limit_masks()
+        rows = masks.num_vertices if rows is None else rows
+        masks = masks.first(rows)
+        levels, _ = self._level_views(width)
+        src = levels[-1]
+        if normals and src.ndim != 1:
+            raise SubdivInputError(f"limit normals take (n, 3) positions, got width {width}", element="data",
+                                   value=width)
+        out, tu, tv, nout = self._limit_outputs(width, rows, masks.num_tangents)
+        ids, values = self._prescribed_arrays(prescribed) if normals and prescribed is not None and len(
+            prescribed[0]) else (None, None)
+
+        def issue(run):
+            if points:
+                limit_positions(masks, src, out, run)
+            if normals:
+                limit_normals(masks, src, tu, tv, nout, run)
+                if ids is not None:
+                    set_normals(ids, values, nout, run)
+
+        key = ("limits", width, rows, points, normals, None if ids is None else ids.ptr)
+        self._plan(key, issue).run()
+        return (out if points else None), (nout if normals else None)
+
+    def limit_points(self, refined_points, *, last_step: bool = False, rows: int | None = None,
+                     on_device: bool = False):
         """Limit values (N, d) of the last level's vertices, any width: the position mask applied to each
         vertex's ring. ``last_step``: the points are of the second-to-last level and are refined through the
-        last step first (for masks read one level deeper)."""
-        masks = self.limit_masks()
-        with self._lock:
-            src = self._last_step(refined_points) if last_step else self._device_points(refined_points)
-            out = wp.empty(src.shape, dtype=src.dtype, device=self.device)
-            limit_positions(masks, src, out, self.launcher)
-            return self._host(out)
+        last step first (for masks read one level deeper); ``rows``: only the first rows (a deeper level's
+        vertex children). A numpy array, or with ``on_device`` a view of a shared device buffer."""
+        with self._device_scope():
+            src = self._last_step(refined_points) if last_step else self._last_level(refined_points)
+            width = 3 if src.ndim == 1 else src.shape[1]
+            out, _ = self._limits(width, rows, True, False, None)
+            return out if on_device else self._host(out)
 
-    def limit_normals(self, refined_points, prescribed, *, last_step: bool = False) -> np.ndarray:
+    def limit_normals(self, refined_points, prescribed, *, last_step: bool = False, rows: int | None = None,
+                      on_device: bool = False):
         """Unit limit normals (N, 3) of the last level's vertices from positions (N, 3); ``prescribed``
-        (ids, normals) replace theirs. ``last_step`` as in :meth:`limit_points`."""
-        masks = self.limit_masks()
-        with self._lock:
-            src = self._last_step(refined_points) if last_step else self._device_points(refined_points)
+        (ids, normals) replace theirs. ``last_step``, ``rows``, ``on_device`` as in :meth:`limit_points`."""
+        with self._device_scope():
+            src = self._last_step(refined_points) if last_step else self._last_level(refined_points)
             if src.ndim != 1:
                 raise SubdivInputError(f"limit normals take (n, 3) positions, got {tuple(src.shape)}",
                                        element="data", value=tuple(src.shape))
-            dev, vec = self.device, self._vec
-            tu = wp.empty(masks.num_tangents, dtype=vec, device=dev)
-            tv = wp.empty(masks.num_tangents, dtype=vec, device=dev)
-            out = wp.empty(masks.num_vertices, dtype=vec, device=dev)
-            limit_normals(masks, src, tu, tv, out, self.launcher)
-            ids, normals = prescribed
-            if len(ids):
-                up = _Uploader(dev, self.precision)
-                values = wp.array(np.asarray(normals, dtype=self._scalar_np).reshape(-1, 3), dtype=vec, device=dev)
-                wp.launch(_kernels().scatter_rows, dim=len(ids), inputs=[up(ids, np.int32), values, out],
-                          device=dev)
-            return self._host(out)
+            _, out = self._limits(3, rows, False, True, prescribed)
+            return out if on_device else self._host(out)
+
+    def evaluate_with_limits(self, data, controls, *, points: bool = True, limit_points: bool = True,
+                             limit_normals: bool = True, prescribed=None, level: int = -1, rows: int | None = None,
+                             on_device: bool = False) -> Evaluated:
+        """Refine checked (n, d) data through every step and take limit points and normals from the last
+        level's buffer in the same pass, with no copy in between. ``controls``: normal control per step (or
+        one bool); ``level``: the level whose points are returned (-2 where a refiner one level deeper serves
+        the limits, with ``rows`` its vertex children: that level's vertices)."""
+        with self._device_scope():
+            self._run(data, controls)
+            width = data.shape[1]
+            lp, ln = self._limits(width, rows, limit_points, limit_normals, prescribed)
+            pts = self._level_views(width)[0][level] if points else None
+            if on_device:
+                return Evaluated(pts, lp, ln)
+            return Evaluated(*(None if a is None else self._host(a) for a in (pts, lp, ln)))
 
     def table_bytes(self) -> int:
         """Bytes of everything a step keeps on the device (index tables, masks, explicit stencils)."""

@@ -19,6 +19,7 @@ import numpy as np
 
 from . import masks as M
 from .errors import SubdivInputError
+from .estimate import check_int32
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, SMOOTH
 from .mesh import INFINITE_SHARPNESS, face_offsets_of
 from .tables import StencilTable, crease_neighbours
@@ -382,6 +383,7 @@ def _merge_rows(rows_parts, local_parts, weight_parts, num_rows, num_sources) ->
             raise AssertionError("limit table rows must come from one block each")
         counts[r] = l.shape[1]
     offsets = face_offsets_of(counts)
+    check_int32(offsets[-1], "a limit mask table needs entries")  # its int32 offsets must not wrap
     indices = np.empty(offsets[-1], dtype=np.int32)
     weights = np.empty(offsets[-1], dtype=np.float64)
     for r, l, w in zip(rows_parts, local_parts, weight_parts):

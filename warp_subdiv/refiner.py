@@ -13,7 +13,8 @@ import numpy as np
 import warp as wp
 
 from .errors import SubdivInputError
-from .evaluator import Evaluator, default_device
+from . import estimate, interop
+from .evaluator import Evaluated, Evaluator, default_device
 from .facevarying import FaceVaryingChannel, check_indices
 from .hierarchy import Hierarchy
 from .mesh import DATA_BOUND, Mesh, check_rows
@@ -80,6 +81,7 @@ class Refiner:
         self.options = options
         self.device = wp.get_device(device if device is not None else default_device())
         self.threads = resolve_threads(threads)
+        self._device_guard()
         self.hierarchy = Hierarchy(mesh, self.levels, options, max_memory=max_memory, threads=self.threads)
         self.evaluator = Evaluator(self.hierarchy, device=self.device, precision=options.precision,
                                    threads=self.threads)
@@ -136,72 +138,175 @@ class Refiner:
     def _check_data(self, data) -> np.ndarray:
         return check_rows(data, self.base_num_vertices, "vertex data", bound=DATA_BOUND[self.precision.value])
 
-    def evaluate_device(self, points, normal_control: bool = True) -> wp.array:
+    def _device_guard(self) -> None:
+        """On CUDA, refuse before any work when the step tables and the level buffers of positions would not
+        fit the device's free memory (:func:`warp_subdiv.estimate.check_device_memory`; nothing on the CPU)."""
+        mesh, o = self.mesh, self.options
+        counts = estimate.level_counts(mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, self.levels,
+                                       "loop" if o.scheme.value == "loop" else "catmull-clark")
+        tagged = 0 if mesh.creases is None else len(mesh.creases)
+        need = sum(estimate.device_bytes(counts, o.scheme.value, o.precision.value, tagged_edges=tagged).values())
+        estimate.check_device_memory(need, self.device, f"refining to level {self.levels}")
+
+    def _limit_guard(self) -> None:
+        """Refuse limit masks whose 32-bit table offsets would wrap, or (CUDA) that would not fit the device's
+        free memory, before they are built."""
+        if self.evaluator._limit is not None:
+            return
+        level = self.hierarchy.final
+        scheme = "loop" if self.options.scheme.value == "loop" else "catmull-clark"
+        estimate.check_limit_tables(level.num_vertices, level.num_corners, scheme, self.levels)
+        # (the last level may be built faces-only, without edges: the limit items read vertices and corners)
+        counts = [estimate.LevelCounts(self.levels, level.num_vertices, level.num_faces, 0, level.num_corners)]
+        items = estimate.device_bytes(counts, scheme, self.precision.value, limit=True)
+        estimate.check_device_memory(items["limit masks"] + items["limit outputs"], self.device,
+                                     f"limit masks of level {self.levels}")
+
+    def _rows_data(self, data, rows: int, what: str):
+        """(data, one_d): a device array as a checked (rows, d) Warp view (:mod:`warp_subdiv.interop`; values
+        are not read back to be checked), or host data checked by :func:`~warp_subdiv.mesh.check_rows`
+        (finite, within the precision's bound); one_d: the data was (rows,)."""
+        view = interop.device_rows(data, rows, what, self.device)
+        if view is not None:
+            return view, getattr(data, "ndim", 2) == 1 and view.shape[1] == 1
+        if (isinstance(data, np.ndarray) and data.ndim == 2 and data.dtype.kind == "f" and data.shape[0] == rows
+                and data.shape[1] >= 1 and data.size):
+            bound = DATA_BOUND[self.precision.value]
+            lo, hi = float(data.min()), float(data.max())  # NaN fails the comparisons, infinity the bound
+            if -bound <= lo and hi <= bound and -np.inf < lo and hi < np.inf:
+                return data, False
+        if rows == self.base_num_vertices and what == "vertex data":
+            return self._check_data(data), np.ndim(data) == 1
+        return check_rows(data, rows, what, bound=DATA_BOUND[self.precision.value]), np.ndim(data) == 1
+
+    def _vertex_data(self, points):
+        return self._rows_data(points, self.base_num_vertices, "vertex data")
+
+    def evaluate_device(self, points, normal_control: bool = True, *, out=None):
         """Refine (n, 3) positions; returns the final level's device array of vec3 (no copy to the host).
 
+        ``points``: host data (numpy), or a device array used where it lies, with no copy to the host: a Warp
+        array (vec3 (n,) or (n, 3), float32 or float64, any row stride) or any DLPack or
+        ``__cuda_array_interface__`` producer (torch, JAX, CuPy tensors); on the refiner's device it is copied on
+        the device into the level-0 buffer (an array on another device goes through the host). Device data is
+        not checked for finite values. ``out``: a device array (N, 3) on the refiner's device (Warp, torch, ...,
+        any float precision and stride) the result is written into, and which is returned.
+
         The array is a shared buffer of the evaluator, overwritten by the next call (from any thread)."""
-        arr = self._check_data(points)
+        arr, _ = self._vertex_data(points)
         if arr.shape[1] != 3:
-            raise SubdivInputError(f"evaluate_device takes (n, 3) positions, got {arr.shape}", element="data",
-                                   value=arr.shape)
-        return self.evaluator.evaluate_device(arr, normal_control)
+            raise SubdivInputError(f"evaluate_device takes (n, 3) positions, got {tuple(arr.shape)}", element="data",
+                                   value=tuple(arr.shape))
+        if out is None:
+            return self.evaluator.evaluate_device(arr, normal_control)
+        view = interop.device_rows(out, self.num_vertices, "out", self.device)
+        if view is None or view.device != self.device or view.shape[1] != 3:
+            raise SubdivInputError(f"out must be a device array ({self.num_vertices}, 3) on {self.device}",
+                                   element="data", value=type(out).__name__)
+        self.evaluator.evaluate_device(arr, normal_control, out=view)
+        return out
 
     def evaluate(self, points, normal_control=None) -> np.ndarray:
         """Refine (n, 3) or (n, d) vertex data (n = control vertices); returns a numpy array (N, d).
 
         Data of any width d is refined in one pass, each column as if it were refined alone. Flatness applies
         to all data (it is part of the subdivision matrix); prescribed normals only to positions, i.e. (n, 3)
-        data unless ``normal_control=False``. Safe to call from several threads at once.
+        data unless ``normal_control=False``. Safe to call from several threads at once. ``points`` may also be a
+        device array (as :meth:`evaluate_device` takes); the result is numpy either way (on CUDA one transfer,
+        into a reused pinned buffer).
         """
-        arr = self._check_data(points)
+        arr, one_d = self._vertex_data(points)
         width = arr.shape[1]
         if normal_control is None:
             normal_control = width == 3
         if normal_control and width != 3:
             raise SubdivInputError("normal control applies to (n, 3) positions only", option="normal_control")
         out = self.evaluator.evaluate(arr, normal_control)
-        return out[:, 0] if np.ndim(points) == 1 else out
+        return out[:, 0] if one_d else out
 
     # ---------------------------------------------------------------------------------------------
-    def limit_points(self, refined_points) -> np.ndarray:
+    def limit_points(self, refined_points, *, on_device: bool = False):
         """Limit positions of the refined vertices (docs/rules.md section 9): l^0 applied to each vertex's ring.
 
         ``refined_points`` (N,) or (N, d) of any width (positions, primvars, face-varying values); the result
         has the same shape. Where this level's masks are not exact (:meth:`limit_reads_deeper`) one more level
-        is refined first (with normal control for (N, 3) data)."""
-        points = check_rows(refined_points, self.num_vertices, "refined points",
-                            bound=DATA_BOUND[self.precision.value])
+        is refined first (with normal control for (N, 3) data). ``refined_points`` may be a device array (as
+        :meth:`evaluate_device` takes; its own result is read where it lies, with no copy); ``on_device``: return
+        a device array (a view of a shared buffer, valid until the next call) instead of numpy."""
+        points, one_d = self._rows_data(refined_points, self.num_vertices, "refined points")
         if self.limit_reads_deeper():
             deeper = self._one_more_level()
-            out = deeper.evaluator.limit_points(points, last_step=True)[: self.num_vertices]
+            deeper._limit_guard()
+            out = deeper.evaluator.limit_points(points, last_step=True, rows=self.num_vertices, on_device=on_device)
         else:
-            out = self.evaluator.limit_points(points)
-        return out[:, 0] if np.ndim(refined_points) == 1 else out
+            self._limit_guard()
+            out = self.evaluator.limit_points(points, on_device=on_device)
+        return out[:, 0] if one_d and not on_device else out
 
-    def limit_normals(self, refined_points) -> np.ndarray:
+    def limit_normals(self, refined_points, *, on_device: bool = False):
         """Unit outward limit normals of the refined vertices (docs/rules.md section 9); prescribed normals as
         given.
 
         A crease or corner vertex has one tangent plane per sector; its normal is the normalised sum of the
-        sectors' unit normals (exact where there is one sector, e.g. on a boundary).
+        sectors' unit normals (exact where there is one sector, e.g. on a boundary). ``refined_points`` and
+        ``on_device`` as in :meth:`limit_points`.
         """
-        refined_points = check_rows(refined_points, self.num_vertices, "refined points",
-                                    bound=DATA_BOUND[self.precision.value])
-        if refined_points.shape[1] != 3:
-            raise SubdivInputError(f"limit normals take (N, 3) positions, got {np.shape(refined_points)}",
-                                   element="data", value=np.shape(refined_points))
+        points, _ = self._rows_data(refined_points, self.num_vertices, "refined points")
+        if points.shape[1] != 3:
+            raise SubdivInputError(f"limit normals take (N, 3) positions, got {tuple(np.shape(points))}",
+                                   element="data", value=tuple(np.shape(points)))
         if self.limit_reads_deeper():
             deeper = self._one_more_level()
-            return deeper._limit_normals_here(refined_points, last_step=True)[: self.num_vertices]
-        return self._limit_normals_here(refined_points)
+            deeper._limit_guard()
+            return deeper.evaluator.limit_normals(points, deeper._prescribed(), last_step=True,
+                                                  rows=self.num_vertices, on_device=on_device)
+        self._limit_guard()
+        return self.evaluator.limit_normals(points, self._prescribed(), on_device=on_device)
 
-    def _limit_normals_here(self, refined_points, last_step: bool = False) -> np.ndarray:
-        """Limit normals from this level's masks, without refining deeper; ``last_step``: the points are of the
-        level before this refiner's last and go through its last step first."""
+    def _prescribed(self):
+        """(ids, normals) of the prescribed normals that replace computed limit normals (none where normal
+        control is off)."""
         ids, normals = self.hierarchy.normal_vertices, self.hierarchy.normal_vectors
         if self.options.normal_strength <= 0:
             ids, normals = ids[:0], normals[:0]
-        return self.evaluator.limit_normals(refined_points, (ids, normals), last_step=last_step)
+        return ids, normals
+
+    def evaluate_with_limits(self, points, *, normal_control=None, limit_points: bool = True,
+                             limit_normals: bool = True, on_device: bool = False) -> Evaluated:
+        """Refine control data and take its limit points and unit limit normals in one pass, from the last
+        level's device buffer with no copy between (a USD time sample: points, normals and limit points).
+
+        Returns :class:`~warp_subdiv.evaluator.Evaluated` (``points``, ``limit_points``, ``limit_normals``):
+        equal, bitwise, to :meth:`evaluate`, then :meth:`limit_points` and :meth:`limit_normals` of its result.
+        Where the masks are read one level deeper (:meth:`limit_reads_deeper`), the refiner one level deeper
+        refines the control data once and this level's points are its second-to-last level. ``points`` as
+        :meth:`evaluate` takes (host data or a device array); normals need (n, 3) positions. ``on_device``: the
+        three are device arrays (views of shared buffers, valid until the next call)."""
+        data, one_d = self._vertex_data(points)
+        width = data.shape[1]
+        if normal_control is None:
+            normal_control = width == 3
+        if normal_control and width != 3:
+            raise SubdivInputError("normal control applies to (n, 3) positions only", option="normal_control")
+        if limit_normals and width != 3:
+            raise SubdivInputError(f"limit normals take (n, 3) positions, got width {width}", element="data",
+                                   value=width)
+        if self.limit_reads_deeper():
+            deeper = self._one_more_level()
+            deeper._limit_guard()
+            controls = (bool(normal_control),) * self.levels + (width == 3,)  # the deeper step: as limit_points
+            res = deeper.evaluator.evaluate_with_limits(
+                data, controls, limit_points=limit_points, limit_normals=limit_normals,
+                prescribed=deeper._prescribed(), level=-2, rows=self.num_vertices, on_device=on_device)
+        else:
+            self._limit_guard()
+            res = self.evaluator.evaluate_with_limits(
+                data, bool(normal_control), limit_points=limit_points, limit_normals=limit_normals,
+                prescribed=self._prescribed(), on_device=on_device)
+        if one_d and not on_device:
+            res.points = res.points[:, 0]
+            res.limit_points = None if res.limit_points is None else res.limit_points[:, 0]
+        return res
 
     def _one_more_level(self) -> "Refiner":
         """A refiner one level deeper, with the same options, for limit masks (see limit_reads_deeper)."""

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import crease, rules
+from .estimate import check_int32
 from .mesh import face_offsets_of
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
 from .topology import Level, child_rules, child_sharpness, expand_counts, fractional_weight
@@ -52,6 +53,7 @@ class _Layout:
     def __init__(self, sizes: np.ndarray, num_sources: int):
         self.offsets = face_offsets_of(sizes)
         total = int(self.offsets[-1])
+        check_int32(total, "a stencil table needs entries")  # its int32 offsets must not wrap
         self.indices = np.full(total, -1, dtype=np.int64)
         self.weights = np.zeros(total, dtype=np.float64)
         self.num_sources = num_sources
