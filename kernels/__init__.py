@@ -20,3 +20,4 @@ from .regular import (  # noqa: F401
 )
 from .stencil import stencil_rows  # noqa: F401
 from .limit import limit_evaluate  # noqa: F401
+from .adjoint import add_rows, explicit_rows_add, vertex_normals_adjoint, zero_rows  # noqa: F401

@@ -182,7 +182,7 @@ class Refiner:
     def _vertex_data(self, points):
         return self._rows_data(points, self.base_num_vertices, "vertex data")
 
-    def evaluate_device(self, points, normal_control: bool = True, *, out=None):
+    def evaluate_device(self, points, normal_control: bool = True, requires_grad: bool = False, *, out=None):
         """Refine (n, 3) positions; returns the final level's device array of vec3 (no copy to the host).
 
         ``points``: host data (numpy), or a device array used where it lies, with no copy to the host: a Warp
@@ -192,7 +192,16 @@ class Refiner:
         not checked for finite values. ``out``: a device array (N, 3) on the refiner's device (Warp, torch, ...,
         any float precision and stride) the result is written into, and which is returned.
 
-        The array is a shared buffer of the evaluator, overwritten by the next call (from any thread)."""
+        The array is a shared buffer of the evaluator, overwritten by the next call (from any thread).
+        ``requires_grad=True``: ``points`` is a Warp array on the refiner's device (vec3 (n,) or (n, d) of its
+        precision: any width; normal control, on by default, acts on width 3 only); the result is a fresh array
+        with a gradient, and under an active ``wp.Tape`` its backward (the transposed tables,
+        :mod:`warp_subdiv.gradients`) is recorded and adds to ``points.grad``."""
+        if requires_grad:
+            from . import gradients
+
+            return gradients.evaluate(self, points, None if normal_control is True else normal_control,
+                                      requires_grad=True)
         arr, _ = self._vertex_data(points)
         if arr.shape[1] != 3:
             raise SubdivInputError(f"evaluate_device takes (n, 3) positions, got {tuple(arr.shape)}", element="data",
@@ -223,6 +232,37 @@ class Refiner:
             raise SubdivInputError("normal control applies to (n, 3) positions only", option="normal_control")
         out = self.evaluator.evaluate(arr, normal_control)
         return out[:, 0] if one_d else out
+
+    # --------------------------------------------------------------------------------------------- gradients
+    def matrix(self, level=None, *, normal_control: bool = False, with_offset: bool = False):
+        """The sparse map from control data to ``level``'s data (None: the last level; ``"limit"``: limit
+        positions): a ``scipy.sparse.csr_matrix`` (a :class:`~warp_subdiv.gradients.CSRMatrix` of the same CSR
+        arrays without scipy), ``evaluate(data, normal_control=False) == M @ data``; with ``normal_control`` the
+        (3N, 3n) map of positions flattened row by row; ``with_offset``: (M, affine offset). See
+        :func:`warp_subdiv.gradients.matrix`."""
+        from . import gradients
+
+        return gradients.matrix(self, level, normal_control=normal_control, with_offset=with_offset)
+
+    def evaluate_vjp(self, grad, normal_control=None) -> np.ndarray:
+        """Gradient with respect to the control data of ``grad``, a gradient of :meth:`evaluate`'s result (the
+        transposed tables applied; deterministic). See :func:`warp_subdiv.gradients.evaluate_vjp`."""
+        from . import gradients
+
+        return gradients.evaluate_vjp(self, grad, normal_control)
+
+    def limit_points_vjp(self, grad) -> np.ndarray:
+        """Gradient with respect to the refined data of ``grad``, a gradient of :meth:`limit_points`' result."""
+        from . import gradients
+
+        return gradients.limit_points_vjp(self, grad)
+
+    def limit_normals_vjp(self, refined_points, grad) -> np.ndarray:
+        """Gradient with respect to ``refined_points`` of ``grad``, a gradient of :meth:`limit_normals`' result
+        (the true derivative of the unit normals)."""
+        from . import gradients
+
+        return gradients.limit_normals_vjp(self, refined_points, grad)
 
     # ---------------------------------------------------------------------------------------------
     def limit_points(self, refined_points, *, on_device: bool = False):

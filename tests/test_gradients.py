@@ -1,0 +1,306 @@
+"""Gradients of refinement (warp_subdiv.gradients): the sparse operator ``Refiner.matrix``, vector-Jacobian
+products of ``evaluate``, ``limit_points`` and ``limit_normals`` checked by finite differences in float64, the
+``wp.Tape`` path, and deterministic backward passes (bitwise equal run to run and for any thread count)."""
+import numpy as np
+import pytest
+import warp as wp
+
+import warp_subdiv as ws
+from warp_subdiv import gradients as G
+from warp_subdiv import threads as th
+
+from conftest import load_mesh
+
+
+def _with(name, **tags):
+    base = load_mesh(name)
+    keep = dict(creases=base.creases if len(base.creases) else None,
+                corners=base.corners if len(base.corners) else None)
+    keep.update(tags)
+    return ws.Mesh(base.points, base.face_vertex_counts, base.face_vertex_indices, **keep)
+
+
+def _semi_sharp_cube():
+    return _with("cube", creases=[[0, 1], [1, 2], [2, 3]], crease_sharpness=[1.5, 2.0, 0.7], corners=[5],
+                 corner_sharpness=[2.3])
+
+
+# (id, mesh factory, options): both schemes, both rule sets, boundaries, creases, corners, semi-sharp tags,
+# flatness, prescribed normals (interior and boundary sector vertices), stencil (non-uniform) steps
+CASES = [
+    ("cc-creased-corners", lambda: _with("cube_creased"), dict(scheme="catmull-clark")),
+    ("cc-boundary-flatness-normals", lambda: _with("quad_lshape", normals=([5, 10], [[0.0, 0.6, 0.8],
+                                                                                     [0.28, 0.0, 0.96]])),
+     dict(scheme="catmull-clark", flatness=0.6, normal_strength=0.5)),
+    ("cc-boundary-opensubdiv", lambda: _with("quad_lshape"), dict(scheme="catmull-clark", rules="opensubdiv")),
+    ("cc-semi-sharp", _semi_sharp_cube, dict(scheme="catmull-clark", rules="opensubdiv")),
+    ("cc-semi-sharp-ps-normal", lambda: _with("cube", creases=[[0, 1], [1, 2]], crease_sharpness=[1.5, 0.7],
+                                              normals=([6], [[0.6, 0.48, 0.64]])), dict(scheme="catmull-clark")),
+    ("cc-polygons", lambda: _with("mixed_prism"), dict(scheme="catmull-clark")),
+    ("loop-boundary-normal", lambda: _with("tri_hexfan", normals=([0], [[0.0, 0.6, 0.8]])), dict(scheme="loop")),
+    ("loop-polygons-opensubdiv", lambda: _with("mixed_prism"), dict(scheme="loop", rules="opensubdiv")),
+    ("loop-semi-sharp-flatness", lambda: _with("icosahedron", creases=[[11, 0], [0, 5], [5, 1]],
+                                               crease_sharpness=[10.0, 10.0, 1.5], corners=[0]),
+     dict(scheme="loop", flatness=0.4)),
+]
+
+
+_REFINERS: dict = {}
+
+
+def refiner(case_id, levels=2, threads=1):
+    """A float64 CPU refiner of a case (cached per test session)."""
+    key = (case_id, levels, threads)
+    if key not in _REFINERS:
+        _, make, opts = next(c for c in CASES if c[0] == case_id)
+        mesh = make()
+        _REFINERS[key] = ws.Refiner(mesh, levels, precision="float64", device="cpu", threads=threads, **opts)
+    return _REFINERS[key]
+
+
+def _points(r, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.asarray(r.mesh.points, np.float64) + 0.05 * rng.standard_normal((r.base_num_vertices, 3))
+
+
+def _fd(f, x, g, d, h=1e-6):
+    """Central difference of <g, f(x)> along d."""
+    return (np.sum(g * f(x + h * d)) - np.sum(g * f(x - h * d))) / (2 * h)
+
+
+IDS = [c[0] for c in CASES]
+
+
+@pytest.mark.parametrize("case", IDS)
+def test_evaluate_gradient_matches_finite_differences(case):
+    """evaluate_vjp is the derivative of evaluate, by central differences in float64: positions with normal
+    control (an affine map; normal control couples the coordinates), and data of width 2 without it."""
+    r = refiner(case)
+    rng = np.random.default_rng(1)
+    p = _points(r)
+    for width, nc in ((3, True), (2, False)):
+        x = p if width == 3 else rng.standard_normal((r.base_num_vertices, width))
+        g = rng.standard_normal((r.num_vertices, width))
+        d = rng.standard_normal(x.shape)
+        vjp = r.evaluate_vjp(g, normal_control=nc)
+        assert vjp.shape == x.shape and vjp.dtype == np.float64
+        fd = _fd(lambda y: r.evaluate(y, normal_control=nc), x, g, d)
+        assert np.sum(vjp * d) == pytest.approx(fd, rel=1e-7, abs=1e-7)
+
+
+@pytest.mark.parametrize("case", IDS)
+def test_limit_gradients_match_finite_differences(case):
+    """limit_points_vjp and limit_normals_vjp (the true derivative of the unit normals) by central differences
+    in float64, on the refined points of a random control cage, composed with evaluate_vjp as well."""
+    r = refiner(case)
+    rng = np.random.default_rng(2)
+    p = _points(r)
+    x = r.evaluate(p)
+    g = rng.standard_normal(x.shape)
+    d = rng.standard_normal(x.shape)
+    assert np.sum(r.limit_points_vjp(g) * d) == pytest.approx(_fd(r.limit_points, x, g, d), rel=1e-7, abs=1e-7)
+    assert np.sum(r.limit_normals_vjp(x, g) * d) == pytest.approx(_fd(r.limit_normals, x, g, d, h=1e-7),
+                                                                  rel=1e-5, abs=1e-6)
+    # control points -> limit normals
+    dp = rng.standard_normal(p.shape)
+    chain = r.evaluate_vjp(r.limit_normals_vjp(x, g))
+    fd = _fd(lambda q: r.limit_normals(r.evaluate(q)), p, g, dp, h=1e-7)
+    assert np.sum(chain * dp) == pytest.approx(fd, rel=1e-5, abs=1e-6)
+
+
+@pytest.mark.parametrize("case", IDS)
+def test_matrix_is_the_refinement_map(case):
+    """matrix(level) @ data equals evaluate's data on every level (a refiner of that many levels) and at the
+    limit; with normal control, the (3N, 3n) map of positions; the affine offset is zero; matrix().T @ g is
+    evaluate_vjp(g)."""
+    r = refiner(case)
+    rng = np.random.default_rng(3)
+    p = _points(r)
+    data = rng.standard_normal((r.base_num_vertices, 2))
+    for level in range(r.levels + 1):
+        m = r.matrix(level)
+        sub = r if level == r.levels else ws.Refiner(r.mesh, level, options=r.options, device="cpu")
+        np.testing.assert_allclose(m @ data, sub.evaluate(data, normal_control=False), atol=1e-12)
+        m3, offset = r.matrix(level, normal_control=True, with_offset=True)
+        assert m3.shape == (3 * sub.num_vertices, 3 * r.base_num_vertices) and not np.any(offset)
+        np.testing.assert_allclose((m3 @ p.reshape(-1)).reshape(-1, 3) + offset.reshape(-1, 3), sub.evaluate(p),
+                                   atol=1e-12)
+    limit = r.matrix("limit", normal_control=True)
+    np.testing.assert_allclose((limit @ p.reshape(-1)).reshape(-1, 3), r.limit_points(r.evaluate(p)), atol=1e-12)
+    g = rng.standard_normal((r.num_vertices, 2))
+    np.testing.assert_allclose(r.matrix().T @ g, r.evaluate_vjp(g, normal_control=False), atol=1e-12)
+
+
+def test_matrix_without_scipy(monkeypatch):
+    """Without scipy, matrix() returns the same CSR arrays as a CSRMatrix (@, .T, toarray)."""
+    import builtins
+
+    r = refiner("cc-boundary-flatness-normals")
+    real_import = builtins.__import__
+
+    def no_scipy(name, *args, **kwargs):
+        if name.startswith("scipy"):
+            raise ImportError(name)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_scipy)
+    m = r.matrix(normal_control=True)
+    assert isinstance(m, G.CSRMatrix) and m.shape == (3 * r.num_vertices, 3 * r.base_num_vertices)
+    p = _points(r)
+    np.testing.assert_allclose((m @ p.reshape(-1)).reshape(-1, 3), r.evaluate(p), atol=1e-12)
+    g = np.random.default_rng(4).standard_normal(3 * r.num_vertices)
+    np.testing.assert_allclose(m.T @ g, r.evaluate_vjp(g.reshape(-1, 3)).reshape(-1), atol=1e-12)
+    np.testing.assert_allclose(m.toarray() @ p.reshape(-1), m @ p.reshape(-1), atol=1e-12)
+
+
+def test_matrix_level_is_checked():
+    """A level outside 0..levels (or of another type) is refused, naming the option."""
+    r = refiner("cc-creased-corners")
+    for bad in (-1, 3, 1.5, "deep", True):
+        with pytest.raises(ws.SubdivInputError) as err:
+            r.matrix(bad)
+        assert err.value.option == "level"
+
+
+@wp.kernel
+def _dot_loss(x: wp.array(dtype=wp.vec3d), g: wp.array(dtype=wp.vec3d), loss: wp.array(dtype=wp.float64)):
+    i = wp.tid()
+    wp.atomic_add(loss, 0, wp.dot(x[i], g[i]))
+
+
+@wp.kernel
+def _dot_loss_2d(x: wp.array2d(dtype=wp.float64), g: wp.array2d(dtype=wp.float64),
+                 loss: wp.array(dtype=wp.float64)):
+    i, j = wp.tid()
+    wp.atomic_add(loss, 0, x[i, j] * g[i, j])
+
+
+@pytest.mark.parametrize("case", ["cc-boundary-flatness-normals", "loop-boundary-normal", "cc-polygons"])
+def test_tape_gradient_equals_matrix_transpose(case):
+    """Under wp.Tape, evaluate_device(requires_grad=True) followed by limit_points gives points.grad equal to
+    matrix('limit').T @ g (positions, normal control), and evaluate of width-2 data gives matrix().T @ g; the
+    forward values equal evaluate's; tape.zero() clears the gradients."""
+    r = refiner(case)
+    rng = np.random.default_rng(5)
+    p = _points(r)
+    pts = wp.array(p, dtype=wp.vec3d, requires_grad=True)
+    g = rng.standard_normal((r.num_vertices, 3))
+    loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+    tape = wp.Tape()
+    with tape:
+        out = r.evaluate_device(pts, requires_grad=True)
+        lim = G.limit_points(r, out)
+        wp.launch(_dot_loss, dim=r.num_vertices, inputs=[lim, wp.array(g, dtype=wp.vec3d), loss])
+    tape.backward(loss)
+    np.testing.assert_array_equal(out.numpy(), r.evaluate(p))
+    expected = (r.matrix("limit", normal_control=True).T @ g.reshape(-1)).reshape(-1, 3)
+    np.testing.assert_allclose(pts.grad.numpy(), expected, atol=1e-12)
+    tape.zero()
+    assert not np.any(pts.grad.numpy())
+
+    data = wp.array(rng.standard_normal((r.base_num_vertices, 2)), dtype=wp.float64, requires_grad=True)
+    g2 = rng.standard_normal((r.num_vertices, 2))
+    loss2 = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+    with wp.Tape() as tape2:
+        out2 = r.evaluate_device(data, requires_grad=True)
+        wp.launch(_dot_loss_2d, dim=(r.num_vertices, 2), inputs=[out2, wp.array(g2, dtype=wp.float64), loss2])
+    tape2.backward(loss2)
+    assert out2.shape == (r.num_vertices, 2)
+    np.testing.assert_allclose(data.grad.numpy(), r.matrix().T @ g2, atol=1e-12)
+
+
+def test_tape_limit_normals_and_accumulation():
+    """limit_normals on the tape gives evaluate_vjp(limit_normals_vjp(...)) at the control points; a second
+    use of the same control points adds its gradient (Warp's accumulation convention)."""
+    r = refiner("cc-boundary-flatness-normals")
+    rng = np.random.default_rng(6)
+    p = _points(r)
+    g = rng.standard_normal((r.num_vertices, 3))
+    pts = wp.array(p, dtype=wp.vec3d, requires_grad=True)
+    loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+    gw = wp.array(g, dtype=wp.vec3d)
+    with wp.Tape() as tape:
+        for _ in range(2):
+            normals = G.limit_normals(r, G.evaluate(r, pts))
+            wp.launch(_dot_loss, dim=r.num_vertices, inputs=[normals, gw, loss])
+    tape.backward(loss)
+    x = r.evaluate(p)
+    np.testing.assert_allclose(normals.numpy(), r.limit_normals(x), atol=1e-14)
+    np.testing.assert_allclose(pts.grad.numpy(), 2 * r.evaluate_vjp(r.limit_normals_vjp(x, g)), atol=1e-12)
+
+
+def test_two_pass_transposed_steps():
+    """Transposed steps read in two passes (near and far child rows, as on large levels) give the same gradient
+    as one pass, up to rounding, and the near part covers every parent row."""
+    r = refiner("cc-boundary-flatness-normals")
+    g = np.random.default_rng(9).standard_normal((r.num_vertices, 3))
+    one = r.evaluate_vjp(g)
+    for t in r.tables:
+        split = G.transposed_step(t, split=True)
+        assert split.near.num_rows == t.num_sources and split.far.num_rows > 0
+        dense = np.zeros((t.num_sources, t.num_rows))
+        for part in (split.near, split.far):
+            rows = G.rows_of(part.offsets)
+            rows = rows if part.rows is None else part.rows[rows]
+            np.add.at(dense, (rows, part.indices), part.weights)
+        expected = np.zeros_like(dense)
+        np.add.at(expected, (t.indices, G.rows_of(t.offsets)), t.weights)
+        np.testing.assert_allclose(dense, expected, atol=1e-15)
+    two = ws.Refiner(r.mesh, r.levels, options=r.options, device="cpu")
+    G.adjoint(two)._steps = {}
+    import unittest.mock as mock
+
+    with mock.patch.object(G, "SPLIT_ROWS", 1):
+        np.testing.assert_allclose(two.evaluate_vjp(g), one, atol=1e-12)
+
+
+@pytest.mark.parametrize("split_rows", [G.SPLIT_ROWS, 1])
+def test_backward_is_bitwise_deterministic(monkeypatch, split_rows):
+    """Two backward passes give the same bits, and so do 1, 2 and 3 CPU threads (launches split into row
+    ranges of a few rows), for evaluate, limit_points and limit_normals, in float32 and float64, with transposed
+    steps read in one pass and in two."""
+    monkeypatch.setattr(th, "MIN_ROWS", 3)
+    monkeypatch.setattr(G, "SPLIT_ROWS", split_rows)
+    for precision in ("float32", "float64"):
+        results = []
+        for threads in (1, 2, 3):
+            _, make, opts = next(c for c in CASES if c[0] == "cc-boundary-flatness-normals")
+            r = ws.Refiner(make(), 3, precision=precision, device="cpu", threads=threads,
+                           **opts)
+            rng = np.random.default_rng(7)
+            g = rng.standard_normal((r.num_vertices, 3))
+            x = r.evaluate(_points(r))
+            runs = [(r.evaluate_vjp(g), r.evaluate_vjp(g[:, :2]), r.limit_points_vjp(g), r.limit_normals_vjp(x, g))
+                    for _ in range(2)]
+            for a, b in zip(*runs):
+                np.testing.assert_array_equal(a, b)
+            results.append(runs[0])
+        for other in results[1:]:
+            for a, b in zip(results[0], other):
+                np.testing.assert_array_equal(a, b)
+
+
+def test_gradient_inputs_are_checked():
+    """Wrong shapes, precisions and devices are refused with SubdivInputError; normal control needs width 3."""
+    r = refiner("cc-creased-corners")
+    with pytest.raises(ws.SubdivInputError):
+        r.evaluate_vjp(np.zeros((r.num_vertices + 1, 3)))
+    with pytest.raises(ws.SubdivInputError):
+        r.evaluate_vjp(np.zeros((r.num_vertices, 2)), normal_control=True)
+    with pytest.raises(ws.SubdivInputError):
+        r.limit_normals_vjp(np.zeros((r.num_vertices, 2)), np.zeros((r.num_vertices, 2)))
+    with pytest.raises(ws.SubdivInputError):
+        r.evaluate_device(wp.zeros(r.base_num_vertices, dtype=wp.vec3f, requires_grad=True), requires_grad=True)
+    with pytest.raises(ws.SubdivInputError):
+        r.evaluate_device(wp.zeros(r.base_num_vertices + 2, dtype=wp.vec3d), requires_grad=True)
+    with pytest.raises(TypeError):
+        r.evaluate_device(np.zeros((r.base_num_vertices, 3)), requires_grad=True)
+
+
+def test_levels_zero_is_the_identity():
+    """A refiner of 0 levels: the matrix is the identity and the gradient is the incoming one."""
+    r = ws.Refiner(load_mesh("quad_lshape"), 0, precision="float64", device="cpu")
+    m = r.matrix()
+    np.testing.assert_array_equal(m.toarray(), np.eye(r.base_num_vertices))
+    g = np.random.default_rng(8).standard_normal((r.num_vertices, 3))
+    np.testing.assert_array_equal(r.evaluate_vjp(g), g)
