@@ -240,17 +240,19 @@ def run_case(seed: int, paths: str = "all") -> dict:
 
     case = random_case(seed)
     rng = np.random.default_rng(seed + 10**9)
-    result = {"seed": seed, "kind": case["kind"], "outcome": "ok", "message": ""}
+    result = {"seed": seed, "kind": case["kind"], "outcome": "ok", "message": "", "stage": "mesh"}
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             mesh = ws.Mesh(case["points"], case["counts"], case["indices"], **case["tags"])
+            result["stage"] = "refine"
             refiner = ws.Refiner(mesh, case["level"], device="cpu", **case["options"])
             out = refiner.refine()
             _finite(out.points)
             assert out.face_vertex_counts.sum() == len(out.face_vertex_indices)
             assert len(out.face_vertex_indices) == 0 or (out.face_vertex_indices.min() >= 0 and
                                                          out.face_vertex_indices.max() < len(out.points))
+            result["stage"] = "other paths"
             if paths == "all":
                 data = rng.standard_normal((mesh.num_vertices, int(rng.integers(1, 5))))
                 if rng.random() < 0.1:
@@ -444,7 +446,10 @@ def summarize(results) -> dict:
         if r["outcome"] == "refused":
             msg = r["message"]
             reasons[_reason(msg)] += 1
-    return {"cases": len(results), "outcomes": dict(outcomes), "by_kind": {k: dict(v) for k, v in by_kind.items()},
+    stages = Counter(r.get("stage", "?") for r in results if r["outcome"] == "refused")
+    refined = sum(1 for r in results if r["outcome"] == "ok" or r.get("stage") == "other paths")
+    return {"cases": len(results), "outcomes": dict(outcomes), "refused_at": dict(stages),
+            "refined_by_mesh_and_refine": refined, "by_kind": {k: dict(v) for k, v in by_kind.items()},
             "refusals": dict(reasons.most_common(15)),
             "failures": [r for r in results if r["outcome"] not in ("ok", "refused")]}
 
@@ -480,6 +485,9 @@ def main(argv=None) -> int:
     print("| outcome | cases | share |\n|---|---:|---:|")
     for k, v in sorted(summary["outcomes"].items()):
         print(f"| {k} | {v} | {100.0 * v / max(n, 1):.1f}% |")
+    print(f"\nrefined by Mesh + refine: {summary['refined_by_mesh_and_refine']} "
+          f"({100.0 * summary['refined_by_mesh_and_refine'] / max(n, 1):.1f}%); refused at: "
+          + ", ".join(f"{k} {v}" for k, v in summary["refused_at"].items()))
     print("\n| kind | ok | refused | other |\n|---|---:|---:|---:|")
     for k, v in sorted(summary["by_kind"].items()):
         other = sum(c for o, c in v.items() if o not in ("ok", "refused"))

@@ -231,7 +231,7 @@ def _table(rows, header, left=(0, 1, 2)) -> list:
     return [fmt(header)] + [fmt(r) for r in rows]
 
 
-def _summary(source, output, levels, device, reports, seconds, predicted) -> None:
+def _summary(source, output, levels, device, reports, seconds, predicted, phases=None) -> None:
     from .estimate import format_bytes
 
     print(f"{source} -> {output}: {levels} levels on {device}")
@@ -246,6 +246,8 @@ def _summary(source, output, levels, device, reports, seconds, predicted) -> Non
     vout = sum(r.vertices_out for r in reports)
     print(f"  total: {len(reports)} mesh{'es' if len(reports) != 1 else ''}, faces {fin} -> {fout}, vertices {vin} -> "
           f"{vout}, {seconds:.2f} s (predicted memory {format_bytes(predicted)}); wrote {output}")
+    if phases:  # where the time went (warp_subdiv.phases)
+        print("  phases: " + ", ".join(f"{name} {sec:.2f} s" for name, sec in phases.items()))
 
 
 def _refine(args) -> int:
@@ -303,7 +305,7 @@ def _refine_usd(args, max_memory, progress) -> int:
         _warn(w)
     if not args.quiet:
         _summary(args.input, args.output, args.levels, _device_name(args.device), result.reports, result.seconds,
-                 result.predicted_bytes)
+                 result.predicted_bytes, getattr(result, "phases", None))
     return 0
 
 

@@ -40,6 +40,7 @@ import numpy as np
 from pxr import Sdf, Usd, Vt
 
 from . import __version__
+from . import phases as _phases
 from .errors import SubdivInputError
 from .estimate import Estimate, MemoryGuardError, check_memory, estimate, total_bytes
 from .objio import ObjData
@@ -103,6 +104,7 @@ class Result:
     warnings: list
     seconds: float
     predicted_bytes: int
+    phases: dict = field(default_factory=dict)  # seconds per phase (warp_subdiv.phases): read, analyse, ...
 
 
 def _sample_count(sp: SubdivPrim) -> int:
@@ -110,6 +112,7 @@ def _sample_count(sp: SubdivPrim) -> int:
     return max(1, len(sp.point_times)) + (1 if sp.point_times else 0)
 
 
+@_phases.timed("read")
 def plan(
     input_path: str,
     levels: int,
@@ -321,6 +324,7 @@ class _Work:
             self.callback(min(1.0, self.done / self.total), label)
 
 
+@_phases.records
 def refine_usd(
     input_path: str,
     output_path: str,
@@ -433,6 +437,7 @@ class Layout:
     shared: dict
     prototypes: dict
 
+    @_phases.timed("write")
     def write(self, layer: OutputLayer) -> None:
         """The container and the references (the refined data is written already)."""
         if self.prototypes or any(h.HasPrefix(self.container) for h in self.homes.values()):
@@ -440,6 +445,7 @@ class Layout:
         for path, target in self.refs:
             layer.reference(path, target)
 
+    @_phases.timed("write")
     def check(self, layer: OutputLayer, p: Plan, reports) -> None:
         """Compose the output (in each variant configuration that was read) and check that every refined mesh
         composes to its refined data: the strongest opinion of its topology, points and scheme must be the
@@ -544,6 +550,7 @@ class _Context:
     """The refiner of one control mesh of a prim (its only one, or one of a time-varying topology) and what the
     writer derives from it: refined topology, face map, linear refinement and edge map."""
 
+    @_phases.timed("analyse")
     def __init__(self, sp: SubdivPrim, options: Options, levels, device, limit, normals):
         self.sp = sp
         self.refiner = refiner = make_refiner(sp, levels, options=options, device=device)
@@ -558,6 +565,7 @@ class _Context:
         """Bilinear refinement of per-vertex data (varying primvars, bilinear meshes)."""
         return linear_vertex_data(self.refiner, self.fmap, values, self.indices, self.complete)
 
+    @_phases.timed("refine")
     def positions(self, pts):
         """Refined (or limit) points and limit normals (or None) of control points ``pts``."""
         sp, refiner = self.sp, self.refiner
@@ -569,6 +577,7 @@ class _Context:
             nrm = -nrm  # refined as right-handed: the front of a left-handed mesh is the other side
         return (refiner.limit_points(refined) if self.limit else refined), nrm
 
+    @_phases.timed("refine")
     def vectors(self, data):
         """Velocities / accelerations: the derivatives of the points, so the same linear maps."""
         if self.sp.scheme == "bilinear":
@@ -577,6 +586,7 @@ class _Context:
         return self.refiner.limit_points(refined) if self.limit else refined
 
     @property
+    @_phases.timed("analyse")
     def edges(self):
         if self._edges is None:
             self._edges = EdgeMap(self.sp.mesh, self.refiner, self.indices, self.counts)
@@ -715,6 +725,7 @@ def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=N
                                 f": the sample at time {pv.times[0]:g} stands in for it")
 
 
+@_phases.timed("refine")
 def _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode, limit=False):
     mesh = sp.mesh
     where = sp.path
@@ -743,7 +754,8 @@ def _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_
             raise SubdivInputError(f"{where}: {pv.name} has {len(idx)} faceVarying values, the mesh needs "
                                    f"{n_expected}")
         channel = refiner.limit_face_varying if limit else refiner.evaluate_face_varying
-        values, new_idx = channel(rows.astype(np.float64), idx, mode=fvar_mode)
+        with _phases.phase("face-varying"):
+            values, new_idx = channel(rows.astype(np.float64), idx, mode=fvar_mode)
         values = np.asarray(values).reshape(len(values), -1)
         shaped = values.reshape((len(values) * pv.element_size,) + like.shape[1:])
         layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))

@@ -12,6 +12,7 @@ import tempfile
 import numpy as np
 from pxr import Sdf, Usd, Vt
 
+from . import phases as _phases
 from .errors import SubdivInputError
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc")
@@ -134,6 +135,7 @@ class OutputLayer:
             spec = Sdf.AttributeSpec(prim, name, type_name, variability, custom)
         return spec
 
+    @_phases.timed("write")
     def set(self, spec: Sdf.AttributeSpec, default=None, samples=None) -> None:
         """Author a default value and/or time samples ((time, value) pairs)."""
         if default is not None:
@@ -141,6 +143,7 @@ class OutputLayer:
         for time, value in samples or ():
             self.layer.SetTimeSample(spec.path, time, value)
 
+    @_phases.timed("write")
     def copy(self, source, dest) -> None:
         """Copy the spec at ``source`` (a refined mesh, its attributes, time samples and children) to ``dest``
         (which may lie inside a variant), replacing what ``dest`` held."""
@@ -173,6 +176,7 @@ class OutputLayer:
             self.layer.EraseTimeSample(spec.path, time)
         spec.default = Sdf.ValueBlock()
 
+    @_phases.timed("write")
     def override_extents_hints(self, input_stage: Usd.Stage, mesh_times: dict, frames=None) -> list:
         """Recompute, in this layer, the ``extentsHint`` (UsdGeom.ModelAPI) that a refined mesh or any of its
         ancestors authors: refinement may leave the control hull (prescribed normals, concave corners), and a
@@ -206,6 +210,7 @@ class OutputLayer:
         return sorted(hinted)
 
     # -- finishing -------------------------------------------------------------------------------------
+    @_phases.timed("write")
     def commit(self, flatten: bool = False) -> None:
         """Save (or flatten) to the temporary file and rename it over the output."""
         try:
@@ -242,6 +247,7 @@ class OutputLayer:
         self.created = []
 
 
+@_phases.timed("write")
 def vt_array(type_name: Sdf.ValueTypeName, values: np.ndarray, like=None):
     """A numpy array as the Vt array of ``type_name`` (rows of vectors, or scalars)."""
     cls = type_name.type.pythonClass
@@ -257,14 +263,17 @@ def vt_array(type_name: Sdf.ValueTypeName, values: np.ndarray, like=None):
     return cls([v.tolist() if isinstance(v, np.ndarray) else v for v in arr])
 
 
+@_phases.timed("write")
 def int_array(values) -> Vt.IntArray:
     return Vt.IntArray.FromNumpy(np.ascontiguousarray(np.asarray(values, dtype=np.int32)))
 
 
+@_phases.timed("write")
 def vec3f_array(values) -> Vt.Vec3fArray:
     return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(np.asarray(values, dtype=np.float32).reshape(-1, 3)))
 
 
+@_phases.timed("write")
 def extent_of(points: np.ndarray) -> Vt.Vec3fArray:
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(pts) == 0:
