@@ -3,14 +3,19 @@
 One thread per query point: map the base face's (u, v) onto a root of the patch tree (the face itself; a
 Catmull-Clark n-gon's sub-face tile; a Loop polygon's fan triangle), descend the tree (quadrants, or a
 triangle's corner and middle children) to a leaf, and evaluate its Bezier patch: bicubic (16 control points,
-index a + 4 b for the Bernstein polynomials B_a(s) B_b(t)) or quartic triangular (15 control points, exponents of
-(1 - s - t, s, t) in the order of ``warp_subdiv.limit_patches.TRI_BEZIER_INDEX``). Derivatives are returned
+index a + 4 b for the Bernstein polynomials B_a(s) B_b(t)) or quartic triangular (exponents of (1 - s - t, s, t) in
+the order of ``warp_subdiv.limit_patches.TRI_BEZIER_INDEX``). Derivatives are returned
 with respect to the base face's (u, v): the descent's scale (2 per level; -2 in a triangle's middle child,
 whose frame is turned by 180 degrees) is applied on the way out. Kernels know nothing about subdivision rules.
+
+The quartic-triangle functions below (``_bern4``, ``_bern4_grad``, ``_bern4_hessian``, ``_box12``) are written out
+with constant indices only, so that Warp keeps their values in registers; they were generated from
+``TRI_BEZIER_INDEX`` and ``LOOP_BEZIER`` (tests/test_limit_surface.py checks the evaluated patches against the box
+spline derived from Loop's stencils).
 """
 import warp as wp
 
-wp.set_module_options({"enable_backward": False, "max_unroll": 1})
+wp.set_module_options({"enable_backward": False})
 
 #: face kinds of the parameterisation
 DIRECT, SUBFACES, FAN = 0, 1, 2
@@ -20,14 +25,8 @@ HOLE = wp.constant(-2)
 
 
 vec5d = wp.types.vector(length=5, dtype=wp.float64)
-
-
-@wp.func
-def _fact(k: int) -> wp.float64:
-    r = wp.float64(1.0)
-    for i in range(2, k + 1):
-        r = r * wp.float64(i)
-    return r
+vec12d = wp.types.vector(length=12, dtype=wp.float64)
+vec15d = wp.types.vector(length=15, dtype=wp.float64)
 
 
 @wp.func
@@ -52,12 +51,230 @@ def _cubic_basis(t: wp.float64, bspline: int):
     return b, d, dd
 
 
+# -- quartic triangles (generated; see the module docstring) ------------------------------------------------
 @wp.func
-def _mono(pw0: vec5d, pw1: vec5d, pw2: vec5d, a: int, b: int, c: int) -> wp.float64:
-    """w0^a w1^b w2^c from the powers of the barycentric coordinates, 0 where an exponent is negative."""
-    if a < 0 or b < 0 or c < 0:
-        return wp.float64(0.0)
-    return pw0[a] * pw1[b] * pw2[c]
+def _bern4(w0: wp.float64, w1: wp.float64, w2: wp.float64) -> vec15d:
+    """The 15 quartic Bernstein polynomials, in TRI_BEZIER_INDEX order (generated)."""
+    return vec15d(
+        w0*w0*w0*w0,
+        wp.float64(4.0) * w0*w0*w0 * w1,
+        wp.float64(4.0) * w0*w0*w0 * w2,
+        wp.float64(6.0) * w0*w0 * w1*w1,
+        wp.float64(12.0) * w0*w0 * w1 * w2,
+        wp.float64(6.0) * w0*w0 * w2*w2,
+        wp.float64(4.0) * w0 * w1*w1*w1,
+        wp.float64(12.0) * w0 * w1*w1 * w2,
+        wp.float64(12.0) * w0 * w1 * w2*w2,
+        wp.float64(4.0) * w0 * w2*w2*w2,
+        w1*w1*w1*w1,
+        wp.float64(4.0) * w1*w1*w1 * w2,
+        wp.float64(6.0) * w1*w1 * w2*w2,
+        wp.float64(4.0) * w1 * w2*w2*w2,
+        w2*w2*w2*w2)
+
+
+@wp.func
+def _bern4_grad(w0: wp.float64, w1: wp.float64, w2: wp.float64, i: int) -> vec15d:
+    """d/dw_i of the 15 quartic Bernstein polynomials: 4 B3_(e - e_i) (generated)."""
+    four = wp.float64(4.0)
+    zero = wp.float64(0.0)
+    if i == 0:
+        return vec15d(
+            four * w0*w0*w0,
+            four * wp.float64(3.0) * w0*w0 * w1,
+            four * wp.float64(3.0) * w0*w0 * w2,
+            four * wp.float64(3.0) * w0 * w1*w1,
+            four * wp.float64(6.0) * w0 * w1 * w2,
+            four * wp.float64(3.0) * w0 * w2*w2,
+            four * w1*w1*w1,
+            four * wp.float64(3.0) * w1*w1 * w2,
+            four * wp.float64(3.0) * w1 * w2*w2,
+            four * w2*w2*w2,
+            zero,
+            zero,
+            zero,
+            zero,
+            zero)
+    elif i == 1:
+        return vec15d(
+            zero,
+            four * w0*w0*w0,
+            zero,
+            four * wp.float64(3.0) * w0*w0 * w1,
+            four * wp.float64(3.0) * w0*w0 * w2,
+            zero,
+            four * wp.float64(3.0) * w0 * w1*w1,
+            four * wp.float64(6.0) * w0 * w1 * w2,
+            four * wp.float64(3.0) * w0 * w2*w2,
+            zero,
+            four * w1*w1*w1,
+            four * wp.float64(3.0) * w1*w1 * w2,
+            four * wp.float64(3.0) * w1 * w2*w2,
+            four * w2*w2*w2,
+            zero)
+    else:
+        return vec15d(
+            zero,
+            zero,
+            four * w0*w0*w0,
+            zero,
+            four * wp.float64(3.0) * w0*w0 * w1,
+            four * wp.float64(3.0) * w0*w0 * w2,
+            zero,
+            four * wp.float64(3.0) * w0 * w1*w1,
+            four * wp.float64(6.0) * w0 * w1 * w2,
+            four * wp.float64(3.0) * w0 * w2*w2,
+            zero,
+            four * w1*w1*w1,
+            four * wp.float64(3.0) * w1*w1 * w2,
+            four * wp.float64(3.0) * w1 * w2*w2,
+            four * w2*w2*w2)
+    return vec15d()
+
+
+@wp.func
+def _bern4_hessian(w0: wp.float64, w1: wp.float64, w2: wp.float64, i: int, j: int) -> vec15d:
+    """d2/dw_i dw_j of the 15 quartic Bernstein polynomials: 12 B2_(e - e_i - e_j) (generated)."""
+    twelve = wp.float64(12.0)
+    zero = wp.float64(0.0)
+    if i == 0 and j == 0:
+        return vec15d(
+            twelve * w0*w0,
+            twelve * wp.float64(2.0) * w0 * w1,
+            twelve * wp.float64(2.0) * w0 * w2,
+            twelve * w1*w1,
+            twelve * wp.float64(2.0) * w1 * w2,
+            twelve * w2*w2,
+            zero,
+            zero,
+            zero,
+            zero,
+            zero,
+            zero,
+            zero,
+            zero,
+            zero)
+    elif i == 0 and j == 1:
+        return vec15d(
+            zero,
+            twelve * w0*w0,
+            zero,
+            twelve * wp.float64(2.0) * w0 * w1,
+            twelve * wp.float64(2.0) * w0 * w2,
+            zero,
+            twelve * w1*w1,
+            twelve * wp.float64(2.0) * w1 * w2,
+            twelve * w2*w2,
+            zero,
+            zero,
+            zero,
+            zero,
+            zero,
+            zero)
+    elif i == 0 and j == 2:
+        return vec15d(
+            zero,
+            zero,
+            twelve * w0*w0,
+            zero,
+            twelve * wp.float64(2.0) * w0 * w1,
+            twelve * wp.float64(2.0) * w0 * w2,
+            zero,
+            twelve * w1*w1,
+            twelve * wp.float64(2.0) * w1 * w2,
+            twelve * w2*w2,
+            zero,
+            zero,
+            zero,
+            zero,
+            zero)
+    elif i == 1 and j == 1:
+        return vec15d(
+            zero,
+            zero,
+            zero,
+            twelve * w0*w0,
+            zero,
+            zero,
+            twelve * wp.float64(2.0) * w0 * w1,
+            twelve * wp.float64(2.0) * w0 * w2,
+            zero,
+            zero,
+            twelve * w1*w1,
+            twelve * wp.float64(2.0) * w1 * w2,
+            twelve * w2*w2,
+            zero,
+            zero)
+    elif i == 1 and j == 2:
+        return vec15d(
+            zero,
+            zero,
+            zero,
+            zero,
+            twelve * w0*w0,
+            zero,
+            zero,
+            twelve * wp.float64(2.0) * w0 * w1,
+            twelve * wp.float64(2.0) * w0 * w2,
+            zero,
+            zero,
+            twelve * w1*w1,
+            twelve * wp.float64(2.0) * w1 * w2,
+            twelve * w2*w2,
+            zero)
+    elif i == 2 and j == 2:
+        return vec15d(
+            zero,
+            zero,
+            zero,
+            zero,
+            zero,
+            twelve * w0*w0,
+            zero,
+            zero,
+            twelve * wp.float64(2.0) * w0 * w1,
+            twelve * wp.float64(2.0) * w0 * w2,
+            zero,
+            zero,
+            twelve * w1*w1,
+            twelve * wp.float64(2.0) * w1 * w2,
+            twelve * w2*w2)
+    return vec15d()
+
+
+@wp.func
+def _box12(b: vec15d) -> vec12d:
+    """The 12 quartic box-spline basis values (TRI_RING order) from Bernstein values: LOOP_BEZIER^T b
+    (generated from warp_subdiv.limit_patches.LOOP_BEZIER, entries in 24ths)."""
+    s = wp.float64(1.0) / wp.float64(24.0)
+    return vec12d(
+        s * (wp.float64(12.0) * b[0] + wp.float64(12.0) * b[1] + wp.float64(12.0) * b[2] + wp.float64(8.0) * b[3]
+             + wp.float64(10.0) * b[4] + wp.float64(8.0) * b[5] + wp.float64(4.0) * b[6] + wp.float64(6.0) * b[7]
+             + wp.float64(6.0) * b[8] + wp.float64(4.0) * b[9] + wp.float64(2.0) * b[10] + wp.float64(3.0) * b[11]
+             + wp.float64(4.0) * b[12] + wp.float64(3.0) * b[13] + wp.float64(2.0) * b[14]),
+        s * (wp.float64(2.0) * b[0] + wp.float64(4.0) * b[1] + wp.float64(3.0) * b[2] + wp.float64(8.0) * b[3]
+             + wp.float64(6.0) * b[4] + wp.float64(4.0) * b[5] + wp.float64(12.0) * b[6] + wp.float64(10.0) * b[7]
+             + wp.float64(6.0) * b[8] + wp.float64(3.0) * b[9] + wp.float64(12.0) * b[10] + wp.float64(12.0) * b[11]
+             + wp.float64(8.0) * b[12] + wp.float64(4.0) * b[13] + wp.float64(2.0) * b[14]),
+        s * (wp.float64(2.0) * b[0] + wp.float64(3.0) * b[1] + wp.float64(4.0) * b[2] + wp.float64(4.0) * b[3]
+             + wp.float64(6.0) * b[4] + wp.float64(8.0) * b[5] + wp.float64(3.0) * b[6] + wp.float64(6.0) * b[7]
+             + wp.float64(10.0) * b[8] + wp.float64(12.0) * b[9] + wp.float64(2.0) * b[10] + wp.float64(4.0) * b[11]
+             + wp.float64(8.0) * b[12] + wp.float64(12.0) * b[13] + wp.float64(12.0) * b[14]),
+        s * (wp.float64(2.0) * b[0] + b[1] + wp.float64(3.0) * b[2] + b[4]
+             + wp.float64(4.0) * b[5] + b[8] + wp.float64(3.0) * b[9] + b[13]
+             + wp.float64(2.0) * b[14]),
+        s * (wp.float64(2.0) * b[0] + b[2]),
+        s * (wp.float64(2.0) * b[0] + b[1]),
+        s * (wp.float64(2.0) * b[0] + wp.float64(3.0) * b[1] + b[2] + wp.float64(4.0) * b[3]
+             + b[4] + wp.float64(3.0) * b[6] + b[7] + wp.float64(2.0) * b[10]
+             + b[11]),
+        s * (wp.float64(2.0) * b[10] + b[11]),
+        s * (b[6] + b[7] + b[8] + b[9]
+             + wp.float64(2.0) * b[10] + wp.float64(3.0) * b[11] + wp.float64(4.0) * b[12] + wp.float64(3.0) * b[13]
+             + wp.float64(2.0) * b[14]),
+        s * (b[6] + wp.float64(2.0) * b[10]),
+        s * (b[13] + wp.float64(2.0) * b[14]),
+        s * (b[9] + wp.float64(2.0) * b[14]))
 
 
 @wp.kernel
@@ -188,34 +405,53 @@ def limit_evaluate(
     dst = wp.vec3d()
     dtt = wp.vec3d()
     if triangles != 0:
-        # powers 0..4 of the barycentric coordinates; monomial w0^a w1^b w2^c, exponents below 0 give 0
+        # quartic Bernstein polynomials of (w0, w1, w2) = (1 - s - t, s, t) and their derivatives (hodograph);
+        # a box-spline patch (12 indexed points) weighs them with LOOP_BEZIER^T, an end cap (15 consecutive Bezier
+        # points) directly
         w0 = one - s - t
-        pw0 = vec5d(one, w0, w0 * w0, w0 * w0 * w0, w0 * w0 * w0 * w0)
-        pw1 = vec5d(one, s, s * s, s * s * s, s * s * s * s)
-        pw2 = vec5d(one, t, t * t, t * t * t, t * t * t * t)
-        k = int(0)
-        for a in range(4, -1, -1):
-            for b in range(4 - a, -1, -1):
-                c = 4 - a - b
-                cp = points[patch_index[patch, k]]
-                coef = wp.float64(24.0) / (_fact(a) * _fact(b) * _fact(c))
-                p += (coef * _mono(pw0, pw1, pw2, a, b, c)) * cp
-                d0 = wp.float64(a) * _mono(pw0, pw1, pw2, a - 1, b, c)
-                d1 = wp.float64(b) * _mono(pw0, pw1, pw2, a, b - 1, c)
-                d2 = wp.float64(c) * _mono(pw0, pw1, pw2, a, b, c - 1)
-                ds += (coef * (d1 - d0)) * cp
-                dt += (coef * (d2 - d0)) * cp
-                if second != 0:
-                    d00 = wp.float64(a * (a - 1)) * _mono(pw0, pw1, pw2, a - 2, b, c)
-                    d11 = wp.float64(b * (b - 1)) * _mono(pw0, pw1, pw2, a, b - 2, c)
-                    d22 = wp.float64(c * (c - 1)) * _mono(pw0, pw1, pw2, a, b, c - 2)
-                    d01 = wp.float64(a * b) * _mono(pw0, pw1, pw2, a - 1, b - 1, c)
-                    d02 = wp.float64(a * c) * _mono(pw0, pw1, pw2, a - 1, b, c - 1)
-                    d12 = wp.float64(b * c) * _mono(pw0, pw1, pw2, a, b - 1, c - 1)
-                    dss += (coef * (d11 - two * d01 + d00)) * cp
-                    dst += (coef * (d12 - d02 - d01 + d00)) * cp
-                    dtt += (coef * (d22 - two * d02 + d00)) * cp
-                k = k + 1
+        bern = _bern4(w0, s, t)
+        g0 = _bern4_grad(w0, s, t, 0)
+        bern_s = _bern4_grad(w0, s, t, 1) - g0
+        bern_t = _bern4_grad(w0, s, t, 2) - g0
+        box = patch_basis[patch] == 0
+        base = patch_index[patch, 0]
+        if box:
+            wv = _box12(bern)
+            wvs = _box12(bern_s)
+            wvt = _box12(bern_t)
+            for j in range(12):
+                cp = points[patch_index[patch, j]]
+                p += wv[j] * cp
+                ds += wvs[j] * cp
+                dt += wvt[j] * cp
+        else:
+            for j in range(15):
+                cp = points[base + j]
+                p += bern[j] * cp
+                ds += bern_s[j] * cp
+                dt += bern_t[j] * cp
+        if second != 0:
+            h00 = _bern4_hessian(w0, s, t, 0, 0)
+            h01 = _bern4_hessian(w0, s, t, 0, 1)
+            h02 = _bern4_hessian(w0, s, t, 0, 2)
+            bern_ss = _bern4_hessian(w0, s, t, 1, 1) - two * h01 + h00
+            bern_st = _bern4_hessian(w0, s, t, 1, 2) - h02 - h01 + h00
+            bern_tt = _bern4_hessian(w0, s, t, 2, 2) - two * h02 + h00
+            if box:
+                wss = _box12(bern_ss)
+                wst = _box12(bern_st)
+                wtt = _box12(bern_tt)
+                for j in range(12):
+                    cp = points[patch_index[patch, j]]
+                    dss += wss[j] * cp
+                    dst += wst[j] * cp
+                    dtt += wtt[j] * cp
+            else:
+                for j in range(15):
+                    cp = points[base + j]
+                    dss += bern_ss[j] * cp
+                    dst += bern_st[j] * cp
+                    dtt += bern_tt[j] * cp
     else:
         bspline = int(0)
         if patch_basis[patch] == 0:

@@ -65,7 +65,7 @@ def ellipsoid():
 
 
 def write_control(path: str) -> None:
-    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+    from pxr import Gf, Usd, UsdGeom, Vt
 
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
@@ -90,7 +90,6 @@ def write_control(path: str) -> None:
     e.CreateDisplayColorAttr(Vt.Vec3fArray([Gf.Vec3f(0.45, 0.6, 0.85)]))
     stage.GetRootLayer().documentation = "warp-subdiv scenes/make_tessellation_scene.py: control meshes"
     stage.GetRootLayer().Export(path)
-    del Sdf
 
 
 def colour_facets(path: str) -> None:

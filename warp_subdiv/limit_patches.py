@@ -114,9 +114,10 @@ class PatchTree:
     """Nodes (quadtree per base face or sub-face), leaves' patches, and the roots of every base face.
 
     ``node_child`` (N, 4) int32: children of split nodes (-1 for leaves); ``node_patch`` (N,) int32: the patch
-    of a leaf, ``SPLIT`` or ``HOLE``. Patches: ``patch_basis`` (P,) int32, ``BSPLINE`` (16 uniform cubic
-    B-spline control points, Catmull-Clark patches without sharp sides) or ``BEZIER`` (16 bicubic or 15
-    quartic triangular Bezier control points); ``patch_index`` (P, 16) int32: the control points, rows of
+    of a leaf, ``SPLIT`` or ``HOLE``. Patches: ``patch_basis`` (P,) int32, ``BSPLINE`` (patches without sharp
+    sides: 16 uniform cubic B-spline control points under Catmull-Clark, 12 quartic box-spline control points in
+    ``TRI_RING`` order under Loop) or ``BEZIER`` (16 bicubic or 15 quartic triangular Bezier control points);
+    ``patch_index`` (P, 16) int32: the control points, rows of
     ``points`` (V, 3) float64 (the control mesh's points, then refined points and Bezier nets), in the order
     of ``QUAD_GRID`` / ``TRI_BEZIER_INDEX`` (triangles use the first 15); ``patch_kind`` (P,) int8
     ``REGULAR`` or ``END_CAP``; ``patch_level`` (P,) int8: the level of the patch's face below its base face.
@@ -152,7 +153,10 @@ class PatchTree:
         out = pts.copy()
         bs = self.patch_basis[patches] == BSPLINE
         if bs.any():
-            out[bs] = regular_bezier(pts[bs], CATMULL_CLARK)
+            if self.triangles:
+                out[bs, :15] = regular_bezier(pts[bs, :12], "loop")
+            else:
+                out[bs] = regular_bezier(pts[bs], CATMULL_CLARK)
         return out[:, :15] if self.triangles else out
 
 
@@ -802,13 +806,13 @@ def build(mesh: Mesh, options: Options, depth: int) -> PatchTree:
         ok, ids, side_sharp = _regular(topo, faces, scheme)
         if ok.any():
             ids, side_sharp, fn = ids[ok], side_sharp[ok], fnode[ok]
-            plain = ~side_sharp.any(axis=1) if n == 4 else np.zeros(len(ids), bool)
-            if plain.any():  # B-spline patches over the level's own points
+            plain = ~side_sharp.any(axis=1)
+            if plain.any():  # B-spline / box-spline patches over the level's own points
                 if local.depth == 0:
                     index = ids[plain]
                 else:
                     used, inverse = np.unique(ids[plain], return_inverse=True)
-                    index = patches.add_points(local.points[used]) + inverse.reshape(-1, 16)
+                    index = patches.add_points(local.points[used]) + inverse.reshape(-1, ids.shape[1])
                 _set_patch(nodes, fn[plain], patches.add_indexed(index, BSPLINE, REGULAR, local.depth))
             rest = ~plain
             if rest.any():
