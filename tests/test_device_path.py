@@ -332,7 +332,7 @@ def test_device_memory_guard(monkeypatch):
     assert items["level buffers"] == 12 * sum(c.vertices for c in counts)
     assert set(items) == {"step tables", "level buffers", "limit masks", "limit outputs"}
     monkeypatch.setattr(estimate, "device_free_memory", lambda device: (estimate.DEVICE_RESERVE + 1000, 2**40))
-    with pytest.raises(estimate.MemoryGuardError, match="device memory"):
+    with pytest.raises(estimate.MemoryGuardError, match="memory on cpu"):
         ws.Refiner(mesh, 5, device="cpu")
     monkeypatch.setattr(estimate, "device_free_memory", lambda device: None)
     r = ws.Refiner(mesh, 3, device="cpu")

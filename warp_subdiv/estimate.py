@@ -312,8 +312,8 @@ def check_device_memory(need: int, device, what: str) -> None:
     if int(need) + DEVICE_RESERVE > free:
         name = getattr(device, "alias", str(device))
         raise MemoryGuardError(
-            f"{what} would need about {format_bytes(need)} of device memory on {name}, which has "
-            f"{format_bytes(free)} free of {format_bytes(total)}; refine fewer levels or use device='cpu'",
+            f"{what} would need about {format_bytes(need)} of memory on {name} ({format_bytes(free)} free of "
+            f"{format_bytes(total)}); refine fewer levels or use device 'cpu'",
             option="device", value=int(need))
 
 

@@ -367,10 +367,11 @@ class Plan:
     The buffers a plan was recorded over must outlive it and keep their addresses.
     """
 
-    def __init__(self, device, threads: int, groups: list[list], graphs: bool = False):
+    def __init__(self, device, threads: int, groups: list[list], graphs: bool = False, stream=None):
         self.device = wp.get_device(device)
         self.threads = threads
         self.groups = groups
+        self.stream = stream  # CUDA: the stream the plan is captured and replayed on (None: the current one)
         self.segments: list[tuple[str, object]] = []
         pending: list = []
         for group in groups:
@@ -383,12 +384,15 @@ class Plan:
         self._add(pending, graphs)
 
     def _call(self, launch):
-        return _cpu_call(launch) if self.device.is_cpu else launch.launch
+        if self.device.is_cpu:
+            return _cpu_call(launch)
+        stream = self.stream
+        return lambda: launch.launch(stream)
 
     def _add(self, launches: list, graphs: bool) -> None:
         if not launches:
             return
-        graph = _capture(self.device, launches) if graphs else None
+        graph = _capture(self.device, launches, self.stream) if graphs else None
         if graph is not None:
             self.segments.append(("graph", graph))
         else:
@@ -407,7 +411,7 @@ class Plan:
     def run(self) -> None:
         for kind, item in self.segments:
             if kind == "graph":
-                wp.capture_launch(item)
+                wp.capture_launch(item, stream=self.stream)
             elif kind == "calls":
                 for call in item:
                     call()
@@ -444,14 +448,15 @@ def _cpu_call(launch):
 _capture_lock = threading.Lock()
 
 
-def _capture(device, launches: list):
-    """A Warp graph of ``launches`` replayed in order, or None where Warp cannot capture on ``device``. Captures
-    are serialised: on the CPU Warp records any CPU launch made while a capture is open, from any thread."""
+def _capture(device, launches: list, stream=None):
+    """A Warp graph of ``launches`` replayed in order, or None where Warp cannot capture on ``device``; on CUDA
+    captured on ``stream`` (None: the device's current stream). Captures are serialised: on the CPU Warp
+    records any CPU launch made while a capture is open, from any thread."""
     with _capture_lock:
         try:
-            with wp.ScopedCapture(device=device, force_module_load=False) as capture:
+            with wp.ScopedCapture(device=device, stream=stream, force_module_load=False) as capture:
                 for launch in launches:
-                    launch.launch()
+                    launch.launch(stream)
         except Exception:  # noqa: BLE001 (no capture here: the plan runs its recorded launches instead)
             return None
     return capture.graph
@@ -631,7 +636,8 @@ class _Staging:
     def get(self, role: str, shape: tuple, dtype) -> tuple[wp.array, np.ndarray]:
         key = (role, tuple(shape), dtype)
         if key not in self._arrays:
-            for old in [k for k in self._arrays if k[0] == role]:  # one buffer per role: the latest shape
+            same_role = [k for k in self._arrays if k[0] == role]
+            for old in same_role[: max(0, len(same_role) - 3)]:  # at most 4 shapes per role, the latest
                 del self._arrays[old]
             arr = wp.empty(shape, dtype=dtype, device="cpu", pinned=True)
             self._arrays[key] = (arr, arr.numpy())
@@ -741,16 +747,21 @@ class Evaluator:
 
     @contextlib.contextmanager
     def _device_scope(self):
-        """The lock, and on CUDA the evaluator's own stream (ordered after the device's current stream; the
-        current stream waits for it at the end)."""
+        """The lock, and on CUDA the evaluator's own stream, ordered after the device's current stream on entry;
+        the current stream waits for it at the end. Every copy, launch and graph of the evaluator names this
+        stream (the device's current stream, which is per device and not per thread, is left alone)."""
         with self._lock:
             if not self.device.is_cuda:
                 yield
                 return
             if self._stream is None:
                 self._stream = wp.Stream(self.device)
-            with wp.ScopedStream(self._stream, sync_enter=True, sync_exit=True):
+            current = wp.get_stream(self.device)
+            self._stream.wait_stream(current)
+            try:
                 yield
+            finally:
+                current.wait_stream(self._stream)
 
     def _plan(self, key, issue) -> Plan:
         """The plan of ``issue(launcher)``'s launches, recorded on first use per ``key`` (lock held)."""
@@ -758,7 +769,8 @@ class Evaluator:
         if plan is None:
             recorder = Recorder(self.device, self.threads)
             issue(recorder)
-            plan = self._plans[key] = Plan(self.device, recorder.threads, recorder.groups, graphs=self.graphs)
+            plan = self._plans[key] = Plan(self.device, recorder.threads, recorder.groups, graphs=self.graphs,
+                                           stream=self._stream)
         return plan
 
     def _steps_plan(self, width: int, controls: tuple, start: int = 0) -> Plan:
@@ -790,19 +802,20 @@ class Evaluator:
             if self._staged is not None:  # the previous upload from it must be done before it is overwritten
                 wp.synchronize_event(self._staged)
             np.copyto(host_stage, data, casting="unsafe")
-            wp.copy(dst, stage)
-            self._staged = wp.get_stream(self.device).record_event()
+            wp.copy(dst, stage, stream=self._stream)
+            self._staged = self._stream.record_event()
 
     def _copy_rows(self, src: wp.array, dst: wp.array) -> None:
         """Device (rows, width) ``src`` into ``dst`` of the same shape, any strides and precisions."""
         from . import interop
 
         if src.dtype == dst.dtype and interop.is_contiguous_rows(src) and interop.is_contiguous_rows(dst):
-            wp.copy(dst, src)
+            wp.copy(dst, src, stream=self._stream)
         elif self.device.is_cpu:
             np.copyto(dst.numpy(), src.numpy(), casting="unsafe")
         else:
-            wp.launch(_convert().cast_rows, dim=src.shape[0], inputs=[src, dst], device=self.device)
+            wp.launch(_convert().cast_rows, dim=src.shape[0], inputs=[src, dst], device=self.device,
+                      stream=self._stream)
 
     def _host(self, arr: wp.array) -> np.ndarray:
         """A new numpy array with the contents of device array ``arr`` (written once, read in order: small
@@ -812,8 +825,8 @@ class Evaluator:
                 out = arr.numpy()
             else:
                 stage, out = self._staging.get("out", arr.shape, arr.dtype)
-                wp.copy(stage, arr)
-                wp.synchronize_stream(wp.get_stream(self.device))
+                wp.copy(stage, arr, stream=self._stream)
+                wp.synchronize_stream(self._stream)
             if self.threads == 1 or len(out) < 2 * _threads.MIN_ROWS:
                 return np.array(out, copy=True)
             copy = np.empty_like(out)  # copied in row ranges on the evaluator's threads (numpy frees the GIL)
