@@ -1,0 +1,176 @@
+"""JAX adapter: refinement, limit points and limit normals as differentiable JAX functions.
+
+Install with the optional extra ``pip install "warp-subdiv[jax]"``; importing :mod:`warp_subdiv` does not
+import JAX, only ``import warp_subdiv.jax`` does.
+
+Each function has a custom VJP whose backward pass is :mod:`warp_subdiv.gradients`' (the transposed tables:
+deterministic, no atomics). Concrete arrays on the refiner's device cross to Warp and back without a copy
+(DLPack, ``wp.from_jax`` / ``wp.to_jax``); under ``jax.jit`` (traced values) or from another device the work
+runs in a ``jax.pure_callback`` on host copies. Inputs of another float type are cast to the refiner's
+precision first (a float64 refiner needs ``jax_enable_x64``).
+
+    import jax, jax.numpy as jnp
+    import warp_subdiv as ws
+    from warp_subdiv import jax as wsj
+
+    refiner = ws.Refiner(mesh, 3)
+    loss = lambda p: jnp.sum((wsj.evaluate(refiner, p) - target) ** 2)
+    grad = jax.grad(loss)(jnp.asarray(mesh.points, jnp.float32))
+"""
+from __future__ import annotations
+
+import threading
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import warp as wp
+
+from . import evaluator as ev
+from . import gradients as G
+
+__all__ = ["evaluate", "limit_normals", "limit_points", "function"]
+
+KINDS = ("evaluate", "limit_points", "limit_normals")
+_lock = threading.Lock()
+
+
+def evaluate(refiner, points, normal_control=None):
+    """``refiner.evaluate`` of a JAX array of control data (n, d) or (n,), differentiable (reverse mode).
+    ``normal_control`` as there (None: on for width 3)."""
+    return function(refiner, "evaluate", normal_control)(points)
+
+
+def limit_points(refiner, refined):
+    """``refiner.limit_points`` of a JAX array of last-level data (N, d) or (N,), differentiable."""
+    return function(refiner, "limit_points")(refined)
+
+
+def limit_normals(refiner, refined):
+    """``refiner.limit_normals`` of a JAX array of last-level positions (N, 3), differentiable (the true
+    derivative of the unit normals)."""
+    return function(refiner, "limit_normals")(refined)
+
+
+def function(refiner, kind: str = "evaluate", normal_control=None):
+    """The differentiable JAX function of ``refiner`` for ``kind`` ("evaluate", "limit_points" or
+    "limit_normals"), made once per refiner, kind and ``normal_control`` (usable under ``jax.jit``)."""
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    key = (kind, None if normal_control is None else bool(normal_control))
+    with _lock:
+        cache = refiner.__dict__.setdefault("_jax_functions", {})
+        if key not in cache:
+            cache[key] = _make(refiner, kind, key[1])
+        return cache[key]
+
+
+def _warp_device(x):
+    """The Warp device name of a concrete JAX array, or None."""
+    devices = list(x.devices())
+    if len(devices) != 1:
+        return None
+    d = devices[0]
+    if d.platform == "cpu":
+        return "cpu"
+    if d.platform in ("gpu", "cuda"):
+        return f"cuda:{d.id}"
+    return None
+
+
+def _make(refiner, kind: str, normal_control):
+    adj = G.adjoint(refiner)
+    dtype = np.dtype(adj.scalar_np)
+    n, N = refiner.base_num_vertices, refiner.num_vertices
+
+    def out_rows(forward: bool) -> int:
+        if kind == "evaluate":
+            return N if forward else n
+        return N
+
+    def nc_of(width: int) -> bool:
+        return (width == 3) if normal_control is None else normal_control
+
+    def direct(x) -> bool:
+        return not isinstance(x, jax.core.Tracer) and _warp_device(x) == str(refiner.device)
+
+    def to_warp(x):
+        return ev.layout(wp.from_jax(x))
+
+    # ----- forward
+    def host_forward(x):
+        x = np.asarray(x)
+        if kind == "evaluate":
+            out = refiner.evaluate(x, normal_control=nc_of(x.shape[1]))
+        elif kind == "limit_points":
+            out = refiner.limit_points(x)
+        else:
+            out = refiner.limit_normals(x)
+        return np.asarray(out, dtype=dtype)
+
+    def forward(x):
+        width = x.shape[1]
+        if direct(x):
+            xw = to_warp(x)
+            if kind == "evaluate":
+                y = adj.forward(xw, nc_of(width))
+            elif kind == "limit_points":
+                y = adj.limit_points_forward(xw)
+            else:
+                y = adj.limit_normals_forward(xw)
+            return wp.to_jax(y).reshape(out_rows(True), width)
+        shape = jax.ShapeDtypeStruct((out_rows(True), width), dtype)
+        return jax.pure_callback(host_forward, shape, x, vmap_method="sequential")
+
+    # ----- backward
+    def host_backward(x, g):
+        g = np.asarray(g)
+        if kind == "evaluate":
+            out = refiner.evaluate_vjp(g, normal_control=nc_of(g.shape[1]))
+        elif kind == "limit_points":
+            out = refiner.limit_points_vjp(g)
+        else:
+            out = refiner.limit_normals_vjp(np.asarray(x), g)
+        return np.asarray(out, dtype=dtype)
+
+    def backward(x, g):
+        width = g.shape[1]
+        g = g.astype(dtype)
+        if direct(g) and (x is None or direct(x)):
+            gw = to_warp(g)
+            if kind == "evaluate":
+                y = adj.backward(gw, nc_of(width))
+            elif kind == "limit_points":
+                y = adj.limit_points_backward(gw)
+            else:
+                y = adj.limit_normals_backward(to_warp(x), gw)
+            return wp.to_jax(y).reshape(out_rows(False), width)
+        shape = jax.ShapeDtypeStruct((out_rows(False), width), dtype)
+        args = (jnp.zeros((0,), dtype) if x is None else x, g)
+        return jax.pure_callback(host_backward, shape, *args, vmap_method="sequential")
+
+    @jax.custom_vjp
+    def core(x):
+        return forward(x)
+
+    def core_fwd(x):
+        return forward(x), (x if kind == "limit_normals" else None)
+
+    def core_bwd(saved, g):
+        return (backward(saved, g),)
+
+    core.defvjp(core_fwd, core_bwd)
+
+    def apply(x):
+        x = jnp.asarray(x)
+        one_d = x.ndim == 1
+        if one_d:
+            x = x[:, None]
+        if x.ndim != 2:
+            raise ValueError(f"expected an array (rows, d) or (rows,), got shape {x.shape}")
+        y = core(x.astype(dtype))
+        return y[:, 0] if one_d else y
+
+    apply.__name__ = f"warp_subdiv_{kind}"
+    apply.__doc__ = f"Differentiable {kind} of a warp_subdiv.Refiner (see warp_subdiv.jax)."
+    return apply
