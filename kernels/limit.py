@@ -279,10 +279,7 @@ def _box12(b: vec15d) -> vec12d:
 
 @wp.kernel
 def limit_evaluate(
-    face_kind: wp.array(dtype=wp.int32),
-    face_root: wp.array(dtype=wp.int32),
-    face_size: wp.array(dtype=wp.int32),
-    face_tiles: wp.array(dtype=wp.int32),
+    face_info: wp.array(dtype=wp.vec4i),
     query_face: wp.array(dtype=wp.int32),
     query_u: wp.array(dtype=wp.float64),
     query_v: wp.array(dtype=wp.float64),
@@ -310,8 +307,10 @@ def limit_evaluate(
     one = wp.float64(1.0)
     half = wp.float64(0.5)
     two = wp.float64(2.0)
-    kind = face_kind[f]
-    node = face_root[f]
+    info = face_info[f]  # (kind, root node, size * 256 + tiles, 2 * patch + Bezier of a one-patch face or -1)
+    kind = info[0]
+    node = info[1]
+    size = info[2] >> 8
     s = u
     t = v
     js = one
@@ -323,8 +322,8 @@ def limit_evaluate(
             tu = tu + one
         if v - tv > wp.float64(0.75):
             tv = tv + one
-        w = face_tiles[f]
-        sub = wp.clamp(int(tv) * w + int(tu), 0, face_size[f] - 1)
+        w = info[2] & 255
+        sub = wp.clamp(int(tv) * w + int(tu), 0, size - 1)
         tu = wp.float64(sub % w)
         tv = wp.float64(sub // w)
         node = node + sub
@@ -336,7 +335,7 @@ def limit_evaluate(
         tu = wp.floor(u)
         if u - tu > wp.float64(0.75):
             tu = tu + one
-        k = wp.clamp(int(tu), 0, face_size[f] - 3)
+        k = wp.clamp(int(tu), 0, size - 3)
         node = node + k
         s = two * (u - wp.float64(k))
         t = two * v
@@ -348,7 +347,14 @@ def limit_evaluate(
         total = s + t
         s = s / total
         t = t / total
-    patch = node_patch[node]
+    leaf = info[3]
+    patch = int(0)
+    bezier = int(0)
+    if leaf >= 0:  # a face that is one patch: no node or basis lookups
+        patch = leaf >> 1
+        bezier = leaf & 1
+    else:
+        patch = node_patch[node]
     while patch == SPLIT:
         slot = int(0)
         if triangles != 0:
@@ -389,6 +395,8 @@ def limit_evaluate(
         jt = two * jt
         node = node_child[node, slot]
         patch = node_patch[node]
+    if leaf < 0 and patch >= 0:
+        bezier = patch_basis[patch]
     out_patch[i] = patch
     if patch == HOLE:
         nan = wp.float64(wp.nan)
@@ -413,7 +421,7 @@ def limit_evaluate(
         g0 = _bern4_grad(w0, s, t, 0)
         bern_s = _bern4_grad(w0, s, t, 1) - g0
         bern_t = _bern4_grad(w0, s, t, 2) - g0
-        box = patch_basis[patch] == 0
+        box = bezier == 0
         base = patch_index[patch, 0]
         if box:
             wv = _box12(bern)
@@ -453,9 +461,7 @@ def limit_evaluate(
                     dst += bern_st[j] * cp
                     dtt += bern_tt[j] * cp
     else:
-        bspline = int(0)
-        if patch_basis[patch] == 0:
-            bspline = 1
+        bspline = 1 - bezier
         bs, ds1, ds2 = _cubic_basis(s, bspline)
         bt, dt1, dt2 = _cubic_basis(t, bspline)
         if second != 0:

@@ -173,9 +173,16 @@ class LimitSurface:
 
             index = t.patch_index if len(t.patch_index) else np.zeros((1, 16), np.int32)
             basis = t.patch_basis if len(t.patch_basis) else np.zeros(1, np.int32)
+            # one record per face: kind, root node, size * 256 + tiles, and the patch of a face that is one
+            # patch (2 patch + 1 for a Bezier patch; -1 otherwise)
+            root_patch = t.node_patch[self.face_root]
+            leaf = np.where((self.face_kind == DIRECT) & (root_patch >= 0),
+                            2 * root_patch + (t.patch_basis[np.maximum(root_patch, 0)] if len(t.patch_basis) else 0),
+                            -1)
+            info = np.stack([self.face_kind, self.face_root, self.face_size.astype(np.int64) * 256 +
+                             np.minimum(self.face_tiles, 255), leaf], axis=1).astype(np.int32)
             self._device_arrays = dict(
-                face_kind=up(self.face_kind, wp.int32), face_root=up(self.face_root, wp.int32),
-                face_size=up(self.face_size, wp.int32), face_tiles=up(self.face_tiles, wp.int32),
+                face_info=wp.array(info, dtype=wp.vec4i, device=dev),
                 node_child=up(t.node_child.astype(np.int32), wp.int32),
                 node_patch=up(t.node_patch.astype(np.int32), wp.int32),
                 patch_index=up(index.astype(np.int32), wp.int32), patch_basis=up(basis.astype(np.int32), wp.int32),
@@ -248,8 +255,7 @@ class LimitSurface:
             duu = duv = dvv = wp.empty(1, dtype=wp.vec3d, device=dev)
         patch = wp.empty(n, dtype=wp.int32, device=dev)
         wp.launch(kernels.limit_evaluate, dim=n,
-                  inputs=[a["face_kind"], a["face_root"], a["face_size"], a["face_tiles"],
-                          query(faces_a, np.int32), query(u_a, np.float64), query(v_a, np.float64),
+                  inputs=[a["face_info"], query(faces_a, np.int32), query(u_a, np.float64), query(v_a, np.float64),
                           a["node_child"], a["node_patch"], a["patch_index"], a["patch_basis"], a["points"],
                           int(self.tree.triangles),
                           int(second), p, du, dv, duu, duv, dvv, nrm, patch], device=dev)
