@@ -71,7 +71,8 @@ class LimitSurface:
     vertices, irregular creases and corners, semi-sharp tags, flatness and normal control, n-gons) is refined
     locally before end caps take over; the surface is exact everywhere except inside the end caps, which cover
     the sub-faces of size 2^-depth at the irregular points (README "Limit surface" gives the error).
-    ``device``: a Warp device for :meth:`evaluate` (None: CUDA when present, else the CPU).
+    ``device``: a Warp device for :meth:`evaluate` (None: CUDA when present, else the CPU). The patch tree is
+    built in float64 and evaluated in float64 whatever the ``precision`` option says.
     """
 
     def __init__(self, mesh: Mesh, *, depth: int = DEFAULT_DEPTH, options: Options | None = None, device=None,
