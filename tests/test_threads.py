@@ -146,3 +146,12 @@ def test_threaded_build_is_bitwise_one_thread(name, scheme):
             np.testing.assert_array_equal(a[key], b[key], err_msg=f"{what}{key}")
     for x, y in zip(one.topology(), two.topology()):
         np.testing.assert_array_equal(x, y)
+
+
+def test_nested_runs_do_not_deadlock():
+    """Work that itself runs jobs on the pool, started from a job of the pool, runs its jobs inline (a pool
+    of one worker would otherwise wait for itself)."""
+    def inner(k):
+        return th.run([lambda: k, lambda: k + 1], 2)
+
+    assert th.run([lambda: inner(0), lambda: inner(10)], 2) == [[0, 1], [10, 11]]

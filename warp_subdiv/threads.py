@@ -25,6 +25,7 @@ MIN_ROWS = 32768
 _default: int | None = None
 _pools: dict[int, ThreadPoolExecutor] = {}
 _pools_lock = threading.Lock()
+_local = threading.local()  # .in_pool: this thread runs a job of the pool
 
 
 def available_cores() -> int:
@@ -97,9 +98,9 @@ def run(jobs, threads: int) -> list:
     returns their results in order. The first exception is raised after every job has finished."""
     jobs = list(jobs)
     ex = pool(threads)
-    if ex is None or len(jobs) <= 1:
-        return [job() for job in jobs]
-    futures = [ex.submit(job) for job in jobs[1:]]
+    if ex is None or len(jobs) <= 1 or getattr(_local, "in_pool", False):
+        return [job() for job in jobs]  # (a job of the pool runs nested work itself: the pool may be full)
+    futures = [ex.submit(_pooled, job) for job in jobs[1:]]
     first, error = None, None
     try:
         first = jobs[0]()
@@ -114,6 +115,14 @@ def run(jobs, threads: int) -> list:
     if error is not None:
         raise error
     return results
+
+
+def _pooled(job):
+    _local.in_pool = True
+    try:
+        return job()
+    finally:
+        _local.in_pool = False
 
 
 def map_ranges(fn, n: int, threads: int, min_rows: int = MIN_ROWS) -> list:
