@@ -118,6 +118,7 @@ class Hierarchy:
                            crease_method=o.crease_method, linear=o.linear)
         self.base_num_vertices = level.num_vertices
         self.base_face_size = level.face_size
+        self.base_vert_class = level.vert_class  # (V,) int8: the control vertices' rules (warp_subdiv.order)
         self.normal_vertices = mesh.normal_vertices.astype(np.int64)
         self.normal_vectors = mesh.normal_vectors
         base_s = projections.resolve_flatness(level) if o.piecewise_smooth else np.zeros(level.num_sectors)

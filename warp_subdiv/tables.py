@@ -90,13 +90,12 @@ def crease_neighbours(level: Level, sharp_ends: np.ndarray | None = None) -> np.
     a = np.concatenate([ev[sharp_ends[:, 0], 0], ev[sharp_ends[:, 1], 1]])
     b = np.concatenate([ev[sharp_ends[:, 0], 1], ev[sharp_ends[:, 1], 0]])
     nb = np.full((level.num_vertices, 2), -1, dtype=np.int64)
-    # slot: rank among the vertex's sharp edges from the last one (a pair can repeat: the two halves of a
-    # degenerate control edge)
-    order = np.argsort(a, kind="stable")
-    a, b = a[order], b[order]
-    slot = np.searchsorted(a, a, side="right") - 1 - np.arange(len(a))
-    keep = slot < 2
-    nb[a[keep], slot[keep]] = b[keep]
+    nb[a, 0] = b
+    other = nb[a, 0] != b
+    nb[a[other], 1] = b[other]
+    # two sharp edges to the same neighbour (the two halves of a degenerate control edge): both slots
+    twice = (np.bincount(a, minlength=level.num_vertices) >= 2) & (nb[:, 1] < 0)
+    nb[twice, 1] = nb[twice, 0]
     return nb
 
 

@@ -1,0 +1,242 @@
+"""Vertex orders of a refined mesh for writing: OpenSubdiv's, or a compact one whose indices compress well.
+
+A refiner numbers the vertices of a level as OpenSubdiv does: [vertex children, face children, edge
+children]. A refined face's corners then jump between those three ranges, and usdc's integer compression
+(deltas, then LZ4) does poorly on such index arrays: saving one costs about 0.1-1 us per index, while an
+array of small deltas costs a hundredth of that (BENCHMARKS.md, "USD bake"). The *compact* order keeps every
+vertex that is a descendant of control vertex v at index v (so "refined vertex v is the child of control vertex
+v" still holds, and point subsets keep their meaning) and numbers all other vertices in the order the refined
+faces first use them (vertices no face uses last, in OpenSubdiv's order); face-varying values are numbered in
+the order the refined faces first use them. Faces keep OpenSubdiv's order. The surface is the same; only the
+numbering changes.
+
+:class:`OrderedRefiner` wraps a :class:`~warp_subdiv.refiner.Refiner` so that everything it returns per refined
+vertex (``topology``, ``evaluate``, ``limit_points``, ``limit_normals``, face-varying values and indices, the
+last level's vertex parentage) uses the compact order, and takes per-vertex input in that order. The USD bake
+uses it for ``vertex_order="compact"``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: The vertex orders the USD bake writes: "opensubdiv" (the refiner's), "compact", or "auto" (compact where the
+#: rule set is piecewise-smooth, OpenSubdiv's where it is "opensubdiv").
+VERTEX_ORDERS = ("auto", "opensubdiv", "compact")
+
+
+def check_vertex_order(value) -> str:
+    from .errors import SubdivInputError
+
+    if value not in VERTEX_ORDERS:
+        raise SubdivInputError(f"vertex_order must be one of {', '.join(VERTEX_ORDERS)}, got {value!r}",
+                               option="vertex_order", value=value)
+    return value
+
+
+def appearance_order(indices: np.ndarray, num: int, keep: int = 0):
+    """(new id of every old id (num,), old id of every new id (num,)), int32 (int64 beyond its range): ids below
+    ``keep`` keep their number; the others are numbered from ``keep`` in the order ``indices`` first uses them,
+    unused ones last (in their old order). O(len(indices) + num), no sort."""
+    indices = np.asarray(indices)
+    n = len(indices)
+    kind = np.int32 if max(n, num) < 2**31 - 1 else np.int64
+    if indices.dtype != kind:
+        indices = indices.astype(kind)
+    position = np.arange(n, dtype=kind)
+    first_use = np.empty(num, dtype=kind)
+    first_use[indices[::-1]] = position[::-1]  # repeated ids: the last assignment (the first use) wins
+    first = first_use[indices] == position
+    del first_use, position
+    if keep:
+        first &= indices >= keep
+    used = indices[first]
+    new_id = np.full(num, -1, dtype=kind)
+    new_id[:keep] = np.arange(keep, dtype=kind)
+    new_id[used] = np.arange(keep, keep + len(used), dtype=kind)
+    unused = np.flatnonzero(new_id < 0)
+    if len(unused):
+        new_id[unused] = np.arange(keep + len(used), num, dtype=kind)
+    old_id = np.empty(num, dtype=kind)
+    old_id[new_id] = np.arange(num, dtype=kind)
+    return new_id, old_id
+
+
+def _rows(data, old_id):
+    """Rows of ``data`` (refined, in the refiner's order) in the compact order; 1-D data stays 1-D."""
+    return np.asarray(data)[old_id]
+
+
+class _OrderedHierarchy:
+    """A hierarchy whose last level's vertex parentage is listed in the compact order."""
+
+    def __init__(self, hierarchy, old_id):
+        self._h = hierarchy
+        self._old_id = old_id
+
+    def vertex_parent(self, level: int):
+        kind, parent = self._h.vertex_parent(level)
+        if level == self._h.levels:
+            return kind[self._old_id], parent[self._old_id]
+        return kind, parent
+
+    def __getattr__(self, name):
+        return getattr(self._h, name)
+
+
+class OrderedRefiner:
+    """A refiner's results in the compact vertex order (see the module docstring); everything else is the
+    wrapped refiner's (``refiner`` attribute)."""
+
+    def __init__(self, refiner):
+        self.refiner = refiner
+        counts, indices = refiner.topology()
+        self.new_id, self.old_id = appearance_order(indices, refiner.num_vertices, refiner.mesh.num_vertices)
+        self._counts = counts
+        self._indices = self.new_id[indices].astype(np.int32, copy=False)
+        self.hierarchy = _OrderedHierarchy(refiner.hierarchy, self.old_id)
+
+    def topology(self):
+        return self._counts, self._indices
+
+    def evaluate(self, points, *args, **kwargs):
+        return _rows(self.refiner.evaluate(points, *args, **kwargs), self.old_id)
+
+    def _own(self, refined):
+        """Refined data in the compact order back in the refiner's order."""
+        return np.asarray(refined)[self.new_id]
+
+    def limit_points(self, refined_points):
+        return _rows(self.refiner.limit_points(self._own(refined_points)), self.old_id)
+
+    def limit_normals(self, refined_points):
+        return _rows(self.refiner.limit_normals(self._own(refined_points)), self.old_id)
+
+    def _face_varying(self, values, indices):
+        """Values numbered in the order the refined faces first use them; values no face uses are dropped."""
+        new_id, old_id = appearance_order(indices, len(values))
+        indices = np.asarray(indices)
+        used = np.zeros(len(values), dtype=bool)
+        used[indices] = True
+        return _rows(values, old_id[: int(used.sum())]), new_id[indices].astype(np.int32, copy=False)
+
+    def evaluate_face_varying(self, values, indices, mode="corners-plus1"):
+        fast = fast_face_varying(self.refiner, values, indices, mode)
+        if fast is not None:
+            return self._face_varying(*fast)
+        return self._face_varying(*self.refiner.evaluate_face_varying(values, indices, mode=mode))
+
+    def limit_face_varying(self, values, indices, mode="corners-plus1"):
+        return self._face_varying(*self.refiner.limit_face_varying(values, indices, mode=mode))
+
+    def __getattr__(self, name):
+        return getattr(self.refiner, name)
+
+
+def fast_face_varying(refiner, values, indices, mode="corners-plus1"):
+    """A face-varying channel refined on the vertex topology where its seams allow, as (values (M, d),
+    value index per refined face corner), or None where this path does not apply.
+
+    Where a control vertex has one value (no seam) and the smooth rule (interior, manifold, no sharp edge, no
+    tag), the channel's value mesh has the same neighbourhood and rules there as the vertex mesh. A refined face
+    inside a control face whose 1-ring (the faces sharing a vertex with it) has only such vertices depends on
+    nothing else, so its values are the vertex refinement of the values (one :meth:`Refiner.evaluate`, on the
+    topology already built). The other control faces ("near a seam") and their 1-rings form a small mesh
+    whose own face-varying channel gives their values (its outer ring only completes the neighbourhoods).
+    The values equal those of :meth:`Refiner.evaluate_face_varying` at every refined corner (up to float
+    rounding); their numbering differs (the compact order renumbers them anyway). Applies to Catmull-Clark
+    and to Loop on triangles, with Loop's beta, and not to the "all" mode."""
+    from .errors import SubdivInputError
+    from .facevarying import check_indices
+    from .mesh import Mesh, check_rows
+    from .options import FaceVaryingMode
+    from .rules import SMOOTH
+
+    h = refiner.hierarchy
+    options = refiner.options
+    vert_class = getattr(h, "base_vert_class", None)
+    mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
+    mesh = refiner.mesh
+    if (vert_class is None or refiner.levels < 1 or options.linear or mode == FaceVaryingMode.ALL
+            or h.parentage.control_face is not None or options.loop_beta.value != "loop"):
+        return None
+    idx = check_indices(indices, len(mesh.face_vertex_indices))
+    if len(idx) == 0:
+        return None
+    squeeze = np.ndim(values) == 1
+    if np.ndim(values) in (1, 2) and len(values) <= int(idx.max()):
+        raise SubdivInputError(f"face-varying indices refer to value {int(idx.max())} but only {len(values)} values "
+                               "were given", option="values", element="data", value=len(values))
+    vals = check_rows(values, int(idx.max()) + 1, "face-varying values", at_least=True)
+    cv = mesh.face_vertex_indices.astype(np.int64)
+    counts = mesh.face_vertex_counts.astype(np.int64)
+    nv, nf = mesh.num_vertices, mesh.num_faces
+    face_of = np.repeat(np.arange(nf, dtype=np.int64), counts)
+    one_value = np.empty(nv, dtype=np.int64)
+    one_value[cv] = idx
+    multi = np.bincount(cv, weights=one_value[cv] != idx, minlength=nv) > 0
+    aligned = (vert_class == SMOOTH) & ~multi
+    bad_face = np.bincount(face_of, weights=~aligned[cv], minlength=nf) > 0
+    bad_vertex = np.bincount(cv, weights=bad_face[face_of], minlength=nv) > 0
+    near_seam = np.bincount(face_of, weights=bad_vertex[cv], minlength=nf) > 0
+    if near_seam.all():
+        return None
+
+    # away from the seams: the vertex refinement of the values
+    data = np.zeros((nv, vals.shape[1]))
+    data[cv] = vals[idx]
+    refined = refiner.evaluate(data, normal_control=False)
+    counts_out, indices_out = refiner.topology()
+    final = h.final
+    out_faces = h.control_face_of(refiner.levels)
+    if final.face_hole is not None and final.face_hole.any():
+        out_faces = out_faces[~final.face_hole]
+    corner_near = np.repeat(near_seam[out_faces], counts_out)
+    value_of = indices_out.astype(np.int64)
+    parts = [refined]
+
+    # near the seams: the channel of the faces there and their 1-rings
+    if near_seam.any():
+        touch = np.bincount(cv, weights=near_seam[face_of], minlength=nv) > 0
+        keep = np.bincount(face_of, weights=touch[cv], minlength=nf) > 0
+        faces = np.flatnonzero(keep)
+        corner_in = keep[face_of]
+        used = np.flatnonzero(np.bincount(cv[corner_in], minlength=nv) > 0)
+        vmap = np.full(nv, -1, dtype=np.int64)
+        vmap[used] = np.arange(len(used))
+        tags = {}
+        if len(mesh.creases):
+            on = np.bincount(mesh.edges.corner_edge[corner_in], minlength=mesh.num_edges) > 0
+            take = on[mesh.crease_edges]
+            if take.any():
+                tags["creases"] = vmap[mesh.creases[take]]
+                tags["crease_sharpness"] = mesh.crease_sharpness[take]
+        if len(mesh.corners):
+            take = vmap[mesh.corners] >= 0
+            if take.any():
+                tags["corners"] = vmap[mesh.corners[take]]
+                tags["corner_sharpness"] = mesh.corner_sharpness[take]
+        if len(mesh.holes):
+            fmap = np.full(nf, -1, dtype=np.int64)
+            fmap[faces] = np.arange(len(faces))
+            holes = fmap[mesh.holes]
+            if (holes >= 0).any():
+                tags["holes"] = holes[holes >= 0]
+        import warnings
+
+        from .errors import NonManifoldWarning
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NonManifoldWarning)
+            part = Mesh(mesh.points[used], counts[faces], vmap[cv[corner_in]], **tags)
+            sub = type(refiner)(part, refiner.levels, options=options.replace(rules="opensubdiv", flatness=None),
+                                device=refiner.device)
+        sub_values, sub_index = sub.evaluate_face_varying(vals, idx[corner_in], mode=mode)
+        sub_counts, _ = sub.topology()
+        sub_faces = sub.hierarchy.control_face_of(refiner.levels)
+        if sub.hierarchy.final.face_hole is not None and sub.hierarchy.final.face_hole.any():
+            sub_faces = sub_faces[~sub.hierarchy.final.face_hole]
+        sub_near = np.repeat(near_seam[faces[sub_faces]], sub_counts)
+        value_of[corner_near] = len(refined) + np.asarray(sub_index, dtype=np.int64)[sub_near]
+        parts.append(np.asarray(sub_values).reshape(len(sub_values), -1))
+    out = np.concatenate(parts) if len(parts) > 1 else parts[0]
+    return (out[:, 0] if squeeze else out), value_of
