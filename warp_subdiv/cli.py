@@ -30,7 +30,8 @@ PROG = "warp-subdiv"
 FLAGS = {"levels": "--levels", "prims": "--prim", "scheme": "--scheme", "rules": "--rules", "boundary": "--boundary",
          "device": "--device", "precision": "--precision", "frames": "--frames", "max_memory": "--max-memory",
          "threads": "--threads", "workers": "--workers", "scheduler": "--scheduler", "chunk_frames": "--chunk-frames",
-         "camera": "--camera", "view": "--view", "size": "--size", "time": "--time", "samples": "--samples"}
+         "camera": "--camera", "view": "--view", "size": "--size", "time": "--time", "samples": "--samples",
+         "rate": "--rate", "edge_length": "--edge-length", "depth": "--depth", "flatten": "--flatten"}
 
 
 class UsageError(SubdivInputError):
@@ -137,9 +138,29 @@ def _parser() -> argparse.ArgumentParser:
                    help="draw the control meshes of this USD file (e.g. the input of a refinement) as lines")
     g.add_argument("--samples", type=int, default=2, help="samples per pixel along each axis (default 2)")
     g.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
-    from .tessellate import add_arguments as tessellate_arguments
-
-    tessellate_arguments(sub)
+    t = sub.add_parser("tessellate", help="tessellate the limit surfaces of an OBJ or USD file (watertight, "
+                                          "adaptive by edge length or a rate)",
+                       description="Evaluate the limit surface of every subdivision mesh of IN (or those at or under "
+                                   "--prim) and write a watertight tessellation to OUT, with the conventions of "
+                                   "refine (USD: a layer that sublayers IN and overrides the meshes).")
+    t.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
+    t.add_argument("-o", "--output", required=True, help="output file (.obj for OBJ input; .usd/.usda/.usdc)")
+    how = t.add_mutually_exclusive_group(required=True)
+    how.add_argument("--edge-length", type=float, metavar="L",
+                     help="target edge length in object space: each control edge gets ceil(limit length / L) "
+                          "segments")
+    how.add_argument("--rate", type=int, metavar="N", help="segments per control edge (uniform)")
+    t.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path (USD)")
+    t.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
+                   help="as for refine: auto takes each mesh's subdivisionScheme (OBJ: Loop for all triangles)")
+    t.add_argument("--rules", default=None, choices=["piecewise-smooth", "opensubdiv"])
+    t.add_argument("--boundary", default=None, choices=["edge-and-corner", "edge-only", "none"])
+    t.add_argument("--depth", type=int, default=None,
+                   help="levels of local refinement near irregular features before end caps (default 8)")
+    t.add_argument("--triangles", action="store_true", help="triangles only (default: quads where uniform)")
+    t.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
+    t.add_argument("--flatten", action="store_true", help="write one self-contained layer (USD)")
+    t.add_argument("--quiet", action="store_true", help="print nothing on success")
     return p
 
 
@@ -480,9 +501,29 @@ def _print_levels(estimate_at, levels: int) -> None:
 
 def _tessellate(args) -> int:
     _quiet_warp()
-    from .tessellate import run_command
+    from .tessellate import tessellate_file
 
-    return run_command(args)
+    if args.rate is not None and args.rate < 1:
+        raise UsageError(f"--rate must be at least 1, got {args.rate}")
+    if args.edge_length is not None and not args.edge_length > 0:
+        raise UsageError(f"--edge-length must be positive, got {args.edge_length}")
+    _check_device(args.device)
+    result = tessellate_file(args.input, args.output, rate=args.rate, edge_length=args.edge_length, prims=args.prim,
+                             scheme=args.scheme, rules=args.rules, boundary=args.boundary, depth=args.depth,
+                             quads=not args.triangles, device=args.device, flatten=args.flatten)
+    for w in result.warnings:
+        _warn(w)
+    if not args.quiet:
+        how = f"rate {args.rate}" if args.rate is not None else f"edge length {args.edge_length:g}"
+        print(f"{args.input} -> {args.output}: limit surfaces tessellated ({how}) on {_device_name(args.device)}")
+        header = ("prim", "scheme", "rules", "faces in", "faces out", "vertices out", "time")
+        rows = [(r.path, r.scheme, r.rules, f"{r.faces_in:,}", f"{r.faces_out:,}", f"{r.vertices_out:,}",
+                 f"{r.seconds:.2f} s") for r in result.reports]
+        for line in _table(rows, header):
+            print("  " + line)
+        print(f"  total: {len(result.reports)} mesh{'es' if len(result.reports) != 1 else ''}, "
+              f"{result.seconds:.2f} s; wrote {args.output}")
+    return 0
 
 
 def _render(args) -> int:

@@ -557,67 +557,44 @@ class MeshReport:
     seconds: float
 
 
-def add_arguments(sub) -> None:
-    """The ``tessellate`` subcommand's arguments (added to the CLI's subparsers)."""
-    t = sub.add_parser("tessellate", help="tessellate the limit surfaces of an OBJ or USD file (watertight, "
-                                          "adaptive by edge length or a rate)",
-                       description="Evaluate the limit surface of every subdivision mesh of IN (or those at or under "
-                                   "--prim) and write a watertight tessellation to OUT, with the conventions of "
-                                   "refine (USD: a layer that sublayers IN and overrides the meshes).")
-    t.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
-    t.add_argument("-o", "--output", required=True, help="output file (.obj for OBJ input; .usd/.usda/.usdc)")
-    how = t.add_mutually_exclusive_group(required=True)
-    how.add_argument("--edge-length", type=float, metavar="L",
-                     help="target edge length in object space: each control edge gets ceil(limit length / L) "
-                          "segments")
-    how.add_argument("--rate", type=int, metavar="N", help="segments per control edge (uniform)")
-    t.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path (USD)")
-    t.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
-                   help="as for refine: auto takes each mesh's subdivisionScheme (OBJ: Loop for all triangles)")
-    t.add_argument("--rules", default=None, choices=["piecewise-smooth", "opensubdiv"])
-    t.add_argument("--boundary", default=None, choices=["edge-and-corner", "edge-only", "none"])
-    t.add_argument("--depth", type=int, default=None,
-                   help="levels of local refinement near irregular features before end caps (default 8)")
-    t.add_argument("--triangles", action="store_true", help="triangles only (default: quads where uniform)")
-    t.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
-    t.add_argument("--flatten", action="store_true", help="write one self-contained layer (USD)")
-    t.add_argument("--quiet", action="store_true", help="print nothing on success")
+@dataclass
+class FileResult:
+    """What :func:`tessellate_file` did: one report per mesh, warnings, seconds."""
+
+    reports: list
+    warnings: list
+    seconds: float
 
 
-def run_command(args) -> int:
-    """``warp-subdiv tessellate``: the CLI entry point (errors propagate to the CLI's handler)."""
+def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length=None, prims=None, scheme="auto",
+                    rules=None, boundary=None, depth=None, quads: bool = True, device=None,
+                    flatten: bool = False) -> FileResult:
+    """Tessellate the limit surfaces of an OBJ or USD file (the ``tessellate`` command's library side).
+
+    OBJ input is written as OBJ or as a USD layer holding one mesh; USD input as a layer over it (see
+    :func:`tessellate_usd`). ``rate`` / ``edge_length`` as for :func:`tessellate`; ``prims``, ``scheme``,
+    ``rules``, ``boundary`` as for the USD bake; ``depth`` of the :class:`~warp_subdiv.limit.LimitSurface`
+    (None: its default); ``quads=False`` for triangles only; ``flatten`` (USD) for one self-contained layer.
+    Errors name options by keyword."""
+    import os
     import time
 
-    from .cli import UsageError
-
-    if args.rate is not None and args.rate < 1:
-        raise UsageError(f"--rate must be at least 1, got {args.rate}")
-    if args.edge_length is not None and not args.edge_length > 0:
-        raise UsageError(f"--edge-length must be positive, got {args.edge_length}")
-    kind = _kind(args.input)
-    out_kind = _kind(args.output)
     start = time.perf_counter()
-    options = dict(rate=args.rate, edge_length=args.edge_length, scheme=args.scheme, rules=args.rules,
-                   boundary=args.boundary, depth=args.depth, quads=not args.triangles, device=args.device)
+    kind, out_kind = _kind(input_path), _kind(output_path)
+    if not os.path.exists(input_path):
+        raise SubdivInputError(f"{input_path}: no such file")
+    options = dict(rate=rate, edge_length=edge_length, scheme=scheme, rules=rules, boundary=boundary, depth=depth,
+                   quads=quads, device=device)
     if kind == "obj":
-        if args.prim or args.flatten:
-            raise UsageError("--prim and --flatten apply to USD input only")
-        reports, warnings_ = tessellate_obj(args.input, args.output, out_kind, **options)
+        for name, value in (("prims", prims), ("flatten", flatten)):
+            if value:
+                raise SubdivInputError(f"{name} applies to USD input only", option=name)
+        reports, warnings_ = tessellate_obj(input_path, output_path, out_kind, **options)
     else:
         if out_kind != "usd":
-            raise UsageError(f"{args.output}: USD input is written as .usd, .usda or .usdc")
-        reports, warnings_ = tessellate_usd(args.input, args.output, prims=args.prim, flatten=args.flatten, **options)
-    for w in warnings_:
-        print(f"warp-subdiv: warning: {w}", file=__import__("sys").stderr)
-    if not args.quiet:
-        how = f"rate {args.rate}" if args.rate is not None else f"edge length {args.edge_length:g}"
-        print(f"{args.input} -> {args.output}: limit surfaces tessellated ({how})")
-        for r in reports:
-            print(f"  {r.path}: {r.scheme}, {r.rules}, faces {r.faces_in:,} -> {r.faces_out:,}, "
-                  f"vertices {r.vertices_out:,}, {r.seconds:.2f} s")
-        print(f"  total: {len(reports)} mesh{'es' if len(reports) != 1 else ''}, "
-              f"{time.perf_counter() - start:.2f} s; wrote {args.output}")
-    return 0
+            raise SubdivInputError(f"{output_path}: USD input is written as .usd, .usda or .usdc")
+        reports, warnings_ = tessellate_usd(input_path, output_path, prims=prims, flatten=flatten, **options)
+    return FileResult(reports, warnings_, time.perf_counter() - start)
 
 
 def _kind(path: str) -> str:
