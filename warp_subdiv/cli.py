@@ -158,6 +158,8 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--depth", type=int, default=None,
                    help="levels of local refinement near irregular features before end caps (default 8)")
     t.add_argument("--triangles", action="store_true", help="triangles only (default: quads where uniform)")
+    t.add_argument("--frames", default=None, metavar="A:B",
+                   help="as for refine: tessellate the points' time samples in [A, B] (default: all)")
     t.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
     t.add_argument("--flatten", action="store_true", help="write one self-contained layer (USD)")
     t.add_argument("--quiet", action="store_true", help="print nothing on success")
@@ -510,7 +512,8 @@ def _tessellate(args) -> int:
     _check_device(args.device)
     result = tessellate_file(args.input, args.output, rate=args.rate, edge_length=args.edge_length, prims=args.prim,
                              scheme=args.scheme, rules=args.rules, boundary=args.boundary, depth=args.depth,
-                             quads=not args.triangles, device=args.device, flatten=args.flatten)
+                             quads=not args.triangles, device=args.device, flatten=args.flatten,
+                             frames=args.frames)
     for w in result.warnings:
         _warn(w)
     if not args.quiet:

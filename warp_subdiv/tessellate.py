@@ -568,7 +568,7 @@ class FileResult:
 
 def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length=None, prims=None, scheme="auto",
                     rules=None, boundary=None, depth=None, quads: bool = True, device=None,
-                    flatten: bool = False) -> FileResult:
+                    flatten: bool = False, frames=None) -> FileResult:
     """Tessellate the limit surfaces of an OBJ or USD file (the ``tessellate`` command's library side).
 
     OBJ input is written as OBJ or as a USD layer holding one mesh; USD input as a layer over it (see
@@ -586,14 +586,15 @@ def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length
     options = dict(rate=rate, edge_length=edge_length, scheme=scheme, rules=rules, boundary=boundary, depth=depth,
                    quads=quads, device=device)
     if kind == "obj":
-        for name, value in (("prims", prims), ("flatten", flatten)):
+        for name, value in (("prims", prims), ("flatten", flatten), ("frames", frames)):
             if value:
                 raise SubdivInputError(f"{name} applies to USD input only", option=name)
         reports, warnings_ = tessellate_obj(input_path, output_path, out_kind, **options)
     else:
         if out_kind != "usd":
             raise SubdivInputError(f"{output_path}: USD input is written as .usd, .usda or .usdc")
-        reports, warnings_ = tessellate_usd(input_path, output_path, prims=prims, flatten=flatten, **options)
+        reports, warnings_ = tessellate_usd(input_path, output_path, prims=prims, flatten=flatten, frames=frames,
+                                            **options)
     return FileResult(reports, warnings_, time.perf_counter() - start)
 
 
@@ -639,7 +640,7 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
 
 
 def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length, scheme, rules, boundary, depth,
-                   quads, device):
+                   quads, device, frames=None):
     """Tessellate every subdivision mesh of a USD file and write a layer over it (the conventions of refine:
     an ``over`` at each mesh's path with ``subdivisionScheme = "none"``, its points, faces, vertex normals and
     extent, the subdivision attributes and ``subdiv:`` tags blocked). Uniform primvars and face subsets follow
@@ -653,7 +654,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
 
     from . import __version__
     from .usd import options_for
-    from .usd_read import SUBDIVISION_ATTRIBUTES, mesh_prims, open_stage, read_mesh
+    from .usd_read import DEFAULT, SUBDIVISION_ATTRIBUTES, mesh_prims, open_stage, parse_frames, read_mesh
     from .usd_write import OutputLayer, check_output_path, extent_of
 
     T = Sdf.ValueTypeNames
@@ -671,7 +672,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     try:
         for usd_prim in meshes:
             t0 = time.perf_counter()
-            sp = read_mesh(usd_prim, scheme=scheme, rules=rules, boundary=boundary)
+            sp = read_mesh(usd_prim, scheme=scheme, rules=rules, boundary=boundary, frames=parse_frames(frames))
             if sp is None:
                 continue
             if sp.scheme == "bilinear":
@@ -679,8 +680,6 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
                 continue
             if sp.topologies:
                 raise SubdivInputError(f"{sp.path}: its topology changes over time; tessellate takes one topology")
-            if sp.point_times:
-                warnings_.append(f"{sp.path}: points are time-sampled; the default time is tessellated")
             options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
             try:
                 surface = _surface(sp.mesh, options, depth, device)
@@ -697,6 +696,18 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
             spec.SetInfo("interpolation", "vertex")
             layer.set(spec, Vt.Vec3fArray.FromNumpy(normals.astype(np.float32)))
             layer.set(layer.attr(prim, "extent", T.Float3Array), extent_of(t.points))
+            for when in sp.point_times:  # the same tessellation (edge rates) of the points at every sample
+                try:
+                    moved = _surface(_with_points(sp.mesh, sp.points_at(when)), options, depth, device)
+                    ev = moved.evaluate(t.base_face, t.uv[:, 0], t.uv[:, 1])
+                except SubdivInputError as exc:
+                    raise sp.error(exc) from None
+                layer.set(layer.attr(prim, "points", T.Point3fArray), None,
+                          [(when, Vt.Vec3fArray.FromNumpy(ev.points.astype(np.float32)))])
+                nt = -ev.normals if sp.orientation == "leftHanded" else ev.normals
+                layer.set(layer.attr(prim, "normals", T.Normal3fArray), None,
+                          [(when, Vt.Vec3fArray.FromNumpy(nt.astype(np.float32)))])
+                layer.set(layer.attr(prim, "extent", T.Float3Array), None, [(when, extent_of(ev.points))])
             for name in SUBDIVISION_ATTRIBUTES:
                 attr = usd_prim.GetAttribute(name)
                 layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
@@ -708,7 +719,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
                 if name == "normals" or not usd_prim.GetAttribute(name).HasAuthoredValue():
                     continue
                 layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
-            _write_primvars(sp, layer, prim, t, warnings_)
+            _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
             _write_subsets(sp, layer, t)
             base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
             base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
@@ -729,10 +740,111 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     return reports, warnings_
 
 
-def _write_primvars(sp, layer, prim, t, warnings_) -> None:
-    """Uniform primvars follow their control faces; constant ones are left as they are; others are blocked."""
+def _with_points(mesh, points):
+    """``mesh`` (topology, creases, corners, concave tags, holes) with other ``points`` and no prescribed normals."""
+    from .mesh import Mesh
+
+    return Mesh(points, mesh.face_vertex_counts, mesh.face_vertex_indices, creases=mesh.creases,
+                crease_sharpness=mesh.crease_sharpness, corners=mesh.corners, corner_sharpness=mesh.corner_sharpness,
+                concave=mesh.concave, holes=mesh.holes)
+
+
+def vertex_data(surface, data, faces, uv) -> np.ndarray:
+    """The limit of per-control-vertex ``data`` (V, k) at (``faces``, ``uv``): (n, k) float64.
+
+    Evaluated as the limit surface of a mesh with the same topology and tags (creases, corners, concave tags,
+    holes; no prescribed normals: they move positions only, as in refine) whose points carry two data columns
+    at a time in a plane ((a, b, 0)), so the result is linear in the data (the end caps' tangent-plane
+    projection only touches the zero column). Under the piecewise-smooth rules the sector angles of corners
+    are those of the data, not of the points."""
+    data = np.asarray(data, dtype=np.float64)
+    data = data.reshape(len(data), -1)
+    faces = np.asarray(faces, dtype=np.int64)
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    out = np.zeros((len(faces), data.shape[1]))
+    for c in range(0, data.shape[1], 2):
+        cols = data[:, c:c + 2]
+        if not np.any(cols):
+            continue
+        pts = np.zeros((len(data), 3))
+        pts[:, :cols.shape[1]] = cols
+        mesh = _with_points(surface.mesh, pts)
+        other = type(surface)(mesh, options=surface.options, depth=surface.depth, device=surface.device)
+        out[:, c:c + 2] = other.evaluate(faces, uv[:, 0], uv[:, 1]).points[:, :cols.shape[1]]
+    return out
+
+
+def corner_weights(surface, faces, uv) -> tuple:
+    """Linear interpolation inside control faces (refine's varying primvars): (corners (n, m) int64 into the
+    face-vertex list, -1 padded; weights (n, m)) such that a value at (face, u, v) is the weighted sum of the
+    face's corner values. A quad: bilinear; a Loop triangle: barycentric; a Catmull-Clark n-gon: bilinear in
+    the sub-face (corner, edge middles, centre = mean of the corners); a Loop polygon: barycentric in its fan
+    triangle (v0, v_k+1, v_k+2)."""
+    from .limit import DIRECT, FAN, SUBFACES
+
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1)
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    counts = np.asarray(surface.mesh.face_vertex_counts, dtype=np.int64)
+    offsets = _face_corners(counts)
+    n = counts[faces]
+    m = int(n.max()) if len(n) else 1
+    W = np.zeros((len(faces), m))
+    kind = surface.face_kind[faces]
+    u, v = uv[:, 0], uv[:, 1]
+    rows = np.arange(len(faces))
+    quad = (kind == DIRECT) & (n == 4)
+    W[quad, 0] = ((1 - u) * (1 - v))[quad]
+    W[quad, 1] = (u * (1 - v))[quad]
+    W[quad, 2] = (u * v)[quad]
+    W[quad, 3] = ((1 - u) * v)[quad]
+    tri = (kind == DIRECT) & (n == 3)
+    W[tri, 0] = (1 - u - v)[tri]
+    W[tri, 1] = u[tri]
+    W[tri, 2] = v[tri]
+    sub = kind == SUBFACES
+    if sub.any():
+        w = surface.face_tiles[faces].astype(np.int64)
+        tx, ty = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        i = np.clip(ty * w + tx, 0, n - 1)
+        s = np.clip(2 * (u - tx), 0, 1)
+        t = np.clip(2 * (v - ty), 0, 1)
+        w00, w10, w11, w01 = (1 - s) * (1 - t), s * (1 - t), s * t, (1 - s) * t
+        r = rows[sub]
+        Wn = np.zeros((len(faces), m))
+        Wn[r] += (w11 / np.maximum(n, 1))[sub][:, None] * (np.arange(m)[None] < n[sub][:, None])
+        np.add.at(Wn, (r, i[sub]), (w00 + 0.5 * w10 + 0.5 * w01)[sub])
+        np.add.at(Wn, (r, ((i + 1) % n)[sub]), (0.5 * w10)[sub])
+        np.add.at(Wn, (r, ((i - 1) % n)[sub]), (0.5 * w01)[sub])
+        W[sub] = Wn[sub]
+    fan = kind == FAN
+    if fan.any():
+        k = np.clip(np.floor(u).astype(np.int64), 0, n - 3)
+        s, t = 2 * (u - k), 2 * v
+        r = rows[fan]
+        np.add.at(W, (r, np.zeros(len(r), np.int64)), (1 - s - t)[fan])
+        np.add.at(W, (r, (k + 1)[fan]), s[fan])
+        np.add.at(W, (r, (k + 2)[fan]), t[fan])
+    j = np.arange(m)[None]
+    corners = np.where(j < n[:, None], offsets[faces][:, None] + j, -1)
+    return corners, W
+
+
+def _interpolate(corner_values, corners, weights) -> np.ndarray:
+    vals = corner_values[np.maximum(corners, 0)]  # (n, m, k)
+    return np.einsum("nm,nmk->nk", weights * (corners >= 0), vals)
+
+
+def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=None) -> None:
+    """Uniform primvars follow their control faces; vertex primvars are evaluated on the limit surface of their
+    values, varying ones linearly inside the control face at each vertex's (u, v), face-varying ones linearly
+    inside the control face from its corner values at each output corner's (u, v) (written unindexed);
+    constant ones are left as they are; others (not floating point, time-sampled) are blocked."""
     from pxr import Sdf
 
+    from .usd_write import vt_array
+
+    V = sp.mesh.num_vertices
+    C = len(sp.mesh.face_vertex_indices)
     for pv in sp.primvars:
         if pv.interpolation == "constant":
             continue
@@ -753,7 +865,43 @@ def _write_primvars(sp, layer, prim, t, warnings_) -> None:
                 if pv.indexed:
                     layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)
                 continue
-        warnings_.append(f"{sp.path}: primvar {pv.name} ({pv.interpolation}) is not tessellated; blocked")
+        why = "not tessellated"
+        if pv.interpolation in ("vertex", "varying", "faceVarying") and surface is not None:
+            if not pv.linear:
+                why = "not floating point"
+            elif pv.times:
+                why = "time-sampled primvars are not tessellated"
+            else:
+                try:
+                    rows = pv.flattened(default_time, sp.path)
+                except SubdivInputError as exc:
+                    rows, why = None, str(exc)
+                want = C if pv.interpolation == "faceVarying" else V
+                if rows is not None and len(rows) == want:
+                    rows = rows.astype(np.float64)
+                    if pv.interpolation == "vertex":
+                        out = vertex_data(surface, rows, t.base_face, t.uv)
+                    elif pv.interpolation == "varying":
+                        corner_rows = rows[np.asarray(sp.mesh.face_vertex_indices, dtype=np.int64)]
+                        out = _interpolate(corner_rows, *corner_weights(surface, t.base_face, t.uv))
+                    else:
+                        nfc = np.repeat(t.face_base_face.astype(np.int64), t.face_vertex_counts)
+                        out = _interpolate(rows, *corner_weights(surface, nfc, t.face_uv))
+                    probe = np.asarray(pv.primvar.GetAttr().Get(default_time) or [])
+                    dims = out.shape[1] // max(pv.element_size, 1)
+                    value = vt_array(pv.type_name, out.reshape(-1, dims) if dims > 1 else out.reshape(-1),
+                                     like=probe.reshape(-1) if probe.size else None)
+                    spec = layer.attr(prim, pv.name, pv.type_name, custom=attr.IsCustom())
+                    spec.SetInfo("interpolation", pv.interpolation)
+                    if pv.element_size > 1:
+                        spec.SetInfo("elementSize", pv.element_size)
+                    layer.set(spec, value)
+                    if pv.indexed:
+                        layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)
+                    continue
+                if rows is not None:
+                    why = f"{len(rows)} values for {want} {'corners' if want == C else 'vertices'}"
+        warnings_.append(f"{sp.path}: primvar {pv.name} ({pv.interpolation}) is not tessellated ({why}); blocked")
         layer.block(prim, pv.name, attr.GetTypeName(), custom=attr.IsCustom())
         if pv.indexed:
             layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)

@@ -1,0 +1,127 @@
+"""tessellate on USD: primvars evaluated on the tessellation, time samples (issue 13)."""
+import numpy as np
+import pytest
+
+pxr = pytest.importorskip("pxr")
+from pxr import Sdf, Usd, UsdGeom, Vt  # noqa: E402
+
+import warp_subdiv as ws  # noqa: E402
+from warp_subdiv.tessellate import corner_weights, tessellate_file  # noqa: E402
+
+CUBE_P = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1],
+                   [-1, 1, 1]], float)
+CUBE_F = [0, 3, 2, 1, 4, 5, 6, 7, 0, 1, 5, 4, 1, 2, 6, 5, 2, 3, 7, 6, 3, 0, 4, 7]
+
+
+def _scene(path):
+    stage = Usd.Stage.CreateNew(str(path))
+    mesh = UsdGeom.Mesh.Define(stage, "/Cube")
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(CUBE_P.astype(np.float32)))
+    pts = mesh.GetPointsAttr()
+    pts.Set(Vt.Vec3fArray.FromNumpy(CUBE_P.astype(np.float32)), 1.0)
+    pts.Set(Vt.Vec3fArray.FromNumpy((2 * CUBE_P).astype(np.float32)), 2.0)
+    mesh.CreateFaceVertexCountsAttr([4] * 6)
+    mesh.CreateFaceVertexIndicesAttr(CUBE_F)
+    mesh.CreateSubdivisionSchemeAttr("catmullClark")
+    api = UsdGeom.PrimvarsAPI(mesh)
+    api.CreatePrimvar("pref", Sdf.ValueTypeNames.Point3fArray, UsdGeom.Tokens.vertex).Set(
+        Vt.Vec3fArray.FromNumpy(CUBE_P.astype(np.float32)))
+    api.CreatePrimvar("heat", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
+        Vt.FloatArray.FromNumpy((2 * CUBE_P[:, 0] + 1).astype(np.float32)))
+    rng = np.random.default_rng(3)
+    var = rng.random((8, 3)).astype(np.float32)
+    api.CreatePrimvar("tint", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.varying).Set(
+        Vt.Vec3fArray.FromNumpy(var))
+    st = rng.random((4, 2)).astype(np.float32)
+    st_idx = rng.integers(0, 4, 24).astype(np.int32)
+    pv = api.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+    pv.Set(Vt.Vec2fArray.FromNumpy(st))
+    pv.SetIndices(Vt.IntArray.FromNumpy(st_idx))
+    stage.GetRootLayer().Save()
+    return var, st[st_idx]
+
+
+@pytest.fixture(scope="module")
+def baked(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tess")
+    var, st = _scene(d / "in.usda")
+    result = tessellate_file(str(d / "in.usda"), str(d / "out.usda"), rate=3, rules="opensubdiv")
+    stage = Usd.Stage.Open(str(d / "out.usda"))
+    surface = ws.LimitSurface(ws.Mesh(CUBE_P, [4] * 6, CUBE_F), rules="opensubdiv")
+    t = surface.tessellate(rate=3)
+    return stage, result, t, var, st
+
+
+def _get(stage, name, time=Usd.TimeCode.Default()):
+    return np.asarray(stage.GetPrimAtPath("/Cube").GetAttribute(name).Get(time), dtype=np.float64)
+
+
+def test_no_primvar_blocked(baked):
+    _, result, _, _, _ = baked
+    assert not [w for w in result.warnings if "primvar" in w], result.warnings
+
+
+def test_vertex_primvars_follow_the_limit_surface(baked):
+    stage, _, t, _, _ = baked
+    points = _get(stage, "points")
+    np.testing.assert_allclose(points, t.points, atol=1e-5)
+    np.testing.assert_allclose(_get(stage, "primvars:pref"), points, atol=1e-5)  # a Pref equal to the points
+    np.testing.assert_allclose(_get(stage, "primvars:heat"), 2 * points[:, 0] + 1, atol=1e-5)  # affine data
+
+
+def test_varying_primvar_bilinear_in_the_base_face(baked):
+    stage, _, t, var, _ = baked
+    fvi = np.asarray(CUBE_F).reshape(6, 4)
+    c = var[fvi[t.base_face]].astype(np.float64)  # (n, 4, 3)
+    u, v = t.uv[:, :1], t.uv[:, 1:]
+    want = (1 - u) * (1 - v) * c[:, 0] + u * (1 - v) * c[:, 1] + u * v * c[:, 2] + (1 - u) * v * c[:, 3]
+    got = _get(stage, "primvars:tint")
+    assert got.shape == want.shape
+    np.testing.assert_allclose(got, want, atol=1e-6)
+
+
+def test_face_varying_primvar_bilinear_per_corner(baked):
+    stage, _, t, _, st = baked
+    prim = stage.GetPrimAtPath("/Cube")
+    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("st")
+    assert pv.GetInterpolation() == UsdGeom.Tokens.faceVarying
+    got = np.asarray(pv.ComputeFlattened(), dtype=np.float64)
+    face = np.repeat(t.face_base_face, t.face_vertex_counts)
+    c = st.reshape(6, 4, 2)[face].astype(np.float64)
+    u, v = t.face_uv[:, :1], t.face_uv[:, 1:]
+    want = (1 - u) * (1 - v) * c[:, 0] + u * (1 - v) * c[:, 1] + u * v * c[:, 2] + (1 - u) * v * c[:, 3]
+    assert len(got) == len(t.face_vertex_indices)
+    np.testing.assert_allclose(got, want, atol=1e-6)
+
+
+def test_time_samples_tessellated(baked):
+    stage, _, t, _, _ = baked
+    attr = stage.GetPrimAtPath("/Cube").GetAttribute("points")
+    assert attr.GetTimeSamples() == [1.0, 2.0]
+    np.testing.assert_allclose(_get(stage, "points", 1.0), t.points, atol=1e-5)
+    np.testing.assert_allclose(_get(stage, "points", 2.0), 2 * t.points, atol=1e-5)  # the same topology, scaled
+    assert len(_get(stage, "normals", 2.0)) == len(t.points)
+
+
+def test_corner_weights_ngon_and_loop_polygon():
+    pent = np.array([[np.cos(a), np.sin(a), 0] for a in np.linspace(0, 2 * np.pi, 6)[:-1]])
+    for scheme in ("catmull-clark", "loop"):
+        s = ws.LimitSurface(ws.Mesh(pent, [5], [0, 1, 2, 3, 4]), scheme=scheme)
+        t = s.tessellate(rate=4)
+        corners, w = corner_weights(s, t.base_face, t.uv)
+        np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-12)
+        at_corner = corner_weights(s, np.zeros(5, int), s.vertex_uv(np.zeros(5, int), np.arange(5)))[1]
+        np.testing.assert_allclose(at_corner, np.eye(5), atol=1e-12)
+        # linear data: interpolated positions of a planar polygon stay inside it and on its edges' lines
+        p = np.einsum("nm,nmk->nk", w, pent[np.maximum(corners, 0)])
+        assert np.all(np.abs(p[:, 2]) < 1e-12) and np.all(np.linalg.norm(p, axis=1) <= 1 + 1e-12)
+
+
+def test_cli_frames(tmp_path):
+    from warp_subdiv.cli import main
+
+    _scene(tmp_path / "in.usda")
+    assert main(["tessellate", str(tmp_path / "in.usda"), "-o", str(tmp_path / "out.usda"), "--rate", "2",
+                 "--frames", "2:2", "--quiet"]) == 0
+    stage = Usd.Stage.Open(str(tmp_path / "out.usda"))
+    assert stage.GetPrimAtPath("/Cube").GetAttribute("points").GetTimeSamples() == [2.0]
