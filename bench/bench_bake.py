@@ -252,8 +252,9 @@ def main(argv=None) -> int:
             arrays = layer_arrays(out)
             floor_path = os.path.join(folder, f"floor_{order}.usdc")
             floors = [write_floor(arrays, floor_path) for _ in range(args.reps)]
-            result["orders"][order] = {"bake": best, "bakes": [b["seconds"] for b in bakes], "floor_seconds": min(floors),
-                                       "floors": floors, "floor_bytes": os.path.getsize(floor_path)}
+            result["orders"][order] = {"bake": best, "bakes": [b["seconds"] for b in bakes],
+                                       "floor_seconds": min(floors), "floors": floors,
+                                       "floor_bytes": os.path.getsize(floor_path)}
         result["floor_seconds"] = result["orders"]["opensubdiv"]["floor_seconds"]
         if args.blender:
             result["blender"] = blender(args.blender, scene["scene"], os.path.join(folder, "blender.usdc"),

@@ -289,7 +289,7 @@ def _usd_path(case) -> None:
     """The case as a USD layer (written with Sdf, values unchecked) through warp_subdiv's USD reader and
     refiner (the bake's own path for one mesh)."""
     try:
-        from pxr import Sdf, Usd, Vt  # noqa: F401
+        from pxr import Sdf, Usd, Vt
     except ImportError:
         return
     from warp_subdiv import usd_read

@@ -39,7 +39,6 @@ if not osd_peer.available():
 
 import warp_subdiv as ws  # noqa: E402
 from conftest import DATA, MESHES  # noqa: E402
-from warp_subdiv import SubdivInputError  # noqa: E402
 from warp_subdiv.objio import read_obj  # noqa: E402
 
 SHAPES = os.path.join(DATA, "opensubdiv-shapes")

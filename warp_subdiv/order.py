@@ -17,6 +17,8 @@ uses it for ``vertex_order="compact"``.
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 #: The vertex orders the USD bake writes: "opensubdiv" (the refiner's), "compact", or "auto" (compact where the
@@ -121,15 +123,43 @@ class OrderedRefiner:
 
     def evaluate_face_varying(self, values, indices, mode="corners-plus1"):
         fast = fast_face_varying(self.refiner, values, indices, mode)
-        if fast is not None:
-            return self._face_varying(*fast)
-        return self._face_varying(*self.refiner.evaluate_face_varying(values, indices, mode=mode))
+        if fast is None:
+            return self._face_varying(*self.refiner.evaluate_face_varying(values, indices, mode=mode))
+        # values away from the seams are the vertices' (ids below N): numbered as the vertices are, so no
+        # second renumbering pass; the values near the seams follow (a vertex only the faces near a seam use
+        # keeps a value that no corner uses)
+        out, value_of = fast
+        n = self.refiner.num_vertices
+        out = np.asarray(out)
+        lookup = np.concatenate([self.new_id, np.arange(n, len(out), dtype=self.new_id.dtype)])
+        return np.concatenate([out[:n][self.old_id], out[n:]]), lookup[value_of].astype(np.int32, copy=False)
 
     def limit_face_varying(self, values, indices, mode="corners-plus1"):
         return self._face_varying(*self.refiner.limit_face_varying(values, indices, mode=mode))
 
     def __getattr__(self, name):
         return getattr(self.refiner, name)
+
+
+class _ChannelOwner:
+    """What a :class:`~warp_subdiv.facevarying.FaceVaryingChannel` reads of the refiner that owns it (mesh,
+    options, levels, device), without building that refiner's vertex tables. The channel refines its value mesh
+    with ``type(owner)(mesh, levels, options=, device=)``, which here builds a ``refiner_type``."""
+
+    _refiner_type = None
+
+    def __new__(cls, mesh, levels, *, options, device, refiner_type=None):
+        if refiner_type is None:  # called by the channel for its value mesh
+            return cls._refiner_type(mesh, levels, options=options, device=device)
+        owner = object.__new__(type("_Owner", (cls,), {"_refiner_type": refiner_type}))
+        owner.mesh, owner.levels, owner.options, owner.device = mesh, levels, options, device
+        return owner
+
+    def __init__(self, *args, **kwargs):
+        pass
+
+    boundary = property(lambda self: self.options.boundary)
+    scheme = property(lambda self: self.options.scheme)
 
 
 def fast_face_varying(refiner, values, indices, mode="corners-plus1"):
@@ -145,8 +175,8 @@ def fast_face_varying(refiner, values, indices, mode="corners-plus1"):
     The values equal those of :meth:`Refiner.evaluate_face_varying` at every refined corner (up to float
     rounding); their numbering differs (the compact order renumbers them anyway). Applies to Catmull-Clark
     and to Loop on triangles, with Loop's beta, and not to the "all" mode."""
-    from .errors import SubdivInputError
-    from .facevarying import check_indices
+    from .errors import NonManifoldWarning, SubdivInputError
+    from .facevarying import FaceVaryingChannel, check_indices
     from .mesh import Mesh, check_rows
     from .options import FaceVaryingMode
     from .rules import SMOOTH
@@ -185,13 +215,20 @@ def fast_face_varying(refiner, values, indices, mode="corners-plus1"):
     data = np.zeros((nv, vals.shape[1]))
     data[cv] = vals[idx]
     refined = refiner.evaluate(data, normal_control=False)
-    counts_out, indices_out = refiner.topology()
-    final = h.final
-    out_faces = h.control_face_of(refiner.levels)
-    if final.face_hole is not None and final.face_hole.any():
-        out_faces = out_faces[~final.face_hole]
-    corner_near = np.repeat(near_seam[out_faces], counts_out)
-    value_of = indices_out.astype(np.int64)
+    _, indices_out = refiner.topology()
+    size = h.final.face_size  # 4 or 3: every refined face has it
+
+    def near_faces(flags, sizes, hierarchy):
+        """Per output face of ``hierarchy``: the flag of its control face (children of a control face are
+        consecutive: n 4^(L-1) of an n-gon for Catmull-Clark, 4^L of a triangle for Loop)."""
+        levels = refiner.levels
+        per_face = sizes * 4 ** (levels - 1) if size == 4 else np.full(len(sizes), 4 ** levels)
+        out = np.repeat(flags, per_face)
+        hole = hierarchy.final.face_hole
+        return out[~hole] if hole is not None and hole.any() else out
+
+    near_face = near_faces(near_seam, counts, h)
+    value_of = np.array(indices_out, dtype=np.int32 if len(refined) < 2**30 else np.int64)
     parts = [refined]
 
     # near the seams: the channel of the faces there and their 1-rings
@@ -221,22 +258,16 @@ def fast_face_varying(refiner, values, indices, mode="corners-plus1"):
             holes = fmap[mesh.holes]
             if (holes >= 0).any():
                 tags["holes"] = holes[holes >= 0]
-        import warnings
-
-        from .errors import NonManifoldWarning
-
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NonManifoldWarning)
             part = Mesh(mesh.points[used], counts[faces], vmap[cv[corner_in]], **tags)
-            sub = type(refiner)(part, refiner.levels, options=options.replace(rules="opensubdiv", flatness=None),
-                                device=refiner.device)
-        sub_values, sub_index = sub.evaluate_face_varying(vals, idx[corner_in], mode=mode)
-        sub_counts, _ = sub.topology()
-        sub_faces = sub.hierarchy.control_face_of(refiner.levels)
-        if sub.hierarchy.final.face_hole is not None and sub.hierarchy.final.face_hole.any():
-            sub_faces = sub_faces[~sub.hierarchy.final.face_hole]
-        sub_near = np.repeat(near_seam[faces[sub_faces]], sub_counts)
-        value_of[corner_near] = len(refined) + np.asarray(sub_index, dtype=np.int64)[sub_near]
+            owner = _ChannelOwner(part, refiner.levels, options=options.replace(rules="opensubdiv", flatness=None),
+                                  device=refiner.device, refiner_type=type(refiner))
+            channel = FaceVaryingChannel(owner, idx[corner_in], mode)
+        sub_values, sub_index = channel.evaluate(vals)
+        sub = channel.refiner  # the value mesh's refiner: the part's faces, holes and face order
+        sub_near = near_faces(near_seam[faces], counts[faces], sub.hierarchy)
+        value_of.reshape(-1, size)[near_face] = (len(refined) + np.asarray(sub_index).reshape(-1, size)[sub_near])
         parts.append(np.asarray(sub_values).reshape(len(sub_values), -1))
     out = np.concatenate(parts) if len(parts) > 1 else parts[0]
     return (out[:, 0] if squeeze else out), value_of

@@ -869,7 +869,8 @@ def _refine_loop(level: Level, faces_only: bool) -> Level:
     e_h = level.corner_edge
     e_prev = level.at_prev(e_h)
     half_at_h = (C + 2 * e_h + _side_all(level, e_h)).reshape(F, 3)  # half of edge h at v_h
-    half_at_prev = (C + 2 * e_prev + _side_all(level, e_prev, entering=True)).reshape(F, 3)  # half of edge prev(h) at v_h
+    # half of edge prev(h) at v_h
+    half_at_prev = (C + 2 * e_prev + _side_all(level, e_prev, entering=True)).reshape(F, 3)
     h3 = np.arange(C, dtype=np.int32).reshape(F, 3)
     ce = np.empty((F, 4, 3), dtype=np.int32)
     for jj in range(3):
