@@ -3,6 +3,7 @@
     python bench/bench_gpu.py                     # both bench meshes, levels 4-6, on CUDA where present
     python bench/bench_gpu.py --device cpu --levels 2-4 --frames 10
     python bench/bench_gpu.py --quick             # levels 1-2, 3 frames (CI smoke test, any device)
+    python bench/bench_gpu.py --overhead-only --commit 7fd7d44   # the call overhead of a commit's library
 
 Every (mesh, level) runs in a fresh subprocess (bench_core's guards: a timeout and a resident-memory limit).
 Within a worker, for ``bench/meshes/cube64_noisy.obj`` (Catmull-Clark) and ``icosphere5_noisy.obj`` (Loop):
@@ -16,8 +17,9 @@ Within a worker, for ``bench/meshes/cube64_noisy.obj`` (Catmull-Clark) and ``ico
              clock to the end of a ``wp.synchronize_device`` (host overhead included);
 * numpy      ``evaluate`` with numpy in and out (one transfer each way on CUDA), median wall time;
 * bytes      what one evaluation must move at least: every level's points read once and written once (the
-             control points and the last level included) and every table byte (``Refiner.table_bytes()``) read
-             once; ``GB/s`` = bytes / eval time (events on CUDA, else wall);
+             control points and the last level included) and every table array its kernels take read once
+             (on CUDA the compact tables, ``Refiner.table_bytes()``; on the CPU the expanded quad tables
+             the CPU kernels read instead); ``GB/s`` = bytes / eval time (events on CUDA, else wall);
 * copy       the device's copy bandwidth measured in the same worker: ``wp.copy`` of a buffer as large as the
              last level's points (at least 64 MiB), read + written bytes / time, best of 5 (events on CUDA);
 * fraction   GB/s / copy GB/s: the share of the copy bandwidth the evaluation reaches.
@@ -37,7 +39,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
-from benchutil import mem_available_bytes, parse_levels, quiet_warp, run_child  # noqa: E402
+from benchutil import export_commit, mem_available_bytes, parse_levels, quiet_warp, run_child  # noqa: E402
 
 MESH_DIR = os.path.join(HERE, "meshes")
 MESHES = {"cube64_noisy": ("cube64_noisy.obj", "catmull-clark"), "icosphere5_noisy": ("icosphere5_noisy.obj", "loop")}
@@ -84,12 +86,29 @@ def copy_bandwidth(wp, device, nbytes: int, clock: Clock) -> float:
 
 def bytes_moved(refiner) -> tuple[int, int]:
     """(point bytes, table bytes) one evaluation moves at least: every level read once and written once, every
-    table byte read once."""
+    table array its kernels take read once (the expanded quad tables where the evaluator reads those: on the
+    CPU; the compact ones, ``Refiner.table_bytes()``, on CUDA)."""
+    import dataclasses
+
+    import warp as wp
+    from warp_subdiv import evaluator as ev
+
     e = refiner.evaluator
     real = 8 if refiner.precision.value == "float64" else 4
     rows = e.level_rows()
     points = sum(3 * real * (a + b) for a, b in zip(rows[:-1], rows[1:]))
-    return points, int(refiner.table_bytes())
+
+    def table(obj) -> int:
+        if obj is None:
+            return 0
+        if isinstance(obj, wp.array):
+            return obj.size * wp.types.type_size_in_bytes(obj.dtype)
+        if not dataclasses.is_dataclass(obj):
+            return 0
+        skip = {"edge_neighbours", "ring"} if isinstance(obj, ev.QuadStep) and obj.edge_ends is not None else set()
+        return sum(table(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.name not in skip)
+
+    return points, sum(table(rec) for rec in e.records())
 
 
 def worker(args) -> dict:
@@ -114,6 +133,8 @@ def worker(args) -> dict:
     t = time.perf_counter()
     r = ws.Refiner(mesh, args.level, scheme=scheme, device=device, precision=args.precision)
     res["topology_s"] = time.perf_counter() - t
+    r.evaluator.expand_tables = {"auto": None, "compact": False, "expanded": True}[args.tables]
+    res["tables"] = args.tables
     res["num_vertices"] = int(r.num_vertices)
     _, res["upload_s"] = clock(r.evaluator.records)
     scalar = wp.float64 if args.precision == "float64" else wp.float32
@@ -192,6 +213,12 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=20, help="timed evaluate_device calls (median)")
     p.add_argument("--timeout", type=float, default=600.0, help="seconds per (mesh, level) subprocess")
     p.add_argument("--json", help="also write all measurements to this JSON file")
+    p.add_argument("--overhead-only", action="store_true", help="only the 8-vertex cube's call overhead")
+    p.add_argument("--tables", default="auto", choices=["auto", "compact", "expanded"],
+                   help="quad tables the kernels read (auto: expanded on the CPU, compact on CUDA)")
+    p.add_argument("--commit", metavar="REV", help="measure warp_subdiv/ and kernels/ of this git commit (exported "
+                   "to a temporary folder); libraries before issue 17 take host data only: use --overhead-only")
+    p.add_argument("--lib-root", default=ROOT, help=argparse.SUPPRESS)
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--mesh", help=argparse.SUPPRESS)
     p.add_argument("--level", type=int, help=argparse.SUPPRESS)
@@ -202,25 +229,39 @@ def main(argv=None) -> int:
     if args.quick:
         args.frames = min(args.frames, 3)
     if args.worker:
-        sys.path.insert(0, ROOT)
+        sys.path.insert(0, args.lib_root)
         print(MARK + json.dumps(worker(args)), flush=True)
         return 0
+    if args.commit:
+        import shutil
 
-    levels = [1, 2] if args.quick else parse_levels(args.levels)
+        args.lib_root, sha = export_commit(args.commit)
+        try:
+            return run(p, args, argv, f"git {sha[:7]} (exported)")
+        finally:
+            shutil.rmtree(args.lib_root, ignore_errors=True)
+    return run(p, args, argv, "working tree")
+
+
+def run(p, args, argv, library: str) -> int:
+
+    levels = [] if args.overhead_only else [1, 2] if args.quick else parse_levels(args.levels)
     meshes = [m.strip() for m in args.meshes.split(",") if m.strip()]
     for m in meshes:
         if m not in MESHES:
             p.error(f"unknown mesh {m!r}; choose from {', '.join(MESHES)}")
     avail = mem_available_bytes()
     mem_limit = int(0.9 * avail) if avail else None
-    env = {"PYTHONPATH": ROOT + (os.pathsep + os.environ["PYTHONPATH"] if os.environ.get("PYTHONPATH") else "")}
-    common = ["--device", args.device, "--precision", args.precision, "--frames", str(args.frames)] + (
-        ["--quick"] if args.quick else [])
+    env = {"PYTHONPATH": args.lib_root + (os.pathsep + os.environ["PYTHONPATH"] if os.environ.get("PYTHONPATH")
+                                          else "")}
+    common = ["--device", args.device, "--precision", args.precision, "--frames", str(args.frames),
+              "--lib-root", args.lib_root, "--tables", args.tables] + (["--quick"] if args.quick else [])
     me = [sys.executable, os.path.abspath(__file__), "--worker"]
     started = time.perf_counter()
     load0 = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     cmdline = "python bench/bench_gpu.py" + "".join(" " + a for a in (sys.argv[1:] if argv is None else argv))
-    print(f"# warp-subdiv device benchmark\n\ncommand: `{cmdline}`; Warp device {args.device}, {args.precision}\n")
+    print(f"# warp-subdiv device benchmark\n\ncommand: `{cmdline}`; Warp device {args.device}, {args.precision}, "
+          f"quad tables {args.tables}; library: {library}\n")
     sys.stdout.flush()
 
     rows, notes, crashed = [], [], False
@@ -239,7 +280,8 @@ def main(argv=None) -> int:
             rows.append(res)
             print(f"  {m} level {lv}: {res['num_vertices']:,} verts, evaluate_device {1e3 * res['eval_wall_s']:.2f} ms",
                   file=sys.stderr, flush=True)
-    print(fmt_table(rows))
+    if rows:
+        print(fmt_table(rows))
     if small:
         print(f"\nHost overhead of one evaluate_device call, 8-vertex cube (Catmull-Clark): level 2 "
               f"({small['L2_vertices']} vertices) median {small['L2_median_us']:.1f} us, best "

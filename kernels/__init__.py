@@ -13,8 +13,10 @@ from .projection import (  # noqa: F401
 from .regular import (  # noqa: F401
     explicit_rows,
     quad_edge_points,
+    quad_edge_points_expanded,
     quad_face_points,
     quad_vertex_points,
+    quad_vertex_points_expanded,
     tri_edge_points,
     tri_vertex_points,
 )

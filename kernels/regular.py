@@ -5,7 +5,11 @@ weighs its endpoints and its two wings, a smooth vertex point weighs itself and 
 looked up per valence. Rows marked 0 in the ``regular`` masks are left for :func:`explicit_rows`; an empty
 mask means every row is regular. On a level of quads what index arithmetic gives is not stored: corner h
 lies in face h // 4 and is followed by corner :func:`next_quad_corner` (h), so an edge is read as its two
-corners and a vertex's ring as its corners.
+corners and a vertex's ring as its corners (:func:`quad_edge_points`, :func:`quad_vertex_points`). The
+``_expanded`` variants read the same rows from tables with those lookups done once (each edge's endpoints
+and faces, each vertex's ring vertices and faces): twice the table bytes, one dependent gather less per
+term, which on Warp's CPU backend (latency-bound gathers) is about a third faster; the evaluator uses them on
+the CPU. Both compute every row with the same operations in the same order: their results are bitwise equal.
 Output layout: child vertices [vertex children, face children (Catmull-Clark), edge children].
 
 Vertex data comes in either layout of :mod:`warp_subdiv.kernels.layout` (vec3 rows, or (rows, width)
@@ -25,7 +29,7 @@ wp.set_module_options({"enable_backward": False})
 @wp.func
 def next_quad_corner(h: int):
     """The corner after ``h`` in its quad (corners 4f..4f+3 belong to face f)."""
-    return h - h % 4 + (h + 1) % 4
+    return (h & ~3) | ((h + 1) & 3)
 
 
 @wp.func
@@ -65,11 +69,45 @@ def quad_edge_points(edge_corners: wp.array2d(dtype=wp.int32), corner_vert: wp.a
     h0 = edge_corners[e, 0]
     a = corner_vert[h0]
     b = corner_vert[next_quad_corner(h0)]
-    f0 = face_row + h0 / 4
-    f1 = face_row + edge_corners[e, 1] / 4
+    f0 = face_row + (h0 >> 2)
+    f1 = face_row + (edge_corners[e, 1] >> 2)
     for c in range(columns(dst)):
         store(dst, first_row + e, c, weights[0] * (load(src, a, c) + load(src, b, c)) + weights[1] * (
             load(dst, f0, c) + load(dst, f1, c)))
+
+
+@wp.kernel
+def quad_edge_points_expanded(neighbours: wp.array2d(dtype=wp.int32), regular: wp.array(dtype=wp.uint8), src: Any,
+                              dst: Any, face_row: int, first_row: int, weights: wp.array(dtype=Any), row0: int):
+    """:func:`quad_edge_points` from expanded tables: ``neighbours[e]`` = (a, b, face 0, face 1)."""
+    e = wp.tid() + row0
+    if skipped(regular, e):
+        return
+    a = neighbours[e, 0]
+    b = neighbours[e, 1]
+    f0 = face_row + neighbours[e, 2]
+    f1 = face_row + neighbours[e, 3]
+    for c in range(columns(dst)):
+        store(dst, first_row + e, c, weights[0] * (load(src, a, c) + load(src, b, c)) + weights[1] * (
+            load(dst, f0, c) + load(dst, f1, c)))
+
+
+@wp.kernel
+def quad_vertex_points_expanded(offsets: wp.array(dtype=wp.int32), ring: wp.array(dtype=wp.int32),
+                                ring_faces: wp.array(dtype=wp.int32), regular: wp.array(dtype=wp.uint8), src: Any,
+                                dst: Any, face_row: int, weights: wp.array2d(dtype=Any), row0: int):
+    """:func:`quad_vertex_points` from expanded tables: ``ring`` the ring vertices, ``ring_faces`` their faces."""
+    v = wp.tid() + row0
+    if skipped(regular, v):
+        return
+    start = offsets[v]
+    end = offsets[v + 1]
+    n = end - start
+    for c in range(columns(dst)):
+        acc = load(src, ring[start], c) + load(dst, face_row + ring_faces[start], c)
+        for j in range(start + 1, end):
+            acc += load(src, ring[j], c) + load(dst, face_row + ring_faces[j], c)
+        store(dst, v, c, weights[n, 0] * load(src, v, c) + weights[n, 1] * acc)
 
 
 @wp.kernel
@@ -87,10 +125,10 @@ def quad_vertex_points(offsets: wp.array(dtype=wp.int32), ring: wp.array(dtype=w
     n = end - start
     for c in range(columns(dst)):
         h = ring[start]
-        acc = load(src, corner_vert[next_quad_corner(h)], c) + load(dst, face_row + h / 4, c)
+        acc = load(src, corner_vert[next_quad_corner(h)], c) + load(dst, face_row + (h >> 2), c)
         for j in range(start + 1, end):
             h = ring[j]
-            acc += load(src, corner_vert[next_quad_corner(h)], c) + load(dst, face_row + h / 4, c)
+            acc += load(src, corner_vert[next_quad_corner(h)], c) + load(dst, face_row + (h >> 2), c)
         store(dst, v, c, weights[n, 0] * load(src, v, c) + weights[n, 1] * acc)
 
 
@@ -157,6 +195,8 @@ for _s, _a in data_types():
         wp.overload(quad_face_points, [_i, _a, _a, int, _w, int]),
         wp.overload(quad_edge_points, [_i2, _i, _u, _a, _a, int, int, _w, int]),
         wp.overload(quad_vertex_points, [_i, _i, _i, _u, _a, _a, int, _w2, int]),
+        wp.overload(quad_edge_points_expanded, [_i2, _u, _a, _a, int, int, _w, int]),
+        wp.overload(quad_vertex_points_expanded, [_i, _i, _i, _u, _a, _a, int, _w2, int]),
         wp.overload(tri_edge_points, [_i2, _u, _a, _a, int, _w, int]),
         wp.overload(tri_vertex_points, [_i, _i, _u, _a, _a, _w2, int]),
         wp.overload(explicit_rows, [_i, _i, _i, _w, _a, _a, int]),

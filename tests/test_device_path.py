@@ -143,12 +143,13 @@ def test_device_data_is_checked(device):
 @pytest.mark.parametrize("precision", ["float32", "float64"])
 def test_recorded_plans_equal_direct_launches(name, scheme, precision, device, monkeypatch):
     """The recorded plans -- one launch per kernel, or row ranges on two threads, or (where Warp captures)
-    graphs -- give bitwise what launching every step directly gives, for data of width 1, 3 and 5."""
+    graphs; compact or expanded quad tables -- give bitwise what launching every step directly gives, for
+    data of width 1, 3 and 5."""
     monkeypatch.setattr(wthreads, "MIN_ROWS", 16)  # small meshes split into ranges too
     rng = np.random.default_rng(5)
-    for threads, graphs in ((1, False), (2, False), (1, True)):
+    for threads, graphs, expand in ((1, False, None), (2, False, False), (1, True, True)):
         r = ws.Refiner(load_mesh(name), 3, scheme=scheme, precision=precision, device=device, threads=threads)
-        r.evaluator.graphs = graphs
+        r.evaluator.graphs, r.evaluator.expand_tables = graphs, expand
         for width in (1, 3, 5):
             data = rng.standard_normal((r.base_num_vertices, width))
             got = r.evaluate(data, normal_control=False)
@@ -157,6 +158,30 @@ def test_recorded_plans_equal_direct_launches(name, scheme, precision, device, m
         if threads == 2 and r.num_vertices >= 32:
             plans = list(r.evaluator._plans.values())
             assert any(kind == "ranges" for p in plans for kind, _ in p.segments)
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_compact_and_expanded_quad_tables_agree(precision, device):
+    """Quad steps read from the compact tables (corners; CUDA's default) and from the expanded ones (endpoints,
+    ring vertices and faces; the CPU's default) give bitwise the same points, for every quad test mesh, data
+    of width 1, 3 and 4, and the limit points read from them."""
+    rng = np.random.default_rng(11)
+    for name in ("cube", "cube_creased", "grid3x3", "quad_lshape", "quad_halffan", "mixed_prism"):
+        mesh = load_mesh(name)
+        runs = []
+        for expand in (False, True):
+            r = ws.Refiner(mesh, 3, precision=precision, device=device)
+            r.evaluator.expand_tables = expand
+            runs.append(r)
+        quads = [rec.rows for rec in runs[1].evaluator.records() if isinstance(rec.rows, ev.QuadStep)]
+        assert quads and all(q.edge_ends is not None for q in quads)
+        assert all(rec.rows.edge_ends is None for rec in runs[0].evaluator.records()
+                   if isinstance(rec.rows, ev.QuadStep))
+        for width in (1, 3, 4):
+            data = rng.standard_normal((mesh.num_vertices, width))
+            compact, expanded = (r.evaluate(data, normal_control=False) for r in runs)
+            np.testing.assert_array_equal(compact, expanded)
+        np.testing.assert_array_equal(*(r.evaluate_with_limits(mesh.points).limit_points for r in runs))
 
 
 @pytest.mark.parametrize("graphs", [False, True])

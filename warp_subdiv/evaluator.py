@@ -94,6 +94,10 @@ class QuadStep:
     edge_weights: wp.array  # (2,)
     quarter: wp.array  # (1,): the face-point weight in the evaluation precision
     explicit: ExplicitRows
+    # expanded tables (the CPU's choice, see kernels.regular): (E, 4) endpoints and faces, ring vertices, faces
+    edge_ends: wp.array | None = None
+    ring_vertices: wp.array | None = None
+    ring_faces: wp.array | None = None
 
 
 @dataclass(frozen=True)
@@ -198,9 +202,10 @@ class _Uploader:
     """Device arrays of host tables on ``device``; on the CPU they share the numpy arrays' memory instead of
     copying them (the hierarchy keeps its tables, so the memory stays alive)."""
 
-    def __init__(self, device, precision: str):
+    def __init__(self, device, precision: str, expand: bool | None = None):
         self.device = wp.get_device(device)
         self.scalar, _, self.vec = PRECISIONS[precision]
+        self.expand = self.device.is_cpu if expand is None else bool(expand)
 
     def __call__(self, values, dtype=None):
         host = np.ascontiguousarray(values, dtype=self.scalar if dtype is None else dtype)
@@ -228,8 +233,20 @@ class _Uploader:
                       edge_weights=self(t.edge_weights), explicit=self.explicit(t.explicit))
         if t.face_size == 4:
             return QuadStep(num_faces=t.num_faces, corner_vert=self(t.corner_vert, i32), quarter=self([0.25]),
-                            **common)
+                            **common, **(self.expanded(t) if self.expand else {}))
         return TriangleStep(**common)
+
+    def expanded(self, t: RegularTables) -> dict:
+        """The expanded tables of a quad step (the lookups of index arithmetic done once): per edge its
+        endpoints and faces, per vertex its ring vertices and faces."""
+        cv = np.asarray(t.corner_vert)
+        h0, h1 = t.edge_neighbours[:, 0], t.edge_neighbours[:, 1]  # int32 arithmetic: corners fit int32
+        ends = np.empty((len(h0), 4), dtype=np.int32)
+        ends[:, 0], ends[:, 1] = cv[h0], cv[(h0 & ~3) | ((h0 + 1) & 3)]
+        ends[:, 2], ends[:, 3] = h0 >> 2, h1 >> 2
+        ring = np.asarray(t.ring)
+        return dict(edge_ends=self(ends, np.int32), ring_vertices=self(cv[(ring & ~3) | ((ring + 1) & 3)], np.int32),
+                    ring_faces=self(ring >> 2, np.int32))
 
     def displacement(self, t) -> Displacement | None:
         if t is None:
@@ -245,9 +262,10 @@ class _Uploader:
                           normals, count=t.num_rows)
 
 
-def upload(hierarchy, device, precision: str) -> list[StepRecord]:
-    """The device records of every step of ``hierarchy`` (index tables, explicit stencils, displacements)."""
-    up = _Uploader(device, precision)
+def upload(hierarchy, device, precision: str, expand: bool | None = None) -> list[StepRecord]:
+    """The device records of every step of ``hierarchy`` (index tables, explicit stencils, displacements);
+    ``expand``: quad steps also get their expanded tables (None: on the CPU, see :mod:`warp_subdiv.kernels.regular`)."""
+    up = _Uploader(device, precision, expand)
     records = []
     for t, flat, norm in zip(hierarchy.steps, hierarchy.flatness_tables, hierarchy.normal_tables):
         rows = up.regular(t) if isinstance(t, RegularTables) else up.stencil(t)
@@ -475,12 +493,19 @@ def _(record: QuadStep, src, dst, device) -> None:
     V, F = record.num_vertices, record.num_faces
     # face points first: edge and vertex points read them from dst (each launch ends before the next starts)
     run.rows(k.quad_face_points, F, [record.corner_vert, src, dst, V, record.quarter])
-    run.rows(k.quad_edge_points, record.num_edges,
-             [record.edge_neighbours, record.corner_vert, record.edge_regular, src, dst, V, V + F,
-              record.edge_weights])
-    run.rows(k.quad_vertex_points, V,
-             [record.ring_offsets, record.ring, record.corner_vert, record.vertex_regular, src, dst, V,
-              record.ring_weights])
+    if record.edge_ends is not None:  # expanded tables (the CPU's)
+        run.rows(k.quad_edge_points_expanded, record.num_edges,
+                 [record.edge_ends, record.edge_regular, src, dst, V, V + F, record.edge_weights])
+        run.rows(k.quad_vertex_points_expanded, V,
+                 [record.ring_offsets, record.ring_vertices, record.ring_faces, record.vertex_regular, src, dst, V,
+                  record.ring_weights])
+    else:
+        run.rows(k.quad_edge_points, record.num_edges,
+                 [record.edge_neighbours, record.corner_vert, record.edge_regular, src, dst, V, V + F,
+                  record.edge_weights])
+        run.rows(k.quad_vertex_points, V,
+                 [record.ring_offsets, record.ring, record.corner_vert, record.vertex_regular, src, dst, V,
+                  record.ring_weights])
     apply(record.explicit, src, dst, run)
 
 
@@ -675,7 +700,9 @@ class Evaluator:
     ``threads``: CPU threads per launch (None: :func:`warp_subdiv.threads.default_threads`); each launch of
     many rows is split into that many contiguous row ranges. ``graphs``: capture plans as Warp graphs (None:
     on CUDA only; on the CPU Warp records every CPU launch made while a capture is open, from any thread, so
-    it is an opt-in there). Results depend on neither.
+    it is an opt-in there). ``expand_tables`` (an attribute, set before the first evaluation): quad steps
+    read expanded tables (None: on the CPU, where they are about a third faster; on CUDA the compact ones,
+    half the bytes, see :mod:`warp_subdiv.kernels.regular`). Results depend on none of them.
     """
 
     def __init__(self, hierarchy, *, device, precision: str, threads: int | None = None, graphs: bool | None = None):
@@ -683,6 +710,8 @@ class Evaluator:
         self.device = wp.get_device(device)
         self.threads = _threads.resolve(threads)
         self.graphs = self.device.is_cuda if graphs is None else bool(graphs)
+        #: quad steps read expanded tables (None: on the CPU; set before the first evaluation)
+        self.expand_tables: bool | None = None
         self._launcher = None
         self.precision = str(precision)
         self._scalar_np, self._scalar, self._vec = PRECISIONS[self.precision]
@@ -711,7 +740,7 @@ class Evaluator:
         """The step records on this evaluator's device (uploaded on first use)."""
         with self._lock:
             if self._records is None:
-                self._records = upload(self.hierarchy, self.device, self.precision)
+                self._records = upload(self.hierarchy, self.device, self.precision, self.expand_tables)
             return self._records
 
     def limit_masks(self) -> LimitMasks:
