@@ -275,10 +275,14 @@ def vec3f_array(values) -> Vt.Vec3fArray:
 
 @_phases.timed("write")
 def extent_of(points: np.ndarray) -> Vt.Vec3fArray:
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts = np.asarray(points)
+    if pts.dtype.kind != "f":
+        pts = pts.astype(np.float64)
+    pts = pts.reshape(-1, 3)  # float32 points: min and max need no float64 copy (the extent is float3 anyway)
     if len(pts) == 0:
         return vec3f_array(np.zeros((2, 3)))
-    return vec3f_array(np.stack([pts.min(axis=0), pts.max(axis=0)]))
+    # column by column: numpy's reduction over axis 0 of an (n, 3) array is ten times slower
+    return vec3f_array(np.array([[pts[:, j].min() for j in range(3)], [pts[:, j].max() for j in range(3)]]))
 
 
 def write_mesh_layer(output: str, name: str, points, face_vertex_counts, face_vertex_indices) -> None:
