@@ -14,7 +14,8 @@ Within a worker, for ``bench/meshes/cube64_noisy.obj`` (Catmull-Clark) and ``ico
              capture), the control points' copy and one evaluation (synchronised);
 * eval       ``evaluate_device`` of control points already on the device (a new Warp array per frame), median
              over ``--frames`` calls: by CUDA events around the call (on CUDA; the device time) and by the wall
-             clock to the end of a ``wp.synchronize_device`` (host overhead included);
+             clock to the end of a ``wp.synchronize_device`` (host overhead included), and the process CPU
+             time of the call (every thread; steadier than the wall clock on a shared CPU);
 * numpy      ``evaluate`` with numpy in and out (one transfer each way on CUDA), median wall time;
 * bytes      what one evaluation must move at least: every level's points read once and written once (the
              control points and the last level included) and every table array its kernels take read once
@@ -141,12 +142,15 @@ def worker(args) -> dict:
     dev_frames = [wp.array(f.astype(np.float64 if args.precision == "float64" else np.float32), dtype=scalar,
                            device=device) for f in frames]
     _, res["first_s"] = clock(lambda: r.evaluate_device(dev_frames[0]))
-    ev, wall = [], []
+    ev, wall, cpu = [], [], []
     for f in dev_frames:
+        c = time.process_time()
         e, w = clock(lambda f=f: r.evaluate_device(f))
+        cpu.append(time.process_time() - c)
         wall.append(w)
         if e is not None:
             ev.append(e)
+    res["eval_cpu_s"] = statistics.median(cpu)  # process CPU time (every thread): steadier on a shared CPU
     res["eval_wall_s"] = statistics.median(wall)
     res["eval_event_s"] = statistics.median(ev) if ev else None
     res["eval_wall_all"] = wall
@@ -189,14 +193,15 @@ def overhead(args, wp, ws, read_obj, device) -> dict:
 
 def fmt_table(rows) -> str:
     head = ["mesh (scheme)", "level", "output verts", "topology s", "upload s", "first s", "eval ms (events)",
-            "eval ms (wall)", "evaluate numpy ms", "points MB", "tables MB", "GB/s", "copy GB/s", "fraction",
-            "launches / graphs"]
+            "eval ms (wall)", "eval CPU ms", "evaluate numpy ms", "points MB", "tables MB", "GB/s", "copy GB/s",
+            "fraction", "launches / graphs"]
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] + ["---:"] * (len(head) - 1)) + "|"]
     for r in rows:
         ev = "–" if r["eval_event_s"] is None else f"{1e3 * r['eval_event_s']:.3f}"
         lines.append("| " + " | ".join([
             f"{r['mesh']} ({r['scheme']})", str(r["level"]), f"{r['num_vertices']:,}", f"{r['topology_s']:.3f}",
             f"{r['upload_s']:.4f}", f"{r['first_s']:.4f}", ev, f"{1e3 * r['eval_wall_s']:.3f}",
+            f"{1e3 * r['eval_cpu_s']:.2f}",
             f"{1e3 * r['numpy_s']:.2f}", f"{r['points_bytes'] / 1e6:.1f}", f"{r['table_bytes'] / 1e6:.1f}",
             f"{r['gbps']:.2f}", f"{r['copy_gbps']:.1f}", f"{r['fraction']:.3f}", f"{r['launches']} / {r['graphs']}",
         ]) + " |")
