@@ -22,4 +22,5 @@ from .regular import (  # noqa: F401
 )
 from .stencil import stencil_rows  # noqa: F401
 from .limit import limit_evaluate  # noqa: F401
-from .adjoint import add_rows, explicit_rows_add, vertex_normals_adjoint, zero_rows  # noqa: F401
+from .adjoint import (add_rows, explicit_rows_add, quad_face_adjoint, quad_vertex_adjoint,  # noqa: F401
+                      tri_edge_adjoint, tri_ring_adjoint, tri_vertex_adjoint, vertex_normals_adjoint, zero_rows)

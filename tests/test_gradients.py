@@ -231,10 +231,8 @@ def test_tape_limit_normals_and_accumulation():
 
 def test_two_pass_transposed_steps():
     """Transposed steps read in two passes (near and far child rows, as on large levels) give the same gradient
-    as one pass, up to rounding, and the near part covers every parent row."""
+    as one pass, up to rounding, and the near part covers every parent row; so does the two-pass Loop step."""
     r = refiner("cc-boundary-flatness-normals")
-    g = np.random.default_rng(9).standard_normal((r.num_vertices, 3))
-    one = r.evaluate_vjp(g)
     for t in r.tables:
         split = G.transposed_step(t, split=True)
         assert split.near.num_rows == t.num_sources and split.far.num_rows > 0
@@ -246,25 +244,32 @@ def test_two_pass_transposed_steps():
         expected = np.zeros_like(dense)
         np.add.at(expected, (t.indices, G.rows_of(t.offsets)), t.weights)
         np.testing.assert_allclose(dense, expected, atol=1e-15)
-    two = ws.Refiner(r.mesh, r.levels, options=r.options, device="cpu")
-    G.adjoint(two)._steps = {}
     import unittest.mock as mock
 
-    with mock.patch.object(G, "SPLIT_ROWS", 1):
-        np.testing.assert_allclose(two.evaluate_vjp(g), one, atol=1e-12)
+    for case in ("cc-boundary-flatness-normals", "loop-boundary-normal", "loop-polygons-opensubdiv"):
+        r = refiner(case)
+        g = np.random.default_rng(9).standard_normal((r.num_vertices, 3))
+        one = r.evaluate_vjp(g)
+        two = ws.Refiner(r.mesh, r.levels, options=r.options, device="cpu")
+        with mock.patch.object(G, "SPLIT_ROWS", 1):  # every step in two passes (Loop: ring, then edges)
+            np.testing.assert_allclose(two.evaluate_vjp(g), one, atol=1e-12)
+        if r.scheme.value == "loop":
+            assert any(s.rows.far is not None for s in G.adjoint(two)._steps.values()
+                       if isinstance(s.rows, G.RegularRecord))
 
 
-@pytest.mark.parametrize("split_rows", [G.SPLIT_ROWS, 1])
-def test_backward_is_bitwise_deterministic(monkeypatch, split_rows):
+@pytest.mark.parametrize("case,split_rows", [("cc-boundary-flatness-normals", G.SPLIT_ROWS),
+                                             ("loop-boundary-normal", 1)])
+def test_backward_is_bitwise_deterministic(monkeypatch, case, split_rows):
     """Two backward passes give the same bits, and so do 1, 2 and 3 CPU threads (launches split into row
-    ranges of a few rows), for evaluate, limit_points and limit_normals, in float32 and float64, with transposed
-    steps read in one pass and in two."""
+    ranges of a few rows), for evaluate, limit_points and limit_normals, in float32 and float64: Catmull-Clark
+    and Loop (with the two-pass steps of large levels)."""
     monkeypatch.setattr(th, "MIN_ROWS", 3)
     monkeypatch.setattr(G, "SPLIT_ROWS", split_rows)
     for precision in ("float32", "float64"):
         results = []
         for threads in (1, 2, 3):
-            _, make, opts = next(c for c in CASES if c[0] == "cc-boundary-flatness-normals")
+            _, make, opts = next(c for c in CASES if c[0] == case)
             r = ws.Refiner(make(), 3, precision=precision, device="cpu", threads=threads,
                            **opts)
             rng = np.random.default_rng(7)

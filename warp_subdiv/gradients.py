@@ -30,7 +30,7 @@ import warp as wp
 from . import evaluator as ev
 from .errors import SubdivInputError
 from .mesh import DATA_BOUND, check_rows
-from .tables import StencilTable, rows_of
+from .tables import RegularTables, StencilTable, rows_of
 from .topology import expand_counts
 
 __all__ = ["Adjoint", "CSRMatrix", "adjoint", "evaluate", "evaluate_vjp", "limit_normals", "limit_normals_vjp",
@@ -310,6 +310,107 @@ def transposed_displacement(d):
     return out
 
 
+@dataclass
+class RegularAdjoint:
+    """The transposed smooth rows of one uniform step (:class:`~warp_subdiv.tables.RegularTables`) as index
+    tables over the parent level, in the manner of the forward kernels: one *slot* per corner h of a parent
+    vertex j (CSR by ``offsets``, the level's vertex corners), holding h's next vertex u with the ring weight of
+    u's row, the child row of h's edge and (quads) h's face or (triangles) the child row of the edge opposite j.
+    Edge rows carry the step's smooth edge weights ``edge_weights`` (endpoint, wing); an edge row left to the
+    explicit stencils is -1 (and a vertex row's weight 0). Quads add per face corner its vertex, its ring
+    weight and the child row of its edge, for the face-point gradients (:func:`quad_face_adjoint`).
+    ``explicit``: the explicit rows transposed (rows: the parents they read, in order). ``far`` (triangles on
+    large levels): the edge terms again, for a second pass in another parent order (:func:`tri_edge_adjoint`):
+    (order, offsets, edge rows, opposite rows)."""
+
+    quads: bool
+    face_row: int
+    offsets: np.ndarray
+    slot_vert: np.ndarray
+    slot_edge_row: np.ndarray
+    slot_third: np.ndarray  # quads: the slot's face; triangles: the child row of the opposite edge (or -1)
+    w_centre: np.ndarray
+    w_vert: np.ndarray
+    edge_weights: np.ndarray
+    face_vert: np.ndarray | None
+    face_edge_row: np.ndarray | None
+    face_w_vert: np.ndarray | None
+    explicit: StencilTable
+    num_faces: int
+    far: tuple | None = None
+
+
+def _flags(mask: np.ndarray, n: int) -> np.ndarray:
+    return np.asarray(mask, bool) if len(mask) else np.ones(n, bool)
+
+
+def regular_adjoint(level, t, split: bool | None = None) -> RegularAdjoint:
+    """The :class:`RegularAdjoint` of the step ``t`` (a RegularTables) over ``level`` (its full topology).
+    ``split`` (triangles; default: child levels of :data:`SPLIT_ROWS` rows or more): the edge terms go to a
+    second pass (:func:`tri_edge_adjoint`), which reads the edge children in long runs."""
+    V, E = level.num_vertices, level.num_edges
+    quads = t.face_size == 4
+    F = level.num_faces if quads else 0
+    edge_row = V + F
+    vreg, ereg = _flags(t.vertex_regular, V), _flags(t.edge_regular, E)
+    off = np.asarray(level.vert_corner_offsets, np.int64)
+    valence = np.diff(off)
+    rw = np.asarray(t.ring_weights, np.float64)
+    cv = np.asarray(level.corner_vert, np.int64)
+    ce = np.asarray(level.corner_edge, np.int64)
+    h = np.asarray(level.vert_corners, np.int64)
+    nxt = level.corner_next(h)
+    u, e = cv[nxt], ce[h]
+    ring_w = np.where(vreg, rw[np.minimum(valence, len(rw) - 1), 1], 0.0)  # each vertex row's ring weight
+    x = t.explicit
+    r = (np.asarray(x.rows, np.int64)[rows_of(x.offsets)] if x.rows is not None else rows_of(x.offsets))
+    offsets, er, ew = _by_column(r, x.indices, x.weights, V)
+    parents = np.flatnonzero(np.diff(offsets))
+    explicit = StencilTable(np.r_[0, np.cumsum(np.diff(offsets)[parents])].astype(np.int32), er.astype(np.int32),
+                            ew, t.num_rows, rows=parents.astype(np.int32))
+    i32 = np.int32
+
+    def edge_rows(edges):
+        return np.where(ereg[edges], edge_row + edges, -1).astype(i32)
+
+    common = dict(quads=quads, face_row=V, offsets=off.astype(i32), slot_vert=u.astype(i32),
+                  slot_edge_row=edge_rows(e), w_centre=np.where(vreg, rw[np.minimum(valence, len(rw) - 1), 0], 0.0),
+                  w_vert=ring_w[u], edge_weights=np.asarray(t.edge_weights, np.float64), explicit=explicit,
+                  num_faces=F)
+    if quads:
+        return RegularAdjoint(slot_third=(h // 4).astype(i32), face_vert=cv.astype(i32), face_edge_row=edge_rows(ce),
+                              face_w_vert=ring_w[cv], **common)
+    out = RegularAdjoint(slot_third=edge_rows(ce[nxt]), face_vert=None, face_edge_row=None, face_w_vert=None,
+                         **common)
+    if split is None:
+        split = t.num_rows >= SPLIT_ROWS
+    if split:  # the edge terms in a second pass, parents in the order of their last incident edge
+        last = np.full(V, -1, np.int64)
+        has = valence > 0
+        last[has] = np.maximum.reduceat(out.slot_edge_row, off[:-1][has])
+        order = np.argsort(last, kind="stable")
+        group, rank = expand_counts(valence[order])
+        pos = off[order][group] + rank
+        out.far = (order.astype(i32), np.r_[0, np.cumsum(valence[order])].astype(i32), out.slot_edge_row[pos],
+                   out.slot_third[pos])
+    return out
+
+
+def _levels(refiner):
+    """The levels 0..levels - 1 of ``refiner`` with their full topology, rebuilt from the control mesh as
+    :meth:`Hierarchy.full_stencils` rebuilds them (the hierarchy keeps only its last two)."""
+    from .topology import base_level, refine_level
+
+    h, o = refiner.hierarchy, refiner.options
+    level = base_level(h.mesh, o.scheme, o.boundary, o.rules, o.triangulate,
+                       flatness=o.flatness if o.piecewise_smooth else None, crease_method=o.crease_method,
+                       linear=o.linear)
+    for k in range(refiner.levels):
+        yield level
+        if k + 1 < refiner.levels:
+            level = refine_level(level)
+
+
 # ------------------------------------------------------------------------------------------------ operator
 def _limit_source(refiner):
     """(the refiner whose limit masks apply, whether it is one level deeper than ``refiner``)."""
@@ -387,13 +488,53 @@ def matrix(refiner, level=None, *, normal_control: bool = False, with_offset: bo
 
 # ------------------------------------------------------------------------------------------------ device records
 @dataclass(frozen=True)
-class AdjointStep:
-    """The transposed records of one step: its rows (:class:`TransposedStep`: a gather over the near child rows
-    for every parent vertex, then one that adds the far ones), and the transposed flatness and normal-control
-    displacements (applied first in the backward pass)."""
+class TransposedRecord:
+    """A :class:`TransposedStep` on the device: the near gather (every parent row), then the far one added."""
 
     near: ev.StencilStep
     far: ev.ExplicitRows
+
+
+@dataclass(frozen=True)
+class RegularRecord:
+    """A :class:`RegularAdjoint` on the device."""
+
+    quads: bool
+    num_vertices: int
+    num_faces: int
+    face_row: int
+    offsets: wp.array
+    slot_vert: wp.array
+    slot_edge_row: wp.array
+    slot_third: wp.array
+    w_centre: wp.array
+    w_vert: wp.array
+    edge_weights: wp.array
+    face_vert: wp.array | None
+    face_edge_row: wp.array | None
+    face_w_vert: wp.array | None
+    quarter: wp.array
+    explicit: ev.ExplicitRows
+    far: tuple | None = None
+
+
+def _upload_regular(up, a: RegularAdjoint) -> RegularRecord:
+    i32 = np.int32
+    opt = (lambda v, dtype=None: None if v is None else up(v, dtype))  # noqa: E731
+    return RegularRecord(a.quads, len(a.offsets) - 1, a.num_faces, a.face_row, up(a.offsets, i32),
+                         up(a.slot_vert, i32), up(a.slot_edge_row, i32), up(a.slot_third, i32), up(a.w_centre),
+                         up(a.w_vert), up(a.edge_weights), opt(a.face_vert, i32), opt(a.face_edge_row, i32),
+                         opt(a.face_w_vert), up([0.25]), up.explicit(a.explicit),
+                         None if a.far is None else tuple(up(v, i32) for v in a.far))
+
+
+@dataclass(frozen=True)
+class AdjointStep:
+    """The transposed records of one step: its rows (a :class:`RegularRecord` on uniform levels, else a
+    :class:`TransposedRecord`), and the transposed flatness and normal-control displacements (applied first in
+    the backward pass)."""
+
+    rows: "TransposedRecord | RegularRecord"
     flatness: ev.Displacement | None
     normals: ev.Projection | None
 
@@ -464,6 +605,7 @@ class Adjoint:
         self._limit: dict = {}
         self._limit_tables = None
         self._buffers = None
+        self._face_buffers: dict = {}
 
     # ---------------------------------------------------------------------------------------- tables
     @property
@@ -478,18 +620,22 @@ class Adjoint:
             return self._steps[k]
 
     def prepare(self) -> None:
-        """Build and upload every step's transposed tables now (else the first backward pass does): from the full
-        stencil tables (:attr:`Refiner.tables`, not kept unless the refiner already holds them) and the
-        displacement tables."""
+        """Build and upload every step's transposed tables now (else the first backward pass does): index tables
+        over the parents' corners on uniform levels (the levels' topology is rebuilt from the control mesh, as
+        :attr:`Refiner.tables` does), transposed stencils elsewhere, transposed displacement tables."""
         with self._lock:
             if self._steps or not self.refiner.levels:
                 return
             h = self.hierarchy
             up = ev._Uploader(self.device, self.precision)
-            for k, t in enumerate(full_tables(self.refiner, cache=False)):
-                rows = transposed_step(t)
-                self._steps[k] = AdjointStep(up.stencil(rows.near), up.explicit(rows.far),
-                                             up.displacement(transposed_displacement(h.flatness_tables[k])),
+            for k, level in enumerate(_levels(self.refiner)):
+                t = h.steps[k]
+                if isinstance(t, RegularTables):
+                    rows = _upload_regular(up, regular_adjoint(level, t))
+                else:
+                    split = transposed_step(t)
+                    rows = TransposedRecord(up.stencil(split.near), up.explicit(split.far))
+                self._steps[k] = AdjointStep(rows, up.displacement(transposed_displacement(h.flatness_tables[k])),
                                              up.projection(transposed_displacement(h.normal_tables[k])))
 
     def limit_tables(self):
@@ -559,6 +705,18 @@ class Adjoint:
             self._buffers = ev._LevelBuffers(rows, moved, self.device, self.scalar)
         return self._buffers.views(width)
 
+    def _faces(self, k: int, width: int):
+        """The face-point gradient buffer of step k (quads) for data of ``width`` (kept), or None."""
+        rec = self.step(k).rows
+        if not isinstance(rec, RegularRecord) or not rec.quads:
+            return None
+        with self._lock:
+            key = (k, width)
+            buf = self._face_buffers.get(key)
+            if buf is None:
+                buf = self._face_buffers[key] = self.empty(rec.num_faces, width)
+            return buf
+
     def _run(self):
         _load(self.device)
         return self.launcher
@@ -615,7 +773,7 @@ class Adjoint:
                 if st.flatness is not None:
                     ev.displace(st.flatness, src, scratch[k], run)
                 dst = out if (k == 0 and not accumulate) else levels[k]
-                _apply_rows(st, src, dst, run)
+                _apply_rows(st, src, dst, run, self._faces(k, width))
                 src = dst
             if accumulate:
                 run.rows(_kernels().add_rows, n, [src, out])
@@ -642,7 +800,8 @@ class Adjoint:
         if st.flatness is not None:
             ev.displace(st.flatness, grad, scratch, run)
         out = self.empty(self.level_rows(self.refiner.levels - 1), width)
-        _apply_rows(st, grad, out, run)
+        with self._lock:  # the face buffer is shared
+            _apply_rows(st, grad, out, run, self._faces(self.refiner.levels - 1, width))
         return out
 
     # ---------------------------------------------------------------------------------------- limits
@@ -739,11 +898,32 @@ def _kernels():
     return kernels
 
 
-def _apply_rows(st: AdjointStep, src: wp.array, dst: wp.array, run: ev.Launcher) -> None:
-    """dst = S^T src for the step's transposed rows: the near gather (every row), then the far one added."""
-    ev.apply(st.near, src, dst, run)
-    far = st.far
-    run.rows(_kernels().explicit_rows_add, far.count, [far.rows, far.offsets, far.indices, far.weights, src, dst])
+def _add_explicit(x: ev.ExplicitRows, src, dst, run: ev.Launcher) -> None:
+    run.rows(_kernels().explicit_rows_add, x.count, [x.rows, x.offsets, x.indices, x.weights, src, dst])
+
+
+def _apply_rows(st: AdjointStep, src: wp.array, dst: wp.array, run: ev.Launcher, faces=None) -> None:
+    """dst = S^T src for the step's rows; ``faces``: a work buffer of the step's face count (quads) in the
+    layout of ``src``."""
+    rec, k = st.rows, _kernels()
+    if isinstance(rec, TransposedRecord):
+        ev.apply(rec.near, src, dst, run)
+        _add_explicit(rec.far, src, dst, run)
+        return
+    V = rec.num_vertices
+    if rec.quads:
+        run.rows(k.quad_face_adjoint, rec.num_faces, [rec.face_vert, rec.face_edge_row, rec.face_w_vert,
+                                                      rec.edge_weights, src, rec.face_row, faces])
+        run.rows(k.quad_vertex_adjoint, V, [rec.offsets, rec.slot_vert, rec.slot_edge_row, rec.slot_third,
+                                            rec.w_centre, rec.w_vert, rec.edge_weights, rec.quarter, src, faces,
+                                            dst])
+    elif rec.far is not None:
+        run.rows(k.tri_ring_adjoint, V, [rec.offsets, rec.slot_vert, rec.w_centre, rec.w_vert, src, dst])
+        run.rows(k.tri_edge_adjoint, V, list(rec.far) + [rec.edge_weights, src, dst])
+    else:
+        run.rows(k.tri_vertex_adjoint, V, [rec.offsets, rec.slot_vert, rec.slot_edge_row, rec.slot_third,
+                                           rec.w_centre, rec.w_vert, rec.edge_weights, src, dst])
+    _add_explicit(rec.explicit, src, dst, run)
 
 
 def _check_normal_control(normal_control: bool, width: int) -> None:
