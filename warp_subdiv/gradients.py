@@ -10,10 +10,12 @@ non-linear (normalised sums of cross products of two tangent masks).
 * :func:`matrix` composes the per-step tables into the sparse map from control data to a level (or to the
   limit): a ``scipy.sparse.csr_matrix`` where scipy is installed, else a :class:`CSRMatrix` of the same arrays.
 * The backward pass applies the **transposed** tables: the adjoint of a gather is a scatter, and the transposed
-  table turns it back into a gather (one thread per parent row, the forward kernels of
-  :mod:`warp_subdiv.kernels` reused on the transposed tables; :mod:`warp_subdiv.kernels.adjoint` for the rest).
-  No atomics, so gradients are bitwise equal run to run and for any thread count. The transposed tables are
-  built once per refiner, on first use (:class:`Adjoint`).
+  table turns it back into a gather, one thread per parent row. On uniform levels the smooth rows are
+  transposed as index tables over each parent vertex's corners (:class:`RegularAdjoint`, kernels in
+  :mod:`warp_subdiv.kernels.adjoint`: no stored weights but the ring weights, as the forward kernels), the
+  explicit rows, the steps of non-uniform levels, the displacements and the limit masks as transposed CSR
+  tables (applied with the forward gather kernels). No atomics, so gradients are bitwise equal run to run and
+  for any thread count. The tables are built once per refiner, on the first backward pass (:class:`Adjoint`).
 * Entry points: :func:`evaluate`, :func:`limit_points`, :func:`limit_normals` take and return Warp arrays and
   record their backward on an active ``wp.Tape`` (``Tape.record_func``); :func:`evaluate_vjp`,
   :func:`limit_points_vjp`, :func:`limit_normals_vjp` take and return numpy arrays. The JAX and PyTorch adapters
