@@ -41,7 +41,7 @@ class UsageError(SubdivInputError):
 class _Parser(argparse.ArgumentParser):
     """argparse that reports a usage error in one line (and exits 2), as every other user error."""
 
-    def error(self, message):  # noqa: D401 (argparse API)
+    def error(self, message):  # argparse API
         raise UsageError(f"{message} (see {self.prog} --help)")
 
 
@@ -296,7 +296,8 @@ def _refine(args) -> int:
     from .threads import set_default_threads
 
     set_default_threads(args.threads)
-    progress = ProgressBar(not args.quiet and (args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())))
+    show = args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())
+    progress = ProgressBar(not args.quiet and show)
     try:
         if kind == "obj":
             return _refine_obj(args, out_kind, max_memory, progress)
@@ -451,7 +452,8 @@ def _info(args) -> int:
         _print_control(sp.mesh, sp.scheme, sp.boundary, sp.rules, sp.usd_scheme, sp.orientation)
         print(f"  tags: {summarize_tags(sp)}")
         if sp.point_times:
-            print(f"  time: points have {len(sp.point_times)} samples ({sp.point_times[0]:g} to {sp.point_times[-1]:g})")
+            times = sp.point_times
+            print(f"  time: points have {len(times)} samples ({times[0]:g} to {times[-1]:g})")
         else:
             print("  time: static points")
         for name, times in sp.point_arrays.items():
@@ -584,7 +586,7 @@ def main(argv=None) -> int:
     except (OSError, NotImplementedError) as exc:  # files that cannot be read or written; a feature not there
         print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
-    except Exception as exc:  # noqa: BLE001 (the last line of defence: no traceback for the user)
+    except Exception as exc:  # the last line of defence: no traceback for the user
         if _is_usd_error(exc):  # USD could not read the input
             from .usd_read import tf_message
 

@@ -675,7 +675,8 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
 
         edges = cage_edges(open_stage(cage), time, prims)
     if not len(soup.corners):
-        raise SubdivInputError(f"{path}: nothing to render (no visible meshes{' under ' + ', '.join(prims) if prims else ''})")
+        under = " under " + ", ".join(prims) if prims else ""
+        raise SubdivInputError(f"{path}: nothing to render (no visible meshes{under})")
     if camera:
         cam = usd_camera(stage, camera, time, aspect)
     else:

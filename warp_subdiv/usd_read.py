@@ -150,7 +150,8 @@ class Primvar:
         idx = np.asarray(indices, dtype=np.int64)
         bad = np.flatnonzero((idx < 0) | (idx >= len(rows)))
         if len(bad):
-            raise SubdivInputError(f"{where}: {self.name}:indices[{bad[0]}] = {idx[bad[0]]} is outside the {len(rows)} values")
+            raise SubdivInputError(
+                f"{where}: {self.name}:indices[{bad[0]}] = {idx[bad[0]]} is outside the {len(rows)} values")
         return rows, idx
 
     def flattened(self, time, where: str) -> np.ndarray:
@@ -713,7 +714,8 @@ def _crease_pairs(path, idx, lengths, sharp):
         return np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0, np.int64)
     bad = np.flatnonzero(lengths < 2)
     if len(bad):
-        raise SubdivInputError(f"{path}: creaseLengths[{bad[0]}] = {lengths[bad[0]]}; a crease needs at least 2 vertices",
+        raise SubdivInputError(f"{path}: creaseLengths[{bad[0]}] = {lengths[bad[0]]}; a crease needs at least 2 "
+                               "vertices",
                                element="crease", index=int(bad[0]), value=int(lengths[bad[0]]))
     if int(lengths.sum()) != len(idx):
         raise SubdivInputError(

@@ -258,7 +258,7 @@ def vt_array(type_name: Sdf.ValueTypeName, values: np.ndarray, like=None):
     if arr.dtype.kind in "fiub":
         try:
             return cls.FromNumpy(np.ascontiguousarray(arr))
-        except (TypeError, ValueError, AttributeError, Exception):  # noqa: B014 (Boost.Python raises its own)
+        except Exception:  # noqa: BLE001 (Boost.Python raises its own exception types here)
             pass
     return cls([v.tolist() if isinstance(v, np.ndarray) else v for v in arr])
 
