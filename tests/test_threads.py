@@ -118,7 +118,7 @@ def test_threaded_build_is_bitwise_one_thread(name, scheme):
     from warp_subdiv.options import Options
 
     mesh = load_mesh(name)
-    one, two = (Hierarchy(mesh, 3, Options(scheme=scheme), threads=t) for t in (1, 2))
+    one, two = (Hierarchy(mesh, 3, Options(scheme=scheme), threads=t, concurrent_build=t > 1) for t in (1, 2))
 
     def arrays(obj, prefix="", seen=None):
         seen = set() if seen is None else seen
