@@ -4,6 +4,7 @@
     python bench/bench_threads.py --levels 4-6 --frames 5 --json out/bench_threads.json
     python bench/bench_threads.py --quick                 # level 2 only (smoke test)
     python bench/bench_threads.py --commit HEAD           # a commit's library (git archive), not the work tree
+    python bench/bench_threads.py --probe                 # how plain Warp CPU kernels scale here (no library)
 
 Every (mesh, level, threads) runs in a fresh subprocess (its memory is its own, nothing is warm from the
 other thread count): ``Refiner(mesh, L, threads=T)`` (build), a first ``evaluate`` (warm-up), the median of
@@ -75,6 +76,64 @@ def worker(args) -> dict:
     return res
 
 
+def probe(reps: int = 3) -> list:
+    """How plain Warp CPU launches scale on this machine when split into two row ranges on two Python
+    threads (as the evaluator does): a compute-bound kernel, a streaming gather with local indices (what
+    the subdivision kernels' reads look like) and a gather with random indices; best of ``reps``."""
+    import threading
+
+    import numpy as np
+
+    wp = quiet_warp()
+    wp.init()
+
+    @wp.kernel
+    def compute(a: wp.array(dtype=float), b: wp.array(dtype=float), row0: int):
+        i = wp.tid() + row0
+        s = float(0.0)
+        for j in range(200):
+            s += wp.sin(a[i] + float(j))
+        b[i] = s
+
+    @wp.kernel
+    def gather(idx: wp.array(dtype=wp.int32), a: wp.array(dtype=wp.vec3), b: wp.array(dtype=wp.vec3), row0: int):
+        i = wp.tid() + row0
+        b[i] = a[idx[4 * i]] + a[idx[4 * i + 1]] + a[idx[4 * i + 2]] + a[idx[4 * i + 3]]
+
+    rng = np.random.default_rng(0)
+    n, m = 20_000_000, 6_000_000
+    cases = [("compute-bound (200 sin per row, 2M rows)", compute, 2_000_000,
+              lambda: [wp.array(rng.random(2_000_000).astype(np.float32), device="cpu"),
+                       wp.zeros(2_000_000, dtype=float, device="cpu")])]
+    for name, idx in (("local", (np.arange(4 * n) // 13).astype(np.int32) % m),
+                      ("random", rng.integers(0, m, 4 * n).astype(np.int32))):
+        cases.append((f"gather of 4 vec3 per row, {name} indices (20M rows from 6M)", gather, n,
+                       lambda idx=idx: [wp.array(idx, device="cpu"),
+                                        wp.array(rng.random((m, 3)).astype(np.float32), dtype=wp.vec3, device="cpu"),
+                                        wp.zeros(n, dtype=wp.vec3, device="cpu")]))
+    out = []
+    for name, kernel, rows, make in cases:
+        arrays = make()
+        wp.launch(kernel, dim=rows, inputs=arrays + [0], device="cpu")
+        one, two = [], []
+        for _ in range(reps):
+            t = time.perf_counter()
+            wp.launch(kernel, dim=rows, inputs=arrays + [0], device="cpu")
+            one.append(time.perf_counter() - t)
+
+            def part(lo, hi, arrays=arrays, kernel=kernel):
+                wp.launch(kernel, dim=hi - lo, inputs=arrays + [lo], device="cpu")
+
+            t = time.perf_counter()
+            th = threading.Thread(target=part, args=(rows // 2, rows))
+            th.start()
+            part(0, rows // 2)
+            th.join()
+            two.append(time.perf_counter() - t)
+        out.append({"kernel": name, "one_s": min(one), "two_s": min(two)})
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--meshes", default=",".join(MESHES))
@@ -87,6 +146,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default=None)
     ap.add_argument("--commit", default=None, help="measure this commit's library (git archive)")
     ap.add_argument("--lib-root", default=ROOT, help=argparse.SUPPRESS)
+    ap.add_argument("--probe", action="store_true", help="only time plain Warp kernels split over 2 threads")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--mesh", help=argparse.SUPPRESS)
     ap.add_argument("--level", type=int, help=argparse.SUPPRESS)
@@ -94,6 +154,16 @@ def main(argv=None) -> int:
     if args.worker:
         args.threads = int(args.threads)
         print(MARK + json.dumps(worker(args)), flush=True)
+        return 0
+    if args.probe:
+        load0 = os.getloadavg()[0]
+        rows = probe(args.reps)
+        print(f"Plain Warp CPU kernels, one launch against two half launches on two threads (best of {args.reps}); "
+              f"1-minute load average {load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end.\n")
+        print("| kernel | 1 thread s | 2 threads s | ratio |")
+        print("|---|---:|---:|---:|")
+        for r in rows:
+            print(f"| {r['kernel']} | {r['one_s']:.3f} | {r['two_s']:.3f} | {r['one_s'] / r['two_s']:.2f}x |")
         return 0
 
     sha = None
