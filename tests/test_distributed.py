@@ -54,12 +54,17 @@ def assert_same_composition(expected, actual, roots=("/World",)):
 def client():
     """One local cluster of two worker processes for the module's tests."""
     distributed = pytest.importorskip("distributed")
+    # Dask's nannies set MALLOC_TRIM_THRESHOLD_, OMP_NUM_THREADS and others in this process's environment;
+    # they are restored afterwards so later tests (and their subprocesses) run as a user's process would
+    saved = dict(os.environ)
     cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
                                        silence_logs=50)
     c = distributed.Client(cluster)
     yield c
     c.close()
     cluster.close()
+    os.environ.clear()
+    os.environ.update(saved)
 
 
 def _fault(client, spec):
