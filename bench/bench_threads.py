@@ -131,6 +131,24 @@ def probe(reps: int = 3) -> list:
             th.join()
             two.append(time.perf_counter() - t)
         out.append({"kernel": name, "one_s": min(one), "two_s": min(two)})
+    # the memory bandwidth itself: numpy copies of 1 GiB, whole or in two halves on two threads
+    a = np.ones(256 * 2**20, np.float32)
+    b = np.zeros_like(a)
+    one, two = [], []
+    for _ in range(reps):
+        t = time.perf_counter()
+        np.copyto(b, a)
+        one.append(time.perf_counter() - t)
+        half = len(a) // 2
+        t = time.perf_counter()
+        th = threading.Thread(target=np.copyto, args=(b[half:], a[half:]))
+        th.start()
+        np.copyto(b[:half], a[:half])
+        th.join()
+        two.append(time.perf_counter() - t)
+    gbs = 2 * a.nbytes / 1e9
+    out.append({"kernel": f"np.copyto of 1 GiB ({gbs / min(one):.1f} / {gbs / min(two):.1f} GB/s read + write)",
+                "one_s": min(one), "two_s": min(two)})
     return out
 
 
