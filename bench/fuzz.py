@@ -64,21 +64,22 @@ def _distinct_soup(rng, tri: bool):
     return rng.standard_normal((nv, 3)), np.array([len(f) for f in faces]), np.concatenate(faces)
 
 
-def _grid(rng, tri: bool):
-    nx, ny = int(rng.integers(1, 5)), int(rng.integers(1, 5))
+def grid_quads(nx: int, ny: int):
+    """A flat nx x ny grid of unit quads: points (z = 0) and quads as vertex lists, row by row.
+
+    Shared with tests/test_osd_differential.py; callers add their own noise."""
     x, y = np.meshgrid(np.arange(nx + 1, dtype=float), np.arange(ny + 1, dtype=float))
-    pts = np.stack([x.ravel(), y.ravel(), 0.3 * rng.standard_normal(x.size)], axis=1)
-    v = lambda i, j: j * (nx + 1) + i  # noqa: E731
-    quads = [[v(i, j), v(i + 1, j), v(i + 1, j + 1), v(i, j + 1)] for j in range(ny) for i in range(nx)]
-    if tri:
-        faces = [f for a, b, c, d in quads for f in ([a, b, c], [a, c, d])]
-    else:
-        faces = quads
-    return pts, np.array([len(f) for f in faces]), np.array(faces).reshape(-1)
+    pts = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+
+    def v(i, j):
+        return j * (nx + 1) + i
+
+    return pts, [[v(i, j), v(i + 1, j), v(i + 1, j + 1), v(i, j + 1)] for j in range(ny) for i in range(nx)]
 
 
-def _box(rng, tri: bool):
-    n = int(rng.integers(1, 3))
+def box_quads(n: int):
+    """The surface of the cube [0, n]^3 cut into n x n unit quads per side, facing outward: integer points and
+    quads as vertex lists. Shared with tests/test_osd_differential.py; callers scale and add noise."""
     ids, pts, quads = {}, [], []
     for axis in range(3):
         u, w = [a for a in range(3) if a != axis]
@@ -92,8 +93,26 @@ def _box(rng, tri: bool):
                         face.append(ids.setdefault(tuple(p), len(ids)))
                         if len(ids) > len(pts):
                             pts.append(p)
+                    # (u, w, axis) is right-handed except for axis 1; the side at 0 faces the other way
                     quads.append(face[::-1] if (side == 0) != (axis == 1) else face)
-    pts = np.array(pts, float) / n + 0.05 * rng.standard_normal((len(pts), 3))
+    return np.array(pts, float), quads
+
+
+def _grid(rng, tri: bool):
+    nx, ny = int(rng.integers(1, 5)), int(rng.integers(1, 5))
+    pts, quads = grid_quads(nx, ny)
+    pts[:, 2] = 0.3 * rng.standard_normal(len(pts))
+    if tri:
+        faces = [f for a, b, c, d in quads for f in ([a, b, c], [a, c, d])]
+    else:
+        faces = quads
+    return pts, np.array([len(f) for f in faces]), np.array(faces).reshape(-1)
+
+
+def _box(rng, tri: bool):
+    n = int(rng.integers(1, 3))
+    pts, quads = box_quads(n)
+    pts = pts / n + 0.05 * rng.standard_normal((len(pts), 3))
     faces = [f for a, b, c, d in quads for f in ([a, b, c], [a, c, d])] if tri else quads
     return pts, np.array([len(f) for f in faces]), np.array(faces).reshape(-1)
 

@@ -31,6 +31,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 if ROOT not in sys.path:
     sys.path.append(ROOT)  # appended: an installed warp_subdiv keeps precedence over the checkout
 
+from bench.fuzz import box_quads, grid_quads  # noqa: E402
 from peers import osd_peer  # noqa: E402
 
 if not osd_peer.available():
@@ -363,31 +364,16 @@ NUM_RANDOM = 300
 
 
 def _grid(rng, nx, ny):
-    x, y = np.meshgrid(np.arange(nx + 1, dtype=float), np.arange(ny + 1, dtype=float))
-    pts = np.stack([x.ravel(), y.ravel(), 0.3 * rng.standard_normal(x.size)], axis=1)
-    pts[:, :2] += 0.15 * rng.standard_normal((x.size, 2))
-    v = lambda i, j: j * (nx + 1) + i  # noqa: E731
-    return pts, [[v(i, j), v(i + 1, j), v(i + 1, j + 1), v(i, j + 1)] for j in range(ny) for i in range(nx)]
+    pts, quads = grid_quads(nx, ny)
+    pts[:, 2] = 0.3 * rng.standard_normal(len(pts))
+    pts[:, :2] += 0.15 * rng.standard_normal((len(pts), 2))
+    return pts, quads
 
 
 def _box(rng, n):
     """The surface of a cube cut into n x n quads per side, facing outward, jittered."""
-    ids, pts, quads = {}, [], []
-    for axis in range(3):
-        u, w = [a for a in range(3) if a != axis]
-        for side in (0, n):
-            for i in range(n):
-                for j in range(n):
-                    face = []
-                    for di, dj in ((0, 0), (1, 0), (1, 1), (0, 1)):
-                        p = [0, 0, 0]
-                        p[axis], p[u], p[w] = side, i + di, j + dj
-                        face.append(ids.setdefault(tuple(p), len(ids)))
-                        if len(ids) > len(pts):
-                            pts.append(p)
-                    # (u, w, axis) is right-handed except for axis 1; the side at 0 faces the other way
-                    quads.append(face[::-1] if (side == 0) != (axis == 1) else face)
-    pts = np.array(pts, float) / n - 0.5
+    pts, quads = box_quads(n)
+    pts = pts / n - 0.5
     return pts + 0.08 * rng.standard_normal(pts.shape) / n, quads
 
 
