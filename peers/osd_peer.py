@@ -347,12 +347,11 @@ def bench(points, face_counts, face_indices, level: int, *, reps: int = 5, budge
 
 
 # ------------------------------------------------------------------------------------------ Bfr (bfr_peer)
-# A second program, peers/osd/bfr_peer.cpp (built by peers/osd/build_bfr.sh into peers/osd/build/bfr_peer, or
+# A second program, peers/osd/bfr_peer.cpp (built by `peers/osd/build.sh bfr_peer` into peers/osd/build/bfr_peer, or
 # named by BFR_PEER_BIN), drives OpenSubdiv's Bfr: RefinerSurfaceFactory, Surface::Evaluate and Tessellation.
 # Its header documents the records; the mesh part of a request is the same as for osd_peer (``request``).
 
 BFR_SOURCE = os.path.join(HERE, "osd", "bfr_peer.cpp")
-BFR_BUILD_SCRIPT = os.path.join(HERE, "osd", "build_bfr.sh")
 BFR_DEFAULT_BINARY = os.path.join(HERE, "osd", "build", "bfr_peer")
 BFR_HEADER = "/usr/include/opensubdiv/bfr/surface.h"
 
@@ -371,7 +370,7 @@ def bfr_binary(build: bool = True) -> Optional[str]:
     can_build = build and os.path.isfile(BFR_HEADER) and shutil.which(os.environ.get("CXX", "g++")) is not None
     if not can_build or "bfr_build_error" in _state:
         return exe if built else None
-    proc = subprocess.run(["bash", BFR_BUILD_SCRIPT], capture_output=True, text=True)
+    proc = subprocess.run(["bash", BUILD_SCRIPT, "bfr_peer"], capture_output=True, text=True)
     if proc.returncode != 0 or not os.access(exe, os.X_OK):
         _state["bfr_build_error"] = proc.stdout + proc.stderr
         return None
