@@ -493,6 +493,38 @@ def test_limit_points_and_normals(tmp_path):
     assert mesh.GetNormalsInterpolation() == "vertex"
 
 
+def test_writer_takes_points_limits_and_normals_in_one_pass(tmp_path, monkeypatch):
+    """The writer refines each time sample of the points once (Refiner.evaluate_with_limits) and never asks for
+    their limit points or normals separately (that would move the last level twice); in the compact
+    vertex order too, whose output equals the OpenSubdiv order's renumbered."""
+    from warp_subdiv.refiner import Refiner
+
+    calls = []
+    for name in ("evaluate", "limit_points", "limit_normals", "evaluate_with_limits"):
+        original = getattr(Refiner, name)
+
+        def spy(self, *a, _name=name, _original=original, **kw):
+            calls.append(_name)
+            return _original(self, *a, **kw)
+
+        monkeypatch.setattr(Refiner, name, spy)
+    src = os.path.join(SCENES_DIR, "animated.usda")
+    outs = {}
+    for order in ("opensubdiv", "compact"):
+        calls.clear()
+        dst = tmp_path / f"{order}.usda"
+        refine_usd(src, str(dst), 2, device="cpu", limit=True, normals=True, frames=(3.0, 4.0), vertex_order=order)
+        assert calls.count("evaluate_with_limits") == 3  # the default and two time samples
+        assert "limit_normals" not in calls  # (limit_points is still called for the primvars' own data)
+        assert calls.count("limit_points") == calls.count("evaluate")
+        mesh = UsdGeom.Mesh(opened(str(dst)).GetPrimAtPath("/World/Animated/Plate"))
+        outs[order] = [np.asarray(a.Get(4.0)) for a in (mesh.GetPointsAttr(), mesh.GetNormalsAttr())] + [
+            np.asarray(mesh.GetFaceVertexIndicesAttr().Get())]
+    (p_osd, n_osd, i_osd), (p_cmp, n_cmp, i_cmp) = outs["opensubdiv"], outs["compact"]
+    np.testing.assert_array_equal(p_osd[i_osd], p_cmp[i_cmp])  # the same corners, renumbered
+    np.testing.assert_array_equal(n_osd[i_osd], n_cmp[i_cmp])
+
+
 def test_memory_guard_refuses_before_any_work(tmp_path):
     with pytest.raises(MemoryGuardError, match=r"would need about .* more than max_memory 1\.0 MiB"):
         refine_usd(os.path.join(SCENES_DIR, "complex_corner.usda"), str(tmp_path / "x.usda"), 5, device="cpu",

@@ -113,6 +113,15 @@ class OrderedRefiner:
     def limit_normals(self, refined_points):
         return _rows(self.refiner.limit_normals(self._own(refined_points)), self.old_id)
 
+    def evaluate_with_limits(self, points, **kwargs):
+        """The wrapped refiner's one pass (:meth:`~warp_subdiv.refiner.Refiner.evaluate_with_limits`), each
+        result in the compact order."""
+        res = self.refiner.evaluate_with_limits(points, **kwargs)
+        for name in ("points", "limit_points", "limit_normals"):
+            if getattr(res, name) is not None:
+                setattr(res, name, _rows(getattr(res, name), self.old_id))
+        return res
+
     def _face_varying(self, values, indices):
         """Values numbered in the order the refined faces first use them; values no face uses are dropped."""
         new_id, old_id = appearance_order(indices, len(values))

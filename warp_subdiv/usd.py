@@ -578,11 +578,14 @@ class _Context:
         sp, refiner = self.sp, self.refiner
         if sp.scheme == "bilinear":
             return self.linear_field(pts), None
-        refined = refiner.evaluate(pts)
-        nrm = refiner.limit_normals(refined) if self.normals else None
+        if not (self.limit or self.normals):
+            return refiner.evaluate(pts), None
+        # points, limit points and normals in one pass from the last level's buffer (no round trip)
+        res = refiner.evaluate_with_limits(pts, limit_points=self.limit, limit_normals=self.normals)
+        nrm = res.limit_normals
         if nrm is not None and sp.orientation == "leftHanded":
             nrm = -nrm  # refined as right-handed: the front of a left-handed mesh is the other side
-        return (refiner.limit_points(refined) if self.limit else refined), nrm
+        return (res.limit_points if self.limit else res.points), nrm
 
     @_phases.timed("refine")
     def vectors(self, data):
