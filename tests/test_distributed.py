@@ -108,6 +108,37 @@ def test_frame_chunks_compose_like_the_single_bake(client, single, tmp_path):
     assert_same_composition(str(single / "animated_3_20.usda"), str(ranged))
 
 
+def test_later_chunks_hold_time_samples_only(client, single, tmp_path):
+    """A mesh's frame chunks after its first are written with time samples only (no faceVertexIndices or
+    faceVertexCounts, no default values), the first chunk with everything; the stitched output composes to the
+    single-process bake's values all the same."""
+    out = tmp_path / "animated.usda"
+    res = dist.bake(ANIMATED, str(out), 1, chunk_frames=6, client=client)
+    assert [u["kind"] for u in res.timings["units"]] == ["frames"] * 4
+    assert_same_composition(str(single / "animated.usda"), str(out))
+    folder = tmp_path / "animated.chunks"
+    plate = "/World/Animated/Plate"
+    names = [f"0000_World_Animated_Plate.{k:04d}.usdc" for k in range(4)]
+    first = Sdf.Layer.FindOrOpen(str(folder / names[0]))
+    assert first.GetAttributeAtPath(plate + ".faceVertexIndices").HasDefaultValue()
+    assert first.GetAttributeAtPath(plate + ".points").HasDefaultValue()
+    for name in names[1:]:
+        layer = Sdf.Layer.FindOrOpen(str(folder / name))
+        for attr in ("faceVertexIndices", "faceVertexCounts"):
+            spec = layer.GetAttributeAtPath(f"{plate}.{attr}")
+            assert spec is None or not (spec.HasDefaultValue() or layer.GetNumTimeSamplesForPath(spec.path)), attr
+        defaults = []
+
+        def visit(path, layer=layer, defaults=defaults):
+            spec = layer.GetAttributeAtPath(path) if path.IsPropertyPath() else None
+            if spec is not None and spec.HasDefaultValue() and not isinstance(spec.default, Sdf.ValueBlock):
+                defaults.append(str(path))
+
+        layer.Traverse(plate, visit)
+        assert defaults == [f"{plate}.subdivisionScheme"]  # (and blocks: no value)
+        assert layer.GetNumTimeSamplesForPath(plate + ".points") >= 6
+
+
 def test_mesh_units_are_sublayers(client, single, tmp_path):
     """Static meshes are one task each, whose layers the output sublayers before the input."""
     out = tmp_path / "static.usdc"

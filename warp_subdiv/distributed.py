@@ -12,7 +12,9 @@ meshes of a USD file on a Dask cluster: a local one of ``workers`` worker proces
   Neighbouring ranges share their boundary sample, so values between two samples interpolate across chunks.
   The mesh's topology and tables are computed once by a topology task and shipped to its frame tasks
   (:func:`warp_subdiv.hierarchy.shipped`): the tasks read the mesh at their own frames but refine with the
-  tables of the single-process bake, so they produce its values.
+  tables of the single-process bake, so they produce its values. A mesh's chunks after its first hold only
+  time samples (``refine_usd(..., samples_only=True)``: no topology, no defaults), all that value clips read
+  from them; saving the refined ``faceVertexIndices`` was most of a short chunk's cost.
 
 Every task writes into a temporary folder next to the output. When all succeeded the driver stitches each
 animated mesh's chunks as USD value clips (:func:`stitch_clips`: ``UsdUtils.StitchClipsTopology`` and
@@ -64,6 +66,7 @@ class Unit:
     path: str | None
     frames: tuple | None  # (start, end), None ends open; the run's own frames for "mesh" units
     layer: str  # file name in the chunk folder
+    samples_only: bool = False  # a mesh's frame chunk after its first: time samples only (refine_usd's option)
 
     @property
     def label(self) -> str:
@@ -82,7 +85,9 @@ def _slug(path: str) -> str:
 def plan_units(prims, frames, workers: int, chunk_frames: int | None = None, ext: str = ".usdc") -> list:
     """The units of a bake of ``prims`` (the plan's SubdivPrims): a mesh with at least 2 *
     MIN_CHUNK_SAMPLES selected point samples is split into frame ranges of ``chunk_frames`` samples (default:
-    about CHUNKS_PER_WORKER ranges per worker), each range starting at the previous one's last sample."""
+    about CHUNKS_PER_WORKER ranges per worker), each range starting at the previous one's last sample. The
+    ranges after a mesh's first are written with time samples only (the clips read nothing else from them; the
+    first range's layer is the stitched topology's source)."""
     units = []
     for i, sp in enumerate(prims):
         times = list(sp.point_times)
@@ -97,7 +102,8 @@ def plan_units(prims, frames, workers: int, chunk_frames: int | None = None, ext
         for k, s in enumerate(starts):
             a = times[s] if k else (frames[0] if frames is not None else None)
             b = times[starts[k + 1]] if k + 1 < len(starts) else (frames[1] if frames is not None else None)
-            units.append(Unit(len(units), "frames", i, sp.path, (a, b), f"{i:04d}_{_slug(sp.path)}.{k:04d}{ext}"))
+            units.append(Unit(len(units), "frames", i, sp.path, (a, b), f"{i:04d}_{_slug(sp.path)}.{k:04d}{ext}",
+                              samples_only=k > 0))
     return units
 
 
@@ -176,7 +182,8 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
     try:
         _fault(unit.number)
         keywords = {k: v for k, v in run.items() if k != "prims"}
-        keywords.update(max_memory=_memory(run.get("max_memory"), limit), frames=unit.frames, flatten=False)
+        keywords.update(max_memory=_memory(run.get("max_memory"), limit), frames=unit.frames, flatten=False,
+                        samples_only=unit.samples_only)
         with shipped(hierarchy):
             prims = [unit.path] if unit.path is not None else run.get("prims")
             result = refine_usd(input_path, tmp, levels, prims=prims, **keywords)
@@ -516,8 +523,8 @@ def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_wo
             path = os.path.join(folder.path, u.layer)
             clips.setdefault(u.path, []).append((path, float(start), float(end)))
         t = _time.perf_counter()
-        # the chunks of one mesh hold the same static content (one plan refined them; the first chunk's
-        # defaults are the single bake's): the first chunk of each mesh is the topology's source
+        # the first chunk of each mesh is the topology's source: one plan refined the chunks, its defaults are
+        # the single bake's, and the later chunks hold time samples only (Unit.samples_only)
         firsts = [chunks[0][0] for chunks in clips.values()]
         topo = stitch_clips(layer.layer, folder.path, clips, firsts) if clips else None
         timings["stitch_s"] = _time.perf_counter() - t

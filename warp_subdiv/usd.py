@@ -346,6 +346,7 @@ def refine_usd(
     progress=None,
     all_variants: bool = False,
     vertex_order: str = "opensubdiv",
+    samples_only: bool = False,
 ) -> Result:
     """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) ``levels`` times and
     write the layer ``output_path`` (.usd, .usda or .usdc) that sublayers the input and overrides them.
@@ -362,6 +363,12 @@ def refine_usd(
     ``progress``: callable(fraction, label) or None. Errors in the input are SubdivInputError.
     ``vertex_order``: "opensubdiv" (the refiner's), "compact" (indices that usdc compresses well, written
     much faster; see :mod:`warp_subdiv.order`) or "auto" (compact for the piecewise-smooth rules).
+    ``samples_only``: write the refined meshes' time samples only, no default values: not the time-invariant
+    topology (faceVertexCounts, faceVertexIndices), nor the defaults of points, normals, primvars (face-varying
+    indices included) and subsets. For the frame chunks of a distributed bake after a mesh's first: value clips
+    read only time samples from a chunk (the first chunk supplies everything else), and saving a refined
+    faceVertexIndices is most of a short chunk's cost. The layer alone does not compose to the refined meshes,
+    so only their scheme is checked to compose from it.
     """
     start = _time.perf_counter()
     check_vertex_order(vertex_order)
@@ -396,13 +403,14 @@ def refine_usd(
             key = p.keys[i]
             sp.target = str(out_layout.homes[key])
             rep = _refine_prim(sp, p.options[i], layer, levels, device, limit, normals, warnings, work,
-                               work.weights[i], f"[{i + 1}/{len(p.prims)}] {sp.path}", vertex_order)
+                               work.weights[i], f"[{i + 1}/{len(p.prims)}] {sp.path}", vertex_order,
+                               samples_only=samples_only)
             for dst in out_layout.copies[key]:
                 layer.copy(out_layout.homes[key], dst)
             rep.seconds = _time.perf_counter() - t0
             reports.append(rep)
         out_layout.write(layer)
-        out_layout.check(layer, p, reports)
+        out_layout.check(layer, p, reports, samples_only=samples_only)
         # bounding-box hints above the refined meshes: recomputed for the refined surfaces
         layer.override_extents_hints(p.stage, out_layout.hint_roots(p), frames)
         if progress is not None:
@@ -451,11 +459,12 @@ class Layout:
             layer.reference(path, target)
 
     @_phases.timed("write")
-    def check(self, layer: OutputLayer, p: Plan, reports) -> None:
+    def check(self, layer: OutputLayer, p: Plan, reports, *, samples_only: bool = False) -> None:
         """Compose the output (in each variant configuration that was read) and check that every refined mesh
         composes to its refined data: the strongest opinion of its topology, points and scheme must be the
         output layer's. A shared mesh that fails gets its own copy; anything else is an error naming the
-        input's opinion that wins."""
+        input's opinion that wins. ``samples_only``: the layer holds no default values (see :func:`refine_usd`),
+        only the scheme, which it still holds, is checked."""
         scene = p.scene
         faces = {key: rep.faces_out for key, rep in zip(p.keys, reports)}
         todo = [(o.composed, o.config, o.key, o.dest if o.dest in self.shared else None) for o in scene.top.meshes]
@@ -467,7 +476,7 @@ class Layout:
         for config, items in by_config.items():
             stage = config.open(layer.layer)
             for composed, _, key, shared in items:
-                bad = _losing_opinion(stage.GetPrimAtPath(composed), layer.layer, faces[key])
+                bad = _losing_opinion(stage.GetPrimAtPath(composed), layer.layer, faces[key], samples_only)
                 if bad is None:
                     continue
                 if shared is not None:  # the reference loses: write the mesh's own copy instead
@@ -507,19 +516,20 @@ class Layout:
         return {path: sorted(times) for path, times in roots.items()}
 
 
-def _losing_opinion(prim, layer: Sdf.Layer, faces: int):
+def _losing_opinion(prim, layer: Sdf.Layer, faces: int, samples_only: bool = False):
     """None when the composed ``prim`` takes its refined attributes from ``layer`` (and has ``faces`` faces);
-    else the stronger opinion (layer and spec path) that wins, as text."""
+    else the stronger opinion (layer and spec path) that wins, as text. ``samples_only``: only the scheme is
+    checked (a layer without default values: no topology, maybe no points)."""
     if not prim:
         return "nothing (the prim does not compose)"
-    for name in _CHECKED:
+    for name in _CHECKED[:1] if samples_only else _CHECKED:
         attr = prim.GetAttribute(name)
         stack = [s for s in attr.GetPropertyStack(DEFAULT)
                  if s.HasDefaultValue() or s.layer.GetNumTimeSamplesForPath(s.path)] if attr else []
         if stack and stack[0].layer != layer:
             return f"{stack[0].layer.identifier} {stack[0].path}"
     counts = prim.GetAttribute("faceVertexCounts").Get()
-    if counts is None or len(counts) != faces:
+    if not samples_only and (counts is None or len(counts) != faces):
         return f"a faceVertexCounts of {0 if counts is None else len(counts)} faces (not {faces})"
     return None
 
@@ -604,10 +614,11 @@ class _Context:
 
 
 def _refine_prim(sp: SubdivPrim, options: Options, layer: OutputLayer, levels, device, limit, normals, warnings,
-                 work, weights, label, vertex_order="opensubdiv") -> PrimReport:
+                 work, weights, label, vertex_order="opensubdiv", *, samples_only=False) -> PrimReport:
     """Refine one mesh and write it at :attr:`SubdivPrim.output_path` of ``layer``. A mesh whose topology changes
     over time gets one refiner per distinct control mesh (built once, used for every time that has it), and
-    time-sampled topology: each written time takes the refiner of its control mesh."""
+    time-sampled topology: each written time takes the refiner of its control mesh. ``samples_only``: no
+    default values are written (see :func:`refine_usd`)."""
     prim = layer.prim(sp.output_path)
     varying = bool(sp.topologies)
     groups = range(len(sp.topologies)) if varying else [0]
@@ -644,6 +655,9 @@ def _refine_prim(sp: SubdivPrim, options: Options, layer: OutputLayer, levels, d
         return [DEFAULT] + sorted(own)
 
     def mine(times, group):
+        """The written times of ``times`` that take the topology ``group`` (every list of written times passes here)."""
+        if samples_only:
+            times = [t for t in times if t != DEFAULT]
         return [t for t in times if sp.topology_index(t) == group] if varying else list(times)
 
     fvar_mode = sp.face_varying_mode if sp.scheme != "bilinear" else None
