@@ -240,3 +240,54 @@ def test_refinement_rules_of_a_single_step():
     assert step.next().num_vertices == 26 and step.next().num_faces == 24
     with pytest.raises(ValueError, match="level must be in"):
         Parentage([step], np.zeros(6, bool)).refinement(2)
+
+
+@pytest.mark.parametrize("rules", ["opensubdiv", "piecewise-smooth"])
+@pytest.mark.parametrize("name,scheme", [("cube", "catmull-clark"), ("polygons", "catmull-clark"),
+                                         ("icosahedron", "loop"), ("polygons", "loop")])
+def test_a_shipped_level_0_analysis_is_reused_and_changes_nothing(name, scheme, rules, monkeypatch):
+    """A hierarchy built while a level-0 hierarchy of the same mesh and options is shipped (what the USD bake
+    does with the plan's analysis) does not analyse the control mesh again, and its tables, last level and
+    refined points are bitwise those of a hierarchy built from scratch."""
+    from warp_subdiv import hierarchy as hmod
+
+    mesh = mesh_of(name)
+    options = Options(scheme=scheme, rules=rules)
+    fresh = Hierarchy(mesh, 2, options)
+    calls = []
+    real = hmod.base_level
+    monkeypatch.setattr(hmod, "base_level", lambda *a, **k: calls.append(1) or real(*a, **k))
+    control = Hierarchy(mesh, 0, options)
+    assert len(calls) == 1
+    with hmod.shipped(control):
+        reused = Hierarchy(mesh, 2, options)
+    assert len(calls) == 1  # level 0 taken from the shipped analysis
+    np.testing.assert_array_equal(reused.topology()[1], fresh.topology()[1])
+    a = ws.Refiner(mesh, 2, options=options, device="cpu")
+    with hmod.shipped(control):
+        b = ws.Refiner(mesh, 2, options=options, device="cpu")
+    assert len(calls) == 2  # the Refiner built from scratch analysed; the one with the shipped analysis did not
+    np.testing.assert_array_equal(a.evaluate(mesh.points), b.evaluate(mesh.points))
+    np.testing.assert_array_equal(a.limit_normals(a.evaluate(mesh.points)), b.limit_normals(b.evaluate(mesh.points)))
+    del calls[2:]  # (limits read one level deeper may build deeper refiners, which analyse anew)
+    other = Options(scheme=scheme, rules="opensubdiv" if rules != "opensubdiv" else "piecewise-smooth")
+    with hmod.shipped(control):
+        Hierarchy(mesh, 2, other)
+    assert len(calls) == 3  # other options: analysed anew
+
+
+def test_the_usd_bake_analyses_each_control_mesh_once(tmp_path, monkeypatch):
+    """The bake's refiner of a mesh starts from the analysis its plan made for the memory estimate: the
+    control mesh is analysed once per mesh, not once for the estimate and again for the refinement."""
+    import os
+
+    from warp_subdiv import hierarchy as hmod
+    from warp_subdiv.usd import refine_usd
+
+    calls = []
+    real = hmod.base_level
+    monkeypatch.setattr(hmod, "base_level", lambda *a, **k: calls.append(1) or real(*a, **k))
+    scenes = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenes")
+    result = refine_usd(os.path.join(scenes, "complex_corner.usda"), str(tmp_path / "out.usda"), 2, device="cpu")
+    assert len(result.reports) >= 1
+    assert len(calls) == len(result.reports), [r.path for r in result.reports]

@@ -73,11 +73,13 @@ class Hierarchy:
     def __init__(self, mesh: Mesh, levels: int, options: Options, *, max_memory: int | None = None,
                  threads: int = 1, concurrent_build: bool = False):
         source = _shipped_for(mesh, options)
+        analysed = None
         if source is not None:
             if source.levels == levels:  # the same mesh, levels and options: take its tables as they are
                 self.__dict__.update(source.__dict__)
                 return
             mesh = source.mesh  # another level count: build, from the control points it was built from
+            analysed = source  # and from its analysis of the control mesh (level 0 is never modified)
         self.threads = max(1, int(threads))
         # Overlapping a step's tables with the next level's topology saved about 10% of a build on 2 cores
         # (cube64 level 4: 1.16 -> 1.05 s) but raised its peak memory by 8-25% (bench/bench_memory.py), beyond
@@ -87,7 +89,7 @@ class Hierarchy:
         self.levels = levels
         self.options = options
         estimate.check_indices([self._estimate(projecting=False)], levels)
-        level = self._analyse()
+        level = self._analyse(analysed)
         self._guard(max_memory)
         self.steps: list = []  # per step: RegularTables (uniform levels) or a full StencilTable
         self.flatness_tables: list = []
@@ -114,13 +116,18 @@ class Hierarchy:
         self.num_vertices = level.num_vertices
 
     # ------------------------------------------------------------------------------------------ phases
-    def _analyse(self) -> Level:
-        """Phase 1: the control mesh's topology, classes and sectors; what the later phases ask of it."""
+    def _analyse(self, source: Hierarchy | None = None) -> Level:
+        """Phase 1: the control mesh's topology, classes and sectors; what the later phases ask of it.
+        ``source``: a hierarchy of the same control mesh and options whose analysed level 0 is taken as it is
+        (a level-0 hierarchy keeps it as :attr:`final`; others do not keep it)."""
         o = self.options
         mesh = self.mesh
-        level = base_level(mesh, o.scheme, o.boundary, o.rules, o.triangulate,
-                           flatness=o.flatness if o.piecewise_smooth else None,
-                           crease_method=o.crease_method, linear=o.linear)
+        if source is not None and source.levels == 0:
+            level = source.final
+        else:
+            level = base_level(mesh, o.scheme, o.boundary, o.rules, o.triangulate,
+                               flatness=o.flatness if o.piecewise_smooth else None,
+                               crease_method=o.crease_method, linear=o.linear)
         self.base_num_vertices = level.num_vertices
         self.base_face_size = level.face_size
         self.base_vert_class = level.vert_class  # (V,) int8: the control vertices' rules (warp_subdiv.order)

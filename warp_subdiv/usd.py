@@ -43,6 +43,7 @@ from . import __version__
 from . import phases as _phases
 from .errors import SubdivInputError
 from .estimate import Estimate, MemoryGuardError, check_memory, estimate, total_bytes
+from .hierarchy import shipped
 from .objio import ObjData
 from .options import Boundary, Options, Precision, RuleSet, Scheme
 from .order import OrderedRefiner, check_vertex_order
@@ -162,8 +163,8 @@ def plan(
         out.keys.append(key)
         out.options.append(options)
         out.warnings.extend(f"{sp.path}: {w}" for w in sp.warnings)
-        out.estimates.append(estimate_prim(sp, levels, precision, normals, limit,
-                                           make_refiner(sp, 0, options=options, device=device)))
+        sp.analysed = make_refiner(sp, 0, options=options, device=device)
+        out.estimates.append(estimate_prim(sp, levels, precision, normals, limit, sp.analysed))
     if require_meshes and not out.prims:
         where = f"under {', '.join(prims)}" if prims else "in the file"
         why = "; ".join(f"{p} ({r})" for p, r in out.left_alone[:3])
@@ -241,8 +242,10 @@ def make_refiner(source, levels: int, *, options: Options | None = None, device=
         options = options_for(source, **overrides)
     elif overrides:
         raise TypeError(f"pass either options= or overrides, not both ({', '.join(overrides)})")
+    analysed = getattr(source, "analysed", None)  # the plan's level-0 refiner: its analysis is reused
     try:
-        return Refiner(source.mesh, levels, options=options, device=device, max_memory=max_memory)
+        with shipped(analysed.hierarchy if analysed is not None else None):
+            return Refiner(source.mesh, levels, options=options, device=device, max_memory=max_memory)
     except MemoryGuardError:
         raise
     except SubdivInputError as exc:
