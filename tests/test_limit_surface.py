@@ -362,6 +362,192 @@ def test_consistency_with_projections(scene):
         check_consistency(mesh, scheme, rules, {}, level=2, depth=3)
 
 
+def refined_vertex_params(surface, refiner, level):
+    """(faces, u, v, vertex ids) of every corner of every face of ``level``: the parameters at which the limit
+    surface passes through that refined vertex's limit (Loop polygons mapped onto their fan tiles)."""
+    face, uv, sub = refined_face_params(refiner.hierarchy, level)
+    n = uv.shape[1]
+    verts = refiner.hierarchy.final.corner_vert.reshape(-1, n)
+    control = refiner.hierarchy.parentage.control_face
+    if control is not None:
+        first = np.searchsorted(control, control)
+        k = face - first[face]
+        face = control[face]
+        fan = surface.face_size[face] > 3
+        uv[fan] = np.stack([k[fan][:, None] + 0.5 * uv[fan][..., 0], 0.5 * uv[fan][..., 1]], -1)
+    face_ids, uv = to_face_uv(surface, face, uv, sub)
+    keep = ~surface.holes[face_ids]
+    return (np.repeat(face_ids[keep], n), uv[keep, :, 0].ravel(), uv[keep, :, 1].ravel(),
+            verts[keep].ravel().astype(np.int64))
+
+
+def tagged(mesh, rng, sharpness=(0.5, 2.0, 10.0)):
+    """``mesh`` with a few random creases (semi-sharp and infinitely sharp) and corners, its points jittered.
+    Semi-sharp tags are at most 2 (10 is infinitely sharp): refined vertices of level 2 then have limit masks
+    that are exact (a vertex still semi-sharp at the level takes the sharp masks, which the surface does not)."""
+    edges = mesh.edges.edge_verts
+    pick = rng.choice(len(edges), max(1, len(edges) // 6), replace=False)
+    corners = rng.choice(mesh.num_vertices, max(1, mesh.num_vertices // 8), replace=False)
+    return ws.Mesh(mesh.points + 0.03 * rng.standard_normal(mesh.points.shape), mesh.face_vertex_counts,
+                   mesh.face_vertex_indices, creases=edges[pick], crease_sharpness=rng.choice(sharpness, len(pick)),
+                   corners=corners, corner_sharpness=rng.choice([2.0, 10.0], len(corners)), concave=mesh.concave,
+                   holes=mesh.holes)
+
+
+def data_cases():
+    """(id, mesh, scheme) under the piecewise-smooth rules: concave and convex corners (sector angles from the
+    geometry), complex corners, creases and corners, n-gons, Loop polygons."""
+    rng = np.random.default_rng(RNG_SEED)
+    concave = scene_meshes("concave_corner")
+    complex_ = scene_meshes("complex_corner")
+    return [("concave_corner", concave[0][0], "catmull-clark"), ("concave_corners4", concave[1][0], "catmull-clark"),
+            ("complex_corner", complex_[0][0], "catmull-clark"),
+            ("quad_lshape_tagged", tagged(load_mesh("quad_lshape"), rng), "catmull-clark"),
+            ("mixed_prism_tagged", tagged(load_mesh("mixed_prism"), rng), "catmull-clark"),
+            ("tri_halffan_tagged", tagged(load_mesh("tri_halffan"), rng), "loop"),
+            ("mixed_prism_loop", tagged(load_mesh("mixed_prism"), rng), "loop")]
+
+
+@pytest.mark.parametrize("case", range(7), ids=[c[0] for c in data_cases()])
+def test_vertex_data_takes_the_weights_of_the_points(case):
+    """evaluate_data subdivides data with the positions' weights (piecewise-smooth sector angles, flatness, end
+    caps' tangent planes from the geometry): data equal to the points gives evaluate()'s points and derivatives
+    bit for bit, and so do two of the points' columns alone (weights taken from the data would change the
+    sector angles); the result is linear (a x + b y to 1e-12); at refined vertices it equals limit_points() of
+    Refiner.evaluate() of the same data."""
+    name, mesh, scheme = data_cases()[case]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        o = ws.Options(scheme=scheme, rules="piecewise-smooth", precision="float64")
+        surface = ws.LimitSurface(mesh, options=o, depth=3)
+        refiner = ws.Refiner(mesh, 2, options=o)
+    rng = np.random.default_rng(RNG_SEED + case)
+    f, u, v = sample(surface, 400, rng)
+    ev = surface.evaluate(f, u, v)
+    same = surface.evaluate_data(mesh.points, f, u, v, derivatives=1)
+    assert np.array_equal(same.values, ev.points) and np.array_equal(same.du, ev.du)
+    assert np.array_equal(same.dv, ev.dv)
+    assert np.array_equal(surface.evaluate_data(mesh.points[:, :2], f, u, v).values, ev.points[:, :2])
+    x = rng.standard_normal((mesh.num_vertices, 2))
+    y = rng.standard_normal(mesh.num_vertices)
+    a = surface.evaluate_data(2.5 * x - 1.5 * y[:, None], f, u, v).values
+    b = 2.5 * surface.evaluate_data(x, f, u, v).values - 1.5 * surface.evaluate_data(y, f, u, v).values[:, None]
+    assert np.abs(a - b).max() < 1e-12
+    rf, ru, rv, verts = refined_vertex_params(surface, refiner, 2)
+    want = refiner.limit_points(refiner.evaluate(x))
+    got = surface.evaluate_data(x, rf, ru, rv).values
+    np.testing.assert_allclose(got, want[verts], atol=1e-10)
+
+
+FV_MODES = ["none", "corners-only", "corners-plus1", "corners-plus2", "boundaries", "all"]
+
+
+def seamed_channel(mesh, rng):
+    """A face-varying channel with seams: one value per (vertex, face of a random 3-colouring of the faces)
+    pair, so the islands meet along seams, some vertices carry two values and some three or more."""
+    counts = np.asarray(mesh.face_vertex_counts)
+    island = rng.integers(0, 3, len(counts))
+    idx = mesh.face_vertex_indices.astype(np.int64) * 3 + np.repeat(island, counts)
+    return rng.random((3 * mesh.num_vertices, 2)), idx
+
+
+@pytest.mark.parametrize("name,scheme,boundary", [("mixed_prism", "catmull-clark", "edge-and-corner"),
+                                                  ("quad_lshape", "catmull-clark", "edge-only"),
+                                                  ("mixed_prism", "loop", "edge-and-corner"),
+                                                  ("tri_grid3x3", "loop", "edge-and-corner")])
+def test_face_varying_consistency_with_limit_face_varying(name, scheme, boundary):
+    """evaluate_face_varying at the parameters of every corner of every level-2 face equals
+    Refiner.limit_face_varying of the uniformly refined channel there, under every interpolation mode, on
+    channels with seams (n-gons, Loop polygons and boundaries included)."""
+    mesh = load_mesh(name)
+    values, idx = seamed_channel(mesh, np.random.default_rng(RNG_SEED))
+    o = ws.Options(scheme=scheme, boundary=boundary, precision="float64")
+    surface = ws.LimitSurface(mesh, options=o, depth=3)
+    refiner = ws.Refiner(mesh, 2, options=o)
+    rf, ru, rv, _ = refined_vertex_params(surface, refiner, 2)
+    for mode in FV_MODES:
+        got = surface.evaluate_face_varying(values, idx, rf, ru, rv, mode=mode).values
+        limit, refined_idx = refiner.limit_face_varying(values, idx, mode=mode)
+        np.testing.assert_allclose(got, limit[refined_idx], atol=1e-12, err_msg=mode)
+
+
+def seam_grid():
+    """A 4 x 4 quad grid whose UVs form three islands: A (faces left of x = 2), B (right, below y = 2) and C
+    (right, above). The centre vertex 12 has three values: A's spans two faces there, B's and C's one each."""
+    mesh, pts, n = grid_mesh(4, np.random.default_rng(RNG_SEED))
+    a, b = np.meshgrid(np.arange(4), np.arange(4))
+    island = np.where(a.ravel() <= 1, 0, np.where(b.ravel() <= 1, 1, 2))
+    idx = mesh.face_vertex_indices.astype(np.int64) * 3 + np.repeat(island, 4)
+    return mesh, np.random.default_rng(RNG_SEED + 1).random((75, 2)), idx
+
+
+def test_face_varying_modes_on_seams():
+    """On seams the values follow the modes: "none" smooths even a one-face corner of an island; "corners-only"
+    interpolates it but keeps a seam value that spans two faces on a smooth boundary curve (the B-spline
+    boundary mask (1, 4, 1) / 6 of its island's values); "corners-plus1" also interpolates that value (its
+    vertex has three values); "boundaries" makes seams linear (an edge's middle is the mean of its ends);
+    "all" is bilinear interpolation inside each face; the modes agree on a face away from the seams."""
+    mesh, values, idx = seam_grid()
+    surface = ws.LimitSurface(mesh, depth=3)
+
+    def at(face, u, v, mode):
+        return surface.evaluate_face_varying(values, idx, [face], [u], [v], mode=mode).values[0]
+
+    def value(vertex, island):
+        return values[3 * vertex + island]
+
+    # face 5 (island A, below left of the centre): its corner 2 is vertex 12, on A's seam x = 2
+    smooth_boundary = (value(7, 0) + 4 * value(12, 0) + value(17, 0)) / 6
+    np.testing.assert_allclose(at(5, 1, 1, "corners-only"), smooth_boundary, atol=1e-12)
+    assert np.abs(smooth_boundary - value(12, 0)).max() > 1e-2
+    for mode in ("corners-plus1", "corners-plus2", "boundaries", "all"):
+        np.testing.assert_allclose(at(5, 1, 1, mode), value(12, 0), atol=1e-12, err_msg=mode)
+    # face 6 (island B): its corner 3 is vertex 12, a one-face corner of B
+    assert np.abs(at(6, 0, 1, "none") - value(12, 1)).max() > 1e-3
+    for mode in FV_MODES[1:]:
+        np.testing.assert_allclose(at(6, 0, 1, mode), value(12, 1), atol=1e-12, err_msg=mode)
+    # face 9 (island A, above left): the middle of its seam edge 12 - 17
+    mean = (value(12, 0) + value(17, 0)) / 2
+    np.testing.assert_allclose(at(9, 1, 0.5, "boundaries"), mean, atol=1e-12)
+    assert np.abs(at(9, 1, 0.5, "corners-plus1") - mean).max() > 1e-3
+    # "all": bilinear in every face
+    rng = np.random.default_rng(RNG_SEED)
+    f, u, v = rng.integers(0, 16, 50), rng.random(50), rng.random(50)
+    c = values[idx.reshape(16, 4)[f]]
+    uu, vv = u[:, None], v[:, None]
+    bilinear = (1 - uu) * (1 - vv) * c[:, 0] + uu * (1 - vv) * c[:, 1] + uu * vv * c[:, 2] + (1 - uu) * vv * c[:, 3]
+    np.testing.assert_allclose(surface.evaluate_face_varying(values, idx, f, u, v, mode="all").values, bilinear,
+                               atol=1e-12)
+    # face 0 is two rings away from any seam (the mesh boundary aside): "none" .. "corners-plus2" agree inside
+    inner = [surface.evaluate_face_varying(values, idx, [0], [0.9], [0.9], mode=m).values for m in FV_MODES[:4]]
+    for other in inner[1:]:
+        np.testing.assert_allclose(other, inner[0], atol=1e-12)
+
+
+def test_face_varying_input_is_checked():
+    """Too few values, indices of the wrong length or negative, an unknown mode, derivatives under "all" are
+    refused with SubdivInputError; derivatives of a channel equal finite differences of its values."""
+    mesh, values, idx = seam_grid()
+    surface = ws.LimitSurface(mesh, depth=3)
+    with pytest.raises(SubdivInputError, match="values"):
+        surface.evaluate_face_varying(values[:10], idx, [0], [0.5], [0.5])
+    with pytest.raises(SubdivInputError, match="indices"):
+        surface.evaluate_face_varying(values, idx[:-1], [0], [0.5], [0.5])
+    with pytest.raises(SubdivInputError, match="negative"):
+        surface.evaluate_face_varying(values, -idx, [0], [0.5], [0.5])
+    with pytest.raises(SubdivInputError, match="mode"):
+        surface.evaluate_face_varying(values, idx, [0], [0.5], [0.5], mode="sometimes")
+    with pytest.raises(SubdivInputError, match="derivatives"):
+        surface.evaluate_face_varying(values, idx, [0], [0.5], [0.5], mode="all", derivatives=1)
+    h = 1e-6
+    f, u, v = [5, 5, 5], [0.3 + h, 0.3 - h, 0.3], [0.6, 0.6, 0.6]
+    res = surface.evaluate_face_varying(values, idx, f, u, v, derivatives=1)
+    np.testing.assert_allclose((res.values[0] - res.values[1]) / (2 * h), res.du[2], rtol=1e-6, atol=1e-8)
+    one = surface.evaluate_face_varying(values[:, 0], idx, f, u, v)
+    assert one.values.shape == (3,)
+    np.testing.assert_array_equal(one.values, res.values[:, 0])
+
+
 def test_parameterisation_of_polygons():
     """vertex_uv() of every corner of n-gons (Catmull-Clark sub-face tiles) and Loop polygons (fan triangle tiles)
     evaluates to the limit position of that control vertex, and an n-gon's centre to its face point's limit."""

@@ -13,9 +13,14 @@ CUBE_P = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 
 CUBE_F = [0, 3, 2, 1, 4, 5, 6, 7, 0, 1, 5, 4, 1, 2, 6, 5, 2, 3, 7, 6, 3, 0, 4, 7]
 
 
-def _scene(path):
+def _scene(path, fvar_mode=None):
+    """The cube with time-sampled points, vertex, varying and face-varying (indexed st) primvars; returns (the
+    varying values, st per face corner, st values, st indices). ``fvar_mode``: faceVaryingLinearInterpolation
+    to author (None: USD's fallback cornersPlus1)."""
     stage = Usd.Stage.CreateNew(str(path))
     mesh = UsdGeom.Mesh.Define(stage, "/Cube")
+    if fvar_mode is not None:
+        mesh.CreateFaceVaryingLinearInterpolationAttr(fvar_mode)
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(CUBE_P.astype(np.float32)))
     pts = mesh.GetPointsAttr()
     pts.Set(Vt.Vec3fArray.FromNumpy(CUBE_P.astype(np.float32)), 1.0)
@@ -38,13 +43,13 @@ def _scene(path):
     pv.Set(Vt.Vec2fArray.FromNumpy(st))
     pv.SetIndices(Vt.IntArray.FromNumpy(st_idx))
     stage.GetRootLayer().Save()
-    return var, st[st_idx]
+    return var, st[st_idx], st, st_idx
 
 
 @pytest.fixture(scope="module")
 def baked(tmp_path_factory):
     d = tmp_path_factory.mktemp("tess")
-    var, st = _scene(d / "in.usda")
+    var, st, _, _ = _scene(d / "in.usda", fvar_mode="all")
     result = tessellate_file(str(d / "in.usda"), str(d / "out.usda"), rate=3, rules="opensubdiv")
     stage = Usd.Stage.Open(str(d / "out.usda"))
     surface = ws.LimitSurface(ws.Mesh(CUBE_P, [4] * 6, CUBE_F), rules="opensubdiv")
@@ -81,6 +86,8 @@ def test_varying_primvar_bilinear_in_the_base_face(baked):
 
 
 def test_face_varying_primvar_bilinear_per_corner(baked):
+    """Under faceVaryingLinearInterpolation "all" a face-varying primvar is bilinear in each control face from
+    its corner values, one value per output corner."""
     stage, _, t, _, st = baked
     prim = stage.GetPrimAtPath("/Cube")
     pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("st")
@@ -92,6 +99,28 @@ def test_face_varying_primvar_bilinear_per_corner(baked):
     want = (1 - u) * (1 - v) * c[:, 0] + u * (1 - v) * c[:, 1] + u * v * c[:, 2] + (1 - u) * v * c[:, 3]
     assert len(got) == len(t.face_vertex_indices)
     np.testing.assert_allclose(got, want, atol=1e-6)
+
+
+@pytest.mark.parametrize("fvar_mode,mode", [(None, "corners-plus1"), ("none", "none"), ("boundaries", "boundaries")])
+def test_face_varying_primvar_on_the_limit_surface(tmp_path, fvar_mode, mode):
+    """Other faceVaryingLinearInterpolation modes (and USD's fallback cornersPlus1): the face-varying primvar is
+    the limit surface of its value mesh under that mode (LimitSurface.evaluate_face_varying) at every output
+    corner, which differs from bilinear interpolation."""
+    _, st_corner, st, st_idx = _scene(tmp_path / "in.usda", fvar_mode=fvar_mode)
+    result = tessellate_file(str(tmp_path / "in.usda"), str(tmp_path / "out.usda"), rate=3, rules="opensubdiv")
+    assert not [w for w in result.warnings if "primvar" in w], result.warnings
+    stage = Usd.Stage.Open(str(tmp_path / "out.usda"))
+    got = np.asarray(UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Cube")).GetPrimvar("st").ComputeFlattened(),
+                     dtype=np.float64)
+    surface = ws.LimitSurface(ws.Mesh(CUBE_P, [4] * 6, CUBE_F), rules="opensubdiv")
+    t = surface.tessellate(rate=3)
+    face = np.repeat(t.face_base_face, t.face_vertex_counts)
+    want = surface.evaluate_face_varying(st.astype(np.float64), st_idx, face, t.face_uv[:, 0], t.face_uv[:, 1],
+                                         mode=mode).values
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    corners, w = corner_weights(surface, face, t.face_uv)
+    bilinear = np.einsum("nm,nmk->nk", w, st_corner.astype(np.float64)[np.maximum(corners, 0)])
+    assert np.abs(got - bilinear).max() > 1e-3
 
 
 def test_time_samples_tessellated(baked):

@@ -19,6 +19,12 @@ Parameterisation (as OpenSubdiv's ``Bfr::Parameterization``):
 Derivatives ``du``, ``dv`` (and ``duu``, ``duv``, ``dvv``) are with respect to these (u, v); normals are the unit
 ``du x dv`` (outward for counter-clockwise faces).
 
+Data on the surface: :meth:`LimitSurface.evaluate_data` evaluates per-vertex data (vertex primvars) as the limit
+of the same subdivision, with the weights of the positions (sector angles, flatness and end caps' tangent
+planes from the geometry), so the result is linear in the data and data equal to the points gives the points;
+:meth:`LimitSurface.evaluate_face_varying` evaluates a face-varying channel (UVs) on the limit surface of its
+value mesh under OpenSubdiv's face-varying interpolation mode (as Bfr builds a face-varying surface per face).
+
 How it is computed and how exact it is: :mod:`warp_subdiv.limit_patches` (a tree of Bezier patches per face:
 exact polynomial patches wherever the surface is one, local refinement with the library's own rules and
 projections near irregular features down to ``depth`` levels, end caps below that). The tree is built once;
@@ -27,16 +33,17 @@ projections near irregular features down to ``depth`` levels, end caps below tha
 from __future__ import annotations
 
 import numbers
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
 from . import limit_patches
-from .errors import SubdivInputError
+from .errors import NonManifoldWarning, SubdivInputError
 from .evaluator import default_device
-from .mesh import Mesh
-from .options import Options, Scheme
+from .mesh import Mesh, check_rows
+from .options import FaceVaryingMode, Options, Scheme
 
 #: Default depth of local refinement below a base face before end caps (see README "Limit surface").
 DEFAULT_DEPTH = 8
@@ -61,6 +68,20 @@ class LimitEvaluation:
 
     def __len__(self) -> int:
         return len(self.points)
+
+
+@dataclass
+class DataEvaluation:
+    """Results of :meth:`LimitSurface.evaluate_data` and :meth:`LimitSurface.evaluate_face_varying`: numpy
+    float64 ``values`` (n, k), or (n,) for 1-D data, and with ``derivatives=1`` their first derivatives ``du``,
+    ``dv`` with respect to the face's (u, v), of the same shape (None otherwise)."""
+
+    values: np.ndarray
+    du: np.ndarray | None = None
+    dv: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.values)
 
 
 class LimitSurface:
@@ -99,6 +120,7 @@ class LimitSurface:
         self.tree = limit_patches.build(mesh, options, self.depth)
         self._parameterisation()
         self._device_arrays = None
+        self._fv_cache = None
 
     scheme = property(lambda self: self.options.scheme)
     rules = property(lambda self: self.options.rules)
@@ -238,15 +260,32 @@ class LimitSurface:
             empty = np.zeros((0, 3))
             return LimitEvaluation(empty, empty.copy(), empty.copy(), empty.copy(),
                                    *((empty.copy(),) * 3 if second else (None,) * 3), np.zeros(0, np.int32))
-        from . import kernels
+        queries = self._device_queries(faces_a, u_a, v_a)
+        p, du, dv, nrm, duu, duv, dvv, patch = self._launch(queries, n, second, self._arrays()["points"])
 
+        def host(x):
+            return x.numpy().reshape(n, 3)
+
+        return LimitEvaluation(host(p), host(du), host(dv), host(nrm),
+                               host(duu) if second else None, host(duv) if second else None,
+                               host(dvv) if second else None, patch.numpy())
+
+    def _device_queries(self, faces_a, u_a, v_a):
         dev = self.device
-        a = self._arrays()
 
         def query(x, dtype):
             x = np.ascontiguousarray(x, dtype=dtype)
             return wp.array(x, device=dev, copy=not dev.is_cpu)
 
+        return query(faces_a, np.int32), query(u_a, np.float64), query(v_a, np.float64)
+
+    def _launch(self, queries, n: int, second: bool, points):
+        """One run of the evaluation kernel over the tree's nodes and patches with control ``points`` (a Warp
+        vec3d array: the tree's points, or three columns of data carried through the same tree)."""
+        from . import kernels
+
+        dev = self.device
+        a = self._arrays()
         out = [wp.empty(n, dtype=wp.vec3d, device=dev) for _ in range(7)] if second else \
             [wp.empty(n, dtype=wp.vec3d, device=dev) for _ in range(3)]
         if second:
@@ -256,17 +295,163 @@ class LimitSurface:
             duu = duv = dvv = wp.empty(1, dtype=wp.vec3d, device=dev)
         patch = wp.empty(n, dtype=wp.int32, device=dev)
         wp.launch(kernels.limit_evaluate, dim=n,
-                  inputs=[a["face_info"], query(faces_a, np.int32), query(u_a, np.float64), query(v_a, np.float64),
-                          a["node_child"], a["node_patch"], a["patch_index"], a["patch_basis"], a["points"],
+                  inputs=[a["face_info"], *queries,
+                          a["node_child"], a["node_patch"], a["patch_index"], a["patch_basis"], points,
                           int(self.tree.triangles),
                           int(second), p, du, dv, duu, duv, dvv, nrm, patch], device=dev)
+        return p, du, dv, nrm, duu, duv, dvv, patch
 
-        def host(x):
-            return x.numpy().reshape(n, 3)
+    # ------------------------------------------------------------------------------------------ data
+    def evaluate_data(self, data, faces, u, v, *, derivatives: int = 0) -> DataEvaluation:
+        """The limit of per-control-vertex ``data`` ((V,) or (V, k): vertex primvars) at ``faces``, ``u``, ``v``.
 
-        return LimitEvaluation(host(p), host(du), host(dv), host(nrm),
-                               host(duu) if second else None, host(duv) if second else None,
-                               host(dvv) if second else None, patch.numpy())
+        The data is subdivided with the subdivision of the positions (as ``Refiner.evaluate`` refines
+        primvars): sector angles of the piecewise-smooth rules, flatness, and the tangent planes of the end caps
+        come from the mesh's points, never from the data, so the result is a linear function of ``data`` (the
+        positions' weights) and equals ``Refined.limit_points()`` of the refined data at refined vertices.
+        ``data`` equal to the points gives :meth:`evaluate`'s points bit for bit, except where prescribed normals
+        move the positions (normal control acts on positions only, as in ``refine``). The patch tree of the
+        data is built on each call (the cost of constructing this surface); ``derivatives``: 0 or 1 (also
+        ``du``, ``dv``)."""
+        if derivatives not in (0, 1):
+            raise SubdivInputError(f"derivatives must be 0 or 1, got {derivatives!r}", option="derivatives",
+                                   value=derivatives)
+        one_d = np.ndim(data) == 1
+        arr = check_rows(data, self.mesh.num_vertices, "vertex data").astype(np.float64)
+        faces_a, u_a, v_a = self._queries(faces, u, v)
+        tree = limit_patches.build(self.mesh, self.options, self.depth, data=arr)
+        if tree.num_nodes != self.tree.num_nodes or tree.num_patches != self.tree.num_patches:
+            raise AssertionError("the data's patch tree differs from the surface's")
+        return self._evaluate_columns(tree.points[:, 3:], faces_a, u_a, v_a, derivatives, one_d)
+
+    def _evaluate_columns(self, columns, faces_a, u_a, v_a, derivatives, one_d) -> DataEvaluation:
+        """Evaluate tree control values ``columns`` (num points, k), three columns per kernel run."""
+        n, k = len(faces_a), columns.shape[1]
+        values = np.zeros((n, k))
+        du = np.zeros((n, k)) if derivatives else None
+        dv = np.zeros((n, k)) if derivatives else None
+        if n:
+            queries = self._device_queries(faces_a, u_a, v_a)
+            for c in range(0, k, 3):
+                w = min(3, k - c)
+                block = np.zeros((len(columns), 3))
+                block[:, :w] = columns[:, c:c + w]
+                pts = wp.array(block, dtype=wp.vec3d, device=self.device)
+                p, pu, pv = self._launch(queries, n, False, pts)[:3]
+                values[:, c:c + w] = p.numpy().reshape(n, 3)[:, :w]
+                if derivatives:
+                    du[:, c:c + w] = pu.numpy().reshape(n, 3)[:, :w]
+                    dv[:, c:c + w] = pv.numpy().reshape(n, 3)[:, :w]
+
+        def shape(x):
+            return x[:, 0] if one_d and x is not None else x
+
+        return DataEvaluation(shape(values), shape(du), shape(dv))
+
+    def evaluate_face_varying(self, values, indices, faces, u, v, *, mode=FaceVaryingMode.CORNERS_PLUS1,
+                              derivatives: int = 0) -> DataEvaluation:
+        """A face-varying channel (UVs) on the limit surface at ``faces``, ``u``, ``v``.
+
+        ``values`` (m,) or (m, k), ``indices`` one value index per face corner (the order of the mesh's
+        ``face_vertex_indices``), ``mode``: OpenSubdiv's FVarLinearInterpolation ("none", "corners-only",
+        "corners-plus1" (USD's default), "corners-plus2", "boundaries", "all"; see
+        :mod:`warp_subdiv.facevarying`). As OpenSubdiv's Bfr evaluates face-varying data, the channel is the limit
+        surface of its value mesh (:func:`~warp_subdiv.facevarying.value_mesh`: the same faces in the same
+        order, seams as boundaries, the mode's sharp values), subdivided with OpenSubdiv's rules as
+        ``Refiner.limit_face_varying`` does, so at refined corners the two agree; (face, u, v) means the same
+        point as in :meth:`evaluate`. Mode "all" is linear interpolation inside each face (bilinear on quads and
+        sub-faces, barycentric on triangles), as bilinear refinement converges to. The value mesh's topology
+        is built on the first call for given indices and mode and reused. ``derivatives`` 1 (``du``, ``dv``)
+        is not offered under mode "all"."""
+        mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
+        if derivatives not in (0, 1):
+            raise SubdivInputError(f"derivatives must be 0 or 1, got {derivatives!r}", option="derivatives",
+                                   value=derivatives)
+        if derivatives and mode == FaceVaryingMode.ALL:
+            raise SubdivInputError("derivatives of a face-varying channel under mode 'all' (piecewise linear) are "
+                                   "not offered", option="derivatives", value=derivatives)
+        channel = self._face_varying_channel(indices, mode)
+        one_d = np.ndim(values) == 1
+        if np.ndim(values) in (1, 2) and len(values) < channel["num_values"]:
+            raise SubdivInputError(f"face-varying indices refer to value {channel['num_values'] - 1} but only "
+                                   f"{len(values)} values were given", option="values", element="data",
+                                   value=len(values))
+        vals = check_rows(values, channel["num_values"], "face-varying values", at_least=True).astype(np.float64)
+        faces_a, u_a, v_a = self._queries(faces, u, v)
+        if mode == FaceVaryingMode.ALL:
+            from .tessellate import corner_weights
+
+            corners, weights = corner_weights(self, faces_a, np.stack([u_a, v_a], 1))
+            per_corner = vals[channel["indices"]]
+            out = np.einsum("nm,nmk->nk", weights * (corners >= 0), per_corner[np.maximum(corners, 0)])
+            return DataEvaluation(out[:, 0] if one_d else out)
+        surface = channel["surface"]
+        f2, u2, v2, scale = self._to_value_faces(faces_a, u_a, v_a)
+        with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
+            warnings.simplefilter("ignore", NonManifoldWarning)
+            res = surface.evaluate_data(vals[channel["source"]], f2, u2, v2, derivatives=derivatives)
+        if derivatives:
+            res.du = res.du * (scale if res.du.ndim == 1 else scale[:, None])
+            res.dv = res.dv * (scale if res.dv.ndim == 1 else scale[:, None])
+        if one_d:
+            res.values = res.values[:, 0]
+            if derivatives:
+                res.du, res.dv = res.du[:, 0], res.dv[:, 0]
+        return res
+
+    def _to_value_faces(self, faces_a, u_a, v_a):
+        """(face, u, v, derivative scale) on the value mesh: the same faces, except that a Loop polygon's value
+        mesh holds its fan triangles (the kernel's tile choice: triangle k at u in [k, k + 1), nearest beyond)."""
+        scale = np.ones(len(faces_a))
+        fan = self.face_kind[faces_a] == FAN
+        if not fan.any():
+            return faces_a, u_a, v_a, scale
+        counts = np.asarray(self.mesh.face_vertex_counts, dtype=np.int64)
+        first = np.concatenate([[0], np.cumsum(counts - 2)[:-1]])
+        tu = np.floor(u_a)
+        tu = np.where(u_a - tu > 0.75, tu + 1, tu)
+        k = np.where(fan, np.clip(tu.astype(np.int64), 0, np.maximum(counts[faces_a] - 3, 0)), 0)
+        f2 = first[faces_a] + k
+        u2 = np.where(fan, 2.0 * (u_a - k), u_a)
+        v2 = np.where(fan, 2.0 * v_a, v_a)
+        scale[fan] = 2.0
+        return f2, u2, v2, scale
+
+    def _face_varying_channel(self, indices, mode) -> dict:
+        """The value mesh of a channel as a limit surface (cached for the last indices and mode)."""
+        from .facevarying import check_indices, value_mesh
+        from .topology import triangulate
+
+        idx = check_indices(indices, len(self.mesh.face_vertex_indices))
+        key = (mode, idx.tobytes())
+        cache = self._fv_cache
+        if cache is not None and cache["key"] == key:
+            return cache
+        o = self.options
+        num_values = int(idx.max()) + 1 if len(idx) else 0
+        cache = {"key": key, "indices": idx, "num_values": num_values}
+        if mode != FaceVaryingMode.ALL:
+            vm, source = value_mesh(self.mesh, idx, mode, o.boundary, o.scheme)
+            verts = np.asarray(self.mesh.face_vertex_indices, dtype=np.int64)
+            if len(vm.face_vertex_indices) != len(verts):  # Loop polygons: the value mesh is on fan triangles
+                verts = triangulate(self.mesh.face_vertex_counts, verts)[1].reshape(-1).astype(np.int64)
+            geometry = np.zeros((vm.num_vertices, 3))
+            # the geometry of each value vertex is its vertex's: the end caps' tangent planes use it (the value
+            # mesh's rules are OpenSubdiv's, which no geometry changes)
+            geometry[np.asarray(vm.face_vertex_indices, dtype=np.int64)] = np.asarray(self.mesh.points)[verts]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NonManifoldWarning)
+                mesh = Mesh(geometry, vm.face_vertex_counts, vm.face_vertex_indices,
+                            creases=vm.creases if len(vm.creases) else None,
+                            crease_sharpness=vm.crease_sharpness if len(vm.creases) else None,
+                            corners=vm.corners if len(vm.corners) else None,
+                            corner_sharpness=vm.corner_sharpness if len(vm.corners) else None,
+                            holes=vm.holes if len(vm.holes) else None)
+                options = o.replace(rules="opensubdiv", boundary="edge-only", flatness=None, loop_beta="loop")
+                cache["surface"] = LimitSurface(mesh, depth=self.depth, options=options, device=self.device)
+            cache["source"] = source
+        self._fv_cache = cache
+        return cache
 
     def tessellate(self, *, rate=None, edge_length=None, quads: bool = True):
         """A watertight tessellation of the limit surface (see :func:`warp_subdiv.tessellate.tessellate`)."""

@@ -118,7 +118,8 @@ class PatchTree:
     sides: 16 uniform cubic B-spline control points under Catmull-Clark, 12 quartic box-spline control points in
     ``TRI_RING`` order under Loop) or ``BEZIER`` (16 bicubic or 15 quartic triangular Bezier control points);
     ``patch_index`` (P, 16) int32: the control points, rows of
-    ``points`` (V, 3) float64 (the control mesh's points, then refined points and Bezier nets), in the order
+    ``points`` (V, 3) float64 (the control mesh's points, then refined points and Bezier nets; 3 + k columns
+    with :func:`build`'s ``data``), in the order
     of ``QUAD_GRID`` / ``TRI_BEZIER_INDEX`` (triangles use the first 15); ``patch_kind`` (P,) int8
     ``REGULAR`` or ``END_CAP``; ``patch_level`` (P,) int8: the level of the patch's face below its base face.
     Roots: base face f (a level-0 face) owns nodes ``root_offsets[f]`` .. ``root_offsets[f + 1] - 1``: one
@@ -147,7 +148,7 @@ class PatchTree:
         return len(self.patch_kind)
 
     def bezier(self, patches) -> np.ndarray:
-        """(n, 16 or 15, 3) Bezier control points of ``patches`` (B-spline patches converted), for tests."""
+        """(n, 16 or 15, D) Bezier control points of ``patches`` (B-spline patches converted), for tests."""
         patches = np.asarray(patches, dtype=np.int64)
         pts = self.points[self.patch_index[patches]]
         out = pts.copy()
@@ -184,7 +185,8 @@ class _Nodes:
 class _Patches:
     """Growable patch arrays and the global point array their control points index."""
 
-    def __init__(self):
+    def __init__(self, width: int = 3):
+        self.width = width
         self.index, self.basis, self.kind, self.level = [], [], [], []
         self.points = []
         self.num_points = 0
@@ -193,7 +195,7 @@ class _Patches:
     def add_points(self, points: np.ndarray) -> int:
         """Append points; returns the index of the first."""
         first = self.num_points
-        self.points.append(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        self.points.append(np.asarray(points, dtype=np.float64).reshape(-1, self.width))
         self.num_points += len(self.points[-1])
         return first
 
@@ -210,16 +212,16 @@ class _Patches:
         return ids
 
     def add_bezier(self, nets: np.ndarray, kind: int, level: int) -> np.ndarray:
-        """Patches whose Bezier nets (n, 16 or 15, 3) are appended to the points."""
+        """Patches whose Bezier nets (n, 16 or 15, width) are appended to the points."""
         n, m = nets.shape[:2]
-        first = self.add_points(nets.reshape(-1, 3))
+        first = self.add_points(nets.reshape(-1, self.width))
         index = first + np.arange(n * m, dtype=np.int64).reshape(n, m)
         return self.add_indexed(index, BEZIER, kind, level)
 
     def arrays(self):
         def cat(parts, shape, dtype):
             return np.concatenate(parts).astype(dtype) if parts else np.zeros(shape, dtype)
-        return (cat(self.points, (0, 3), np.float64), cat(self.index, (0, 16), np.int32),
+        return (cat(self.points, (0, self.width), np.float64), cat(self.index, (0, 16), np.int32),
                 cat(self.basis, (0,), np.int32), cat(self.kind, (0,), np.int8), cat(self.level, (0,), np.int8))
 
 
@@ -249,21 +251,28 @@ def _csr_apply(table, src: np.ndarray) -> np.ndarray:
 
 
 def _displace(table, points: np.ndarray) -> np.ndarray:
-    """Apply a flatness or normal-control DisplacementTable (every row reads the unmoved points)."""
+    """Apply a flatness or normal-control DisplacementTable (every row reads the unmoved points).
+
+    A flatness table has scalar weights and moves every column (flatness is part of the subdivision matrix, as
+    ``Refiner.evaluate`` applies it to primvars). A normal-control table moves positions only, the first three
+    columns: data columns carried beside them (:func:`build`'s ``data``) are refined as ``Refiner.evaluate``
+    refines primvars, without normal control."""
     if table is None or table.num_rows == 0:
         return points
     counts = np.diff(table.offsets.astype(np.int64))
     rows = np.repeat(np.arange(len(counts)), counts)
     idx = table.indices.astype(np.int64)
-    src = points[idx] * table.weights[:, None]
     if table.normal_ids is not None:
+        geo = np.ascontiguousarray(points[idx, :3])
         n = table.normals[table.normal_ids.astype(np.int64)]
-        src = n * np.einsum("ij,ij->i", n, points[idx])[:, None] * table.weights[:, None]
-    delta = np.empty((len(counts), 3))
-    for c in range(3):
+        src = n * np.einsum("ij,ij->i", n, geo)[:, None] * table.weights[:, None]
+    else:
+        src = points[idx] * table.weights[:, None]
+    delta = np.empty((len(counts), src.shape[1]))
+    for c in range(src.shape[1]):
         delta[:, c] = np.bincount(rows, weights=src[:, c], minlength=len(counts))
     out = points.copy()
-    out[table.targets.astype(np.int64)] += delta
+    out[table.targets.astype(np.int64), :src.shape[1]] += delta
     return out
 
 
@@ -460,12 +469,13 @@ def _regular(topo: _Topo, faces: np.ndarray, scheme: str):
 
 
 def _phantoms(points: np.ndarray, ids: np.ndarray, side_sharp: np.ndarray, scheme: str) -> np.ndarray:
-    """(F, G, 3) control points with the phantom points across sharp sides made (B-spline: reflection;
-    box spline: parallelograms)."""
+    """(F, G, D) control points with the phantom points across sharp sides made (B-spline: reflection;
+    box spline: parallelograms); D: the columns of ``points``."""
     F = len(ids)
+    D = points.shape[1]
     P = np.where((ids >= 0)[..., None], points[np.maximum(ids, 0)], np.nan)
     if scheme == CATMULL_CLARK:
-        g = P.reshape(F, 4, 4, 3)  # [j + 1, i + 1]
+        g = P.reshape(F, 4, 4, D)  # [j + 1, i + 1]
 
         def at(i, j):
             return g[:, j + 1, i + 1]
@@ -484,7 +494,7 @@ def _phantoms(points: np.ndarray, ids: np.ndarray, side_sharp: np.ndarray, schem
                                                    (2, 2, -1, -1, top, right), (-1, 2, 1, -1, top, left)):
             setp(i, j, 2 * at(i, j + dj) - at(i, j + 2 * dj), row_side)
             setp(i, j, 2 * at(i + di, j) - at(i + 2 * di, j), col_side & ~row_side)
-        return g.reshape(F, 16, 3)
+        return g.reshape(F, 16, D)
     idx = {p: n for n, p in enumerate(TRI_RING)}
 
     def at(p):
@@ -503,13 +513,26 @@ def _phantoms(points: np.ndarray, ids: np.ndarray, side_sharp: np.ndarray, schem
     return P
 
 
+def _combine(weights: np.ndarray, src: np.ndarray) -> np.ndarray:
+    """out[:, k] = sum_i weights[k, i] src[:, i] for src (F, I, D), term by term in the order of i: every
+    column is computed by the same operations whatever D is (a data column equal to a position column gives
+    the same bits; a matrix product or einsum may sum differently for other widths)."""
+    out = np.zeros((src.shape[0], weights.shape[0]) + src.shape[2:])
+    for k in range(weights.shape[0]):
+        for i in np.flatnonzero(weights[k]):
+            out[:, k] += weights[k, i] * src[:, i]
+    return out
+
+
 def regular_bezier(control: np.ndarray, scheme: str) -> np.ndarray:
-    """Bezier control points (F, 16 or 15, 3) of regular patches from their B-spline / box-spline points."""
+    """Bezier control points (F, 16 or 15, D) of regular patches from their B-spline / box-spline points."""
+    D = control.shape[-1]
     if scheme == CATMULL_CLARK:
-        g = control.reshape(-1, 4, 4, 3)  # [j, i]
-        b = np.einsum("ai,bj,fjic->fbac", QUAD_BEZIER, QUAD_BEZIER, g)  # [b (v), a (u)]
-        return b.reshape(-1, 16, 3)
-    return np.einsum("ki,fic->fkc", LOOP_BEZIER, control)
+        g = control.reshape(-1, 4, 4, D)  # [j, i]
+        rows = _combine(QUAD_BEZIER, np.ascontiguousarray(g.transpose(0, 2, 1, 3)))  # [a (u), j]
+        b = _combine(QUAD_BEZIER, np.ascontiguousarray(rows.transpose(0, 2, 1, 3)))  # [b (v), a (u)]
+        return b.reshape(-1, 16, D)
+    return _combine(LOOP_BEZIER, control)
 
 
 # ----------------------------------------------------------------------------------------- cut-outs
@@ -575,7 +598,7 @@ def _cut_out(cur: _Local, region: np.ndarray, options: Options) -> _Local:
     nmask = vmap[cur.normal_ids] >= 0 if len(cur.normal_ids) else np.zeros(0, bool)
     normal_ids = vmap[cur.normal_ids[nmask]]
     normal_vectors = cur.normal_vectors[nmask]
-    mesh = Mesh(cur.points[verts], sizes, local, creases=creases,
+    mesh = Mesh(cur.points[verts, :3], sizes, local, creases=creases,
                 crease_sharpness=np.minimum(level.edge_sharpness[tagged], INFINITE_SHARPNESS),
                 corners=corner_ids, corner_sharpness=np.minimum(vsharp[corner_ids], INFINITE_SHARPNESS),
                 holes=holes)
@@ -630,22 +653,25 @@ def _child_faces(level: Level, faces: np.ndarray, scheme: str):
 
 # ----------------------------------------------------------------------------------------- end caps
 def _limit_data(level: Level, points: np.ndarray, options: Options):
-    """Limit positions (V, 3) of ``level``'s vertices, the unit normal of every tangent pair (T, 3) and the
-    pairs of each vertex (CSR offsets (V + 1,)): one pair per sector, one for other vertices."""
+    """Limit positions (V, D) of ``level``'s vertices, the two limit tangents of every tangent pair (T, D) each,
+    the unit normal of every pair (T, 3, from the positions: the first three columns) and the pairs of each
+    vertex (CSR offsets (V + 1,)): one pair per sector, one for other vertices."""
     o = options
     s = projections.resolve_flatness(level) if o.piecewise_smooth else np.zeros(level.num_sectors)
     tables = projections.limit_tables(level, s, o.loop_beta, o.rules)
     pos = _csr_apply(tables.position, points)
-    normals = np.cross(_csr_apply(tables.tangent_u, points), _csr_apply(tables.tangent_v, points))
+    tu = _csr_apply(tables.tangent_u, points)
+    tv = _csr_apply(tables.tangent_v, points)
+    normals = np.cross(tu[:, :3], tv[:, :3])
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     normals = np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
-    return pos, normals, tables.vertex_offsets.astype(np.int64)
+    return pos, tu, tv, normals, tables.vertex_offsets.astype(np.int64)
 
 
 def _regular_derivatives(level: Level, points: np.ndarray, vertices: np.ndarray, toward: np.ndarray, options):
     """Exact derivatives at regular vertices (valence 4 / 6 interior) along the edge to ``toward``, per unit of
     this level's parameter; NaN where the vertex is not a regular interior vertex of this level."""
-    out = np.full((len(vertices), 3), np.nan)
+    out = np.full((len(vertices), points.shape[1]), np.nan)
     scheme = options.scheme
     k = 4 if scheme == CATMULL_CLARK else 6
     valence = np.diff(level.vert_corner_offsets)[vertices]
@@ -660,9 +686,12 @@ def _regular_derivatives(level: Level, points: np.ndarray, vertices: np.ndarray,
     vs = vertices[use]
     local = projections.ring_local_vectors(level, vs, k)
     m = M.interior_masks(scheme, k, len(vs), options.loop_beta)
-    p = points[local]  # (n, L, 3)
-    t1 = np.einsum("nl,nlc->nc", m.l1, p)
-    t2 = np.einsum("nl,nlc->nc", m.l2, p)
+    p = points[local]  # (n, L, D)
+    t1 = np.zeros((len(vs), points.shape[1]))
+    t2 = np.zeros((len(vs), points.shape[1]))
+    for j in range(p.shape[1]):  # term by term: the same operations for every column (see _combine)
+        t1 += m.l1[:, j, None] * p[:, j]
+        t2 += m.l2[:, j, None] * p[:, j]
     ring = local[:, 1:1 + k]
     pos = np.argmax(ring == toward[use][:, None], axis=1)
     found = ring[np.arange(len(vs)), pos] == toward[use]
@@ -675,11 +704,11 @@ def _regular_derivatives(level: Level, points: np.ndarray, vertices: np.ndarray,
 
 
 def end_cap_bezier(P: np.ndarray, D_next: np.ndarray, D_prev: np.ndarray, scheme: str) -> np.ndarray:
-    """Bezier control points of end caps from corner positions P (F, n, 3) and, per corner, the derivatives
-    along the edge to the next corner and to the previous one (F, n, 3), per unit of the cap's parameter."""
-    F = len(P)
+    """Bezier control points of end caps from corner positions P (F, n, D) and, per corner, the derivatives
+    along the edge to the next corner and to the previous one (F, n, D), per unit of the cap's parameter."""
+    F, D = len(P), P.shape[-1]
     if scheme == CATMULL_CLARK:
-        b = np.zeros((F, 4, 4, 3))  # [b (v), a (u)]
+        b = np.zeros((F, 4, 4, D))  # [b (v), a (u)]
         corner_uv = [(0, 0), (3, 0), (3, 3), (0, 3)]
         # (d/du, d/dv) at each corner from its (next, prev) edge derivatives
         du = [D_next[:, 0], -D_prev[:, 1], -D_next[:, 2], D_prev[:, 3]]
@@ -691,9 +720,9 @@ def end_cap_bezier(P: np.ndarray, D_next: np.ndarray, D_prev: np.ndarray, scheme
             b[:, bb, a + sa] = P[:, j] + sa * du[j] / 3.0
             b[:, bb + sb, a] = P[:, j] + sb * dv[j] / 3.0
             b[:, bb + sb, a + sa] = b[:, bb, a + sa] + b[:, bb + sb, a] - P[:, j]
-        return b.reshape(F, 16, 3)
+        return b.reshape(F, 16, D)
     index = {e: n for n, e in enumerate(TRI_BEZIER_INDEX)}
-    out = np.zeros((F, 15, 3))
+    out = np.zeros((F, 15, D))
     unit = [(4, 0, 0), (0, 4, 0), (0, 0, 4)]
     for j in range(3):
         out[:, index[unit[j]]] = P[:, j]
@@ -723,7 +752,7 @@ def _end_caps(sub: _Local, child: Level, child_points: np.ndarray, faces: np.nda
     scheme = options.scheme
     n = 4 if scheme == CATMULL_CLARK else 3
     level = sub.level
-    pos, pair_normals, voff = _limit_data(child, child_points, options)
+    pos, pair_tu, pair_tv, pair_normals, voff = _limit_data(child, child_points, options)
     corners = _face_corners(level, faces, n)
     c = level.corner_vert.astype(np.int64)[corners]  # vertex children keep their ids
     # the child corner of each face corner: the corner child face holds the vertex child; its next and previous
@@ -739,38 +768,76 @@ def _end_caps(sub: _Local, child: Level, child_points: np.ndarray, faces: np.nda
     mid_next = ccv[child.corner_next(child_corner)]
     mid_prev = ccv[child.corner_prev(child_corner)]
     P = pos[c]
-    # tangent plane of each corner: the limit normal; where a vertex has several sectors, the sector normal
-    # closest to the face's own normal at that corner
-    geo = np.cross(child_points[mid_next] - child_points[c], child_points[mid_prev] - child_points[c])
+    # tangent plane of each corner: the limit tangents; where a vertex has several sectors, the sector whose
+    # normal is closest to the face's own normal at that corner (positions decide: the first three columns)
+    geometry = child_points[:, :3]
+    geo = np.cross(geometry[mid_next] - geometry[c], geometry[mid_prev] - geometry[c])
     count = voff[c + 1] - voff[c]
-    N = pair_normals[np.minimum(voff[c], max(len(pair_normals) - 1, 0))] * (count > 0)[..., None]
+    pair = np.where(count > 0, np.minimum(voff[c], max(len(pair_normals) - 1, 0)), -1)
     multi = count > 1
     if multi.any():
         best = np.full(c.shape, -np.inf)
         for t in range(int(count.max())):
             has = multi & (count > t)
-            pair = np.where(has, voff[c] + t, 0)
-            score = np.einsum("...c,...c->...", pair_normals[pair], geo)
+            candidate = np.where(has, voff[c] + t, 0)
+            score = np.einsum("...c,...c->...", pair_normals[candidate], geo)
             better = has & (score > best)
-            N[better] = pair_normals[pair[better]]
+            pair[better] = candidate[better]
             best = np.where(better, score, best)
-    # derivatives along the face's edges, per unit of the face's parameter (twice the child level's)
+    # derivatives along the face's edges, per unit of the face's parameter (twice the child level's), projected
+    # onto the tangent plane. The positions' derivative d becomes its orthogonal projection written in the
+    # plane's limit tangents, x t_u + y t_v (Gram-Schmidt on the positions' tangents); a data column gets the
+    # same combination of its own limit tangents, so every column is a linear function of the control values
+    # with the positions' weights. Where the positions' tangents are (nearly) parallel (a singular point, e.g.
+    # under normal control) the positions are projected along the pair's normal and data columns are not.
+    if not len(pair_tu):  # no tangent pairs at all: nothing to project on
+        pair_tu = pair_tv = np.zeros((1, child_points.shape[1]))
+        pair_normals = np.zeros((1, 3))
+        pair[:] = -1
+    t_u = pair_tu[np.maximum(pair, 0)]
+    t_v = pair_tv[np.maximum(pair, 0)]
+    N = pair_normals[np.maximum(pair, 0)] * (pair >= 0)[..., None]
+    g_u, g_v = np.ascontiguousarray(t_u[..., :3]), np.ascontiguousarray(t_v[..., :3])
+    len_u = np.sqrt(np.einsum("...c,...c->...", g_u, g_u))
+    e1 = g_u / np.where(len_u > 0, len_u, 1.0)[..., None]
+    along = np.einsum("...c,...c->...", g_v, e1)
+    w = g_v - along[..., None] * e1
+    len_w = np.sqrt(np.einsum("...c,...c->...", w, w))
+    len_v = np.sqrt(np.einsum("...c,...c->...", g_v, g_v))
+    plane = (pair >= 0) & (len_u > 0) & (len_w > 1e-6 * len_v)
+    len_u = np.where(plane, len_u, 1.0)
+    len_w = np.where(plane, len_w, 1.0)
     D = []
     far = [np.roll(c, -1, axis=1), np.roll(c, 1, axis=1)]
     for mid, end in ((mid_next, far[0]), (mid_prev, far[1])):
         exact = 2.0 * _regular_derivatives(child, child_points, c.reshape(-1), mid.reshape(-1),
-                                           options).reshape(c.shape + (3,))
+                                           options).reshape(c.shape + (child_points.shape[1],))
         parabola = -3.0 * P + 4.0 * pos[mid] - pos[end]
-        d = np.where(np.isnan(exact), parabola, exact)
-        d = d - np.einsum("...c,...c->...", d, N)[..., None] * N
+        d = np.where(np.isnan(exact[..., :1]), parabola, exact)
+        dg = np.ascontiguousarray(d[..., :3])
+        alpha = np.einsum("...c,...c->...", dg, e1)
+        beta = np.einsum("...c,...c->...", dg, w) / len_w
+        x = (alpha / len_u - beta * along / (len_w * len_u))[..., None]
+        y = (beta / len_w)[..., None]
+        singular = d.copy()
+        singular[..., :3] = dg - np.einsum("...c,...c->...", dg, N)[..., None] * N
+        d = np.where(plane[..., None], x * t_u + y * t_v, singular)
         D.append(d)
     return end_cap_bezier(P, D[0], D[1], scheme)
 
 
 # ----------------------------------------------------------------------------------------- building
-def build(mesh: Mesh, options: Options, depth: int) -> PatchTree:
+def build(mesh: Mesh, options: Options, depth: int, *, data: np.ndarray | None = None) -> PatchTree:
     """The patch tree of ``mesh`` with ``options``: irregular faces refined locally down to ``depth`` levels
-    below their base face (``depth`` >= 1), end caps below that."""
+    below their base face (``depth`` >= 1), end caps below that.
+
+    ``data`` (V, k) float64: per-vertex data carried beside the positions: the tree's ``points`` then have
+    3 + k columns, the data's Bezier and B-spline control values after the positions'. Every decision that
+    depends on geometry (sector angles, end caps' tangent planes, sectors of several-sector corners) is taken
+    from the positions, and each data column goes through the same linear operations as a position column
+    (flatness included, normal control not, as ``Refiner.evaluate`` refines primvars): the data's control
+    values are a linear function of ``data`` with the positions' weights, and a data column equal to a position
+    column gets the same bits where normal control is off."""
     o = options
     scheme = o.scheme.value if isinstance(o.scheme, Scheme) else str(o.scheme)
     triangles = o.scheme == Scheme.LOOP
@@ -782,8 +849,11 @@ def build(mesh: Mesh, options: Options, depth: int) -> PatchTree:
         normal_ids = normal_ids[:0]
     normal_vectors = np.asarray(hierarchy.normal_vectors, dtype=np.float64).reshape(-1, 3)[:len(normal_ids)]
     nodes = _Nodes()
-    patches = _Patches()
     base_points = np.asarray(mesh.points, dtype=np.float64)
+    if data is not None:
+        base_points = np.concatenate([base_points, np.asarray(data, dtype=np.float64).reshape(len(base_points), -1)],
+                                     axis=1)
+    patches = _Patches(base_points.shape[1])
     patches.add_points(base_points)
     F0 = level0.num_faces
     sizes0 = level0.face_sizes()

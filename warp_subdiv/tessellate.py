@@ -22,7 +22,9 @@ Output (:class:`Tessellation`): ``points`` and unit ``normals`` of the limit sur
 (``face_vertex_counts``, ``face_vertex_indices``, int32), and for every vertex the control face and (u, v) it
 was evaluated at (``base_face``, ``uv``); face-varying: ``face_base_face`` (per output face) and ``face_uv``
 (per face corner: the (u, v) of that corner in the face's own control face, which differs from ``uv`` for
-vertices on an edge between control faces).
+vertices on an edge between control faces). Face-varying data (UVs) at the output corners:
+``LimitSurface.evaluate_face_varying(values, indices, face_base_face repeated per corner, face_uv[:, 0],
+face_uv[:, 1], mode=...)``, which the ``tessellate`` command does with the mesh's interpolation mode.
 """
 from __future__ import annotations
 
@@ -750,28 +752,12 @@ def _with_points(mesh, points):
 
 
 def vertex_data(surface, data, faces, uv) -> np.ndarray:
-    """The limit of per-control-vertex ``data`` (V, k) at (``faces``, ``uv``): (n, k) float64.
-
-    Evaluated as the limit surface of a mesh with the same topology and tags (creases, corners, concave tags,
-    holes; no prescribed normals: they move positions only, as in refine) whose points carry two data columns
-    at a time in a plane ((a, b, 0)), so the result is linear in the data (the end caps' tangent-plane
-    projection only touches the zero column). Under the piecewise-smooth rules the sector angles of corners
-    are those of the data, not of the points."""
+    """The limit of per-control-vertex ``data`` (V, k) at (``faces``, ``uv``): (n, k) float64, by
+    :meth:`~warp_subdiv.limit.LimitSurface.evaluate_data` (the data subdivided with the positions' weights, as
+    ``refine`` refines vertex primvars)."""
     data = np.asarray(data, dtype=np.float64)
-    data = data.reshape(len(data), -1)
-    faces = np.asarray(faces, dtype=np.int64)
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    out = np.zeros((len(faces), data.shape[1]))
-    for c in range(0, data.shape[1], 2):
-        cols = data[:, c:c + 2]
-        if not np.any(cols):
-            continue
-        pts = np.zeros((len(data), 3))
-        pts[:, :cols.shape[1]] = cols
-        mesh = _with_points(surface.mesh, pts)
-        other = type(surface)(mesh, options=surface.options, depth=surface.depth, device=surface.device)
-        out[:, c:c + 2] = other.evaluate(faces, uv[:, 0], uv[:, 1]).points[:, :cols.shape[1]]
-    return out
+    return surface.evaluate_data(data.reshape(len(data), -1), faces, uv[:, 0], uv[:, 1]).values
 
 
 def corner_weights(surface, faces, uv) -> tuple:
@@ -787,7 +773,7 @@ def corner_weights(surface, faces, uv) -> tuple:
     counts = np.asarray(surface.mesh.face_vertex_counts, dtype=np.int64)
     offsets = _face_corners(counts)
     n = counts[faces]
-    m = int(n.max()) if len(n) else 1
+    m = max(int(n.max()), 4) if len(n) else 4  # room for a quad's four weights in any case
     W = np.zeros((len(faces), m))
     kind = surface.face_kind[faces]
     u, v = uv[:, 0], uv[:, 1]
@@ -835,10 +821,12 @@ def _interpolate(corner_values, corners, weights) -> np.ndarray:
 
 
 def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=None) -> None:
-    """Uniform primvars follow their control faces; vertex primvars are evaluated on the limit surface of their
-    values, varying ones linearly inside the control face at each vertex's (u, v), face-varying ones linearly
-    inside the control face from its corner values at each output corner's (u, v) (written unindexed);
-    constant ones are left as they are; others (not floating point, time-sampled) are blocked."""
+    """Uniform primvars follow their control faces; vertex primvars are evaluated on the limit surface
+    (subdivided with the points' weights, as refine refines them), varying ones linearly inside the control
+    face at each vertex's (u, v), face-varying ones on the limit surface of their value mesh under the mesh's
+    faceVaryingLinearInterpolation (as refine and OpenSubdiv's Bfr; "all" is linear inside the control face) at
+    each output corner's (u, v) (written unindexed); constant ones are left as they are; others (not floating
+    point, time-sampled) are blocked."""
     from pxr import Sdf
 
     from .usd_write import vt_array
@@ -872,21 +860,32 @@ def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=No
             elif pv.times:
                 why = "time-sampled primvars are not tessellated"
             else:
+                fv_index = None
                 try:
-                    rows = pv.flattened(default_time, sp.path)
+                    if pv.interpolation == "faceVarying":
+                        rows, fv_index = pv.elements(default_time, sp.path)
+                        fv_index = np.arange(len(rows)) if fv_index is None else np.asarray(fv_index, np.int64)
+                    else:
+                        rows = pv.flattened(default_time, sp.path)
                 except SubdivInputError as exc:
                     rows, why = None, str(exc)
                 want = C if pv.interpolation == "faceVarying" else V
-                if rows is not None and len(rows) == want:
+                given = None if rows is None else len(rows) if fv_index is None else len(fv_index)
+                if rows is not None and given == want:
                     rows = rows.astype(np.float64)
                     if pv.interpolation == "vertex":
                         out = vertex_data(surface, rows, t.base_face, t.uv)
                     elif pv.interpolation == "varying":
                         corner_rows = rows[np.asarray(sp.mesh.face_vertex_indices, dtype=np.int64)]
                         out = _interpolate(corner_rows, *corner_weights(surface, t.base_face, t.uv))
-                    else:
+                    else:  # on the limit surface of the channel's values, under the mesh's interpolation mode
                         nfc = np.repeat(t.face_base_face.astype(np.int64), t.face_vertex_counts)
-                        out = _interpolate(rows, *corner_weights(surface, nfc, t.face_uv))
+                        try:
+                            out = surface.evaluate_face_varying(rows, fv_index, nfc, t.face_uv[:, 0], t.face_uv[:, 1],
+                                                                mode=sp.face_varying_mode).values
+                        except SubdivInputError as exc:
+                            raise sp.error(exc) from None
+                        out = out.reshape(len(out), -1)
                     probe = np.asarray(pv.primvar.GetAttr().Get(default_time) or [])
                     dims = out.shape[1] // max(pv.element_size, 1)
                     value = vt_array(pv.type_name, out.reshape(-1, dims) if dims > 1 else out.reshape(-1),
@@ -900,7 +899,7 @@ def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=No
                         layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)
                     continue
                 if rows is not None:
-                    why = f"{len(rows)} values for {want} {'corners' if want == C else 'vertices'}"
+                    why = f"{given} values for {want} {'corners' if want == C else 'vertices'}"
         warnings_.append(f"{sp.path}: primvar {pv.name} ({pv.interpolation}) is not tessellated ({why}); blocked")
         layer.block(prim, pv.name, attr.GetTypeName(), custom=attr.IsCustom())
         if pv.indexed:
