@@ -11,7 +11,11 @@
 * the parameterisation of n-gons and Loop polygons (``vertex_uv`` lands on the control vertices' limits);
 * the end caps' error bound (README), errors, and every device present;
 * a differential test against OpenSubdiv's Bfr (``peers/osd/bfr_peer.cpp``; skipped without libosd-dev) on the
-  regression shapes and on random tagged meshes, ``rules="opensubdiv"``.
+  regression shapes and on random tagged meshes, ``rules="opensubdiv"``;
+* vertex data (``evaluate_data``): subdivided with the points' weights (bitwise the points for data = points,
+  linear, equal to limit_points of refined data under the piecewise-smooth rules);
+* face-varying channels (``evaluate_face_varying``): equal to ``Refiner.limit_face_varying`` at refined corners
+  under every interpolation mode, the modes' behaviour on seams, and Bfr's face-varying surfaces.
 """
 import glob
 import os
@@ -770,3 +774,65 @@ def test_bfr_tessellation_coordinates():
                              axis=0)
             theirs = np.unique(np.round(t["coords"][offsets[f]:offsets[f + 1]], 9), axis=0)
             np.testing.assert_allclose(mine, theirs)
+
+
+BFR_FV_CASES = [("mixed_prism", "catmull-clark", FV_MODES), ("quad_lshape", "catmull-clark", FV_MODES),
+                ("cube", "catmull-clark", FV_MODES),
+                ("icosahedron", "loop", FV_MODES[2:]), ("tri_grid3x3", "loop", FV_MODES[2:])]
+
+
+@pytest.mark.parametrize("name,scheme,modes", BFR_FV_CASES, ids=[c[0] + "-" + c[1] for c in BFR_FV_CASES])
+def test_bfr_face_varying(name, scheme, modes):
+    """Face-varying channels with seams against Bfr's face-varying surfaces (InitFaceVaryingSurface, the
+    channel's interpolation mode): values to 1e-10 and derivatives to 1e-8 (relative) where Bfr is exact (its
+    result does not change at approximation level 10), values within 1e-4 of Bfr at level 10 everywhere.
+    Loop under "none" and "corners-only": see test_bfr_loop_face_varying_differs_from_far."""
+    peer = _peer()
+    mesh = load_mesh(name)
+    values, idx = seamed_channel(mesh, np.random.default_rng(RNG_SEED))
+    surface = ws.LimitSurface(mesh, scheme=scheme, rules="opensubdiv")
+    f, u, v = sample(surface, 600, np.random.default_rng(RNG_SEED))
+    osd_scheme = "catmark" if scheme == "catmull-clark" else "loop"
+    for mode in modes:
+        rec = peer.mesh_request(mesh, 0, scheme=osd_scheme, fvar=(values, idx), fvar_linear=mode)
+        b = peer.bfr_evaluate(rec, f, np.c_[u, v])
+        b10 = peer.bfr_evaluate(rec, f, np.c_[u, v], approx_smooth=10, approx_sharp=10)
+        assert b["fvar_valid"].all()
+        ours = surface.evaluate_face_varying(values, idx, f, u, v, mode=mode, derivatives=int(mode != "all"))
+        exact = np.linalg.norm(b["fvar_points"] - b10["fvar_points"], axis=1) < 1e-12
+        assert exact.mean() > 0.6, mode
+        d = np.linalg.norm(ours.values - b["fvar_points"], axis=1)
+        assert d[exact].max() < 1e-10, (mode, d[exact].max())
+        assert np.linalg.norm(ours.values - b10["fvar_points"], axis=1).max() < 1e-4, mode
+        if mode != "all":
+            for key in ("du", "dv"):
+                ref = b["fvar_" + key][exact]
+                size = np.maximum(np.linalg.norm(ref, axis=1), 1e-3)
+                rel = np.linalg.norm(getattr(ours, key)[exact] - ref, axis=1) / size
+                assert rel.max() < 1e-8, (mode, key, rel.max())
+
+
+def test_bfr_loop_face_varying_differs_from_far():
+    """Bfr 3.5's Loop face-varying surface under "none" (and "corners-only") interpolates a seam value at a
+    vertex with three values where OpenSubdiv's own refinement (Far, which warp-subdiv's refine matches) smooths
+    it: at that corner, Far's refined value converges (levels 2, 4, 6) to evaluate_face_varying's, away from
+    Bfr's. warp-subdiv follows Far (this test fails if Bfr or Far change)."""
+    peer = _peer()
+    mesh = load_mesh("tri_grid3x3")
+    values, idx = seamed_channel(mesh, np.random.default_rng(RNG_SEED))
+    surface = ws.LimitSurface(mesh, scheme="loop", rules="opensubdiv")
+    face, corner = 15, 0  # corner 45: vertex 9 (valence 6), values 27, 28, 29 around it
+    uv = surface.vertex_uv([face], [corner])
+    ours = surface.evaluate_face_varying(values, idx, [face], uv[:, 0], uv[:, 1], mode="none").values[0]
+    rec = peer.mesh_request(mesh, 0, scheme="loop", fvar=(values, idx), fvar_linear="none")
+    bfr = peer.bfr_evaluate(rec, [face], uv)["fvar_points"][0]
+    np.testing.assert_allclose(bfr, values[idx[3 * face + corner]], atol=1e-12)  # Bfr: the value itself
+    far = []
+    for level in (2, 4, 6):
+        out = peer.refine(mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices, level, scheme="loop",
+                          fvar_linear="none", fvar=(values, idx))
+        lv = out.levels[level]
+        far.append(lv.fvar_values[lv.fvar_indices[3 * face * 4 ** level + corner]])  # child 0 keeps corner 0
+    errors = [np.linalg.norm(x - ours) for x in far]
+    assert errors[0] > errors[1] > errors[2] and errors[2] < 2e-3
+    assert np.linalg.norm(bfr - ours) > 0.1

@@ -39,6 +39,10 @@
 //   face_vertex_uv   f (sum, 2) Parameterization::GetVertexCoord of every face vertex
 //   face_center_uv   f (F, 2)   Parameterization::GetCenterCoord
 //   face_subfaces    i (F,)     Parameterization::HasSubFaces
+// and, when the mesh has a face-varying channel (fvar_values, fvar_indices, fvar_linear as for osd_peer), the
+// channel's limit at the same queries (InitFaceVaryingSurface of channel 0, one Surface per distinct face):
+//   fvar_points, fvar_du, fvar_dv   f (n, e)  Surface::Evaluate of the channel's values (zeros where invalid)
+//   fvar_valid       i (n,)     1 where the face has a face-varying surface
 // Output records of tessellate (faces without a surface have no coordinates and facets):
 //   coord_offsets    i (F+1,)   coordinates of face f: coord_offsets[f] .. coord_offsets[f+1]-1
 //   coords           f (c, 2)   Tessellation::GetCoords (boundary coordinates first, counter-clockwise from
@@ -153,8 +157,36 @@ void evaluate(const std::string &inPath, const std::string &outPath) {
         surface.Evaluate(&q.uv[2 * k], patchPoints.data(), 3, &P[3 * k], &Du[3 * k], &Dv[3 * k], &Duu[3 * k],
                          &Duv[3 * k], &Dvv[3 * k]);
     }
+    // the face-varying channel: its own Surface per face (the values' topology and the interpolation mode)
+    const int E = b.mesh.fvarWidth;
+    std::vector<double> FP((size_t)E * n, 0.0), FDu((size_t)E * n, 0.0), FDv((size_t)E * n, 0.0);
+    std::vector<int32_t> fvalid(n, 0);
+    if (b.mesh.hasFVar()) {
+        current = -1;
+        ok = false;
+        for (size_t k : order) {
+            int f = q.faces[k];
+            if (f != current) {
+                current = f;
+                ok = b.factory->InitFaceVaryingSurface(f, &surface, 0) && surface.IsValid();
+                if (ok) {
+                    patchPoints.resize((size_t)E * (size_t)surface.GetNumPatchPoints());
+                    surface.PreparePatchPoints(b.mesh.fvarValues.data(), E, patchPoints.data(), E);
+                }
+            }
+            if (!ok) continue;
+            fvalid[k] = 1;
+            surface.Evaluate(&q.uv[2 * k], patchPoints.data(), E, &FP[E * k], &FDu[E * k], &FDv[E * k]);
+        }
+    }
     RecordWriter w(outPath);
     const int64_t N = (int64_t)n;
+    if (b.mesh.hasFVar()) {
+        w.reals("fvar_points", {N, E}, FP.data());
+        w.reals("fvar_du", {N, E}, FDu.data());
+        w.reals("fvar_dv", {N, E}, FDv.data());
+        w.ints("fvar_valid", {N}, fvalid.data());
+    }
     w.reals("points", {N, 3}, P.data());
     w.reals("du", {N, 3}, Du.data());
     w.reals("dv", {N, 3}, Dv.data());
