@@ -1010,3 +1010,56 @@ def test_table_shapes(scheme):
     assert t0.num_sources == V
     assert t0.num_rows == (V + F + E if scheme == CC else V + E)
     assert r.tables[1].num_sources == t0.num_rows
+
+
+# --------------------------------------------------------------------------------------------------------
+# the explicit rows of a uniform level: only the irregular rows, computed on their own
+
+
+def _semi_sharp_grid():
+    """A 6 x 6 grid of quads (open boundary) with semi-sharp creases and a semi-sharp corner inside."""
+    n = 6
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+
+    def vid(a, b):
+        return a * (n + 1) + b
+
+    quads = np.stack([vid(i, j), vid(i + 1, j), vid(i + 1, j + 1), vid(i, j + 1)], axis=-1).reshape(-1)
+    gx, gy = np.meshgrid(np.arange(n + 1.0), np.arange(n + 1.0), indexing="ij")
+    pts = np.stack([gx, gy, 0.1 * np.sin(gx * gy)], axis=-1).reshape(-1, 3)
+    creases = np.array([[vid(2, 1), vid(2, 2)], [vid(2, 2), vid(2, 3)], [vid(2, 3), vid(2, 4)], [vid(4, 2), vid(4, 3)]])
+    return ws.Mesh(pts, np.full(n * n, 4), quads, creases=creases, crease_sharpness=[2.5, 1.0, 3.0, 10.0],
+                   corners=[vid(3, 3)], corner_sharpness=[1.5])
+
+
+@pytest.mark.parametrize("scheme", [CC, LOOP])
+@pytest.mark.parametrize("rules", ["opensubdiv", "piecewise-smooth"])
+@pytest.mark.parametrize("crease_method", ["uniform", "chaikin"])
+def test_explicit_rows_of_a_uniform_level_are_the_full_tables_rows(scheme, rules, crease_method):
+    """build_regular's explicit stencils (the rows the regular kernels do not compute: boundary, crease, corner
+    and crease-neighbour rows) are built from those rows alone; each must be bitwise the same row of the full
+    stencil table of the level, on every level of a mesh with boundaries, semi-sharp creases that decay over
+    the steps, and (piecewise-smooth) crease-neighbour edges."""
+    from warp_subdiv.options import Options
+    from warp_subdiv.tables import build_regular, build_stencils
+    from warp_subdiv.topology import base_level, refine_level
+
+    mesh = _semi_sharp_grid() if scheme == CC else load_mesh("tri_grid3x3")
+    if scheme == LOOP:  # tags on the triangle grid too
+        mesh = ws.Mesh(mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices,
+                       creases=mesh.edges.edge_verts[:3], crease_sharpness=[1.5, 10.0, 2.0])
+    o = Options(scheme=scheme, rules=rules, crease_method=crease_method)
+    level = base_level(mesh, o.scheme, o.boundary, o.rules, o.triangulate, crease_method=o.crease_method)
+    checked = 0
+    for _ in range(4):
+        full = build_stencils(level, o.rules, o.loop_beta)
+        part = build_regular(level, o.rules, o.loop_beta).explicit
+        assert 0 < part.num_rows < full.num_rows
+        for i, row in enumerate(part.rows):
+            a, b = full.offsets[row], full.offsets[row + 1]
+            c, d = part.offsets[i], part.offsets[i + 1]
+            np.testing.assert_array_equal(part.indices[c:d], full.indices[a:b])
+            np.testing.assert_array_equal(part.weights[c:d], full.weights[a:b])
+        checked += part.num_rows
+        level = refine_level(level)
+    assert checked > 100

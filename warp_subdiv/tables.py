@@ -16,7 +16,7 @@ from . import crease, rules
 from .estimate import check_int32
 from .mesh import face_offsets_of
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
-from .topology import Level, child_rules, child_sharpness, expand_counts, fractional_weight
+from .topology import Level, child_rules, child_sharpness, expand_counts, fractional_weight, has_semi_sharpness
 
 
 @dataclass
@@ -78,24 +78,44 @@ def rows_of(offsets: np.ndarray) -> np.ndarray:
     return np.repeat(np.arange(len(offsets) - 1, dtype=np.int64), np.diff(offsets))
 
 
-def crease_neighbours(level: Level, sharp_ends: np.ndarray | None = None) -> np.ndarray:
+def crease_neighbours(level: Level, sharp_ends: np.ndarray | None = None,
+                      vertices: np.ndarray | None = None) -> np.ndarray:
     """(V, 2) the far ends of the (up to two) sharp edges at each vertex (-1 where missing).
 
     These are the neighbours the crease rules weigh: the crease vertex rule of a step and the crease limit
     mask. ``sharp_ends`` (E, 2): whether edge e counts as sharp at its end j; by default the level's sharp
-    edges at both ends (for the rule after a step: whether each half's child sharpness is above 0)."""
+    edges at both ends (for the rule after a step: whether each half's child sharpness is above 0).
+    ``vertices``: only these vertices' rows, (len(vertices), 2) (default: every vertex). Where a vertex has
+    more than two, slot 0 is the last sharp edge's far end in edge order (ends 0 first), slot 1 the last one
+    that differs from it; two sharp edges to the same neighbour (the halves of a degenerate control edge)
+    fill both slots. The work is proportional to the sharp edges and ``vertices``, not to the level."""
+    ev = level.edge_verts
     if sharp_ends is None:
-        sharp_ends = np.repeat(level.edge_sharp[:, None], 2, axis=1)
-    ev = level.edge_verts.astype(np.int64)
-    a = np.concatenate([ev[sharp_ends[:, 0], 0], ev[sharp_ends[:, 1], 1]])
-    b = np.concatenate([ev[sharp_ends[:, 0], 1], ev[sharp_ends[:, 1], 0]])
-    nb = np.full((level.num_vertices, 2), -1, dtype=np.int64)
-    nb[a, 0] = b
-    other = nb[a, 0] != b
-    nb[a[other], 1] = b[other]
-    # two sharp edges to the same neighbour (the two halves of a degenerate control edge): both slots
-    twice = (np.bincount(a, minlength=level.num_vertices) >= 2) & (nb[:, 1] < 0)
-    nb[twice, 1] = nb[twice, 0]
+        s0 = s1 = np.flatnonzero(level.edge_sharp)
+    else:
+        s0, s1 = np.flatnonzero(sharp_ends[:, 0]), np.flatnonzero(sharp_ends[:, 1])
+    a = np.concatenate([ev[s0, 0], ev[s1, 1]]).astype(np.int64)
+    b = np.concatenate([ev[s0, 1], ev[s1, 0]]).astype(np.int64)
+    if vertices is None:
+        vertices = np.arange(level.num_vertices, dtype=np.int64)
+    nb = np.full((len(vertices), 2), -1, dtype=np.int64)
+    if len(a) == 0:
+        return nb
+    order = np.argsort(a, kind="stable")  # each vertex's sharp edges as a run, in the order above
+    a, b = a[order], b[order]
+    run_start = np.flatnonzero(np.concatenate([[True], a[1:] != a[:-1]]))
+    run_last = np.concatenate([run_start[1:], [len(a)]]) - 1
+    first = b[run_last]  # slot 0: the run's last far end
+    run_of = np.repeat(np.arange(len(run_start)), np.diff(np.concatenate([run_start, [len(a)]])))
+    differs = np.where(b != first[run_of], np.arange(len(a)), -1)
+    last_other = np.maximum.reduceat(differs, run_start)
+    second = np.where(last_other >= 0, b[np.maximum(last_other, 0)],
+                      np.where(run_last > run_start, first, -1))  # two edges to one neighbour: both slots
+    run = np.searchsorted(a[run_start], vertices)
+    found = run < len(run_start)
+    found[found] = a[run_start[run[found]]] == vertices[found]
+    nb[found, 0] = first[run[found]]
+    nb[found, 1] = second[run[found]]
     return nb
 
 
@@ -133,7 +153,7 @@ def _smooth_edge_mask(level: Level, rule_set: str, me: np.ndarray, h0: np.ndarra
 
 
 def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop",
-                   regular=None, smooth_triangles: bool = False) -> StencilTable:
+                   regular=None, smooth_triangles: bool = False, *, edge_corners=None) -> StencilTable:
     """The stencil table that refines ``level`` to the next level.
 
     Semi-sharp features follow OpenSubdiv's Sdc::Crease rules: where a vertex's rule changes during the step
@@ -141,108 +161,123 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     weight, then the child rule's mask times one minus it; a semi-sharp edge whose children are smooth lists
     the crease rule's mask times its sharpness, then the smooth rule's times one minus it.
     ``regular``: optional (vertex mask, edge mask) of the rows the regular kernels compute (see
-    :func:`build_regular`); those rows are left out, and the table lists the rows it holds in ``rows``.
+    :func:`build_regular`); those rows are left out, and the table lists the rows it holds in ``rows``. The
+    work is then proportional to the rows left (a boundary, the creases), not to the level, except on levels
+    with semi-sharp features (their sharpness decay is computed level-wide).
     ``smooth_triangles``: OpenSubdiv's TRI_SUB_SMOOTH edge weights next to triangles (Catmull-Clark).
+    ``edge_corners``: the level's :meth:`~warp_subdiv.topology.Level.edge_corner_pair`, when the caller has it.
     """
     scheme = level.scheme
     V, F, E = level.num_vertices, level.num_faces, level.num_edges
     cc = scheme == CATMULL_CLARK
-    voff = level.vert_corner_offsets
-    face_sizes = level.face_sizes()
-    face_starts = level.face_starts()
-    corner_vert = level.corner_vert.astype(np.int64)
-    skip_vertex, skip_edge = regular if regular is not None else (np.zeros(V, bool), np.zeros(E, bool))
+    if regular is None:  # every row, in child vertex order
+        vs, es = np.arange(V, dtype=np.int64), np.arange(E, dtype=np.int64)
+    else:
+        vs, es = np.flatnonzero(~regular[0]), np.flatnonzero(~regular[1])
     with_faces = cc and regular is None
+    nv, ne = len(vs), len(es)
+    face_sizes = level.face_sizes()
+    corner_vert = level.corner_vert
+    h0, h1 = edge_corners if edge_corners is not None else level.edge_corner_pair()
 
     # ----- which rule each row follows before and after the step (sharpness decay: warp_subdiv.crease)
-    halves, child_vs = child_sharpness(level)
-    parent_rule = level.vert_class
-    child_rule, edge_child_rule = child_rules(level, halves, child_vs)
-    transition = crease.vertex_transitions(parent_rule, child_rule) & ~skip_vertex
-    # rows without a transition follow their parent rule alone (fractional weight 1)
-    fraction = (np.where(transition, fractional_weight(level, halves, child_vs), 1.0)
-                if np.any(transition) else np.ones(V))
+    parent_rule = level.vert_class[vs]
+    sharp = level.edge_sharp[es]
+    if has_semi_sharpness(level):
+        halves, child_vs = child_sharpness(level)
+        child_rule, edge_child_rule = child_rules(level, halves, child_vs)
+        child_rule, edge_child_rule = child_rule[vs], edge_child_rule[es]
+        transition = crease.vertex_transitions(parent_rule, child_rule)
+        # rows without a transition follow their parent rule alone (fractional weight 1)
+        fraction = (np.where(transition, fractional_weight(level, halves, child_vs)[vs], 1.0)
+                    if np.any(transition) else np.ones(nv))
+        child_pairs = crease_neighbours(level, halves > 0, vs)
+    else:  # no sharpness decays: every rule stays as it is
+        child_rule = parent_rule
+        edge_child_rule = np.where(sharp, CREASE, SMOOTH).astype(np.int8)
+        transition = np.zeros(nv, dtype=bool)
+        fraction = np.ones(nv)
+        child_pairs = None
     parent_weight, child_weight = rules.transition_weights(fraction)
-    pairs = {"parent": crease_neighbours(level), "child": crease_neighbours(level, halves > 0)}
+    parent_pairs = crease_neighbours(level, vertices=vs)
+
+    def smooth_rule(rule):
+        return (rule == SMOOTH) | (rule == DART)
 
     # ----- row sizes (the smooth rule's only where some row uses it)
-    needs_smooth = np.any(~skip_vertex & np.isin(parent_rule, [SMOOTH, DART])) or np.any(
-        transition & np.isin(child_rule, [SMOOTH, DART]))
-    if needs_smooth:
-        slot_vertex = rows_of(voff)
-        slot_corner = level.vert_corners.astype(np.int64)
+    needs_smooth = bool(np.any(smooth_rule(parent_rule)) or np.any(transition & smooth_rule(child_rule)))
+    slots = None
+    if needs_smooth:  # every corner around the rows' vertices, vertex by vertex in ring order
+        voff = level.vert_corner_offsets
+        first_slot = voff[vs].astype(np.int64)
+        valence = voff[vs + 1] - first_slot
+        owner, rank = expand_counts(valence)
+        slot_corner = level.vert_corners[first_slot[owner] + rank].astype(np.int64)
         slot_face = level.corner_face(slot_corner)
         per_slot = (face_sizes[slot_face] - 2) if cc else np.ones(len(slot_corner), dtype=np.int64)
-        smooth_size = 1 + np.bincount(slot_vertex, weights=per_slot, minlength=V).astype(np.int64)
+        slots = _Slots(owner, valence, slot_corner, slot_face, per_slot)
+        smooth_size = 1 + np.bincount(owner, weights=per_slot, minlength=nv).astype(np.int64)
     else:
-        slot_vertex = slot_corner = slot_face = per_slot = None
-        smooth_size = np.zeros(V, dtype=np.int64)
+        smooth_size = np.zeros(nv, dtype=np.int64)
 
     def rule_size(rule):
-        return np.where((rule == SMOOTH) | (rule == DART), smooth_size, np.where(rule == CREASE, 3, 1))
+        return np.where(smooth_rule(rule), smooth_size, np.where(rule == CREASE, 3, 1))
 
     first_size = rule_size(parent_rule)
     vertex_sizes = first_size + np.where(transition, rule_size(child_rule), 0)
-    vertex_sizes[skip_vertex] = 0
 
-    h0, h1 = level.edge_corner_pair()
-    sharp = level.edge_sharp
-    f0 = level.corner_face(h0)
-    f1 = level.corner_face(h1)
-    smooth_edge_size = (face_sizes[f0] + face_sizes[f1] - 2) if cc else np.full(E, 4)
+    g0, g1 = h0[es], h1[es]
+    m0, m1 = face_sizes[level.corner_face(g0)], face_sizes[level.corner_face(g1)]
+    smooth_edge_size = (m0 + m1 - 2) if cc else np.full(ne, 4)
     # a semi-sharp edge whose children are not both sharp blends the crease and smooth rules
     edge_blend = crease.edge_transitions(sharp, edge_child_rule)
     edge_sizes = np.where(sharp, 2 + np.where(edge_blend, smooth_edge_size, 0), smooth_edge_size)
-    edge_sizes[skip_edge] = 0
-    sizes = [vertex_sizes] + ([face_sizes] if with_faces else ([np.zeros(F, np.int64)] if cc else [])) + [edge_sizes]
-    out = _Layout(np.concatenate(sizes), V)
-    face_row0 = V
-    edge_row0 = V + (F if cc else 0)
+    out = _Layout(np.concatenate([vertex_sizes] + ([face_sizes] if with_faces else []) + [edge_sizes]), V)
+    face_row0 = nv
+    edge_row0 = nv + (F if with_faces else 0)
 
-    # ----- vertex rows: the parent rule's mask, then (where the rule changes) the child rule's mask
-    v = np.arange(V, dtype=np.int64)
-    keep_v = ~skip_vertex
-    for which, rule, verts, pos, weight in (
-        ("parent", parent_rule, v[keep_v], np.zeros(V, np.int64), parent_weight),
-        ("child", child_rule, v[transition], first_size, child_weight),
+    # ----- vertex rows (row i is vertex vs[i]): the parent rule's mask, then (where the rule changes) the
+    # child rule's mask
+    row = np.arange(nv, dtype=np.int64)
+    for rule, pairs, rows, pos, weight in (
+        (parent_rule, parent_pairs, row, np.zeros(nv, np.int64), parent_weight),
+        (child_rule, child_pairs, row[transition], first_size, child_weight),
     ):
-        corner = verts[rule[verts] == CORNER]
+        corner = rows[rule[rows] == CORNER]
         mask = rules.corner_vertex_mask(len(corner)).scaled(weight[corner])
-        out.put(corner, pos[corner], corner, mask.centre)
-        creased = verts[rule[verts] == CREASE]
+        out.put(corner, pos[corner], vs[corner], mask.centre)
+        creased = rows[rule[rows] == CREASE]
         mask = rules.crease_vertex_mask(len(creased)).scaled(weight[creased])
-        nb = pairs[which][creased]
-        out.put(creased, pos[creased], creased, mask.centre)
+        nb = pairs[creased] if len(creased) else np.zeros((0, 2), np.int64)
+        out.put(creased, pos[creased], vs[creased], mask.centre)
         out.put(creased, pos[creased] + 1, nb[:, 0], mask.edge)
         out.put(creased, pos[creased] + 2, nb[:, 1], mask.edge)
-        smooth = np.zeros(V, dtype=bool)
-        smooth[verts[np.isin(rule[verts], [SMOOTH, DART])]] = True
-        if not needs_smooth:
-            continue
-        _put_smooth_vertices(level, out, smooth, pos, weight, loop_beta, slot_vertex, slot_corner, slot_face,
-                             per_slot, h0, h1)
+        if needs_smooth:
+            _put_smooth_vertices(level, out, rows[smooth_rule(rule[rows])], vs, pos, weight, loop_beta, slots,
+                                 h0, h1)
 
     # ----- face rows (Catmull-Clark)
     if with_faces:
         c = np.arange(level.num_corners, dtype=np.int64)
         f_of_c = level.corner_face(c)
-        out.put(face_row0 + f_of_c, c - face_starts[f_of_c], corner_vert, rules.face_point_weights(face_sizes[f_of_c]))
+        face_starts = level.face_starts()
+        out.put(face_row0 + f_of_c, c - face_starts[f_of_c], corner_vert[c],
+                rules.face_point_weights(face_sizes[f_of_c]))
 
-    # ----- edge rows: the crease rule's mask, then (semi-sharp edges whose rule changes) the smooth rule's;
-    # the crease rule weighs 1 on crease edges, 0 on smooth ones and the edge's sharpness where it blends
-    e = np.arange(E, dtype=np.int64)
-    ev = level.edge_verts.astype(np.int64)
+    # ----- edge rows (row edge_row0 + j is edge es[j]): the crease rule's mask, then (semi-sharp edges whose
+    # rule changes) the smooth rule's; the crease rule weighs 1 on crease edges, 0 on smooth ones and the
+    # edge's sharpness where it blends
+    ev = level.edge_verts[es].astype(np.int64)
     crease_weight, smooth_weight = rules.semi_sharp_edge_weights(
-        np.where(edge_blend, level.edge_sharpness, np.where(sharp, 1.0, 0.0)))
-    se = e[sharp & ~skip_edge]
+        np.where(edge_blend, level.edge_sharpness[es], np.where(sharp, 1.0, 0.0)))
+    se = np.flatnonzero(sharp)
     mask = rules.crease_edge_mask(len(se)).scaled(crease_weight[se])
     out.put(edge_row0 + se, 0, ev[se, 0], mask.end_a)
     out.put(edge_row0 + se, 1, ev[se, 1], mask.end_b)
 
-    me = np.flatnonzero((~sharp | edge_blend) & ~skip_edge)
-    g0, g1 = h0[me], h1[me]
-    m0, m1 = face_sizes[level.corner_face(g0)], face_sizes[level.corner_face(g1)]
-    mask = _smooth_edge_mask(level, rule_set, me, h0, m0, m1, smooth_triangles)
+    me = np.flatnonzero(~sharp | edge_blend)
+    g0, g1, m0, m1 = g0[me], g1[me], m0[me], m1[me]
+    mask = _smooth_edge_mask(level, rule_set, es[me], h0, m0, m1, smooth_triangles)
     if cc:  # the two face points, written out over their faces' vertices
         mask = rules.expand_edge_face_points(mask, m0, m1)
     mask = mask.scaled(smooth_weight[me])
@@ -260,53 +295,70 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
         walk = _advance(level, g[rep], t + 2)
         out.put(rows[rep], base_pos[rep] + t, corner_vert[walk], wing[rep])
     table = out.table()
-    if regular is not None:  # keep the non-empty rows only
+    if regular is not None:  # the child vertices of the rows kept (none is empty; the check is cheap)
+        child = np.concatenate([vs, V + (F if cc else 0) + es])
         keep = np.flatnonzero(np.diff(table.offsets) > 0)
-        table.rows = keep.astype(np.int32)
+        table.rows = child[keep].astype(np.int32)
         table.offsets = np.concatenate([[0], np.cumsum(np.diff(table.offsets)[keep])]).astype(np.int32)
     return table
 
 
-def _put_smooth_vertices(level, out, selected, pos, weight, loop_beta, slot_vertex, slot_corner, slot_face,
-                         per_slot, h0, h1):
-    """The smooth (interior) vertex rule for the ``selected`` vertices at row position ``pos``, times ``weight``.
+@dataclass
+class _Slots:
+    """The corners around some vertex rows, vertex by vertex in ring order: ``owner`` (the row of each),
+    ``valence`` (corners per row), ``corner``, ``face`` (the corner's face) and ``per_slot`` (the row entries
+    each corner adds under the smooth rule: its face's vertices other than the centre and the previous edge
+    neighbour, Catmull-Clark; 1 under Loop)."""
+
+    owner: np.ndarray
+    valence: np.ndarray
+    corner: np.ndarray
+    face: np.ndarray
+    per_slot: np.ndarray
+
+
+def _put_smooth_vertices(level, out, rows, vs, pos, weight, loop_beta, slots: _Slots, h0, h1):
+    """The smooth (interior) vertex rule for the vertex rows ``rows`` (ascending; row i is vertex vs[i]) at row
+    position ``pos``, times ``weight``.
 
     Row layout: the vertex, then per slot (its corners in ring order) the edge neighbour that follows the
     corner and the corner face's other vertices (Catmull-Clark faces of four or more vertices)."""
-    cc = level.scheme == CATMULL_CLARK
-    voff = level.vert_corner_offsets
-    vcount = np.diff(voff)
-    face_sizes = level.face_sizes()
-    corner_vert = level.corner_vert.astype(np.int64)
-    sv = np.flatnonzero(selected)
-    if len(sv) == 0:
+    if len(rows) == 0:
         return
-    slots = np.flatnonzero(selected[slot_vertex])
-    sl_v = slot_vertex[slots]
-    sl_h = slot_corner[slots]
-    slot_row = np.repeat(np.arange(len(sv), dtype=np.int64), vcount[sv])  # slots come vertex by vertex
+    cc = level.scheme == CATMULL_CLARK
+    face_sizes = level.face_sizes()
+    corner_vert = level.corner_vert
+    selected = np.zeros(len(vs), dtype=bool)
+    selected[rows] = True
+    pick = np.flatnonzero(selected[slots.owner])  # the slots of these rows, row by row
+    sl_r = slots.owner[pick]
+    sl_h = slots.corner[pick]
+    per_slot = slots.per_slot[pick]
+    valence = slots.valence[rows]
+    slot_row = np.repeat(np.arange(len(rows), dtype=np.int64), valence)
     # position of each slot's first entry inside its row: 1 + entries of the row's earlier slots
-    cum = np.concatenate([[0], np.cumsum(np.where(selected[slot_vertex], per_slot, 0))])
-    sl_pos = pos[sl_v] + 1 + cum[slots] - cum[voff[sl_v]]
+    cum = np.concatenate([[0], np.cumsum(per_slot)])
+    first = np.repeat(cum[:-1][np.concatenate([[0], np.cumsum(valence)[:-1]])], valence)
+    sl_pos = pos[sl_r] + 1 + cum[:-1] - first
     nxt = level.corner_next(sl_h)
-    mask = rules.smooth_vertex_mask(level.scheme, vcount[sv], loop_beta)
+    mask = rules.smooth_vertex_mask(level.scheme, valence, loop_beta)
     if cc:  # face sizes of the slot's face and of the face across the slot's edge, for the face points
         e_sl = level.corner_edge[sl_h].astype(np.int64)
         other = h0[e_sl] + h1[e_sl] - sl_h
-        ring = rules.ring_mask(mask, slot_row, face_sizes[slot_face[slots]], face_sizes[level.corner_face(other)])
+        ring = rules.ring_mask(mask, slot_row, face_sizes[slots.face[pick]], face_sizes[level.corner_face(other)])
     else:
         ring = rules.ring_mask(mask, slot_row)
-    ring = ring.scaled(weight[sv])
-    out.put(sv, pos[sv], sv, ring.centre)
-    out.put(sl_v, sl_pos, corner_vert[nxt], ring.edge)
+    ring = ring.scaled(weight[rows])
+    out.put(rows, pos[rows], vs[rows], ring.centre)
+    out.put(sl_r, sl_pos, corner_vert[nxt], ring.edge)
     # the slot face's vertices that are neither the centre nor its edge neighbours in the face
     if level.face_size:  # one face size: the same number in every slot (none for triangles)
         for t in range(level.face_size - 3):
-            out.put(sl_v, sl_pos + 1 + t, corner_vert[_advance(level, nxt, t + 1)], ring.face)
+            out.put(sl_r, sl_pos + 1 + t, corner_vert[_advance(level, nxt, t + 1)], ring.face)
         return
-    rep, t = expand_counts(per_slot[slots] - 1)
+    rep, t = expand_counts(per_slot - 1)
     walk = _advance(level, nxt[rep], t + 1)
-    out.put(sl_v[rep], sl_pos[rep] + 1 + t, corner_vert[walk], ring.face[rep])
+    out.put(sl_r[rep], sl_pos[rep] + 1 + t, corner_vert[walk], ring.face[rep])
 
 
 @dataclass
@@ -353,7 +405,9 @@ def _edge_neighbours(level: Level, h0: np.ndarray, h1: np.ndarray) -> np.ndarray
     follow by index arithmetic); on triangles (E, 4) int32 its endpoints, then the vertices opposite it, so
     the kernel reads four indices in a row."""
     if level.face_size == 4:
-        return np.ascontiguousarray(np.column_stack([h0, h1]), dtype=np.int32)
+        out = np.empty((level.num_edges, 2), dtype=np.int32)
+        out[:, 0], out[:, 1] = h0, h1
+        return out
     out = np.empty((level.num_edges, 4), dtype=np.int32)
     out[:, :2] = level.edge_verts
     out[:, 2] = level.corner_vert[level.corner_prev(h0)]
@@ -383,7 +437,10 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
     plain = rules.smooth_edge_mask(scheme, 1)
     w, w_wing = plain.end_a[0], plain.wing_0[0]
     if rule_set != "opensubdiv" and level.num_sectors:  # else every smooth edge has the smooth endpoint weights
-        me = np.flatnonzero(edge_regular)
+        # only an edge with a crease or corner endpoint can have other endpoint weights (_smooth_edge_mask)
+        tagged = (vclass == CREASE) | (vclass == CORNER)
+        ev = level.edge_verts
+        me = np.flatnonzero(edge_regular & (tagged[ev[:, 0]] | tagged[ev[:, 1]]))
         m = np.full(len(me), level.face_size, dtype=np.int64)
         mask = _smooth_edge_mask(level, rule_set, me, h0, m, m)
         edge_regular[me[(mask.end_a != w) | (mask.end_b != w)]] = False
@@ -391,7 +448,8 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
         explicit = StencilTable(np.zeros(1, np.int32), np.zeros(0, np.int32), np.zeros(0), level.num_vertices,
                                 rows=np.zeros(0, np.int32))
     else:
-        explicit = build_stencils(level, rule_set, loop_beta, regular=(vertex_regular, edge_regular))
+        explicit = build_stencils(level, rule_set, loop_beta, regular=(vertex_regular, edge_regular),
+                                  edge_corners=(h0, h1))
     valence = np.arange(np.diff(level.vert_corner_offsets).max() + 1, dtype=np.float64)
     valence[valence < 2] = 3  # unused entries (a smooth vertex has 2 faces or more: 2 in a closed pillow)
     ring_mask = rules.smooth_vertex_mask(scheme, valence, loop_beta)
