@@ -134,7 +134,7 @@ def sample(surface, n, rng, margin=0.0):
     u = margin + (1 - 2 * margin) * rng.random(n)
     v = margin + (1 - 2 * margin) * rng.random(n)
     c = surface.face_size[f]
-    if surface.tree.triangles:
+    if surface.triangles:
         flip = u + v > 1
         u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
         fan = c > 3
@@ -529,8 +529,8 @@ def test_face_varying_modes_on_seams():
 
 
 def test_face_varying_input_is_checked():
-    """Too few values, indices of the wrong length or negative, an unknown mode, derivatives under "all" are
-    refused with SubdivInputError; derivatives of a channel equal finite differences of its values."""
+    """Too few values, indices of the wrong length or negative, an unknown mode are refused with
+    SubdivInputError; derivatives of a channel equal finite differences of its values (mode "all" too)."""
     mesh, values, idx = seam_grid()
     surface = ws.LimitSurface(mesh, depth=3)
     with pytest.raises(SubdivInputError, match="values"):
@@ -542,14 +542,54 @@ def test_face_varying_input_is_checked():
     with pytest.raises(SubdivInputError, match="mode"):
         surface.evaluate_face_varying(values, idx, [0], [0.5], [0.5], mode="sometimes")
     with pytest.raises(SubdivInputError, match="derivatives"):
-        surface.evaluate_face_varying(values, idx, [0], [0.5], [0.5], mode="all", derivatives=1)
+        surface.evaluate_face_varying(values, idx, [0], [0.5], [0.5], derivatives=2)
     h = 1e-6
-    f, u, v = [5, 5, 5], [0.3 + h, 0.3 - h, 0.3], [0.6, 0.6, 0.6]
-    res = surface.evaluate_face_varying(values, idx, f, u, v, derivatives=1)
-    np.testing.assert_allclose((res.values[0] - res.values[1]) / (2 * h), res.du[2], rtol=1e-6, atol=1e-8)
-    one = surface.evaluate_face_varying(values[:, 0], idx, f, u, v)
-    assert one.values.shape == (3,)
-    np.testing.assert_array_equal(one.values, res.values[:, 0])
+    f, u, v = [5, 5, 5, 5, 5], [0.3 + h, 0.3 - h, 0.3, 0.3, 0.3], [0.6, 0.6, 0.6 + h, 0.6 - h, 0.6]
+    for mode in ("corners-plus1", "all"):
+        res = surface.evaluate_face_varying(values, idx, f, u, v, mode=mode, derivatives=1)
+        np.testing.assert_allclose((res.values[0] - res.values[1]) / (2 * h), res.du[4], rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose((res.values[2] - res.values[3]) / (2 * h), res.dv[4], rtol=1e-6, atol=1e-8)
+    one = surface.evaluate_face_varying(values[:, 0], idx, f, u, v, mode="all")
+    assert one.values.shape == (5,)
+    np.testing.assert_allclose(one.values, res.values[:, 0], atol=1e-14)
+
+
+@pytest.mark.parametrize("name,scheme", [("mixed_prism", "catmull-clark"), ("quad_lshape", "catmull-clark"),
+                                         ("mixed_prism", "loop")])
+def test_linear_surface(name, scheme):
+    """linear=True (bilinear meshes): at the parameters of every level-2 vertex the surface equals linear
+    refinement (Refiner with linear=True), derivatives equal finite differences, data and face-varying data are
+    interpolated linearly, and the tessellation is watertight with flat faces' normals."""
+    mesh = load_mesh(name)
+    o = ws.Options(scheme=scheme, linear=True, precision="float64")
+    surface = ws.LimitSurface(mesh, options=o)
+    assert surface.linear and surface.tree is None
+    refiner = ws.Refiner(mesh, 2, options=o)
+    rf, ru, rv, verts = refined_vertex_params(surface, refiner, 2)
+    np.testing.assert_allclose(surface.evaluate(rf, ru, rv).points, refiner.refine().points[verts], atol=1e-12)
+    x = np.random.default_rng(RNG_SEED).standard_normal((mesh.num_vertices, 2))
+    np.testing.assert_allclose(surface.evaluate_data(x, rf, ru, rv).values, refiner.evaluate(x)[verts], atol=1e-12)
+    values, idx = seamed_channel(mesh, np.random.default_rng(RNG_SEED))
+    fv, fi = refiner.evaluate_face_varying(values, idx, "all")
+    got = surface.evaluate_face_varying(values, idx, rf, ru, rv, mode="none").values  # linear: every mode
+    np.testing.assert_allclose(got, fv[fi], atol=1e-12)
+    f, u, v = sample(surface, 300, np.random.default_rng(RNG_SEED), margin=0.01)
+    h = 1e-6
+    ev = surface.evaluate(f, u, v, derivatives=2)
+    fd_u = (surface.evaluate(f, u + h, v).points - surface.evaluate(f, u - h, v).points) / (2 * h)
+    fd_v = (surface.evaluate(f, u, v + h).points - surface.evaluate(f, u, v - h).points) / (2 * h)
+    inside = np.ones(len(f), bool)
+    if scheme == "catmull-clark":  # away from the sub-face tiles' borders (where the derivative jumps)
+        frac_u, frac_v = np.modf(2 * u)[0], np.modf(2 * v)[0]
+        inside = (np.minimum(frac_u, 1 - frac_u) > 1e-3) & (np.minimum(frac_v, 1 - frac_v) > 1e-3)
+    np.testing.assert_allclose(ev.du[inside], fd_u[inside], atol=1e-6)
+    np.testing.assert_allclose(ev.dv[inside], fd_v[inside], atol=1e-6)
+    t = surface.tessellate(rate=3)
+    edges = np.sort(np.stack([t.face_vertex_indices, np.concatenate(
+        [np.roll(t.face_vertex_indices[o:o + c], -1) for o, c in
+         zip(np.concatenate([[0], np.cumsum(t.face_vertex_counts)[:-1]]), t.face_vertex_counts)])], 1), axis=1)
+    _, uses = np.unique(edges, axis=0, return_counts=True)
+    assert uses.max() <= 2
 
 
 def test_parameterisation_of_polygons():
@@ -582,7 +622,7 @@ def corner_samples(surface, depth, per_corner, rng):
         uv = surface.vertex_uv(np.full(n, f), np.arange(n))
         for c in range(n):
             r = rng.random((per_corner, 2)) * 2.0 ** -depth
-            if surface.tree.triangles:
+            if surface.triangles:
                 if n != 3:
                     continue
                 p = uv[c] + r[:, :1] * (uv[(c + 1) % 3] - uv[c]) + r[:, 1:] * (uv[(c - 1) % 3] - uv[c])

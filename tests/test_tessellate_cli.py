@@ -123,6 +123,66 @@ def test_face_varying_primvar_on_the_limit_surface(tmp_path, fvar_mode, mode):
     assert np.abs(got - bilinear).max() > 1e-3
 
 
+def test_bilinear_mesh_tessellated_as_bilinear_patches(tmp_path):
+    """A bilinear mesh is tessellated as bilinear patches (not left alone): its points lie on the control faces
+    (the cube's faces), one normal per face corner (faceVarying: the faces meet at creases), the face's own
+    normal; a face-varying primvar is interpolated linearly whatever the interpolation mode says."""
+    stage = Usd.Stage.CreateNew(str(tmp_path / "in.usda"))
+    mesh = UsdGeom.Mesh.Define(stage, "/Box")
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(CUBE_P.astype(np.float32)))
+    mesh.CreateFaceVertexCountsAttr([4] * 6)
+    mesh.CreateFaceVertexIndicesAttr(CUBE_F)
+    mesh.CreateSubdivisionSchemeAttr("bilinear")
+    st = np.random.default_rng(4).random((24, 2)).astype(np.float32)
+    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                            UsdGeom.Tokens.faceVarying).Set(Vt.Vec2fArray.FromNumpy(st))
+    stage.GetRootLayer().Save()
+    result = tessellate_file(str(tmp_path / "in.usda"), str(tmp_path / "out.usda"), rate=3)
+    assert not result.warnings, result.warnings
+    out_stage = Usd.Stage.Open(str(tmp_path / "out.usda"))
+    out = out_stage.GetPrimAtPath("/Box")
+    points = np.asarray(out.GetAttribute("points").Get(), dtype=np.float64)
+    np.testing.assert_allclose(np.abs(points).max(axis=1), 1.0, atol=1e-6)  # on the cube's faces
+    assert len(points) == 6 * 16 - 12 * 4 + 8  # a 3 x 3 grid per face, shared edges and corners
+    normals = UsdGeom.Mesh(out).GetNormalsAttr()
+    assert UsdGeom.Mesh(out).GetNormalsInterpolation() == UsdGeom.Tokens.faceVarying
+    n = np.asarray(normals.Get(), dtype=np.float64)
+    counts = np.asarray(out.GetAttribute("faceVertexCounts").Get())
+    assert len(n) == counts.sum()
+    corner_points = points[np.asarray(out.GetAttribute("faceVertexIndices").Get())]
+    # the outward unit normal of the corner's face: an axis, with n . p = 1 on the cube's face
+    np.testing.assert_allclose(np.abs(n).max(axis=1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(np.einsum("nk,nk->n", n, corner_points), 1.0, atol=1e-6)
+    got = np.asarray(UsdGeom.PrimvarsAPI(out).GetPrimvar("st").ComputeFlattened(), dtype=np.float64)
+    surface = ws.LimitSurface(ws.Mesh(CUBE_P, [4] * 6, CUBE_F), linear=True)
+    t = surface.tessellate(rate=3)
+    face = np.repeat(t.face_base_face, t.face_vertex_counts)
+    corners, w = corner_weights(surface, face, t.face_uv)
+    np.testing.assert_allclose(got, np.einsum("nm,nmk->nk", w, st.astype(np.float64)[corners]), atol=1e-6)
+
+
+def test_instanced_meshes_warned_precisely(tmp_path):
+    """A mesh inside a scene-graph instance is left alone with a warning that names the instance and says how
+    to tessellate it; the same mesh made uninstanceable is tessellated."""
+    stage = Usd.Stage.CreateNew(str(tmp_path / "in.usda"))
+    proto = UsdGeom.Xform.Define(stage, "/Proto")
+    mesh = UsdGeom.Mesh.Define(stage, "/Proto/Cube")
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(CUBE_P.astype(np.float32)))
+    mesh.CreateFaceVertexCountsAttr([4] * 6)
+    mesh.CreateFaceVertexIndicesAttr(CUBE_F)
+    proto.GetPrim().SetSpecifier(Sdf.SpecifierClass)
+    for name, instanceable in (("A", True), ("B", False)):
+        prim = stage.DefinePrim(f"/{name}", "Xform")
+        prim.GetReferences().AddInternalReference("/Proto")
+        prim.SetInstanceable(instanceable)
+    stage.GetRootLayer().Save()
+    result = tessellate_file(str(tmp_path / "in.usda"), str(tmp_path / "out.usda"), rate=2)
+    assert [r.path for r in result.reports] == ["/B/Cube"]
+    assert len(result.warnings) == 1
+    assert result.warnings[0].startswith("/A/Cube: inside the instance /A,") and "instanceable = false" in \
+        result.warnings[0]
+
+
 def test_time_samples_tessellated(baked):
     stage, _, t, _, _ = baked
     attr = stage.GetPrimAtPath("/Cube").GetAttribute("points")

@@ -93,7 +93,9 @@ class LimitSurface:
     locally before end caps take over; the surface is exact everywhere except inside the end caps, which cover
     the sub-faces of size 2^-depth at the irregular points (README "Limit surface" gives the error).
     ``device``: a Warp device for :meth:`evaluate` (None: CUDA when present, else the CPU). The patch tree is
-    built in float64 and evaluated in float64 whatever the ``precision`` option says.
+    built in float64 and evaluated in float64 whatever the ``precision`` option says. With ``linear=True``
+    (bilinear meshes) the surface is the linear interpolation inside each face (:attr:`linear`; no patch tree,
+    evaluated with numpy).
     """
 
     def __init__(self, mesh: Mesh, *, depth: int = DEFAULT_DEPTH, options: Options | None = None, device=None,
@@ -107,9 +109,6 @@ class LimitSurface:
             options = Options(**option_keywords)
         elif option_keywords:
             raise TypeError(f"pass either options= or option keywords, not both ({', '.join(option_keywords)})")
-        if options.linear:
-            raise SubdivInputError("LimitSurface evaluates Catmull-Clark and Loop surfaces, not bilinear ones",
-                                   option="linear", value=True)
         if not options.piecewise_smooth and len(mesh.normal_vertices):
             raise SubdivInputError("prescribed normals need rules='piecewise-smooth' (OpenSubdiv has no normal "
                                    "control)", option="rules", element="normal")
@@ -117,7 +116,8 @@ class LimitSurface:
         self.options = options
         self.depth = int(depth)
         self.device = wp.get_device(device if device is not None else default_device())
-        self.tree = limit_patches.build(mesh, options, self.depth)
+        # a linear (bilinear) surface needs no patch tree: it is the linear interpolation inside each face
+        self.tree = None if options.linear else limit_patches.build(mesh, options, self.depth)
         self._parameterisation()
         self._device_arrays = None
         self._fv_cache = None
@@ -125,11 +125,32 @@ class LimitSurface:
     scheme = property(lambda self: self.options.scheme)
     rules = property(lambda self: self.options.rules)
 
+    @property
+    def linear(self) -> bool:
+        """Whether this is a linear surface (``options.linear``: bilinear meshes): the linear interpolation
+        inside each control face that linear refinement converges to (bilinear on quads and on a polygon's quad
+        sub-faces, barycentric on Loop triangles), with the same parameterisation."""
+        return bool(self.options.linear)
+
+    @property
+    def triangles(self) -> bool:
+        """Whether the faces are evaluated as triangles (Loop) rather than quads."""
+        return self.options.scheme == Scheme.LOOP
+
     # ------------------------------------------------------------------------------------------ faces
     def _parameterisation(self) -> None:
         mesh, tree = self.mesh, self.tree
         counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
         F = len(counts)
+        if tree is None:  # linear: faces as the parameterisation says, holes as the mesh says
+            loop = self.options.scheme == Scheme.LOOP
+            self.face_kind = np.where(counts == (3 if loop else 4), DIRECT, FAN if loop else SUBFACES).astype(np.int32)
+            self.face_root = np.zeros(F, np.int32)
+            self.face_size = counts.astype(np.int32)
+            self.face_tiles = np.ceil(np.sqrt(counts)).astype(np.int32)
+            self.holes = np.zeros(F, bool)
+            self.holes[np.asarray(mesh.holes, dtype=np.int64)] = True
+            return
         roots = tree.root_offsets
         if self.options.scheme == Scheme.LOOP:
             tris = counts - 2
@@ -256,6 +277,8 @@ class LimitSurface:
         faces_a, u_a, v_a = self._queries(faces, u, v)
         n = len(faces_a)
         second = derivatives == 2
+        if self.tree is None:
+            return self._evaluate_linear(faces_a, u_a, v_a, second)
         if n == 0:
             empty = np.zeros((0, 3))
             return LimitEvaluation(empty, empty.copy(), empty.copy(), empty.copy(),
@@ -269,6 +292,30 @@ class LimitSurface:
         return LimitEvaluation(host(p), host(du), host(dv), host(nrm),
                                host(duu) if second else None, host(duv) if second else None,
                                host(dvv) if second else None, patch.numpy())
+
+    def _linear_weights(self, faces_a, u_a, v_a):
+        from .tessellate import corner_weights
+
+        corners, w, wu, wv, wuv = corner_weights(self, faces_a, np.stack([u_a, v_a], 1), derivatives=True)
+        valid = corners >= 0
+        return np.maximum(corners, 0), [x * valid for x in (w, wu, wv, wuv)]
+
+    def _evaluate_linear(self, faces_a, u_a, v_a, second) -> LimitEvaluation:
+        """A linear surface: weighted sums of the face's corner points (numpy; derivatives of the weights)."""
+        corners, (w, wu, wv, wuv) = self._linear_weights(faces_a, u_a, v_a)
+        P = np.asarray(self.mesh.points, dtype=np.float64)[np.asarray(self.mesh.face_vertex_indices,
+                                                                       dtype=np.int64)[corners]]
+
+        def mix(weights):
+            return np.einsum("nm,nmk->nk", weights, P)
+
+        p, du, dv = mix(w), mix(wu), mix(wv)
+        nrm = np.cross(du, dv)
+        length = np.linalg.norm(nrm, axis=1, keepdims=True)
+        nrm = np.divide(nrm, length, out=np.zeros_like(nrm), where=length > 0)
+        zero = np.zeros_like(p)
+        return LimitEvaluation(p, du, dv, nrm, zero if second else None, mix(wuv) if second else None,
+                               zero.copy() if second else None, np.full(len(p), -1, np.int32))
 
     def _device_queries(self, faces_a, u_a, v_a):
         dev = self.device
@@ -319,6 +366,12 @@ class LimitSurface:
         one_d = np.ndim(data) == 1
         arr = check_rows(data, self.mesh.num_vertices, "vertex data").astype(np.float64)
         faces_a, u_a, v_a = self._queries(faces, u, v)
+        if self.tree is None:
+            corners, (w, wu, wv, _) = self._linear_weights(faces_a, u_a, v_a)
+            per = arr[np.asarray(self.mesh.face_vertex_indices, dtype=np.int64)[corners]]
+            res = [np.einsum("nm,nmk->nk", x, per) for x in (w, wu, wv)]
+            res = [x[:, 0] if one_d else x for x in res]
+            return DataEvaluation(res[0], res[1] if derivatives else None, res[2] if derivatives else None)
         tree = limit_patches.build(self.mesh, self.options, self.depth, data=arr)
         if tree.num_nodes != self.tree.num_nodes or tree.num_patches != self.tree.num_patches:
             raise AssertionError("the data's patch tree differs from the surface's")
@@ -359,17 +412,16 @@ class LimitSurface:
         surface of its value mesh (:func:`~warp_subdiv.facevarying.value_mesh`: the same faces in the same
         order, seams as boundaries, the mode's sharp values), subdivided with OpenSubdiv's rules as
         ``Refiner.limit_face_varying`` does, so at refined corners the two agree; (face, u, v) means the same
-        point as in :meth:`evaluate`. Mode "all" is linear interpolation inside each face (bilinear on quads and
-        sub-faces, barycentric on triangles), as bilinear refinement converges to. The value mesh's topology
-        is built on the first call for given indices and mode and reused. ``derivatives`` 1 (``du``, ``dv``)
-        is not offered under mode "all"."""
+        point as in :meth:`evaluate`. Mode "all" (and any mode on a linear surface) is linear interpolation
+        inside each face (bilinear on quads and sub-faces, barycentric on triangles), as bilinear refinement
+        converges to. The value mesh's topology is built on the first call for given indices and mode and
+        reused. ``derivatives``: 0 or 1 (also ``du``, ``dv``)."""
         mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
         if derivatives not in (0, 1):
             raise SubdivInputError(f"derivatives must be 0 or 1, got {derivatives!r}", option="derivatives",
                                    value=derivatives)
-        if derivatives and mode == FaceVaryingMode.ALL:
-            raise SubdivInputError("derivatives of a face-varying channel under mode 'all' (piecewise linear) are "
-                                   "not offered", option="derivatives", value=derivatives)
+        if self.linear:  # a linear surface carries its face-varying data linearly too (as refine does)
+            mode = FaceVaryingMode.ALL
         channel = self._face_varying_channel(indices, mode)
         one_d = np.ndim(values) == 1
         if np.ndim(values) in (1, 2) and len(values) < channel["num_values"]:
@@ -379,12 +431,11 @@ class LimitSurface:
         vals = check_rows(values, channel["num_values"], "face-varying values", at_least=True).astype(np.float64)
         faces_a, u_a, v_a = self._queries(faces, u, v)
         if mode == FaceVaryingMode.ALL:
-            from .tessellate import corner_weights
-
-            corners, weights = corner_weights(self, faces_a, np.stack([u_a, v_a], 1))
-            per_corner = vals[channel["indices"]]
-            out = np.einsum("nm,nmk->nk", weights * (corners >= 0), per_corner[np.maximum(corners, 0)])
-            return DataEvaluation(out[:, 0] if one_d else out)
+            corners, (w, wu, wv, _) = self._linear_weights(faces_a, u_a, v_a)
+            per = vals[channel["indices"]][corners]
+            res = [np.einsum("nm,nmk->nk", x, per) for x in (w, wu, wv)]
+            res = [x[:, 0] if one_d else x for x in res]
+            return DataEvaluation(res[0], res[1] if derivatives else None, res[2] if derivatives else None)
         surface = channel["surface"]
         f2, u2, v2, scale = self._to_value_faces(faces_a, u_a, v_a)
         with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
@@ -461,6 +512,8 @@ class LimitSurface:
 
     def __repr__(self) -> str:
         t = self.tree
+        if t is None:
+            return f"LimitSurface({self.num_faces} faces, {self.options.scheme.value}, linear)"
         return (f"LimitSurface({self.num_faces} faces, {self.options.scheme.value}, {self.options.rules.value}, "
                 f"depth {self.depth}: {t.num_patches} patches, {int(np.sum(t.patch_kind == 1))} end caps)")
 

@@ -349,7 +349,7 @@ def _cells(surface, edge_rate, face_rate) -> tuple:
     edge_verts = np.asarray(mesh.edges.edge_verts, dtype=np.int64)
     E = len(edge_verts)
     V = mesh.num_vertices
-    loop = surface.tree.triangles
+    loop = surface.triangles
     keep = ~surface.holes
     # lines: control edges first
     line_start = [edge_verts[:, 0]]
@@ -491,7 +491,7 @@ def tessellate(surface, *, rate=None, edge_length=None, quads: bool = True) -> T
     if estimate > MAX_VERTICES:
         raise SubdivInputError(f"the tessellation would have about {estimate} vertices (more than {MAX_VERTICES}); "
                                "use a lower rate or a longer edge_length", option="rate", value=estimate)
-    quad_cells = bool(quads) and not surface.tree.triangles
+    quad_cells = bool(quads) and not surface.triangles
     n_sides = np.where(cells.kind == 4, 4, 3)
     key = np.concatenate([cells.kind[:, None], cells.rate * (np.arange(4) < n_sides[:, None])], 1)
     keys, group = np.unique(key, axis=0, return_inverse=True)
@@ -665,7 +665,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     stage = open_stage(input_path)
     out_abs = check_output_path(output_path, stage)
     meshes, instanced = mesh_prims(stage, prims, where=input_path)
-    warnings_ = [f"{p.GetPath()}: inside an instance; left alone" for p in instanced]
+    warnings_ = [_instanced_warning(p) for p in instanced]
     custom = {"warpSubdiv": {"version": __version__, "command": "tessellate", "source": os.path.basename(input_path),
                              "rate": int(rate) if rate is not None else 0,
                              "edgeLength": float(edge_length) if edge_length is not None else 0.0}}
@@ -677,12 +677,12 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
             sp = read_mesh(usd_prim, scheme=scheme, rules=rules, boundary=boundary, frames=parse_frames(frames))
             if sp is None:
                 continue
-            if sp.scheme == "bilinear":
-                warnings_.append(f"{sp.path}: a bilinear mesh has no smooth limit surface; left alone")
-                continue
             if sp.topologies:
                 raise SubdivInputError(f"{sp.path}: its topology changes over time; tessellate takes one topology")
             options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+            linear = sp.scheme == "bilinear"
+            if linear:  # bilinear patches (quads; a polygon's quad sub-faces, as bilinear refinement splits it)
+                options = options.replace(linear=True)
             try:
                 surface = _surface(sp.mesh, options, depth, device)
                 t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
@@ -693,20 +693,27 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
             layer.set(layer.attr(prim, "points", T.Point3fArray), Vt.Vec3fArray.FromNumpy(t.points.astype(np.float32)))
             layer.set(layer.attr(prim, "faceVertexCounts", T.IntArray), Vt.IntArray.FromNumpy(t.face_vertex_counts))
             layer.set(layer.attr(prim, "faceVertexIndices", T.IntArray), Vt.IntArray.FromNumpy(t.face_vertex_indices))
-            normals = -t.normals if sp.orientation == "leftHanded" else t.normals
+            corner_face = np.repeat(t.face_base_face.astype(np.int64), t.face_vertex_counts)
+            if linear:  # flat patches meet at creases: one normal per face corner, from the corner's own face
+                normals = surface.evaluate(corner_face, t.face_uv[:, 0], t.face_uv[:, 1]).normals
+            else:
+                normals = t.normals
+            normals = -normals if sp.orientation == "leftHanded" else normals
             spec = layer.attr(prim, "normals", T.Normal3fArray)
-            spec.SetInfo("interpolation", "vertex")
+            spec.SetInfo("interpolation", "faceVarying" if linear else "vertex")
             layer.set(spec, Vt.Vec3fArray.FromNumpy(normals.astype(np.float32)))
             layer.set(layer.attr(prim, "extent", T.Float3Array), extent_of(t.points))
             for when in sp.point_times:  # the same tessellation (edge rates) of the points at every sample
                 try:
                     moved = _surface(_with_points(sp.mesh, sp.points_at(when)), options, depth, device)
                     ev = moved.evaluate(t.base_face, t.uv[:, 0], t.uv[:, 1])
+                    nt = moved.evaluate(corner_face, t.face_uv[:, 0], t.face_uv[:, 1]).normals if linear \
+                        else ev.normals
                 except SubdivInputError as exc:
                     raise sp.error(exc) from None
                 layer.set(layer.attr(prim, "points", T.Point3fArray), None,
                           [(when, Vt.Vec3fArray.FromNumpy(ev.points.astype(np.float32)))])
-                nt = -ev.normals if sp.orientation == "leftHanded" else ev.normals
+                nt = -nt if sp.orientation == "leftHanded" else nt
                 layer.set(layer.attr(prim, "normals", T.Normal3fArray), None,
                           [(when, Vt.Vec3fArray.FromNumpy(nt.astype(np.float32)))])
                 layer.set(layer.attr(prim, "extent", T.Float3Array), None, [(when, extent_of(ev.points))])
@@ -742,6 +749,17 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     return reports, warnings_
 
 
+def _instanced_warning(prim) -> str:
+    """What tessellate does with a mesh inside a scene-graph instance (an instance proxy), and what to do."""
+    instance = prim.GetParent()
+    while instance and not instance.IsInstance():
+        instance = instance.GetParent()
+    where = f" {instance.GetPath()}" if instance else ""
+    return (f"{prim.GetPath()}: inside the instance{where}, whose meshes live in a shared prototype: tessellate "
+            "writes no prototypes, so it is left alone (to tessellate it, make the instance uninstanceable "
+            "(instanceable = false) or flatten it; refine handles instances by refining their prototypes)")
+
+
 def _with_points(mesh, points):
     """``mesh`` (topology, creases, corners, concave tags, holes) with other ``points`` and no prescribed normals."""
     from .mesh import Mesh
@@ -760,12 +778,13 @@ def vertex_data(surface, data, faces, uv) -> np.ndarray:
     return surface.evaluate_data(data.reshape(len(data), -1), faces, uv[:, 0], uv[:, 1]).values
 
 
-def corner_weights(surface, faces, uv) -> tuple:
-    """Linear interpolation inside control faces (refine's varying primvars): (corners (n, m) int64 into the
-    face-vertex list, -1 padded; weights (n, m)) such that a value at (face, u, v) is the weighted sum of the
-    face's corner values. A quad: bilinear; a Loop triangle: barycentric; a Catmull-Clark n-gon: bilinear in
-    the sub-face (corner, edge middles, centre = mean of the corners); a Loop polygon: barycentric in its fan
-    triangle (v0, v_k+1, v_k+2)."""
+def corner_weights(surface, faces, uv, *, derivatives: bool = False) -> tuple:
+    """Linear interpolation inside control faces (refine's varying primvars, bilinear meshes): (corners (n, m)
+    int64 into the face-vertex list, -1 padded; weights (n, m)) such that a value at (face, u, v) is the
+    weighted sum of the face's corner values. A quad: bilinear; a Loop triangle: barycentric; a Catmull-Clark
+    n-gon: bilinear in the sub-face (corner, edge middles, centre = mean of the corners); a Loop polygon:
+    barycentric in its fan triangle (v0, v_k+1, v_k+2). ``derivatives``: also the weights' derivatives
+    d/du, d/dv and d2/dudv (each (n, m)): (corners, weights, du, dv, duv)."""
     from .limit import DIRECT, FAN, SUBFACES
 
     faces = np.asarray(faces, dtype=np.int64).reshape(-1)
@@ -774,19 +793,20 @@ def corner_weights(surface, faces, uv) -> tuple:
     offsets = _face_corners(counts)
     n = counts[faces]
     m = max(int(n.max()), 4) if len(n) else 4  # room for a quad's four weights in any case
-    W = np.zeros((len(faces), m))
+    W = np.zeros((4, len(faces), m))  # value, d/du, d/dv, d2/dudv
     kind = surface.face_kind[faces]
     u, v = uv[:, 0], uv[:, 1]
     rows = np.arange(len(faces))
+    one, zero = np.ones(len(faces)), np.zeros(len(faces))
     quad = (kind == DIRECT) & (n == 4)
-    W[quad, 0] = ((1 - u) * (1 - v))[quad]
-    W[quad, 1] = (u * (1 - v))[quad]
-    W[quad, 2] = (u * v)[quad]
-    W[quad, 3] = ((1 - u) * v)[quad]
+    for c, terms in enumerate(([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], [v - 1, 1 - v, v, -v],
+                               [u - 1, -u, u, 1 - u], [one, -one, one, -one])):
+        for j in range(4):
+            W[c, quad, j] = terms[j][quad]
     tri = (kind == DIRECT) & (n == 3)
-    W[tri, 0] = (1 - u - v)[tri]
-    W[tri, 1] = u[tri]
-    W[tri, 2] = v[tri]
+    for c, terms in enumerate(([1 - u - v, u, v], [-one, one, zero], [-one, zero, one], [zero, zero, zero])):
+        for j in range(3):
+            W[c, tri, j] = terms[j][tri]
     sub = kind == SUBFACES
     if sub.any():
         w = surface.face_tiles[faces].astype(np.int64)
@@ -794,25 +814,32 @@ def corner_weights(surface, faces, uv) -> tuple:
         i = np.clip(ty * w + tx, 0, n - 1)
         s = np.clip(2 * (u - tx), 0, 1)
         t = np.clip(2 * (v - ty), 0, 1)
-        w00, w10, w11, w01 = (1 - s) * (1 - t), s * (1 - t), s * t, (1 - s) * t
+        # (w00, w10, w11, w01) of the sub-face's own square and their derivatives (ds/du = dt/dv = 2)
+        parts = ([(1 - s) * (1 - t), s * (1 - t), s * t, (1 - s) * t],
+                 [2 * (t - 1), 2 * (1 - t), 2 * t, -2 * t], [2 * (s - 1), -2 * s, 2 * s, 2 * (1 - s)],
+                 [4 * one, -4 * one, 4 * one, -4 * one])
         r = rows[sub]
-        Wn = np.zeros((len(faces), m))
-        Wn[r] += (w11 / np.maximum(n, 1))[sub][:, None] * (np.arange(m)[None] < n[sub][:, None])
-        np.add.at(Wn, (r, i[sub]), (w00 + 0.5 * w10 + 0.5 * w01)[sub])
-        np.add.at(Wn, (r, ((i + 1) % n)[sub]), (0.5 * w10)[sub])
-        np.add.at(Wn, (r, ((i - 1) % n)[sub]), (0.5 * w01)[sub])
-        W[sub] = Wn[sub]
+        for c, (w00, w10, w11, w01) in enumerate(parts):
+            Wn = np.zeros((len(faces), m))
+            Wn[r] += (w11 / np.maximum(n, 1))[sub][:, None] * (np.arange(m)[None] < n[sub][:, None])
+            np.add.at(Wn, (r, i[sub]), (w00 + 0.5 * w10 + 0.5 * w01)[sub])
+            np.add.at(Wn, (r, ((i + 1) % n)[sub]), (0.5 * w10)[sub])
+            np.add.at(Wn, (r, ((i - 1) % n)[sub]), (0.5 * w01)[sub])
+            W[c, sub] = Wn[sub]
     fan = kind == FAN
     if fan.any():
         k = np.clip(np.floor(u).astype(np.int64), 0, n - 3)
         s, t = 2 * (u - k), 2 * v
         r = rows[fan]
-        np.add.at(W, (r, np.zeros(len(r), np.int64)), (1 - s - t)[fan])
-        np.add.at(W, (r, (k + 1)[fan]), s[fan])
-        np.add.at(W, (r, (k + 2)[fan]), t[fan])
+        for c, (a, b, d) in enumerate(((1 - s - t, s, t), (-2 * one, 2 * one, zero), (-2 * one, zero, 2 * one))):
+            np.add.at(W[c], (r, np.zeros(len(r), np.int64)), a[fan])
+            np.add.at(W[c], (r, (k + 1)[fan]), b[fan])
+            np.add.at(W[c], (r, (k + 2)[fan]), d[fan])
     j = np.arange(m)[None]
     corners = np.where(j < n[:, None], offsets[faces][:, None] + j, -1)
-    return corners, W
+    if derivatives:
+        return corners, W[0], W[1], W[2], W[3]
+    return corners, W[0]
 
 
 def _interpolate(corner_values, corners, weights) -> np.ndarray:
