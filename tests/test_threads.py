@@ -109,6 +109,27 @@ def test_threaded_evaluator_serves_several_python_threads(small_ranges):
         np.testing.assert_array_equal(out[k], ref.evaluate(pts))
 
 
+def _arrays(obj, prefix="", seen=None) -> dict:
+    """Every array and scalar reachable from ``obj`` (attributes, list items), by access path."""
+    seen = set() if seen is None else seen
+    if obj is None or id(obj) in seen:
+        return {}
+    seen.add(id(obj))
+    if isinstance(obj, np.ndarray):
+        return {prefix: obj}
+    if isinstance(obj, (list, tuple)):
+        out = {}
+        for i, x in enumerate(obj):
+            out.update(_arrays(x, f"{prefix}[{i}]", seen))
+        return out
+    if hasattr(obj, "__dict__"):
+        out = {}
+        for k, v in vars(obj).items():
+            out.update(_arrays(v, f"{prefix}.{k}", seen))
+        return out
+    return {prefix: obj} if isinstance(obj, (int, float, str, bool)) else {}
+
+
 @pytest.mark.parametrize("name,scheme", [("cube_creased", "catmull-clark"), ("quad_lshape", "catmull-clark"),
                                          ("tri_hexfan", "loop"), ("mixed_prism", "loop")])
 def test_threaded_build_is_bitwise_one_thread(name, scheme):
@@ -120,30 +141,49 @@ def test_threaded_build_is_bitwise_one_thread(name, scheme):
     mesh = load_mesh(name)
     one, two = (Hierarchy(mesh, 3, Options(scheme=scheme), threads=t, concurrent_build=t > 1) for t in (1, 2))
 
-    def arrays(obj, prefix="", seen=None):
-        seen = set() if seen is None else seen
-        if obj is None or id(obj) in seen:
-            return {}
-        seen.add(id(obj))
-        if isinstance(obj, np.ndarray):
-            return {prefix: obj}
-        if isinstance(obj, (list, tuple)):
-            out = {}
-            for i, x in enumerate(obj):
-                out.update(arrays(x, f"{prefix}[{i}]", seen))
-            return out
-        if hasattr(obj, "__dict__"):
-            out = {}
-            for k, v in vars(obj).items():
-                out.update(arrays(v, f"{prefix}.{k}", seen))
-            return out
-        return {prefix: obj} if isinstance(obj, (int, float, str, bool)) else {}
-
     for what in ("steps", "flatness_tables", "normal_tables", "final"):
-        a, b = arrays(getattr(one, what)), arrays(getattr(two, what))
+        a, b = _arrays(getattr(one, what)), _arrays(getattr(two, what))
         assert a.keys() == b.keys() and (len(a) > 10 or what != "steps")
         for key in a:
             np.testing.assert_array_equal(a[key], b[key], err_msg=f"{what}{key}")
+    for x, y in zip(one.topology(), two.topology()):
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("rules", ["opensubdiv", "piecewise-smooth"])
+@pytest.mark.parametrize("name,scheme", [("cube_creased", "catmull-clark"), ("quad_halffan", "catmull-clark"),
+                                         ("mixed_prism", "catmull-clark"), ("tri_hexfan", "loop"),
+                                         ("mixed_prism", "loop"), ("icosahedron", "loop")])
+def test_threaded_topology_is_bitwise_one_thread(monkeypatch, name, scheme, rules):
+    """Refinement steps whose per-face tables are written in blocks split over 2 threads (blocks of 2 faces,
+    so that these small meshes split) give, array for array, the levels, step tables and topology of a
+    one-thread build in one block."""
+    from warp_subdiv import topology
+    from warp_subdiv.hierarchy import Hierarchy
+    from warp_subdiv.options import Options
+
+    mesh = load_mesh(name)
+    options = Options(scheme=scheme, rules=rules)
+    one = Hierarchy(mesh, 3, options, threads=1)
+    levels_one = [topology.refine_level(one.penultimate, faces_only=fo) for fo in (False, True)]
+    monkeypatch.setattr(topology, "BLOCK_FACES", 2)
+    calls = []
+    monkeypatch.setattr(th, "map_ranges", lambda fn, n, threads, min_rows=th.MIN_ROWS, real=th.map_ranges:
+                        calls.append(len(th.ranges(n, threads, min_rows))) or real(fn, n, threads, min_rows))
+    two = Hierarchy(mesh, 3, options, threads=2)
+    levels_two = [topology.refine_level(two.penultimate, faces_only=fo, threads=2) for fo in (False, True)]
+    assert max(calls) == 2  # the blocks were split over the two threads
+    for what in ("steps", "flatness_tables", "normal_tables", "final", "penultimate"):
+        a, b = _arrays(getattr(one, what)), _arrays(getattr(two, what))
+        assert a.keys() == b.keys() and (len(a) > 1 or what.endswith("_tables"))
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=f"{what}{key}")
+    for x, y in zip(levels_one, levels_two):
+        a, b = _arrays(x), _arrays(y)
+        assert a.keys() == b.keys()
+        for key in a:
+            assert type(a[key]) is type(b[key]) and getattr(a[key], "dtype", None) == getattr(b[key], "dtype", None)
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
     for x, y in zip(one.topology(), two.topology()):
         np.testing.assert_array_equal(x, y)
 

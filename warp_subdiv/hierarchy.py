@@ -102,7 +102,8 @@ class Hierarchy:
             # once (numpy releases the GIL inside large array operations and page faults; the results do not
             # depend on it)
             tables, child = run_jobs([lambda lv=level: self._step_tables(lv),
-                                      lambda lv=level, fo=faces_only: refine_level(lv, faces_only=fo)],
+                                      lambda lv=level, fo=faces_only: refine_level(lv, faces_only=fo,
+                                                                                   threads=self.threads)],
                                      min(self.threads, 2) if self.concurrent_build else 1)
             self.steps.append(tables)
             self.parentage.steps.append(Refinement.of_level(level))
@@ -250,7 +251,7 @@ class Hierarchy:
         """Limit position and tangent masks of the last level's vertices (docs/rules.md sections 8 and 9)."""
         level = self.final
         if level.edge_verts is None:  # built faces-only: derive the full last level now
-            level = refine_level(self.penultimate)
+            level = refine_level(self.penultimate, threads=self.threads)
         o = self.options
         if level.face_size == 0 or (o.scheme == Scheme.CATMULL_CLARK and level.face_size != 4):
             raise NotImplementedError("limit masks need a level of quads (Catmull-Clark) or triangles")

@@ -705,15 +705,36 @@ def _too_few_creases(mesh, edges, ecount, vertex: int, count: int) -> str:
 # refinement by index arithmetic
 
 
-def refine_level(level: Level, faces_only: bool = False) -> Level:
+def refine_level(level: Level, faces_only: bool = False, *, threads: int = 1) -> Level:
     """The next level's topology, derived from ``level`` by index arithmetic (no sorting, no hashing).
 
     ``faces_only`` builds just the child faces (for the last level, which nothing refines further).
+    ``threads``: the per-face tables of a level of one face size (child corners, edges inside faces) are
+    written in blocks of :data:`BLOCK_FACES` faces, the blocks split into that many contiguous ranges on the
+    thread pool of :mod:`warp_subdiv.threads`; every block is computed by the same code whatever the split, so
+    the result is bitwise the one-thread result.
     """
     with small_pages():
         if level.scheme == CATMULL_CLARK:
-            return _refine_catmull_clark(level, faces_only)
-        return _refine_loop(level, faces_only)
+            return _refine_catmull_clark(level, faces_only, threads)
+        return _refine_loop(level, faces_only, threads)
+
+
+#: Faces per block of the per-face tables of a refinement step: the block's inputs and outputs stay in the
+#: cache while its strided column copies run (about 1 MiB of output for a block of quads).
+BLOCK_FACES = 16384
+
+
+def _blocks(num_faces: int, threads: int, fill) -> None:
+    """``fill(a, b)`` over the faces 0..num_faces in blocks of :data:`BLOCK_FACES`, the blocks split into
+    ``threads`` contiguous ranges (:func:`warp_subdiv.threads.map_ranges`)."""
+    from .threads import map_ranges
+
+    def blocks(a, b):
+        for s in range(a, b, BLOCK_FACES):
+            fill(s, min(b, s + BLOCK_FACES))
+
+    map_ranges(blocks, num_faces, max(1, int(threads)), min_rows=BLOCK_FACES)
 
 
 _pages_lock = threading.Lock()
@@ -753,11 +774,12 @@ def _side(level: Level, h: np.ndarray, e: np.ndarray) -> np.ndarray:
     return (level.corner_vert[h] != level.edge_verts[e, 0]).astype(np.int32)
 
 
-def _side_all(level: Level, e: np.ndarray, entering: bool = False) -> np.ndarray:
+def _side_all(level: Level, e: np.ndarray, entering: bool = False, corner_vert=None) -> np.ndarray:
     """``_side(level, h, e[h])`` for every corner h (no gather of the corners' own vertices). ``entering``:
     ``e[h]`` is the edge that enters corner h; a degenerate edge (one vertex at both ends, level 0 only) has
-    the corner it leaves at its end 0 and the corner it enters at its end 1, as OpenSubdiv's refinements."""
-    side = level.corner_vert != level.edge_verts[e, 0]
+    the corner it leaves at its end 0 and the corner it enters at its end 1, as OpenSubdiv's refinements.
+    ``corner_vert``: the vertices of the corners ``e`` belongs to (default: every corner's)."""
+    side = (level.corner_vert if corner_vert is None else corner_vert) != level.edge_verts[e, 0]
     if entering and level.degenerate_edges:
         ev = level.edge_verts
         side |= (ev[:, 0] == ev[:, 1])[e]
@@ -803,7 +825,93 @@ class _QuadChildren:
             dst[self.index(t)] = values
 
 
-def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
+def _put_quads(d: np.ndarray, t: int, values: np.ndarray) -> None:
+    """_QuadChildren.put on a block ``d`` (n, 4, 4) of child corners of n quads: values (n, 4) or (n,)."""
+    for j in range(4):
+        d[:, j, (j + t) & 3] = values[:, j] if values.ndim == 2 else values
+
+
+def _prev_in_quads(v: np.ndarray) -> np.ndarray:
+    """Level.at_prev on a block (n, 4) of per-corner values of quads."""
+    out = np.empty_like(v)
+    out[:, 1:] = v[:, :-1]
+    out[:, 0] = v[:, -1]
+    return out
+
+
+def _quad_index(a: int, b: int, t: int, of_next: bool = False) -> np.ndarray:
+    """_QuadChildren.index for the corners of quads a..b, (b - a, 4) int32."""
+    j = (np.arange(4) + (1 if of_next else 0)) & 3
+    return (16 * np.arange(a, b, dtype=np.int32))[:, None] + (4 * j + ((j + t) & 3)).astype(np.int32)
+
+
+def _catmull_clark_quad_rows(level: Level, out: dict, a: int, b: int) -> None:
+    """Rows of quads a..b (parent corners 4a..4b, child corners 16a..16b) of the per-face tables of a
+    Catmull-Clark step over a level of quads: what :func:`_refine_catmull_clark` computes for other levels
+    from whole arrays, here from closed forms in the face and corner position (the same integer arithmetic,
+    so the same values)."""
+    V, F, C = level.num_vertices, level.num_faces, level.num_corners
+    vert = level.corner_vert.reshape(F, 4)[a:b]
+    e_h = level.corner_edge.reshape(F, 4)[a:b]
+    e_prev = _prev_in_quads(e_h)
+    d = out["cv"].reshape(F, 4, 4)[a:b]
+    _put_quads(d, 0, vert)
+    _put_quads(d, 1, V + F + e_h)
+    _put_quads(d, 2, V + np.arange(a, b, dtype=np.int32))
+    _put_quads(d, 3, V + F + e_prev)
+    if "ce" not in out:
+        return
+    d = out["ce"].reshape(F, 4, 4)[a:b]
+    h = np.arange(4 * a, 4 * b, dtype=np.int32).reshape(-1, 4)
+    _put_quads(d, 0, C + 2 * e_h + _side_all(level, e_h, corner_vert=vert))
+    _put_quads(d, 1, h)
+    _put_quads(d, 2, _prev_in_quads(h))
+    _put_quads(d, 3, C + 2 * e_prev + _side_all(level, e_prev, entering=True, corner_vert=vert))
+    rows = slice(4 * a, 4 * b)
+    iv = out["interior_verts"][rows].reshape(-1, 4, 2)
+    iv[:, :, 0] = (V + np.arange(a, b, dtype=np.int32))[:, None]
+    iv[:, :, 1] = V + F + e_h
+    child_of_edge = _quad_index(a, b, 1)
+    ic = out["interior_corners"][rows].reshape(-1, 4, 2)
+    ic[:, :, 0] = child_of_edge
+    ic[:, :, 1] = _quad_index(a, b, 2, of_next=True)
+    out["near"][rows] = _quad_index(a, b, 0).reshape(-1)
+    far = _quad_index(a, b, 3, of_next=True)
+    out["far"][rows] = far.reshape(-1)
+    out["face_child_corners"][rows] = _quad_index(a, b, 2).reshape(-1)
+    ec = out["edge_child_corners"][rows].reshape(-1, 4, 2)
+    ec[:, :, 0] = far
+    ec[:, :, 1] = child_of_edge
+
+
+def _refine_catmull_clark_quads(level: Level, faces_only: bool, threads: int) -> Level:
+    """A Catmull-Clark step over a level of quads (every level after the first): its per-face tables
+    written in blocks of faces (:func:`_catmull_clark_quad_rows`), on ``threads`` threads."""
+    V, F, C, E = level.num_vertices, level.num_faces, level.num_corners, level.num_edges
+    nV = V + F + E
+    out = {"cv": np.empty(4 * C, dtype=np.int32)}
+    if not faces_only:
+        out["ce"] = np.empty(4 * C, dtype=np.int32)
+        for name in ("interior_verts", "interior_corners", "edge_child_corners"):
+            out[name] = np.empty((C, 2), dtype=np.int32)
+        for name in ("near", "far", "face_child_corners"):
+            out[name] = np.empty(C, dtype=np.int32)
+    _blocks(F, threads, lambda a, b: _catmull_clark_quad_rows(level, out, a, b))
+    child_hole = np.repeat(level.face_hole, 4)
+    if faces_only:
+        return Level(level.scheme, nV, C, 4, out["cv"], child_hole)
+    # corners at the child of edge h, counter-clockwise: the face after the half at v_next, then the one
+    # before the half at v_h
+    return _assemble(level, num_vertices=nV, face_size=4, corner_vert=out["cv"], corner_edge=out["ce"],
+                     face_hole=child_hole, interior_verts=out["interior_verts"],
+                     interior_corners=out["interior_corners"], near=out["near"], far=out["far"],
+                     vertex_child_corner=out["near"], face_child_corners=out["face_child_corners"],
+                     edge_child_corners=out["edge_child_corners"], edge_child_base=V + F)
+
+
+def _refine_catmull_clark(level: Level, faces_only: bool, threads: int = 1) -> Level:
+    if level.face_size == 4:
+        return _refine_catmull_clark_quads(level, faces_only, threads)
     V, F, C, E = level.num_vertices, level.num_faces, level.num_corners, level.num_edges
     children = _QuadChildren(level)
     quads = children.quads
@@ -847,59 +955,76 @@ def _refine_catmull_clark(level: Level, faces_only: bool) -> Level:
                      edge_child_corners=edge_child_corners, edge_child_base=V + F)
 
 
-def _refine_loop(level: Level, faces_only: bool) -> Level:
-    V, F, C, E = level.num_vertices, level.num_faces, level.num_corners, level.num_edges
-    if level.face_size != 3:
-        raise ValueError("Loop refinement needs a triangle level")
-    vt = level.corner_vert.reshape(F, 3)
-    et = V + level.corner_edge.reshape(F, 3)
+def _loop_rows(level: Level, out: dict, a: int, b: int) -> None:
+    """Rows of triangles a..b (parent corners 3a..3b, child corners 12a..12b) of the per-face tables of a Loop
+    step: closed forms in the face f and corner position j of corner h = 3f + j."""
+    V, F, C = level.num_vertices, level.num_faces, level.num_corners
+    vt = level.corner_vert.reshape(F, 3)[a:b]
+    e3 = level.corner_edge.reshape(F, 3)[a:b]
+    et = V + e3
     # child 4f+j (j < 3): vertex child at position j, then edge j, then edge j-1; child 4f+3: edge m+1 at m
-    cv = np.empty((F, 4, 3), dtype=np.int32)
+    cv = out["cv"].reshape(F, 4, 3)[a:b]
     for j in range(3):
         cv[:, j, j] = vt[:, j]
         cv[:, j, (j + 1) % 3] = et[:, j]
         cv[:, j, (j + 2) % 3] = et[:, (j + 2) % 3]
         cv[:, 3, j] = et[:, (j + 1) % 3]
-    child_hole = np.repeat(level.face_hole, 4)
-    nV = V + E
-    if faces_only:
-        return Level(level.scheme, nV, 4 * F, 3, _i32(cv.reshape(-1)), child_hole)
-
-    # corner h = 3f + j; every per-corner table below is a (F, 3) block of closed forms in f and j
-    e_h = level.corner_edge
-    e_prev = level.at_prev(e_h)
-    half_at_h = (C + 2 * e_h + _side_all(level, e_h)).reshape(F, 3)  # half of edge h at v_h
-    # half of edge prev(h) at v_h
-    half_at_prev = (C + 2 * e_prev + _side_all(level, e_prev, entering=True)).reshape(F, 3)
-    h3 = np.arange(C, dtype=np.int32).reshape(F, 3)
-    ce = np.empty((F, 4, 3), dtype=np.int32)
+    if "ce" not in out:
+        return
+    e_prev = np.empty_like(e3)  # Level.at_prev: a rotation inside each triangle
+    e_prev[:, 1:] = e3[:, :-1]
+    e_prev[:, 0] = e3[:, -1]
+    half_at_h = C + 2 * e3 + _side_all(level, e3, corner_vert=vt)  # half of edge h at v_h
+    half_at_prev = C + 2 * e_prev + _side_all(level, e_prev, entering=True, corner_vert=vt)  # of edge prev(h)
+    h3 = np.arange(3 * a, 3 * b, dtype=np.int32).reshape(-1, 3)
+    ce = out["ce"].reshape(F, 4, 3)[a:b]
     for jj in range(3):
         ce[:, jj, jj] = half_at_h[:, jj]
         ce[:, jj, (jj + 1) % 3] = h3[:, jj]
         ce[:, jj, (jj + 2) % 3] = half_at_prev[:, jj]
         ce[:, 3, jj] = h3[:, (jj + 2) % 3]
-    del half_at_h, half_at_prev, h3
-    base = (12 * np.arange(F, dtype=np.int32))[:, None]  # first child corner of face f
+    rows = slice(3 * a, 3 * b)
+    base = (12 * np.arange(a, b, dtype=np.int32))[:, None, None]  # first child corner of face f
 
-    def block(*columns_of_j):
-        """(C, n) array whose column i is base + columns_of_j[i][j] for corner 3f + j."""
+    def block(name, *columns_of_j):
+        """out[name] rows: column i is base + columns_of_j[i][j] for corner 3f + j."""
         offsets = np.array(columns_of_j, dtype=np.int32).T  # (3, n)
-        return (base[:, :, None] + offsets[None]).reshape(C, len(columns_of_j))
+        out[name][rows] = (base + offsets[None]).reshape(out[name][rows].shape)
 
     j = np.arange(3)
     jn, jp = (j + 1) % 3, (j + 2) % 3
     # interior edge 3f+j joins the children of edges j and j-1
-    interior_verts = np.stack([V + e_h, V + e_prev], axis=1)
-    interior_corners = block(3 * j + jn, 9 + jn)
-    near = block(4 * j).reshape(-1)
-    far = block(3 * jn + j).reshape(-1)
-    vertex_child_corner = near
+    iv = out["interior_verts"][rows].reshape(-1, 3, 2)
+    iv[:, :, 0] = et
+    iv[:, :, 1] = V + e_prev
+    block("interior_corners", 3 * j + jn, 9 + jn)
+    block("near", 4 * j)
+    block("far", 3 * jn + j)
     # counter-clockwise around the child of edge j: child j+1, the middle child, child j
-    edge_child_corners = block(3 * jn + j, 9 + jp, 3 * j + jn)
-    return _assemble(level, num_vertices=nV, face_size=3, corner_vert=cv.reshape(-1), corner_edge=ce.reshape(-1),
-                     face_hole=child_hole, interior_verts=interior_verts, interior_corners=interior_corners,
-                     near=near, far=far, vertex_child_corner=vertex_child_corner, face_child_corners=None,
-                     edge_child_corners=edge_child_corners, edge_child_base=V)
+    block("edge_child_corners", 3 * jn + j, 9 + jp, 3 * j + jn)
+
+
+def _refine_loop(level: Level, faces_only: bool, threads: int = 1) -> Level:
+    V, F, C, E = level.num_vertices, level.num_faces, level.num_corners, level.num_edges
+    if level.face_size != 3:
+        raise ValueError("Loop refinement needs a triangle level")
+    out = {"cv": np.empty(4 * C, dtype=np.int32)}
+    if not faces_only:
+        out["ce"] = np.empty(4 * C, dtype=np.int32)
+        for name, width in (("interior_verts", 2), ("interior_corners", 2), ("edge_child_corners", 3)):
+            out[name] = np.empty((C, width), dtype=np.int32)
+        for name in ("near", "far"):
+            out[name] = np.empty(C, dtype=np.int32)
+    _blocks(F, threads, lambda a, b: _loop_rows(level, out, a, b))
+    child_hole = np.repeat(level.face_hole, 4)
+    nV = V + E
+    if faces_only:
+        return Level(level.scheme, nV, 4 * F, 3, out["cv"], child_hole)
+    return _assemble(level, num_vertices=nV, face_size=3, corner_vert=out["cv"], corner_edge=out["ce"],
+                     face_hole=child_hole, interior_verts=out["interior_verts"],
+                     interior_corners=out["interior_corners"], near=out["near"], far=out["far"],
+                     vertex_child_corner=out["near"], face_child_corners=None,
+                     edge_child_corners=out["edge_child_corners"], edge_child_base=V)
 
 
 def _assemble(level: Level, *, num_vertices: int, face_size: int, corner_vert, corner_edge, face_hole,
