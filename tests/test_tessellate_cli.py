@@ -1,4 +1,5 @@
-"""tessellate on USD: primvars evaluated on the tessellation, time samples (issue 13)."""
+"""tessellate on USD: primvars evaluated on the tessellation, time samples, instances, PointInstancer prototypes,
+shared meshes and variants written as refine writes them (issue 13)."""
 import numpy as np
 import pytest
 
@@ -7,6 +8,9 @@ from pxr import Sdf, Usd, UsdGeom, Vt  # noqa: E402
 
 import warp_subdiv as ws  # noqa: E402
 from warp_subdiv.tessellate import corner_weights, tessellate_file  # noqa: E402
+
+from test_usd_production import (assert_instancing_kept, new_stage, place, validation_errors,  # noqa: E402
+                                 with_selections)
 
 CUBE_P = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1],
                    [-1, 1, 1]], float)
@@ -161,26 +165,198 @@ def test_bilinear_mesh_tessellated_as_bilinear_patches(tmp_path):
     np.testing.assert_allclose(got, np.einsum("nm,nmk->nk", w, st.astype(np.float64)[corners]), atol=1e-6)
 
 
-def test_instanced_meshes_warned_precisely(tmp_path):
-    """A mesh inside a scene-graph instance is left alone with a warning that names the instance and says how
-    to tessellate it; the same mesh made uninstanceable is tessellated."""
-    stage = Usd.Stage.CreateNew(str(tmp_path / "in.usda"))
-    proto = UsdGeom.Xform.Define(stage, "/Proto")
-    mesh = UsdGeom.Mesh.Define(stage, "/Proto/Cube")
+def _write_asset(path):
+    """/Asset: a Catmull-Clark cube /Asset/Geo/Mesh with a vertex primvar, an indexed face-varying st, a face
+    GeomSubset and a variant set crease = smooth (default) | sharp (the top square creased)."""
+    stage = new_stage(path, "Asset")
+    UsdGeom.Xform.Define(stage, "/Asset/Geo")
+    mesh = UsdGeom.Mesh.Define(stage, "/Asset/Geo/Mesh")
+    mesh.CreateSubdivisionSchemeAttr("catmullClark")
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(CUBE_P.astype(np.float32)))
     mesh.CreateFaceVertexCountsAttr([4] * 6)
     mesh.CreateFaceVertexIndicesAttr(CUBE_F)
-    proto.GetPrim().SetSpecifier(Sdf.SpecifierClass)
-    for name, instanceable in (("A", True), ("B", False)):
-        prim = stage.DefinePrim(f"/{name}", "Xform")
-        prim.GetReferences().AddInternalReference("/Proto")
-        prim.SetInstanceable(instanceable)
-    stage.GetRootLayer().Save()
+    mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.array([[-1, -1, -1], [1, 1, 1]], np.float32)))
+    api = UsdGeom.PrimvarsAPI(mesh)
+    api.CreatePrimvar("heat", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
+        Vt.FloatArray.FromNumpy((2 * CUBE_P[:, 0] + CUBE_P[:, 2]).astype(np.float32)))
+    rng = np.random.default_rng(5)
+    pv = api.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+    pv.Set(Vt.Vec2fArray.FromNumpy(rng.random((4, 2)).astype(np.float32)))
+    pv.SetIndices(Vt.IntArray.FromNumpy(rng.integers(0, 4, 24).astype(np.int32)))
+    UsdGeom.Subset.CreateGeomSubset(mesh, "top", UsdGeom.Tokens.face, Vt.IntArray([1, 4]), "materialBind")
+    UsdGeom.Subset.SetFamilyType(mesh, "materialBind", UsdGeom.Tokens.nonOverlapping)
+    vset = stage.GetPrimAtPath("/Asset").GetVariantSets().AddVariantSet("crease")
+    for name in ("smooth", "sharp"):
+        vset.AddVariant(name)
+        vset.SetVariantSelection(name)
+        if name == "sharp":
+            with vset.GetVariantEditContext():
+                mesh.CreateCreaseIndicesAttr(Vt.IntArray([4, 5, 6, 7, 4]))
+                mesh.CreateCreaseLengthsAttr(Vt.IntArray([5]))
+                mesh.CreateCreaseSharpnessesAttr(Vt.FloatArray([10.0]))
+    vset.SetVariantSelection("smooth")
+    stage.Save()
+    return str(path)
+
+
+def _instanced_scene(folder, instanceable):
+    """Three references to the asset (two smooth, one sharp), instanceable or not, and a PointInstancer whose
+    prototypes are a mesh defined under it and an instanceable reference to the asset."""
+    folder.mkdir(exist_ok=True)
+    asset = _write_asset(folder / "cube.usda")
+    path = folder / f"scene_{int(instanceable)}.usda"
+    stage = new_stage(path)
+    place(stage, "/World/I1", asset, instanceable=instanceable, x=0.0)
+    place(stage, "/World/I2", asset, instanceable=instanceable, x=3.0)
+    place(stage, "/World/I3", asset, instanceable=instanceable, x=6.0, variants={"crease": "sharp"})
+    pi = UsdGeom.PointInstancer.Define(stage, "/World/Scatter")
+    UsdGeom.Scope.Define(stage, "/World/Scatter/Prototypes")
+    plate = UsdGeom.Mesh.Define(stage, "/World/Scatter/Prototypes/Plate")
+    plate.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.array([(x, y, 0.0) for y in (0.0, 1.0) for x in (0.0, 1.0, 2.0)],
+                                                              np.float32)))
+    plate.CreateFaceVertexCountsAttr([4, 4])
+    plate.CreateFaceVertexIndicesAttr([0, 1, 4, 3, 1, 2, 5, 4])
+    place(stage, "/World/Scatter/Prototypes/Cube", asset, instanceable=instanceable)
+    pi.CreatePrototypesRel().SetTargets(["/World/Scatter/Prototypes/Plate", "/World/Scatter/Prototypes/Cube"])
+    pi.CreateProtoIndicesAttr(Vt.IntArray([0, 1, 1, 0]))
+    pi.CreatePositionsAttr(Vt.Vec3fArray([(0, 5, 0), (3, 5, 0), (6, 5, 0), (9, 5, 0)]))
+    stage.Save()
+    return path
+
+
+def _composed(prim):
+    """Every attribute value of a composed mesh and of its children (subsets), by relative name."""
+    out = {}
+    for p in Usd.PrimRange(prim, Usd.TraverseInstanceProxies()):
+        for attr in p.GetAttributes():
+            value = attr.Get()
+            if value is not None:
+                where = "" if p == prim else str(p.GetPath().MakeRelativePath(prim.GetPath())) + "."
+                name = where + attr.GetName()
+                out[name] = (np.asarray(value), [(t, np.asarray(attr.Get(t))) for t in attr.GetTimeSamples()])
+    return out
+
+
+MESHES = ["/World/I1/Geo/Mesh", "/World/I2/Geo/Mesh", "/World/I3/Geo/Mesh", "/World/Scatter/Prototypes/Plate",
+          "/World/Scatter/Prototypes/Cube/Geo/Mesh"]
+
+
+@pytest.fixture(scope="module")
+def instanced(tmp_path_factory):
+    d = tmp_path_factory.mktemp("instanced")
+    src, plain = _instanced_scene(d / "in", True), _instanced_scene(d / "in", False)
+    result = tessellate_file(str(src), str(d / "out.usda"), rate=3)
+    plain_result = tessellate_file(str(plain), str(d / "plain.usda"), rate=3)
+    return src, d / "out.usda", result, plain, d / "plain.usda", plain_result
+
+
+def test_instances_tessellated_once_per_prototype_and_stay_instances(instanced):
+    """Meshes inside scene-graph instances (and an instanceable PointInstancer prototype) are tessellated as
+    refine refines them: once per distinct prototype (two: smooth and sharp), written once each under
+    /__warpSubdiv/Prototype_<n> and referenced by the instances, which stay instances sharing the same
+    prototypes; the PointInstancer's own mesh prototype is tessellated in place; no warning."""
+    src, dst, result, _, _, _ = instanced
+    assert not result.warnings, result.warnings
+    assert sorted(r.path for r in result.reports) == ["/World/I1/Geo/Mesh", "/World/I3/Geo/Mesh",
+                                                      "/World/Scatter/Prototypes/Plate"]
+    before, after = Usd.Stage.Open(str(src)), Usd.Stage.Open(str(dst))
+    assert_instancing_kept(before, after)
+    for path in MESHES:
+        prim = after.GetPrimAtPath(path)
+        assert prim.IsInstanceProxy() == (path != "/World/Scatter/Prototypes/Plate"), path
+        assert prim.GetAttribute("subdivisionScheme").Get() == "none", path
+    layer = Sdf.Layer.FindOrOpen(str(dst))
+    with_points = []
+    layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: with_points.append(str(p.GetPrimPath()))
+                   if p.IsPropertyPath() and p.name == "points" else None)
+    assert sorted(with_points) == ["/World/Scatter/Prototypes/Plate", "/__warpSubdiv/Prototype_1/Geo/Mesh",
+                                   "/__warpSubdiv/Prototype_2/Geo/Mesh"]
+    for inst, proto in (("I1", 1), ("I2", 1), ("I3", 2)):
+        refs = layer.GetPrimAtPath(f"/World/{inst}").referenceList.prependedItems
+        assert [str(r.primPath) for r in refs] == [f"/__warpSubdiv/Prototype_{proto}"]
+    pi = UsdGeom.PointInstancer(after.GetPrimAtPath("/World/Scatter"))
+    assert [str(t) for t in pi.GetPrototypesRel().GetTargets()] == ["/World/Scatter/Prototypes/Plate",
+                                                                    "/World/Scatter/Prototypes/Cube"]
+    assert list(pi.GetProtoIndicesAttr().Get()) == [0, 1, 1, 0]
+
+
+def test_instanced_output_composes_to_the_uninstanced_tessellation(instanced):
+    """Every mesh of the instanced scene composes to exactly the values (points, topology, normals, extent,
+    primvars, subset indices, blocked tags) of the same scene with nothing instanceable, and the smooth cube to
+    LimitSurface.tessellate of its control mesh."""
+    _, dst, _, _, plain_dst, plain_result = instanced
+    assert not plain_result.warnings
+    after, plain = Usd.Stage.Open(str(dst)), Usd.Stage.Open(str(plain_dst))
+    for path in MESHES:
+        got, want = _composed(after.GetPrimAtPath(path)), _composed(plain.GetPrimAtPath(path))
+        assert sorted(got) == sorted(want), path
+        for name in want:
+            np.testing.assert_array_equal(got[name][0], want[name][0], err_msg=f"{path}.{name}")
+            assert len(got[name][1]) == len(want[name][1])
+    top = after.GetPrimAtPath("/World/I2/Geo/Mesh/top")
+    assert top.IsInstanceProxy() and len(top.GetAttribute("indices").Get()) == 2 * 9
+    t = ws.LimitSurface(ws.Mesh(CUBE_P, [4] * 6, CUBE_F)).tessellate(rate=3)
+    mesh = after.GetPrimAtPath("/World/I2/Geo/Mesh")
+    np.testing.assert_array_equal(np.asarray(mesh.GetAttribute("faceVertexIndices").Get()), t.face_vertex_indices)
+    np.testing.assert_allclose(np.asarray(mesh.GetAttribute("points").Get()), t.points, atol=1e-6)
+    sharp = np.asarray(after.GetPrimAtPath("/World/I3/Geo/Mesh").GetAttribute("points").Get())
+    assert np.abs(sharp - t.points).max() > 0.1  # the crease variant's own tessellation
+
+
+def test_instanced_output_validates(instanced):
+    """The tessellated layer over an instanced scene (a valid input) has no validation error (usd-core's
+    validators, every registered one)."""
+    src, dst, _, _, _, _ = instanced
+    assert not validation_errors(src)
+    assert not validation_errors(dst)
+
+
+def test_identical_meshes_written_once_and_referenced(tmp_path):
+    """Two references to the same asset (not instanced): one tessellation, written once at
+    /__warpSubdiv/Mesh_1 and referenced from both meshes, each composing to it."""
+    asset = _write_asset(tmp_path / "cube.usda")
+    stage = new_stage(tmp_path / "in.usda")
+    place(stage, "/World/A", asset)
+    place(stage, "/World/B", asset, x=3.0)
+    stage.Save()
     result = tessellate_file(str(tmp_path / "in.usda"), str(tmp_path / "out.usda"), rate=2)
-    assert [r.path for r in result.reports] == ["/B/Cube"]
-    assert len(result.warnings) == 1
-    assert result.warnings[0].startswith("/A/Cube: inside the instance /A,") and "instanceable = false" in \
-        result.warnings[0]
+    assert len(result.reports) == 1
+    layer = Sdf.Layer.FindOrOpen(str(tmp_path / "out.usda"))
+    for name in ("A", "B"):
+        refs = layer.GetPrimAtPath(f"/World/{name}/Geo/Mesh").referenceList.prependedItems
+        assert [str(r.primPath) for r in refs] == ["/__warpSubdiv/Mesh_1"]
+    out = Usd.Stage.Open(str(tmp_path / "out.usda"))
+    t = ws.LimitSurface(ws.Mesh(CUBE_P, [4] * 6, CUBE_F)).tessellate(rate=2)
+    for name in ("A", "B"):
+        mesh = out.GetPrimAtPath(f"/World/{name}/Geo/Mesh")
+        assert len(mesh.GetAttribute("faceVertexCounts").Get()) == t.num_faces
+        np.testing.assert_allclose(np.asarray(mesh.GetAttribute("points").Get()), t.points, atol=1e-6)
+        assert len(out.GetPrimAtPath(f"/World/{name}/Geo/Mesh/top").GetAttribute("indices").Get()) == 2 * 4
+
+
+def test_all_variants_tessellates_every_variant(instanced, tmp_path):
+    """`tessellate --all-variants`: both crease variants of the instanced asset are tessellated into one
+    prototype holding the variant set; each instance composes, in each variant, to that variant's
+    tessellation (the un-instanced scene's in the same variant), and instancing is kept."""
+    from warp_subdiv.cli import main
+
+    src, _, _, plain_src, _, _ = instanced
+    dst = tmp_path / "all.usda"
+    assert main(["tessellate", str(src), "-o", str(dst), "--rate", "3", "--all-variants", "--quiet"]) == 0
+    layer = Sdf.Layer.FindOrOpen(str(dst))
+    proto = layer.GetPrimAtPath("/__warpSubdiv/Prototype_1")
+    assert sorted(proto.variantSets["crease"].variants.keys()) == ["sharp", "smooth"]
+    assert_instancing_kept(Usd.Stage.Open(str(src)), Usd.Stage.Open(str(dst)))
+    plain_out = tmp_path / "plain_all.usda"
+    tessellate_file(str(plain_src), str(plain_out), rate=3, all_variants=True)
+    for inst in ("/World/I1", "/World/I3"):
+        for variant in ("smooth", "sharp"):
+            out, ref = (with_selections(path, {inst: {"crease": variant}}) for path in (dst, plain_out))
+            got = np.asarray(out.GetPrimAtPath(inst + "/Geo/Mesh").GetAttribute("points").Get())
+            want = np.asarray(ref.GetPrimAtPath(inst + "/Geo/Mesh").GetAttribute("points").Get())
+            assert out.GetPrimAtPath(inst).IsInstance()
+            np.testing.assert_array_equal(got, want)
+    assert validation_errors(dst) <= validation_errors(src)
 
 
 def test_time_samples_tessellated(baked):

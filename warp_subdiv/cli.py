@@ -162,6 +162,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="as for refine: tessellate the points' time samples in [A, B] (default: all)")
     t.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
     t.add_argument("--flatten", action="store_true", help="write one self-contained layer (USD)")
+    t.add_argument("--all-variants", action="store_true",
+                   help="as for refine: tessellate every variant that changes a mesh, inside its variant set (USD)")
     t.add_argument("--quiet", action="store_true", help="print nothing on success")
     return p
 
@@ -515,7 +517,7 @@ def _tessellate(args) -> int:
     result = tessellate_file(args.input, args.output, rate=args.rate, edge_length=args.edge_length, prims=args.prim,
                              scheme=args.scheme, rules=args.rules, boundary=args.boundary, depth=args.depth,
                              quads=not args.triangles, device=args.device, flatten=args.flatten,
-                             frames=args.frames)
+                             frames=args.frames, all_variants=args.all_variants)
     for w in result.warnings:
         _warn(w)
     if not args.quiet:

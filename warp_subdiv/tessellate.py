@@ -570,14 +570,15 @@ class FileResult:
 
 def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length=None, prims=None, scheme="auto",
                     rules=None, boundary=None, depth=None, quads: bool = True, device=None,
-                    flatten: bool = False, frames=None) -> FileResult:
+                    flatten: bool = False, frames=None, all_variants: bool = False) -> FileResult:
     """Tessellate the limit surfaces of an OBJ or USD file (the ``tessellate`` command's library side).
 
     OBJ input is written as OBJ or as a USD layer holding one mesh; USD input as a layer over it (see
     :func:`tessellate_usd`). ``rate`` / ``edge_length`` as for :func:`tessellate`; ``prims``, ``scheme``,
     ``rules``, ``boundary`` as for the USD bake; ``depth`` of the :class:`~warp_subdiv.limit.LimitSurface`
-    (None: its default); ``quads=False`` for triangles only; ``flatten`` (USD) for one self-contained layer.
-    Errors name options by keyword."""
+    (None: its default); ``quads=False`` for triangles only; ``flatten`` (USD) for one self-contained layer;
+    ``all_variants`` (USD) tessellates every variant that changes a mesh, as refine does. Errors name options by
+    keyword."""
     import os
     import time
 
@@ -588,7 +589,8 @@ def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length
     options = dict(rate=rate, edge_length=edge_length, scheme=scheme, rules=rules, boundary=boundary, depth=depth,
                    quads=quads, device=device)
     if kind == "obj":
-        for name, value in (("prims", prims), ("flatten", flatten), ("frames", frames)):
+        for name, value in (("prims", prims), ("flatten", flatten), ("frames", frames),
+                            ("all_variants", all_variants)):
             if value:
                 raise SubdivInputError(f"{name} applies to USD input only", option=name)
         reports, warnings_ = tessellate_obj(input_path, output_path, out_kind, **options)
@@ -596,7 +598,7 @@ def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length
         if out_kind != "usd":
             raise SubdivInputError(f"{output_path}: USD input is written as .usd, .usda or .usdc")
         reports, warnings_ = tessellate_usd(input_path, output_path, prims=prims, flatten=flatten, frames=frames,
-                                            **options)
+                                            all_variants=all_variants, **options)
     return FileResult(reports, warnings_, time.perf_counter() - start)
 
 
@@ -642,106 +644,67 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
 
 
 def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length, scheme, rules, boundary, depth,
-                   quads, device, frames=None):
-    """Tessellate every subdivision mesh of a USD file and write a layer over it (the conventions of refine:
-    an ``over`` at each mesh's path with ``subdivisionScheme = "none"``, its points, faces, vertex normals and
-    extent, the subdivision attributes and ``subdiv:`` tags blocked). Uniform primvars and face subsets follow
-    their control faces; the tessellation's control face and face-varying (u, v) are written as
-    ``primvars:tessellation:baseFace`` (uniform) and ``primvars:tessellation:uv`` (faceVarying); other primvars
-    (vertex, varying, face-varying) are blocked with a warning, and only the default time is tessellated."""
-    import os
-    import time
+                   quads, device, frames=None, all_variants: bool = False):
+    """Tessellate every subdivision mesh of a USD file and write a layer over it, with the conventions of
+    refine (:func:`warp_subdiv.usd.refine_usd`): an ``over`` at each mesh's path with ``subdivisionScheme =
+    "none"``, its points, faces, normals and extent (at the default time and every selected time sample of the
+    points), the subdivision attributes and ``subdiv:`` tags blocked, the ``extentsHint`` of its ancestors
+    recomputed. Uniform primvars and face subsets follow their control faces, vertex and face-varying primvars
+    are evaluated on the limit surface, varying ones linearly (:func:`_write_primvars`); the tessellation's
+    control face and face-varying (u, v) are written as ``primvars:tessellation:baseFace`` (uniform) and
+    ``primvars:tessellation:uv`` (faceVarying).
 
-    from pxr import Sdf, UsdGeom, Vt
+    Where the data goes is refine's layout (:func:`warp_subdiv.usd_read.read_scene`,
+    :func:`warp_subdiv.usd.layout`): meshes inside scene-graph instances (and instanceable PointInstancer
+    prototypes) are tessellated once per prototype into ``/__warpSubdiv/Prototype_<n>``, which every instance
+    of that prototype references (instances stay instances); meshes with identical inputs outside instances
+    are tessellated once, written once (``/__warpSubdiv/Mesh_<n>``) and referenced; with ``all_variants`` every
+    variant that changes a mesh is tessellated into the same variant set and variant. The composed output is
+    checked: every tessellated mesh must compose to its tessellation."""
+    import os
 
     from . import __version__
-    from .usd import options_for
-    from .usd_read import DEFAULT, SUBDIVISION_ATTRIBUTES, mesh_prims, open_stage, parse_frames, read_mesh
-    from .usd_write import OutputLayer, check_output_path, extent_of
+    from .usd import Plan, layout
+    from .usd_read import open_stage, parse_frames, read_mesh, read_scene
+    from .usd_write import OutputLayer, check_output_path
 
-    T = Sdf.ValueTypeNames
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     stage = open_stage(input_path)
     out_abs = check_output_path(output_path, stage)
-    meshes, instanced = mesh_prims(stage, prims, where=input_path)
-    warnings_ = [_instanced_warning(p) for p in instanced]
+    chosen = parse_frames(frames)
+
+    def read(prim):
+        return read_mesh(prim, scheme=scheme, rules=rules, boundary=boundary, frames=chosen)
+
+    scene = read_scene(stage, prims, read=read, all_variants=all_variants, where=input_path)
+    p = Plan(input_path, stage, [], [], scene=scene)
+    p.left_alone.extend(scene.left_alone)
+    for key, sp in scene.units.items():
+        if sp is not None:
+            p.prims.append(sp)
+            p.keys.append(key)
+    if not p.prims:
+        raise SubdivInputError(f"{input_path}: no subdivision meshes to tessellate"
+                               + (f" under {', '.join(prims)}" if prims else ""))
+    warnings_ = [f"{sp.path}: {w}" for sp in p.prims for w in sp.warnings]
     custom = {"warpSubdiv": {"version": __version__, "command": "tessellate", "source": os.path.basename(input_path),
                              "rate": int(rate) if rate is not None else 0,
-                             "edgeLength": float(edge_length) if edge_length is not None else 0.0}}
+                             "edgeLength": float(edge_length) if edge_length is not None else 0.0,
+                             "allVariants": bool(all_variants)}}
     layer = OutputLayer(out_abs, stage, custom)
     reports = []
     try:
-        for usd_prim in meshes:
-            t0 = time.perf_counter()
-            sp = read_mesh(usd_prim, scheme=scheme, rules=rules, boundary=boundary, frames=parse_frames(frames))
-            if sp is None:
-                continue
-            if sp.topologies:
-                raise SubdivInputError(f"{sp.path}: its topology changes over time; tessellate takes one topology")
-            options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
-            linear = sp.scheme == "bilinear"
-            if linear:  # bilinear patches (quads; a polygon's quad sub-faces, as bilinear refinement splits it)
-                options = options.replace(linear=True)
-            try:
-                surface = _surface(sp.mesh, options, depth, device)
-                t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
-            except SubdivInputError as exc:
-                raise sp.error(exc) from None
-            prim = layer.prim(sp.path)
-            layer.set(layer.attr(prim, "subdivisionScheme", T.Token, uniform=True), "none")
-            layer.set(layer.attr(prim, "points", T.Point3fArray), Vt.Vec3fArray.FromNumpy(t.points.astype(np.float32)))
-            layer.set(layer.attr(prim, "faceVertexCounts", T.IntArray), Vt.IntArray.FromNumpy(t.face_vertex_counts))
-            layer.set(layer.attr(prim, "faceVertexIndices", T.IntArray), Vt.IntArray.FromNumpy(t.face_vertex_indices))
-            corner_face = np.repeat(t.face_base_face.astype(np.int64), t.face_vertex_counts)
-            if linear:  # flat patches meet at creases: one normal per face corner, from the corner's own face
-                normals = surface.evaluate(corner_face, t.face_uv[:, 0], t.face_uv[:, 1]).normals
-            else:
-                normals = t.normals
-            normals = -normals if sp.orientation == "leftHanded" else normals
-            spec = layer.attr(prim, "normals", T.Normal3fArray)
-            spec.SetInfo("interpolation", "faceVarying" if linear else "vertex")
-            layer.set(spec, Vt.Vec3fArray.FromNumpy(normals.astype(np.float32)))
-            layer.set(layer.attr(prim, "extent", T.Float3Array), extent_of(t.points))
-            for when in sp.point_times:  # the same tessellation (edge rates) of the points at every sample
-                try:
-                    moved = _surface(_with_points(sp.mesh, sp.points_at(when)), options, depth, device)
-                    ev = moved.evaluate(t.base_face, t.uv[:, 0], t.uv[:, 1])
-                    nt = moved.evaluate(corner_face, t.face_uv[:, 0], t.face_uv[:, 1]).normals if linear \
-                        else ev.normals
-                except SubdivInputError as exc:
-                    raise sp.error(exc) from None
-                layer.set(layer.attr(prim, "points", T.Point3fArray), None,
-                          [(when, Vt.Vec3fArray.FromNumpy(ev.points.astype(np.float32)))])
-                nt = -nt if sp.orientation == "leftHanded" else nt
-                layer.set(layer.attr(prim, "normals", T.Normal3fArray), None,
-                          [(when, Vt.Vec3fArray.FromNumpy(nt.astype(np.float32)))])
-                layer.set(layer.attr(prim, "extent", T.Float3Array), None, [(when, extent_of(ev.points))])
-            for name in SUBDIVISION_ATTRIBUTES:
-                attr = usd_prim.GetAttribute(name)
-                layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
-            for name in sp.subdiv_attributes:
-                attr = usd_prim.GetAttribute(name)
-                layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform,
-                            custom=True)
-            for name in list(sp.authored_normals) + ["velocities", "accelerations"]:
-                if name == "normals" or not usd_prim.GetAttribute(name).HasAuthoredValue():
-                    continue
-                layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
-            _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
-            _write_subsets(sp, layer, t)
-            base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
-            base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
-            layer.set(base, Vt.IntArray.FromNumpy(t.face_base_face))
-            uv = layer.attr(prim, "primvars:tessellation:uv", T.TexCoord2fArray, custom=False)
-            uv.SetInfo("interpolation", UsdGeom.Tokens.faceVarying)
-            layer.set(uv, Vt.Vec2fArray.FromNumpy(t.face_uv.astype(np.float32)))
-            reports.append(MeshReport(sp.path, options.scheme.value, options.rules.value,
-                                      len(sp.mesh.face_vertex_counts), t.num_faces, t.num_vertices,
-                                      time.perf_counter() - t0))
-        if not reports:
-            raise SubdivInputError(f"{input_path}: no subdivision meshes to tessellate"
-                                   + (f" under {', '.join(prims)}" if prims else ""))
+        out_layout = layout(p)
+        for sp, key in zip(p.prims, p.keys):
+            sp.target = str(out_layout.homes[key])  # its own path, a prototype's content or a shared mesh
+            reports.append(_tessellate_prim(sp, layer, warnings_, rate=rate, edge_length=edge_length, scheme=scheme,
+                                            rules=rules, boundary=boundary, depth=depth, quads=quads, device=device))
+            for dst in out_layout.copies[key]:
+                layer.copy(out_layout.homes[key], dst)
+        out_layout.write(layer)
+        out_layout.check(layer, p, reports)
+        layer.override_extents_hints(stage, out_layout.hint_roots(p), chosen)
         layer.commit(flatten=flatten)
     except BaseException:
         layer.discard()
@@ -749,15 +712,82 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     return reports, warnings_
 
 
-def _instanced_warning(prim) -> str:
-    """What tessellate does with a mesh inside a scene-graph instance (an instance proxy), and what to do."""
-    instance = prim.GetParent()
-    while instance and not instance.IsInstance():
-        instance = instance.GetParent()
-    where = f" {instance.GetPath()}" if instance else ""
-    return (f"{prim.GetPath()}: inside the instance{where}, whose meshes live in a shared prototype: tessellate "
-            "writes no prototypes, so it is left alone (to tessellate it, make the instance uninstanceable "
-            "(instanceable = false) or flatten it; refine handles instances by refining their prototypes)")
+def _tessellate_prim(sp, layer, warnings_, *, rate, edge_length, scheme, rules, boundary, depth, quads,
+                     device) -> MeshReport:
+    """Tessellate one mesh (as read) and write it at :attr:`~warp_subdiv.usd_read.SubdivPrim.output_path` of
+    ``layer``."""
+    import time
+
+    from pxr import Sdf, UsdGeom, Vt
+
+    from .usd import options_for
+    from .usd_read import DEFAULT, SUBDIVISION_ATTRIBUTES
+    from .usd_write import extent_of
+
+    T = Sdf.ValueTypeNames
+    t0 = time.perf_counter()
+    usd_prim = sp.prim
+    if sp.topologies:
+        raise SubdivInputError(f"{sp.path}: its topology changes over time; tessellate takes one topology")
+    options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+    linear = sp.scheme == "bilinear"
+    if linear:  # bilinear patches (quads; a polygon's quad sub-faces, as bilinear refinement splits it)
+        options = options.replace(linear=True)
+    try:
+        surface = _surface(sp.mesh, options, depth, device)
+        t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
+    except SubdivInputError as exc:
+        raise sp.error(exc) from None
+    prim = layer.prim(sp.output_path)
+    layer.set(layer.attr(prim, "subdivisionScheme", T.Token, uniform=True), "none")
+    layer.set(layer.attr(prim, "points", T.Point3fArray), Vt.Vec3fArray.FromNumpy(t.points.astype(np.float32)))
+    layer.set(layer.attr(prim, "faceVertexCounts", T.IntArray), Vt.IntArray.FromNumpy(t.face_vertex_counts))
+    layer.set(layer.attr(prim, "faceVertexIndices", T.IntArray), Vt.IntArray.FromNumpy(t.face_vertex_indices))
+    corner_face = np.repeat(t.face_base_face.astype(np.int64), t.face_vertex_counts)
+    if linear:  # flat patches meet at creases: one normal per face corner, from the corner's own face
+        normals = surface.evaluate(corner_face, t.face_uv[:, 0], t.face_uv[:, 1]).normals
+    else:
+        normals = t.normals
+    normals = -normals if sp.orientation == "leftHanded" else normals
+    spec = layer.attr(prim, "normals", T.Normal3fArray)
+    spec.SetInfo("interpolation", "faceVarying" if linear else "vertex")
+    layer.set(spec, Vt.Vec3fArray.FromNumpy(normals.astype(np.float32)))
+    layer.set(layer.attr(prim, "extent", T.Float3Array), extent_of(t.points))
+    for when in sp.point_times:  # the same tessellation (edge rates) of the points at every sample
+        try:
+            moved = _surface(_with_points(sp.mesh, sp.points_at(when)), options, depth, device)
+            ev = moved.evaluate(t.base_face, t.uv[:, 0], t.uv[:, 1])
+            nt = moved.evaluate(corner_face, t.face_uv[:, 0], t.face_uv[:, 1]).normals if linear \
+                else ev.normals
+        except SubdivInputError as exc:
+            raise sp.error(exc) from None
+        layer.set(layer.attr(prim, "points", T.Point3fArray), None,
+                  [(when, Vt.Vec3fArray.FromNumpy(ev.points.astype(np.float32)))])
+        nt = -nt if sp.orientation == "leftHanded" else nt
+        layer.set(layer.attr(prim, "normals", T.Normal3fArray), None,
+                  [(when, Vt.Vec3fArray.FromNumpy(nt.astype(np.float32)))])
+        layer.set(layer.attr(prim, "extent", T.Float3Array), None, [(when, extent_of(ev.points))])
+    for name in SUBDIVISION_ATTRIBUTES:
+        attr = usd_prim.GetAttribute(name)
+        layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
+    for name in sp.subdiv_attributes:
+        attr = usd_prim.GetAttribute(name)
+        layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform,
+                    custom=True)
+    for name in list(sp.authored_normals) + ["velocities", "accelerations"]:
+        if name == "normals" or not usd_prim.GetAttribute(name).HasAuthoredValue():
+            continue
+        layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
+    _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
+    _write_subsets(sp, layer, t)
+    base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
+    base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
+    layer.set(base, Vt.IntArray.FromNumpy(t.face_base_face))
+    uv = layer.attr(prim, "primvars:tessellation:uv", T.TexCoord2fArray, custom=False)
+    uv.SetInfo("interpolation", UsdGeom.Tokens.faceVarying)
+    layer.set(uv, Vt.Vec2fArray.FromNumpy(t.face_uv.astype(np.float32)))
+    return MeshReport(sp.path, options.scheme.value, options.rules.value, len(sp.mesh.face_vertex_counts),
+                      t.num_faces, t.num_vertices, time.perf_counter() - t0)
 
 
 def _with_points(mesh, points):
@@ -942,5 +972,6 @@ def _write_subsets(sp, layer, t) -> None:
             continue
         ids = np.asarray(subset.attr.Get() or [], dtype=np.int64)
         keep = np.flatnonzero(np.isin(t.face_base_face, ids)).astype(np.int32)
-        spec = layer.attr(layer.prim(subset.path), "indices", Sdf.ValueTypeNames.IntArray)
+        spec = layer.attr(layer.prim(sp.output_path + subset.path[len(sp.path):]), "indices",
+                          Sdf.ValueTypeNames.IntArray)
         layer.set(spec, Vt.IntArray.FromNumpy(keep))
