@@ -48,7 +48,11 @@ MESHES = {
     # name: (file, scheme)
     "cube64_noisy": ("cube64_noisy.obj", "catmull-clark"),
     "icosphere5_noisy": ("icosphere5_noisy.obj", "loop"),
+    # open meshes (a boundary: explicit stencil rows on every level); not in the default set
+    "grid64_open": ("grid64_open.obj", "catmull-clark"),
+    "trigrid64_open": ("trigrid64_open.obj", "loop"),
 }
+DEFAULT_MESHES = ("cube64_noisy", "icosphere5_noisy")
 MARK = "BENCH_RESULT "
 
 
@@ -256,7 +260,8 @@ def main(argv=None):
     p.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda")
     p.add_argument("--precision", default="float32", choices=["float32", "float64"])
     p.add_argument("--rules", default="piecewise-smooth", choices=["piecewise-smooth", "opensubdiv"])
-    p.add_argument("--meshes", default=",".join(MESHES), help="comma-separated subset of " + ",".join(MESHES))
+    p.add_argument("--meshes", default=",".join(DEFAULT_MESHES),
+                   help="comma-separated subset of " + ",".join(MESHES) + " (default: " + ",".join(DEFAULT_MESHES) + ")")
     p.add_argument("--frames", type=int, default=5, help="timed evaluate calls after warm-up (median)")
     p.add_argument("--timeout", type=float, default=300.0, help="seconds per (mesh, level) subprocess")
     p.add_argument("--mem-limit-gib", type=float, default=None,
