@@ -8,10 +8,13 @@ the order of ``warp_subdiv.limit_patches.TRI_BEZIER_INDEX``). Derivatives are re
 with respect to the base face's (u, v): the descent's scale (2 per level; -2 in a triangle's middle child,
 whose frame is turned by 180 degrees) is applied on the way out. Kernels know nothing about subdivision rules.
 
-The quartic-triangle functions below (``_bern4``, ``_bern4_grad``, ``_bern4_hessian``, ``_box12``) are written out
-with constant indices only, so that Warp keeps their values in registers; they were generated from
+The quartic-triangle functions below (``_bern4``, ``_bern4_grad``, ``_bern4_hessian``, ``_box12``, ``_loop_box``) are
+written out with constant indices only, so that Warp keeps their values in registers; they were generated from
 ``TRI_BEZIER_INDEX`` and ``LOOP_BEZIER`` (tests/test_limit_surface.py checks the evaluated patches against the box
-spline derived from Loop's stencils).
+spline derived from Loop's stencils). Points and first derivatives of a box-spline patch take ``_loop_box``: the
+basis and its two derivatives from the ten cubic monomials of (1 - s - t, s, t) with integer weights (about half the
+operations of the quartic Bernstein values, their gradients and three ``_box12`` products, which end caps and second
+derivatives still use).
 """
 import warp as wp
 
@@ -277,6 +280,94 @@ def _box12(b: vec15d) -> vec12d:
         s * (b[9] + wp.float64(2.0) * b[14]))
 
 
+@wp.func
+def _loop_box(s: wp.float64, t: wp.float64):
+    """The 12 quartic box-spline basis functions (TRI_RING order) at (s, t) and their s and t derivatives, each
+    scaled to integer weights: (24 b, 6 db/ds, 6 db/dt) (generated from LOOP_BEZIER: with (w0, w1, w2) =
+    (1 - s - t, s, t) and the cubic Bernstein polynomials B3, b = (1/24) sum_i w_i A_i^T B3 and db/ds =
+    (1/6) (A_1 - A_0)^T B3, where A_i[k, j] = 24 LOOP_BEZIER[k + e_i, j]; so 24 b = A_0^T B3 + 4 s db/ds + 4 t
+    db/dt). The multinomial coefficients are folded into the integer weights of the monomials."""
+    zero = wp.float64(0.0)
+    w0 = wp.float64(1.0) - s - t
+    mw03 = w0 * w0 * w0
+    mw02_s = w0 * w0 * s
+    mw02_t = w0 * w0 * t
+    mw0_s2 = w0 * s * s
+    mw0_s_t = w0 * s * t
+    mw0_t2 = w0 * t * t
+    ms3 = s * s * s
+    ms2_t = s * s * t
+    ms_t2 = s * t * t
+    mt3 = t * t * t
+    gs = vec12d(
+        -wp.float64(12.0) * mw02_s - wp.float64(6.0) * mw02_t - wp.float64(12.0) * mw0_s2
+            - wp.float64(24.0) * mw0_s_t - wp.float64(6.0) * mw0_t2 - wp.float64(2.0) * ms3
+            - wp.float64(9.0) * ms2_t - wp.float64(6.0) * ms_t2 - mt3,
+        wp.float64(2.0) * mw03 + wp.float64(12.0) * mw02_s + wp.float64(9.0) * mw02_t
+            + wp.float64(12.0) * mw0_s2 + wp.float64(24.0) * mw0_s_t + wp.float64(6.0) * mw0_t2
+            + wp.float64(6.0) * ms2_t + wp.float64(6.0) * ms_t2 + mt3,
+        mw03 + wp.float64(3.0) * mw02_s + wp.float64(6.0) * mw02_t - wp.float64(3.0) * mw0_s2
+            + wp.float64(6.0) * mw0_t2 - ms3 - wp.float64(6.0) * ms2_t - wp.float64(6.0) * ms_t2,
+        -mw03 - wp.float64(3.0) * mw02_s - wp.float64(6.0) * mw02_t - wp.float64(6.0) * mw0_s_t
+            - wp.float64(9.0) * mw0_t2 - wp.float64(3.0) * ms_t2 - wp.float64(2.0) * mt3,
+        -wp.float64(2.0) * mw03 - wp.float64(3.0) * mw02_t,
+        -mw03 - wp.float64(3.0) * mw02_s,
+        mw03 + wp.float64(3.0) * mw02_s - wp.float64(3.0) * mw0_s2 - ms3,
+        wp.float64(2.0) * ms3 + wp.float64(3.0) * ms2_t,
+        wp.float64(3.0) * mw0_s2 + wp.float64(6.0) * mw0_s_t + wp.float64(3.0) * mw0_t2 + ms3
+            + wp.float64(6.0) * ms2_t + wp.float64(9.0) * ms_t2 + wp.float64(2.0) * mt3,
+        wp.float64(3.0) * mw0_s2 + ms3,
+        mt3,
+        -mt3)
+    gt = vec12d(
+        -wp.float64(6.0) * mw02_s - wp.float64(12.0) * mw02_t - wp.float64(6.0) * mw0_s2
+            - wp.float64(24.0) * mw0_s_t - wp.float64(12.0) * mw0_t2 - ms3 - wp.float64(6.0) * ms2_t
+            - wp.float64(9.0) * ms_t2 - wp.float64(2.0) * mt3,
+        mw03 + wp.float64(6.0) * mw02_s + wp.float64(3.0) * mw02_t + wp.float64(6.0) * mw0_s2
+            - wp.float64(3.0) * mw0_t2 - wp.float64(6.0) * ms2_t - wp.float64(6.0) * ms_t2 - mt3,
+        wp.float64(2.0) * mw03 + wp.float64(9.0) * mw02_s + wp.float64(12.0) * mw02_t
+            + wp.float64(6.0) * mw0_s2 + wp.float64(24.0) * mw0_s_t + wp.float64(12.0) * mw0_t2 + ms3
+            + wp.float64(6.0) * ms2_t + wp.float64(6.0) * ms_t2,
+        mw03 + wp.float64(3.0) * mw02_t - wp.float64(3.0) * mw0_t2 - mt3,
+        -mw03 - wp.float64(3.0) * mw02_t,
+        -wp.float64(2.0) * mw03 - wp.float64(3.0) * mw02_s,
+        -mw03 - wp.float64(6.0) * mw02_s - wp.float64(3.0) * mw02_t - wp.float64(9.0) * mw0_s2
+            - wp.float64(6.0) * mw0_s_t - wp.float64(2.0) * ms3 - wp.float64(3.0) * ms2_t,
+        ms3,
+        wp.float64(3.0) * mw0_s2 + wp.float64(6.0) * mw0_s_t + wp.float64(3.0) * mw0_t2
+            + wp.float64(2.0) * ms3 + wp.float64(9.0) * ms2_t + wp.float64(6.0) * ms_t2 + mt3,
+        -ms3,
+        wp.float64(3.0) * ms_t2 + wp.float64(2.0) * mt3,
+        wp.float64(3.0) * mw0_t2 + mt3)
+    g0 = vec12d(
+        wp.float64(12.0) * mw03 + wp.float64(36.0) * mw02_s + wp.float64(36.0) * mw02_t
+            + wp.float64(24.0) * mw0_s2 + wp.float64(60.0) * mw0_s_t + wp.float64(24.0) * mw0_t2
+            + wp.float64(4.0) * ms3 + wp.float64(18.0) * ms2_t + wp.float64(18.0) * ms_t2
+            + wp.float64(4.0) * mt3,
+        wp.float64(2.0) * mw03 + wp.float64(12.0) * mw02_s + wp.float64(9.0) * mw02_t
+            + wp.float64(24.0) * mw0_s2 + wp.float64(36.0) * mw0_s_t + wp.float64(12.0) * mw0_t2
+            + wp.float64(12.0) * ms3 + wp.float64(30.0) * ms2_t + wp.float64(18.0) * ms_t2
+            + wp.float64(3.0) * mt3,
+        wp.float64(2.0) * mw03 + wp.float64(9.0) * mw02_s + wp.float64(12.0) * mw02_t
+            + wp.float64(12.0) * mw0_s2 + wp.float64(36.0) * mw0_s_t + wp.float64(24.0) * mw0_t2
+            + wp.float64(3.0) * ms3 + wp.float64(18.0) * ms2_t + wp.float64(30.0) * ms_t2
+            + wp.float64(12.0) * mt3,
+        wp.float64(2.0) * mw03 + wp.float64(3.0) * mw02_s + wp.float64(9.0) * mw02_t
+            + wp.float64(6.0) * mw0_s_t + wp.float64(12.0) * mw0_t2 + wp.float64(3.0) * ms_t2
+            + wp.float64(3.0) * mt3,
+        wp.float64(2.0) * mw03 + wp.float64(3.0) * mw02_t,
+        wp.float64(2.0) * mw03 + wp.float64(3.0) * mw02_s,
+        wp.float64(2.0) * mw03 + wp.float64(9.0) * mw02_s + wp.float64(3.0) * mw02_t
+            + wp.float64(12.0) * mw0_s2 + wp.float64(6.0) * mw0_s_t + wp.float64(3.0) * ms3
+            + wp.float64(3.0) * ms2_t,
+        zero,
+        ms3 + wp.float64(3.0) * ms2_t + wp.float64(3.0) * ms_t2 + mt3,
+        ms3,
+        zero,
+        mt3)
+    return g0 + s * gs + t * gt, gs, gt
+
+
 @wp.kernel
 def limit_evaluate(
     face_info: wp.array(dtype=wp.vec4i),
@@ -416,29 +507,30 @@ def limit_evaluate(
         # quartic Bernstein polynomials of (w0, w1, w2) = (1 - s - t, s, t) and their derivatives (hodograph);
         # a box-spline patch (12 indexed points) weighs them with LOOP_BEZIER^T, an end cap (15 consecutive Bezier
         # points) directly
-        w0 = one - s - t
-        bern = _bern4(w0, s, t)
-        g0 = _bern4_grad(w0, s, t, 0)
-        bern_s = _bern4_grad(w0, s, t, 1) - g0
-        bern_t = _bern4_grad(w0, s, t, 2) - g0
         box = bezier == 0
-        base = patch_index[patch, 0]
-        if box:
-            wv = _box12(bern)
-            wvs = _box12(bern_s)
-            wvt = _box12(bern_t)
+        w0 = one - s - t
+        if box:  # integer weights of the monomials (_loop_box), the scale applied once to the sums
+            wv, wvs, wvt = _loop_box(s, t)
             for j in range(12):
                 cp = points[patch_index[patch, j]]
                 p += wv[j] * cp
                 ds += wvs[j] * cp
                 dt += wvt[j] * cp
+            p = p / wp.float64(24.0)
+            ds = ds / wp.float64(6.0)
+            dt = dt / wp.float64(6.0)
         else:
+            base = patch_index[patch, 0]
+            bern = _bern4(w0, s, t)
+            g0 = _bern4_grad(w0, s, t, 0)
+            bern_s = _bern4_grad(w0, s, t, 1) - g0
+            bern_t = _bern4_grad(w0, s, t, 2) - g0
             for j in range(15):
                 cp = points[base + j]
                 p += bern[j] * cp
                 ds += bern_s[j] * cp
                 dt += bern_t[j] * cp
-        if second != 0:
+        if second != 0:  # the Bernstein Hessians (the box spline's through _box12)
             h00 = _bern4_hessian(w0, s, t, 0, 0)
             h01 = _bern4_hessian(w0, s, t, 0, 1)
             h02 = _bern4_hessian(w0, s, t, 0, 2)
@@ -455,6 +547,7 @@ def limit_evaluate(
                     dst += wst[j] * cp
                     dtt += wtt[j] * cp
             else:
+                base = patch_index[patch, 0]
                 for j in range(15):
                     cp = points[base + j]
                     dss += bern_ss[j] * cp

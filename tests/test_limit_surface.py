@@ -246,7 +246,7 @@ def test_bicubic_patch_matches_closed_form_bspline(device):
 def test_quartic_box_spline_matches_closed_form():
     """The regular Loop patch is the quartic box spline: the library's Bezier matrix equals the one derived here
     from Loop's stencils, and an interior triangle of a regular triangle grid evaluates (with derivatives) as
-    that Bezier net of its 12 control points."""
+    that Bezier net of its 12 control points (points and first derivatives to 1e-12)."""
     N, bern = loop_bezier_from_stencils()
     np.testing.assert_allclose(LOOP_BEZIER, N, atol=1e-12)
     rng = np.random.default_rng(RNG_SEED)
@@ -266,8 +266,9 @@ def test_quartic_box_spline_matches_closed_form():
         def at(x, y):
             return bern(x, y) @ net
         np.testing.assert_allclose(ev.points[k], at(u[k], v[k]), atol=1e-12)
-        np.testing.assert_allclose(ev.du[k], (at(u[k] + h, v[k]) - at(u[k] - h, v[k])) / (2 * h), atol=1e-6)
-        np.testing.assert_allclose(ev.dv[k], (at(u[k], v[k] + h) - at(u[k], v[k] - h)) / (2 * h), atol=1e-6)
+        # first derivatives exactly (complex step: the net is a polynomial), second by finite differences
+        np.testing.assert_allclose(ev.du[k], at(u[k] + 1e-30j, v[k]).imag / 1e-30, atol=1e-12)
+        np.testing.assert_allclose(ev.dv[k], at(u[k], v[k] + 1e-30j).imag / 1e-30, atol=1e-12)
         np.testing.assert_allclose(ev.duv[k], (at(u[k] + h, v[k] + h) - at(u[k] + h, v[k] - h) - at(u[k] - h, v[k] + h)
                                                + at(u[k] - h, v[k] - h)) / (4 * h * h), atol=1e-3)
 
@@ -659,6 +660,27 @@ def test_end_cap_error_bound(name, scheme, rules):
     refined = ws.refine(mesh, 1, scheme=scheme, rules=rules, precision="float64").limit_points()
     corner = coarse.evaluate([0], [0.0], [0.0]).points[0]
     np.testing.assert_allclose(corner, refined[mesh.face_vertex_indices[0]], atol=1e-12)
+
+
+def test_results_of_successive_evaluations_are_independent():
+    """evaluate's arrays (numpy memory wrapped for the kernel on the CPU) belong to the caller: a later call
+    does not overwrite them, each is contiguous and writable, and the same queries give the same bits."""
+    rng = np.random.default_rng(RNG_SEED)
+    for scheme in ("loop", "catmull-clark"):
+        mesh = grid_mesh(4, rng, triangles=scheme == "loop")[0]
+        surface = ws.LimitSurface(mesh, scheme=scheme, device="cpu")
+        f, u, v = rng.integers(0, surface.num_faces, 500), rng.random(500) * 0.5, rng.random(500) * 0.5
+        first = surface.evaluate(f, u, v, derivatives=2)
+        kept = {k: getattr(first, k).copy() for k in ("points", "du", "dv", "normals", "duu", "duv", "dvv")}
+        other = surface.evaluate(f[::-1], v, u, derivatives=2)
+        for k, value in kept.items():
+            got = getattr(first, k)
+            assert got.flags.c_contiguous and got.flags.writeable and got.shape == (500, 3)
+            np.testing.assert_array_equal(got, value)
+            assert not np.shares_memory(got, getattr(other, k))
+        again = surface.evaluate(f, u, v, derivatives=2)
+        for k, value in kept.items():
+            np.testing.assert_array_equal(getattr(again, k), value)
 
 
 def test_bad_input_is_refused():

@@ -333,14 +333,18 @@ class LimitSurface:
 
         dev = self.device
         a = self._arrays()
-        out = [wp.empty(n, dtype=wp.vec3d, device=dev) for _ in range(7)] if second else \
-            [wp.empty(n, dtype=wp.vec3d, device=dev) for _ in range(3)]
-        if second:
-            p, du, dv, duu, duv, dvv, nrm = out
-        else:
-            p, du, dv, nrm = out[0], out[1], out[2], wp.empty(n, dtype=wp.vec3d, device=dev)
-            duu = duv = dvv = wp.empty(1, dtype=wp.vec3d, device=dev)
-        patch = wp.empty(n, dtype=wp.int32, device=dev)
+
+        def empty(rows, dtype):
+            if dev.is_cpu:  # numpy's memory, wrapped: large blocks come on huge pages (a few page faults where
+                # Warp's host allocation faults every 4 KiB page of fresh output, 10-20% of a large evaluation)
+                host = np.empty((rows, 3) if dtype is wp.vec3d else rows, dtype=np.float64 if dtype is wp.vec3d
+                                else np.int32)
+                return wp.array(host, dtype=dtype, device=dev, copy=False)
+            return wp.empty(rows, dtype=dtype, device=dev)
+
+        p, du, dv, nrm = (empty(n, wp.vec3d) for _ in range(4))
+        duu, duv, dvv = (empty(n, wp.vec3d) for _ in range(3)) if second else (empty(1, wp.vec3d),) * 3
+        patch = empty(n, wp.int32)
         wp.launch(kernels.limit_evaluate, dim=n,
                   inputs=[a["face_info"], *queries,
                           a["node_child"], a["node_patch"], a["patch_index"], a["patch_basis"], points,
