@@ -13,8 +13,9 @@ adds to the process, phase by phase, from per-vertex costs measured with ``pytho
 call). Every cost is per vertex of the last level a phase builds, because every level is 4x the previous
 one and the last one dominates:
 
-* the control-mesh analysis (edges, rings, sectors): 175 bytes per control face corner at its peak, 130 of
-  which stay while the later levels are built; this matters where few levels refine a large control mesh;
+* the control-mesh analysis (edges, rings, sectors): 175 bytes per control face corner at its peak, 40 of
+  which stay while the later levels are built (the analysed level 0 and the first step's tables; the rest of
+  the peak is reused by the build); this matters where few levels refine a large control mesh;
 * building the refiner (topology of every level, tables, numpy temporaries): 106 bytes per output vertex for
   Catmull-Clark, 115 for Loop; where the piecewise-smooth rules project on every level (flatness at
   extraordinary crease and corner sectors, prescribed normals) the last level is built with its full
@@ -31,7 +32,7 @@ one and the last one dominates:
   edge rules differ next to extraordinary crease vertices that level is one deeper, and a refiner is built
   for it: 860 or 865 bytes per vertex of the deeper level;
 * writing a USD layer maps each refined face to its control face (24 bytes a face at the peak of building
-  the map) and converts the topology and points to USD arrays (4 bytes a face and a face corner; 30 a vertex:
+  the map) and converts the topology and points to USD arrays (4 bytes a face and a face corner; 40 a vertex:
   refined points, their USD copy, extent and used-vertex temporaries) while the refiner is alive;
 * what the written layer holds until it is saved: face counts and indices once, and per written time sample
   the points (and extent), velocities, accelerations, normals and primvars.
@@ -53,7 +54,7 @@ from .errors import SubdivInputError
 #: Bytes per control face corner of the control-mesh analysis (edges, rings, sectors): at its own peak, and
 #: what stays (level 0 and the first step's tables) while the later levels are built.
 CONTROL_PEAK = 175
-CONTROL_KEPT = 130
+CONTROL_KEPT = 40
 #: Part of BUILD_PEAK and KEPT that is the second-to-last level's full topology: with one level, that level is
 #: the control mesh, counted by CONTROL_KEPT already.
 PENULTIMATE = 55
@@ -177,7 +178,7 @@ def estimate(
         "face-varying refiners": (FACE_VARYING + (KEPT[key][0] if face_varying_channels > 1 else 0))
         * last.vertices if face_varying_channels else 0,
         "limit masks": LIMIT_PEAK[key][int(bool(limit_deeper))] * limit_level.vertices if limit else 0,
-        "layer conversion": 24 * last.faces + 4 * (last.faces + last.corners) + 30 * last.vertices if layer else 0,
+        "layer conversion": 24 * last.faces + 4 * (last.faces + last.corners) + 40 * last.vertices if layer else 0,
         "faces": 4 * (last.faces + last.corners),
         "points": samples * last.vertices * 12 * (1 + extra_point_arrays),
         "primvars": samples * 4 * (last.vertices * vertex_width + last.corners * face_varying_width

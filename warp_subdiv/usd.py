@@ -247,7 +247,10 @@ def make_refiner(source, levels: int, *, options: Options | None = None, device=
     analysed = getattr(source, "analysed", None)  # the plan's level-0 refiner: its analysis is reused
     try:
         with shipped(analysed.hierarchy if analysed is not None else None):
-            return Refiner(source.mesh, levels, options=options, device=device, max_memory=max_memory)
+            refiner = Refiner(source.mesh, levels, options=options, device=device, max_memory=max_memory)
+        if analysed is not None and levels > 0:
+            source.analysed = None  # used: not kept for the rest of the bake
+        return refiner
     except MemoryGuardError:
         raise
     except SubdivInputError as exc:
