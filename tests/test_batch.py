@@ -331,6 +331,20 @@ def test_usd_batch_memory_cap_splits_chunks(props_scene, tmp_path, monkeypatch):
     _same_layers(str(tmp_path / "on.usda"), str(tmp_path / "off.usda"))
 
 
+def test_usd_batch_bound_depends_on_what_is_written(props_scene, tmp_path, monkeypatch):
+    """A prim is batched up to BATCH_VERTICES refined vertices where limit points or normals are written, and only
+    up to BATCH_VERTICES_POINTS where only points are (its own evaluation is then cheap): with the points-only
+    bound below every prop, nothing is batched for points, and the same props are batched with normals."""
+    import warp_subdiv.usd as usd
+
+    seen = _counting(monkeypatch)
+    monkeypatch.setattr(usd, "BATCH_VERTICES_POINTS", 1)
+    usd.refine_usd(props_scene, str(tmp_path / "points.usda"), 2, device="cpu")
+    assert seen == []
+    usd.refine_usd(props_scene, str(tmp_path / "normals.usda"), 2, device="cpu", normals=True)
+    assert seen and sum(seen) >= 25, seen
+
+
 @pytest.mark.parametrize("bad", ["count", "nan"])
 def test_usd_batch_input_errors_as_unbatched(tmp_path, bad):
     """A small prim whose points at one time do not fit its mesh (or are not finite) among batched ones: the

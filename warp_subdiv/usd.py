@@ -372,7 +372,8 @@ def refine_usd(
     ``progress``: callable(fraction, label) or None. Errors in the input are SubdivInputError.
     ``vertex_order``: "opensubdiv" (the refiner's), "compact" (indices that usdc compresses well, written
     much faster; see :mod:`warp_subdiv.order`) or "auto" (compact for the piecewise-smooth rules).
-    ``batch``: evaluate small meshes (at most :data:`BATCH_VERTICES` refined vertices each) that share their
+    ``batch``: evaluate small meshes (at most :data:`BATCH_VERTICES` refined vertices each with limit points or
+    normals, :data:`BATCH_VERTICES_POINTS` without) that share their
     options, levels and time samples together, one evaluation of their disjoint union per time sample
     (:mod:`warp_subdiv.batch`) instead of one per mesh; the layer written is identical either way (values
     bitwise, the same specs). False: every mesh is evaluated on its own.
@@ -587,6 +588,12 @@ def layout(p: Plan) -> Layout:
 #: level 2 (CPU), the batch is 14x faster per member at 98 refined vertices, 2.3x at 1,538, 1.4x at 3,458 and
 #: slower from about 6,000 on (its gathers and larger buffers).
 BATCH_VERTICES = 4096
+#: The same bound where only points are written (no limit points or normals): a small prim's own evaluation is
+#: then only its recorded launches, and the batch's extra costs (the union's build, reading the points for it)
+#: outweigh what it saves sooner. Measured end to end (bench/bench_batch.py, quiet machine): 200 props of 1,538
+#: refined vertices x 24 samples baked 0.88x as fast batched (points only) and 1.15x as fast with normals;
+#: 1,000 cubes of 98 refined vertices 1.42x and 1.45x.
+BATCH_VERTICES_POINTS = 1024
 #: The most refined rows x written samples one batch holds at once (its results, kept until each member is
 #: written): about 24 MiB of float32 points (and as much again for normals or limit points).
 BATCH_ROWS = 1 << 21
@@ -596,7 +603,8 @@ class _Batches:
     """The USD writer's batching of small meshes (:mod:`warp_subdiv.batch`): which prims are evaluated together,
     and their results, prepared before the first of them is written.
 
-    A prim is a candidate when its refinement is small (:data:`BATCH_VERTICES`), its topology does not change
+    A prim is a candidate when its refinement is small (:data:`BATCH_VERTICES`; :data:`BATCH_VERTICES_POINTS`
+    where neither limit points nor normals are written), its topology does not change
     over time, it is not bilinear, its options have no per-vertex flatness and no shipped hierarchy (a
     distributed task's) stands in for its refiner. Candidates with equal options and selected time samples
     form chunks in the plan's order, each of at most :data:`BATCH_ROWS` refined rows x samples. When the first
@@ -616,12 +624,13 @@ class _Batches:
         self.levels, self.device, self.limit, self.normals = levels, device, limit, normals
         self.defaults = defaults  # whether default values are written (not with samples_only)
         self.prims, self.options = p.prims, p.options
+        small = BATCH_VERTICES if (limit or normals) else BATCH_VERTICES_POINTS
         self.chunk_of: dict = {}  # prim index -> its chunk (a list of prim indices)
         self.ready: dict = {}  # id(sp) -> (refiner, {control points bytes: (points, normals)})
         open_chunks: dict = {}  # key -> (chunk, rows x samples so far)
         for i, (sp, options, e) in enumerate(zip(p.prims, p.options, p.estimates)):
             rows = e.final.vertices
-            if (sp.topologies or sp.scheme == "bilinear" or rows > BATCH_VERTICES
+            if (sp.topologies or sp.scheme == "bilinear" or rows > small
                     or isinstance(options.flatness, np.ndarray) or _shipped_for(sp.mesh, options) is not None):
                 continue
             key = (options, tuple(sp.point_times))
