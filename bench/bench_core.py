@@ -261,7 +261,7 @@ def main(argv=None):
     p.add_argument("--precision", default="float32", choices=["float32", "float64"])
     p.add_argument("--rules", default="piecewise-smooth", choices=["piecewise-smooth", "opensubdiv"])
     p.add_argument("--meshes", default=",".join(DEFAULT_MESHES),
-                   help="comma-separated subset of " + ",".join(MESHES) + " (default: " + ",".join(DEFAULT_MESHES) + ")")
+                   help=f"comma-separated subset of {','.join(MESHES)} (default: {','.join(DEFAULT_MESHES)})")
     p.add_argument("--frames", type=int, default=5, help="timed evaluate calls after warm-up (median)")
     p.add_argument("--timeout", type=float, default=300.0, help="seconds per (mesh, level) subprocess")
     p.add_argument("--mem-limit-gib", type=float, default=None,
