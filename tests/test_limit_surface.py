@@ -319,20 +319,8 @@ def check_consistency(mesh, scheme, rules, options, level=2, depth=4):
     refiner = ws.Refiner(mesh, level, options=o)
     refined = refiner.refine()
     want_p, want_n = refined.limit_points(), refined.limit_normals()
-    face, uv, sub = refined_face_params(refiner.hierarchy, level)
-    n = uv.shape[1]
-    verts = refiner.hierarchy.final.corner_vert.reshape(-1, n)
-    control = refiner.hierarchy.parentage.control_face
-    if control is not None:  # Loop polygons: level-0 triangle t is fan triangle k of its control face
-        first = np.searchsorted(control, control)
-        k = face - first[face]
-        face = control[face]
-        fan = surface.face_size[face] > 3
-        uv[fan] = np.stack([k[fan][:, None] + 0.5 * uv[fan][..., 0], 0.5 * uv[fan][..., 1]], -1)
-    face_ids, uv = to_face_uv(surface, face, uv, sub)
-    keep = ~surface.holes[face_ids]
-    ev = surface.evaluate(np.repeat(face_ids[keep], n), uv[keep, :, 0].ravel(), uv[keep, :, 1].ravel())
-    v = verts[keep].ravel()
+    faces, u, v_par, v = refined_vertex_params(surface, refiner, level)
+    ev = surface.evaluate(faces, u, v_par)
     scale = np.abs(mesh.points).max()
     np.testing.assert_allclose(ev.points, want_p[v], atol=1e-10 * scale)
     single, lvl = single_sector_vertices(mesh, o, level)
