@@ -338,7 +338,7 @@ def _put_smooth_vertices(level, out, rows, vs, pos, weight, loop_beta, slots: _S
     slot_row = np.repeat(np.arange(len(rows), dtype=np.int64), valence)
     # position of each slot's first entry inside its row: 1 + entries of the row's earlier slots
     cum = np.concatenate([[0], np.cumsum(per_slot)])
-    first = np.repeat(cum[:-1][np.concatenate([[0], np.cumsum(valence)[:-1]])], valence)
+    first = np.repeat(cum[np.concatenate([[0], np.cumsum(valence)[:-1]])], valence)  # (a row of no slot: none)
     sl_pos = pos[sl_r] + 1 + cum[:-1] - first
     nxt = level.corner_next(sl_h)
     mask = rules.smooth_vertex_mask(level.scheme, valence, loop_beta)
