@@ -906,7 +906,7 @@ def _refine_catmull_clark_quads(level: Level, faces_only: bool, threads: int) ->
                      face_hole=child_hole, interior_verts=out["interior_verts"],
                      interior_corners=out["interior_corners"], near=out["near"], far=out["far"],
                      vertex_child_corner=out["near"], face_child_corners=out["face_child_corners"],
-                     edge_child_corners=out["edge_child_corners"], edge_child_base=V + F)
+                     edge_child_corners=out["edge_child_corners"], edge_child_base=V + F, threads=threads)
 
 
 def _refine_catmull_clark(level: Level, faces_only: bool, threads: int = 1) -> Level:
@@ -952,7 +952,7 @@ def _refine_catmull_clark(level: Level, faces_only: bool, threads: int = 1) -> L
     return _assemble(level, num_vertices=nV, face_size=4, corner_vert=cv, corner_edge=ce, face_hole=child_hole,
                      interior_verts=interior_verts, interior_corners=interior_corners, near=near, far=far,
                      vertex_child_corner=near, face_child_corners=children.index(2),
-                     edge_child_corners=edge_child_corners, edge_child_base=V + F)
+                     edge_child_corners=edge_child_corners, edge_child_base=V + F, threads=threads)
 
 
 def _loop_rows(level: Level, out: dict, a: int, b: int) -> None:
@@ -1024,12 +1024,12 @@ def _refine_loop(level: Level, faces_only: bool, threads: int = 1) -> Level:
                      face_hole=child_hole, interior_verts=out["interior_verts"],
                      interior_corners=out["interior_corners"], near=out["near"], far=out["far"],
                      vertex_child_corner=out["near"], face_child_corners=None,
-                     edge_child_corners=out["edge_child_corners"], edge_child_base=V)
+                     edge_child_corners=out["edge_child_corners"], edge_child_base=V, threads=threads)
 
 
 def _assemble(level: Level, *, num_vertices: int, face_size: int, corner_vert, corner_edge, face_hole,
               interior_verts, interior_corners, near, far, vertex_child_corner, face_child_corners,
-              edge_child_corners, edge_child_base: int) -> Level:
+              edge_child_corners, edge_child_base: int, threads: int = 1) -> Level:
     """Shared tail of both schemes: child edges, edge->corner and vertex->corner tables, classes, thetas.
 
     What the scheme's split hands over (C = the parent's corners; every array int32):
@@ -1045,80 +1045,90 @@ def _assemble(level: Level, *, num_vertices: int, face_size: int, corner_vert, c
     V, E, C = level.num_vertices, level.num_edges, level.num_corners
     nC = 4 * C
     ev = level.edge_verts
-    # child edges: nI interior ones, then halves (child of v0, child of e) and (child of v1, child of e)
-    child_edge_verts = np.empty((nI + 2 * E, 2), dtype=np.int32)
-    child_edge_verts[:nI] = interior_verts
-    halves = child_edge_verts[nI:].reshape(E, 2, 2)
-    halves[:, :, 0] = (edge_child_base + np.arange(E, dtype=np.int32))[:, None]
-    halves[:, :, 1] = ev
-
-    # edge -> corners: interior edges have two corners; each half has as many as its parent edge
     eoff = level.edge_corner_offsets
     ecount = np.diff(eoff)
-    half_off = np.empty((E, 2), dtype=np.int64)
-    half_off[:, 0] = 2 * nI + 2 * eoff[:-1]
-    half_off[:, 1] = half_off[:, 0] + ecount
-    child_eoff = np.concatenate([2 * np.arange(nI, dtype=np.int64), half_off.reshape(-1), [nC]])
-    child_ecorners = np.empty(nC, dtype=np.int32)
-    child_ecorners[: 2 * nI] = interior_corners.reshape(-1)
     slot_edge = np.repeat(np.arange(E, dtype=np.int32), ecount)
     slot_corner = level.edge_corners
-    t = np.arange(C, dtype=np.int64) - eoff[slot_edge]
-    s0 = _side(level, slot_corner, slot_edge)
-    child_ecorners[half_off[slot_edge, s0] + t] = near[slot_corner]
-    child_ecorners[half_off[slot_edge, 1 - s0] + t] = far[slot_corner]
-    del t, s0, half_off
 
-    # vertex -> corners: vertex children keep their ring, face children get their face's corners,
-    # edge children get m corners per parent corner on the edge
-    voff = level.vert_corner_offsets
-    vcount = np.diff(voff)
-    m = edge_child_corners.shape[1]
-    count_blocks = [vcount]
-    corner_blocks = [vertex_child_corner[level.vert_corners]]
-    if face_child_corners is not None:
-        count_blocks.append(level.face_sizes())
-        corner_blocks.append(face_child_corners)
-    count_blocks.append(m * ecount)
-    corner_blocks.append(edge_child_corners[slot_corner].reshape(-1))
-    child_voff = face_offsets_of(np.concatenate(count_blocks))
-    child_vcorners = np.concatenate(corner_blocks)
-    del corner_blocks
+    def edges():
+        """Child edges (nI interior ones, then halves (child of v0, child of e) and (child of v1, child of e))
+        and their corners: interior edges have two, each half as many as its parent edge."""
+        child_edge_verts = np.empty((nI + 2 * E, 2), dtype=np.int32)
+        child_edge_verts[:nI] = interior_verts
+        halves = child_edge_verts[nI:].reshape(E, 2, 2)
+        halves[:, :, 0] = (edge_child_base + np.arange(E, dtype=np.int32))[:, None]
+        halves[:, :, 1] = ev
+        half_off = np.empty((E, 2), dtype=np.int64)
+        half_off[:, 0] = 2 * nI + 2 * eoff[:-1]
+        half_off[:, 1] = half_off[:, 0] + ecount
+        child_eoff = np.concatenate([2 * np.arange(nI, dtype=np.int64), half_off.reshape(-1), [nC]])
+        child_ecorners = np.empty(nC, dtype=np.int32)
+        child_ecorners[: 2 * nI] = interior_corners.reshape(-1)
+        t = np.arange(C, dtype=np.int64) - eoff[slot_edge]
+        s0 = _side(level, slot_corner, slot_edge)
+        child_ecorners[half_off[slot_edge, s0] + t] = near[slot_corner]
+        child_ecorners[half_off[slot_edge, 1 - s0] + t] = far[slot_corner]
+        return child_edge_verts, child_eoff, child_ecorners
 
-    # sharpness and classes: halves decay (uniform or Chaikin), edges inside faces are smooth; vertex children
-    # decay; classes follow from the decayed sharpness
-    halves_sharpness, vertex_sharpness = child_sharpness(level)
-    vertex_children_class, edge_child_class = child_rules(level, halves_sharpness, vertex_sharpness)
-    child_edge_sharpness = np.concatenate([np.zeros(nI), halves_sharpness.reshape(-1)])
-    n_face_children = nV - V - E
-    child_vert_sharpness = np.concatenate([vertex_sharpness, np.zeros(nV - V)])
-    child_class = np.concatenate([vertex_children_class, np.full(n_face_children, SMOOTH, np.int8),
-                                  edge_child_class])
-    if level.linear:
-        child_edge_sharpness[:] = INFINITE_SHARPNESS
-        child_vert_sharpness[:] = INFINITE_SHARPNESS
-        child_class[:] = CORNER
-    # sectors: a vertex child keeps its sectors (theta is fixed on all levels); every corner of a parent
-    # edge that is sharp makes one regular crease sector at the edge's child, its corners counter-clockwise
-    sharp_slots = level.edge_sharpness[slot_edge] >= INFINITE_SHARPNESS
-    new_corners = edge_child_corners[slot_corner[sharp_slots]]
-    k_new = new_corners.shape[1]
-    n_new = len(new_corners)
-    sector_vertex = np.concatenate([level.sector_vertex, edge_child_base + slot_edge[sharp_slots]])
-    sector_offsets = np.concatenate([level.sector_offsets, level.sector_offsets[-1] + k_new * np.arange(1, n_new + 1)])
-    sector_corners = np.concatenate([vertex_child_corner[level.sector_corners], new_corners.reshape(-1)])
-    regular = np.pi / k_new
-    sector_theta = np.concatenate([level.sector_theta, np.full(n_new, regular)])
-    sector_kind = np.concatenate([level.sector_kind, np.full(n_new, rules.SECTOR_CREASE, np.int8)])
-    sector_flatness = np.concatenate([level.sector_flatness, np.full(n_new, level.new_sector_flatness)])
-    sector_flip = np.concatenate([level.sector_flip, np.zeros(n_new, bool)])
+    def vertices():
+        """Vertex -> corners: vertex children keep their ring, face children get their face's corners, edge
+        children get m corners per parent corner on the edge."""
+        vcount = np.diff(level.vert_corner_offsets)
+        m = edge_child_corners.shape[1]
+        count_blocks = [vcount]
+        corner_blocks = [vertex_child_corner[level.vert_corners]]
+        if face_child_corners is not None:
+            count_blocks.append(level.face_sizes())
+            corner_blocks.append(face_child_corners)
+        count_blocks.append(m * ecount)
+        corner_blocks.append(edge_child_corners[slot_corner].reshape(-1))
+        return face_offsets_of(np.concatenate(count_blocks)), np.concatenate(corner_blocks)
+
+    def classes():
+        """Sharpness and classes: halves decay (uniform or Chaikin), edges inside faces are smooth; vertex
+        children decay; classes follow from the decayed sharpness. Sectors: a vertex child keeps its sectors
+        (theta is fixed on all levels); every corner of a parent edge that is sharp makes one regular crease
+        sector at the edge's child, its corners counter-clockwise."""
+        halves_sharpness, vertex_sharpness = child_sharpness(level)
+        vertex_children_class, edge_child_class = child_rules(level, halves_sharpness, vertex_sharpness)
+        child_edge_sharpness = np.zeros(nI + 2 * E)  # edges inside faces are smooth (zeros: no pass over memory)
+        if level.edge_sharpness.any():
+            child_edge_sharpness[nI:] = halves_sharpness.reshape(-1)
+        n_face_children = nV - V - E
+        child_vert_sharpness = np.concatenate([vertex_sharpness, np.zeros(nV - V)])
+        child_class = np.concatenate([vertex_children_class, np.full(n_face_children, SMOOTH, np.int8),
+                                      edge_child_class])
+        if level.linear:
+            child_edge_sharpness[:] = INFINITE_SHARPNESS
+            child_vert_sharpness[:] = INFINITE_SHARPNESS
+            child_class[:] = CORNER
+        infinitely_sharp = level.edge_sharpness >= INFINITE_SHARPNESS
+        sharp_slots = infinitely_sharp[slot_edge] if infinitely_sharp.any() else np.zeros(len(slot_edge), dtype=bool)
+        new_corners = edge_child_corners[slot_corner[sharp_slots]]
+        k_new = new_corners.shape[1]
+        n_new = len(new_corners)
+        sectors = Sectors(
+            np.concatenate([level.sector_vertex, edge_child_base + slot_edge[sharp_slots]]),
+            np.concatenate([level.sector_offsets, level.sector_offsets[-1] + k_new * np.arange(1, n_new + 1)]),
+            np.concatenate([vertex_child_corner[level.sector_corners], new_corners.reshape(-1)]),
+            np.concatenate([level.sector_theta, np.full(n_new, np.pi / k_new)]),
+            np.concatenate([level.sector_kind, np.full(n_new, rules.SECTOR_CREASE, np.int8)]),
+            np.concatenate([level.sector_flatness, np.full(n_new, level.new_sector_flatness)]),
+            np.concatenate([level.sector_flip, np.zeros(n_new, bool)]))
+        return child_class, child_edge_sharpness, child_vert_sharpness, sectors
+
+    # the three read the parent level and the step's tables only: with threads, at once (numpy releases the
+    # GIL inside large gathers and scatters; the results do not depend on it)
+    from .threads import run as run_jobs
+
+    (child_edge_verts, child_eoff, child_ecorners), (child_voff, child_vcorners), \
+        (child_class, child_edge_sharpness, child_vert_sharpness, sectors) = \
+        run_jobs([edges, vertices, classes], max(1, min(int(threads), 3)))
     return _full_level(
         level.scheme, nV, face_size, cv, child_hole,
         corner_edge=ce, edge_verts=child_edge_verts, edge_corner_offsets=child_eoff, edge_corners=child_ecorners,
         vert_corner_offsets=child_voff, vert_corners=child_vcorners, vert_class=child_class,
-        edge_sharpness=child_edge_sharpness, vert_sharpness=child_vert_sharpness,
-        sectors=Sectors(sector_vertex, sector_offsets, sector_corners, sector_theta, sector_kind, sector_flatness,
-                        sector_flip),
+        edge_sharpness=child_edge_sharpness, vert_sharpness=child_vert_sharpness, sectors=sectors,
         crease_method=level.crease_method, linear=level.linear, new_sector_flatness=level.new_sector_flatness,
     )
 
