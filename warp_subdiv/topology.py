@@ -1039,7 +1039,9 @@ def _assemble(level: Level, *, num_vertices: int, face_size: int, corner_vert, c
     the child corner on the half of edge h at v_h's side and at the next vertex's side; ``vertex_child_corner``
     (C,): the child corner of each parent corner's vertex child; ``face_child_corners`` (C,) or None (Loop):
     the child corner at the face child; ``edge_child_corners`` (C, m): the child corners at the child of edge
-    h, counter-clockwise; ``edge_child_base``: the first edge child's vertex index.
+    h, counter-clockwise; ``edge_child_base``: the first edge child's vertex index. ``threads``: the edge
+    tables, the vertex-corner lists and the classes are built as three jobs on up to that many threads (the
+    same arrays whatever the count).
     """
     nV, nI, cv, ce, child_hole = num_vertices, level.num_corners, corner_vert, corner_edge, face_hole
     V, E, C = level.num_vertices, level.num_edges, level.num_corners
