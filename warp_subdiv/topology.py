@@ -711,8 +711,9 @@ def refine_level(level: Level, faces_only: bool = False, *, threads: int = 1) ->
     ``faces_only`` builds just the child faces (for the last level, which nothing refines further).
     ``threads``: the per-face tables of a level of one face size (child corners, edges inside faces) are
     written in blocks of :data:`BLOCK_FACES` faces, the blocks split into that many contiguous ranges on the
-    thread pool of :mod:`warp_subdiv.threads`; every block is computed by the same code whatever the split, so
-    the result is bitwise the one-thread result.
+    thread pool of :mod:`warp_subdiv.threads`, and the step's edge tables, vertex-corner lists and classes are
+    three jobs on it (:func:`_assemble`); every block and job is computed by the same code whatever the split,
+    so the result is bitwise the one-thread result.
     """
     with small_pages():
         if level.scheme == CATMULL_CLARK:
