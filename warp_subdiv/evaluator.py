@@ -547,6 +547,16 @@ def _(record: Displacement, points, scratch, device) -> None:
     _scatter(run, record.targets, tmp, points, record.count)
 
 
+def normal_control_for(normal_control, width: int) -> bool:
+    """Whether prescribed normals apply to data of ``width`` columns (``normal_control`` None: the default, on
+    for (n, 3) positions only); asking for them on other widths is refused."""
+    if normal_control is None:
+        return width == 3
+    if normal_control and width != 3:
+        raise SubdivInputError("normal control applies to (n, 3) positions only", option="normal_control")
+    return normal_control
+
+
 def _scatter(run: Launcher, targets, values, dst, n: int) -> None:
     """dst[targets[i]] = values[i] for i < n (after every row of ``values`` is computed)."""
     run.sliced(_kernels().scatter_rows, n, lambda a, b: [targets[a:b], values[a:b], dst])

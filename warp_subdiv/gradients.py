@@ -727,7 +727,7 @@ class Adjoint:
     def forward(self, x: wp.array, normal_control: bool) -> wp.array:
         """Refine control data ``x`` (layout) through every step; a fresh array of the last level's rows."""
         width = self.width(x)
-        _check_normal_control(normal_control, width)
+        ev.normal_control_for(normal_control, width)
         records = self.evaluator.records()
         run = self._run()
         out = self.empty(self.refiner.num_vertices, width)
@@ -748,7 +748,7 @@ class Adjoint:
         """The gradient with respect to the control data of a gradient ``grad`` (layout, last level's rows):
         written into ``out`` (or a fresh array), added to it with ``accumulate``."""
         width = self.width(grad)
-        _check_normal_control(normal_control, width)
+        ev.normal_control_for(normal_control, width)
         L = self.refiner.levels
         n = self.hierarchy.base_num_vertices
         if out is None:
@@ -928,11 +928,6 @@ def _apply_rows(st: AdjointStep, src: wp.array, dst: wp.array, run: ev.Launcher,
     _add_explicit(rec.explicit, src, dst, run)
 
 
-def _check_normal_control(normal_control: bool, width: int) -> None:
-    if normal_control and width != 3:
-        raise SubdivInputError("normal control applies to (n, 3) positions only", option="normal_control")
-
-
 def _check_positions(x: wp.array) -> None:
     if x.ndim != 1:
         raise SubdivInputError(f"limit normals take (n, 3) positions, got {tuple(x.shape)}", element="data",
@@ -1067,8 +1062,7 @@ def evaluate(refiner, points: wp.array, normal_control=None, requires_grad=None)
     adj = adjoint(refiner)
     x = _user_array(refiner, points, refiner.base_num_vertices, "points")
     width = adj.width(x)
-    nc = (width == 3) if normal_control is None else bool(normal_control)
-    _check_normal_control(nc, width)
+    nc = bool(ev.normal_control_for(normal_control, width))
     rg = points.requires_grad if requires_grad is None else bool(requires_grad)
     out, view = _result_like(adj, points, refiner.num_vertices, width, rg)
     with _NoTape():

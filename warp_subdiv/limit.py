@@ -105,13 +105,8 @@ class LimitSurface:
         if isinstance(depth, bool) or not isinstance(depth, numbers.Integral) or not 1 <= depth <= 30:
             raise SubdivInputError(f"depth must be an integer in [1, 30], got {depth!r}", option="depth",
                                    value=depth)
-        if options is None:
-            options = Options(**option_keywords)
-        elif option_keywords:
-            raise TypeError(f"pass either options= or option keywords, not both ({', '.join(option_keywords)})")
-        if not options.piecewise_smooth and len(mesh.normal_vertices):
-            raise SubdivInputError("prescribed normals need rules='piecewise-smooth' (OpenSubdiv has no normal "
-                                   "control)", option="rules", element="normal")
+        options = Options.given(options, option_keywords)
+        options.check_prescribed_normals(len(mesh.normal_vertices))
         self.mesh = mesh
         self.options = options
         self.depth = int(depth)

@@ -185,6 +185,23 @@ class Options:
         """A copy with ``changes`` applied (validated again)."""
         return dataclasses.replace(self, **changes)
 
+    @classmethod
+    def given(cls, options: "Options | None", option_keywords: dict) -> "Options":
+        """The options of a call that takes either ``options=`` or option keywords (Refiner, LimitSurface,
+        MeshBatch): ``options`` as given, else ``Options(**option_keywords)``; both at once is a TypeError."""
+        if options is None:
+            return cls(**option_keywords)
+        if option_keywords:
+            raise TypeError(f"pass either options= or option keywords, not both ({', '.join(option_keywords)})")
+        return options
+
+    def check_prescribed_normals(self, count: int) -> None:
+        """Refuse ``count`` > 0 prescribed normals under rules other than the paper's (OpenSubdiv has no
+        normal control)."""
+        if not self.piecewise_smooth and count:
+            raise SubdivInputError("prescribed normals need rules='piecewise-smooth' (OpenSubdiv has no normal "
+                                   "control)", option="rules", element="normal")
+
     def as_dict(self) -> dict:
         """Plain Python values (strings for the closed sets, a list for a per-vertex flatness), for metadata."""
         out = {}

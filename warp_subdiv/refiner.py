@@ -14,7 +14,7 @@ import warp as wp
 
 from .errors import SubdivInputError
 from . import estimate, interop
-from .evaluator import Evaluated, Evaluator, default_device
+from .evaluator import Evaluated, Evaluator, default_device, normal_control_for
 from .facevarying import FaceVaryingChannel, check_indices
 from .hierarchy import Hierarchy
 from .mesh import DATA_BOUND, Mesh, check_rows
@@ -69,13 +69,8 @@ class Refiner:
         if isinstance(levels, bool) or not isinstance(levels, numbers.Integral) or levels < 0:
             raise SubdivInputError(f"levels must be an integer >= 0, got {levels!r}", option="levels",
                                    value=levels)
-        if options is None:
-            options = Options(**option_keywords)
-        elif option_keywords:
-            raise TypeError(f"pass either options= or option keywords, not both ({', '.join(option_keywords)})")
-        if not options.piecewise_smooth and len(mesh.normal_vertices):
-            raise SubdivInputError("prescribed normals need rules='piecewise-smooth' (OpenSubdiv has no normal "
-                                   "control)", option="rules", element="normal")
+        options = Options.given(options, option_keywords)
+        options.check_prescribed_normals(len(mesh.normal_vertices))
         self.mesh = mesh
         self.levels = int(levels)
         self.options = options
@@ -225,11 +220,7 @@ class Refiner:
         into a reused pinned buffer).
         """
         arr, one_d = self._vertex_data(points)
-        width = arr.shape[1]
-        if normal_control is None:
-            normal_control = width == 3
-        if normal_control and width != 3:
-            raise SubdivInputError("normal control applies to (n, 3) positions only", option="normal_control")
+        normal_control = normal_control_for(normal_control, arr.shape[1])
         out = self.evaluator.evaluate(arr, normal_control)
         return out[:, 0] if one_d else out
 
@@ -324,10 +315,7 @@ class Refiner:
         three are device arrays (views of shared buffers, valid until the next call)."""
         data, one_d = self._vertex_data(points)
         width = data.shape[1]
-        if normal_control is None:
-            normal_control = width == 3
-        if normal_control and width != 3:
-            raise SubdivInputError("normal control applies to (n, 3) positions only", option="normal_control")
+        normal_control = normal_control_for(normal_control, width)
         if limit_normals and width != 3:
             raise SubdivInputError(f"limit normals take (n, 3) positions, got width {width}", element="data",
                                    value=width)

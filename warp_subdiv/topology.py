@@ -37,6 +37,21 @@ def expand_counts(counts: np.ndarray):
     return group, rank
 
 
+def _face_sizes(faces) -> np.ndarray:
+    """(F,) int64: corners of every face of ``faces`` (a level, or the parent of a step: ``face_size``, 0 for
+    mixed polygons, ``num_faces``, ``face_offsets``)."""
+    if faces.face_size:
+        return np.full(faces.num_faces, faces.face_size, dtype=np.int64)
+    return np.diff(faces.face_offsets)
+
+
+def _face_starts(faces) -> np.ndarray:
+    """(F,) int64: the first corner of every face of ``faces`` (as :func:`_face_sizes`)."""
+    if faces.face_size:
+        return np.arange(faces.num_faces, dtype=np.int64) * faces.face_size
+    return faces.face_offsets[:-1]
+
+
 def _i32(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.int32)
 
@@ -92,14 +107,10 @@ class Level:
         return len(self.edge_verts)
 
     def face_sizes(self) -> np.ndarray:
-        if self.face_size:
-            return np.full(self.num_faces, self.face_size, dtype=np.int64)
-        return np.diff(self.face_offsets)
+        return _face_sizes(self)
 
     def face_starts(self) -> np.ndarray:
-        if self.face_size:
-            return np.arange(self.num_faces, dtype=np.int64) * self.face_size
-        return self.face_offsets[:-1]
+        return _face_starts(self)
 
     def corner_face(self, h=None) -> np.ndarray:
         if h is None:
@@ -1210,15 +1221,11 @@ class Refinement:
     # ---------------------------------------------------------------------------------------- parent faces
     def face_sizes(self) -> np.ndarray:
         """(F,) int64: corners of every parent face."""
-        if self.face_size:
-            return np.full(self.num_faces, self.face_size, dtype=np.int64)
-        return np.diff(self.face_offsets)
+        return _face_sizes(self)
 
     def face_starts(self) -> np.ndarray:
         """(F,) int64: first corner of every parent face."""
-        if self.face_size:
-            return np.arange(self.num_faces, dtype=np.int64) * self.face_size
-        return self.face_offsets[:-1]
+        return _face_starts(self)
 
     def corner_faces(self) -> np.ndarray:
         """(C,) int64: the parent face of every parent corner."""
