@@ -229,6 +229,11 @@ def test_stitch_farm_chunks(single, tmp_path):
     with pytest.raises(dist.SubdivInputError, match="overlap"):
         dist.stitch(files + [bad], str(tmp_path / "nope.usda"))
     assert not os.path.exists(tmp_path / "nope.usda") and not os.path.exists(tmp_path / "nope.stitch")
+    # flattened: the clips' content is copied into the output, and the folder of stitched layers is removed
+    flat = tmp_path / "flat.usda"
+    dist.stitch(files, str(flat), flatten=True)
+    assert_same_composition(str(single / "animated.usda"), str(flat))
+    assert not os.path.exists(tmp_path / "flat.stitch")
 
 
 def test_cli_scheduler_threads_and_stitch(client, single, tmp_path):

@@ -277,10 +277,13 @@ def stitch_clips(output_layer: Sdf.Layer, folder: str, clips: dict, topology_sou
 # ------------------------------------------------------------------------------------------------ the bake
 class _Folder:
     """A temporary folder next to the output, renamed to ``final`` (default ``<stem>.chunks``) when it is
-    complete."""
+    complete. As a context manager: everything it holds is discarded when the block fails, and when it succeeds
+    the older folder set aside is removed, and the folder itself where the output was flattened (``flatten``:
+    its layers were copied into the output)."""
 
-    def __init__(self, output: str, final: str | None = None):
+    def __init__(self, output: str, final: str | None = None, *, flatten: bool = False):
         self.output = output
+        self.flatten = flatten
         parent = os.path.dirname(output)
         self.created = make_folders(parent)
         self.final = final or os.path.splitext(output)[0] + ".chunks"
@@ -308,6 +311,17 @@ class _Folder:
         if self.old:
             shutil.rmtree(self.old, ignore_errors=True)
             self.old = None
+        if self.flatten:
+            shutil.rmtree(self.final, ignore_errors=True)
+
+    def __enter__(self) -> "_Folder":
+        return self
+
+    def __exit__(self, kind, exc, tb) -> None:
+        if kind is None:
+            self.done()
+        else:
+            self.discard()
 
     def discard(self) -> None:
         """Remove everything this bake wrote (and put an older chunk folder back)."""
@@ -389,8 +403,7 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
             units = plan_units(p.prims, run.get("frames"), n_workers, chunk_frames, ext)
         else:  # instances, shared or variant refinements: one task bakes the plan as the single process does
             units = [Unit(0, "scene", -1, None, run.get("frames"), "scene" + ext)]
-        folder = _Folder(out_abs)
-        try:
+        with _Folder(out_abs, flatten=flatten) as folder:
             t = _time.perf_counter()
             results = _run_units(client, input_path, folder.path, units, p, levels, run, threads, progress,
                                  timings)
@@ -400,12 +413,6 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
             folder.keep_only(names)
             out = _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, OutputLayer,
                                 timings)
-        except BaseException:
-            folder.discard()
-            raise
-        folder.done()
-        if flatten:
-            shutil.rmtree(folder.final, ignore_errors=True)
     finally:
         if own:
             client.close()
@@ -641,9 +648,8 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
     custom["warpSubdiv"]["stitched"] = Vt.StringArray([relative_asset_path(f, os.path.dirname(out_abs))
                                                        for f in files])
     custom["warpSubdiv"]["flattened"] = bool(flatten)
-    folder = _Folder(out_abs, os.path.splitext(out_abs)[0] + ".stitch")
-    layer = OutputLayer(out_abs, stage, custom)
-    try:
+    with _Folder(out_abs, os.path.splitext(out_abs)[0] + ".stitch", flatten=flatten) as folder:
+        layer = OutputLayer(out_abs, stage, custom)
         try:
             # one refinement wrote every chunk: their static content is the same, the first one's defaults
             # are those of a run over all the frames
@@ -663,10 +669,4 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
         except BaseException:
             layer.discard()
             raise
-    except BaseException:
-        folder.discard()
-        raise
-    folder.done()
-    if flatten:
-        shutil.rmtree(folder.final, ignore_errors=True)
     return Result(out_abs, [], [], _time.perf_counter() - start, 0)
