@@ -100,18 +100,22 @@ class OrderedRefiner:
     def topology(self):
         return self._counts, self._indices
 
+    def compact(self, refined):
+        """Rows of per-vertex data refined in the wrapped refiner's order, in the compact order."""
+        return _rows(refined, self.old_id)
+
     def evaluate(self, points, *args, **kwargs):
-        return _rows(self.refiner.evaluate(points, *args, **kwargs), self.old_id)
+        return self.compact(self.refiner.evaluate(points, *args, **kwargs))
 
     def _own(self, refined):
         """Refined data in the compact order back in the refiner's order."""
         return np.asarray(refined)[self.new_id]
 
     def limit_points(self, refined_points):
-        return _rows(self.refiner.limit_points(self._own(refined_points)), self.old_id)
+        return self.compact(self.refiner.limit_points(self._own(refined_points)))
 
     def limit_normals(self, refined_points):
-        return _rows(self.refiner.limit_normals(self._own(refined_points)), self.old_id)
+        return self.compact(self.refiner.limit_normals(self._own(refined_points)))
 
     def evaluate_with_limits(self, points, **kwargs):
         """The wrapped refiner's one pass (:meth:`~warp_subdiv.refiner.Refiner.evaluate_with_limits`), each
@@ -119,7 +123,7 @@ class OrderedRefiner:
         res = self.refiner.evaluate_with_limits(points, **kwargs)
         for name in ("points", "limit_points", "limit_normals"):
             if getattr(res, name) is not None:
-                setattr(res, name, _rows(getattr(res, name), self.old_id))
+                setattr(res, name, self.compact(getattr(res, name)))
         return res
 
     def _face_varying(self, values, indices):

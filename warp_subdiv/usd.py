@@ -761,8 +761,8 @@ class _Context:
             if found is not None:
                 pos, nrm = found
                 if isinstance(refiner, OrderedRefiner):
-                    pos = pos[refiner.old_id]
-                    nrm = None if nrm is None else nrm[refiner.old_id]
+                    pos = refiner.compact(pos)
+                    nrm = None if nrm is None else refiner.compact(nrm)
                 if nrm is not None and sp.orientation == "leftHanded":
                     nrm = -nrm
                 return pos, nrm
