@@ -176,3 +176,61 @@ def test_bake_in_compact_order_writes_the_same_surface(tmp_path):
     out = str(tmp_path / "cli.usdc")
     assert main(["refine", src, "-o", out, "--levels", "1", "--vertex-order", "compact", "--quiet"]) == 0
     assert os.path.exists(out)
+
+
+def _baked(path):
+    """{prim path: (points, faceVertexCounts, faceVertexIndices, primvar w, st values, st indices)} of the two
+    tori of a baked layer."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(path)
+    out = {}
+    for prim in ("/Torus", "/OsdTorus"):
+        mesh = UsdGeom.Mesh(stage.GetPrimAtPath(prim))
+        api = UsdGeom.PrimvarsAPI(mesh.GetPrim())
+        st = api.GetPrimvar("st")
+        out[prim] = tuple(np.asarray(a) for a in (
+            mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get(), mesh.GetFaceVertexIndicesAttr().Get(),
+            api.GetPrimvar("w").Get(), st.Get(), st.GetIndices()))
+    return out
+
+
+def test_default_bake_order_is_compact_for_piecewise_smooth_and_opensubdivs_for_its_rules(tmp_path):
+    """The bake's default vertex order is "auto", in refine_usd and in the CLI: a mesh with the piecewise-smooth
+    rules (subdiv:rules not authored) is written exactly as vertex_order="compact" writes it, a mesh with
+    subdiv:rules = "opensubdiv" exactly as vertex_order="opensubdiv" writes it (points, faces, vertex and
+    face-varying primvars, index for index); and the two orders really differ on each mesh, so the comparison
+    tells them apart. `--vertex-order opensubdiv` gives OpenSubdiv's numbering to both."""
+    pytest.importorskip("pxr")
+    from pxr import Sdf
+
+    from warp_subdiv.cli import main
+    from warp_subdiv.usd import refine_usd
+
+    src = str(tmp_path / "tori.usda")
+    _scene(src)
+    layer = Sdf.Layer.FindOrOpen(src)
+    assert Sdf.CopySpec(layer, "/Torus", layer, "/OsdTorus")
+    rules = Sdf.AttributeSpec(layer.GetPrimAtPath("/OsdTorus"), "subdiv:rules", Sdf.ValueTypeNames.Token)
+    rules.default = "opensubdiv"
+    layer.Save()
+    baked = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for order in (None, "compact", "opensubdiv"):
+            out = str(tmp_path / f"{order or 'default'}.usda")
+            refine_usd(src, out, 2, device="cpu", **({} if order is None else {"vertex_order": order}))
+            baked[order] = _baked(out)
+        for name, flags in (("cli", []), ("cli-opensubdiv", ["--vertex-order", "opensubdiv"])):
+            out = str(tmp_path / f"{name}.usda")
+            assert main(["refine", src, "-o", out, "--levels", "2", "--device", "cpu", "--quiet", *flags]) == 0
+            baked[name] = _baked(out)
+
+    def same(a, b):
+        return len(a) == len(b) and all(x.shape == y.shape and np.array_equal(x, y) for x, y in zip(a, b))
+
+    for prim, expected, other in (("/Torus", "compact", "opensubdiv"), ("/OsdTorus", "opensubdiv", "compact")):
+        assert not same(baked[expected][prim], baked[other][prim]), prim  # the orders differ
+        assert same(baked[None][prim], baked[expected][prim]), prim
+        assert same(baked["cli"][prim], baked[expected][prim]), prim
+        assert same(baked["cli-opensubdiv"][prim], baked["opensubdiv"][prim]), prim

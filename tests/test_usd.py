@@ -7,8 +7,9 @@ import pytest
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 import warp_subdiv as ws
-from test_usd_support import SCENES_DIR, digest, grid, scene_module, write_mesh
+from test_usd_support import SCENES_DIR, as_baked, digest, grid, scene_module, write_mesh
 from warp_subdiv.errors import SubdivInputError
+from warp_subdiv.order import OrderedRefiner
 from warp_subdiv.usd import MemoryGuardError, refine_usd
 from warp_subdiv.usd_read import open_stage, read_mesh
 
@@ -19,10 +20,12 @@ BLOCKED = ("creaseIndices", "creaseLengths", "creaseSharpnesses", "cornerIndices
 
 
 def expected_refined(spec, points=None, levels=LEVELS, **kw):
-    """warp_subdiv.refine on the scene's own data (not on what the reader made of the file)."""
+    """warp_subdiv.refine on the scene's own data (not on what the reader made of the file), numbered as the
+    default bake (vertex_order="auto") writes it: compact for the piecewise-smooth rules, OpenSubdiv's otherwise."""
     mesh = ws.Mesh(spec.points if points is None else points, spec.counts, spec.indices, **spec.tags())
     scheme = "loop" if spec.scheme == "loop" else "catmull-clark"
-    return ws.refine(mesh, levels, scheme=scheme, rules=spec.rules or "piecewise-smooth", device="cpu", **kw)
+    return as_baked(ws.refine(mesh, levels, scheme=scheme, rules=spec.rules or "piecewise-smooth", device="cpu",
+                              **kw))
 
 
 @pytest.fixture(scope="module")
@@ -174,7 +177,7 @@ def test_time_varying_topology_is_refined_per_sample(tmp_path):
     mesh = UsdGeom.Mesh(opened(tmp_path / "out.usda").GetPrimAtPath("/World/Mesh"))
     assert mesh.GetFaceVertexIndicesAttr().GetTimeSamples() == [1.0, 3.0]
     for t, p in frames.items():
-        expected = ws.refine(ws.Mesh(p, counts, idx if t < 3 else swapped), 1, device="cpu")
+        expected = as_baked(ws.refine(ws.Mesh(p, counts, idx if t < 3 else swapped), 1, device="cpu"))
         np.testing.assert_array_equal(np.asarray(mesh.GetFaceVertexIndicesAttr().Get(t)), expected.face_vertex_indices)
         np.testing.assert_allclose(np.asarray(mesh.GetPointsAttr().Get(t)), expected.points, atol=2e-6)
     refine_usd(src, str(tmp_path / "first.usda"), 1, device="cpu", frames=(1.0, 2.0))
@@ -267,21 +270,23 @@ def test_a_primvar_that_goes_bad_at_a_later_time_is_dropped_entirely(tmp_path):
 
 
 def test_vertex_primvars_follow_the_stencils_and_not_the_normal_projection(refined_scenes):
-    """Vertex primvars of a Catmull-Clark mesh: the refiner's stencils (no prescribed-normal projection)."""
+    """Vertex primvars of a Catmull-Clark mesh: the refiner's stencils (no prescribed-normal projection), in the
+    default bake's (compact) vertex order."""
     dst, _ = refined_scenes["animated"]
     spec = SCENES["animated"].meshes[0]
     prim = opened(dst).GetPrimAtPath("/World/Animated/Plate")
     src = opened(os.path.join(SCENES_DIR, "animated.usda")).GetPrimAtPath("/World/Animated/Plate")
     col = np.asarray(UsdGeom.PrimvarsAPI(src).GetPrimvar("displayColor").Get(), dtype=np.float64)
     mesh = ws.Mesh(spec.points, spec.counts, spec.indices, **spec.tags())
-    expected = ws.Refiner(mesh, LEVELS, device="cpu").evaluate(col, normal_control=False)
+    refiner = OrderedRefiner(ws.Refiner(mesh, LEVELS, device="cpu"))  # piecewise-smooth: the compact order
+    expected = refiner.evaluate(col, normal_control=False)
     np.testing.assert_allclose(np.asarray(UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor").Get()), expected,
                                atol=1e-6)
     # face-varying st: the refiner's face-varying channel with the mesh's mode (USD's default cornersPlus1),
     # written indexed
     st_in = UsdGeom.PrimvarsAPI(src).GetPrimvar("st")
     st_out = UsdGeom.PrimvarsAPI(prim).GetPrimvar("st")
-    values, indices = ws.Refiner(mesh, LEVELS, device="cpu").evaluate_face_varying(
+    values, indices = refiner.evaluate_face_varying(
         np.asarray(st_in.Get(), dtype=np.float64), np.asarray(st_in.GetIndices()), mode="corners-plus1")
     assert st_out.IsIndexed()
     np.testing.assert_allclose(np.asarray(st_out.Get()), values, atol=1e-6)
@@ -350,7 +355,7 @@ def test_semi_sharp_creases_refine_as_semi_sharp_or_are_made_sharp(tmp_path):
     stage_a = Usd.Stage.Open(str(tmp_path / "a.usda"))
     got = np.asarray(stage_a.GetPrimAtPath("/World/Mesh").GetAttribute("points").Get())
     mesh = ws.Mesh(pts, counts, idx, creases=[[1, 4], [4, 7]], crease_sharpness=[0.5, 10.0])
-    np.testing.assert_allclose(got, ws.refine(mesh, 2, device="cpu").points, atol=1e-5)
+    np.testing.assert_allclose(got, as_baked(ws.refine(mesh, 2, device="cpu")).points, atol=1e-5)
     result = refine_usd(src, str(tmp_path / "b.usda"), 2, device="cpu", semi_sharp="sharp")
     assert any("semi-sharp" in w for w in result.warnings)
     stage_b = Usd.Stage.Open(str(tmp_path / "b.usda"))
@@ -436,9 +441,9 @@ def test_smooth_triangle_rule(tmp_path):
     result = refine_usd(src, str(tmp_path / "out.usda"), 2, device="cpu")
     points = np.asarray(opened(tmp_path / "out.usda").GetPrimAtPath("/World/Mesh").GetAttribute("points").Get())
     mesh = ws.Mesh(spec.points, spec.counts, spec.indices)
-    expected = ws.refine(mesh, 2, device="cpu", triangle_subdivision="smooth").points
+    expected = as_baked(ws.refine(mesh, 2, device="cpu", triangle_subdivision="smooth")).points
     assert not any("triangleSubdivisionRule" in w for w in result.warnings)
-    assert np.abs(expected - ws.refine(mesh, 2, device="cpu").points).max() > 1e-3  # it makes a difference
+    assert np.abs(expected - as_baked(ws.refine(mesh, 2, device="cpu")).points).max() > 1e-3  # it makes a difference
     np.testing.assert_allclose(points, expected, atol=2e-6)
 
 

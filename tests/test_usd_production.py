@@ -15,7 +15,7 @@ from warp_subdiv import cli
 from warp_subdiv.errors import SubdivInputError
 from warp_subdiv.usd import refine_usd
 
-from test_usd_support import SCENES_DIR
+from test_usd_support import SCENES_DIR, as_baked
 
 LEVELS = 2
 CUBE = np.array([(x, y, z) for z in (0.0, 1.0) for y in (0.0, 1.0) for x in (0.0, 1.0)])
@@ -126,7 +126,8 @@ def place(stage, path, asset=None, target="/Asset", *, instanceable=False, paylo
 # -- checks ------------------------------------------------------------------------------------------------
 
 def expected_of(prim, levels=LEVELS, time=Usd.TimeCode.Default(), scheme=None):
-    """warp_subdiv.refine on the control mesh ``prim`` composes to (its creases and corners infinitely sharp)."""
+    """warp_subdiv.refine on the control mesh ``prim`` composes to (its creases and corners infinitely sharp),
+    numbered as the default bake writes it (piecewise-smooth rules: the compact vertex order)."""
     m = UsdGeom.Mesh(prim)
     pts = np.asarray(m.GetPointsAttr().Get(time), dtype=np.float64)
     counts = np.asarray(m.GetFaceVertexCountsAttr().Get(time))
@@ -143,7 +144,7 @@ def expected_of(prim, levels=LEVELS, time=Usd.TimeCode.Default(), scheme=None):
         kw["corners"] = np.array(m.GetCornerIndicesAttr().Get(time))
     if scheme is None:
         scheme = {"catmullClark": "catmull-clark", "loop": "loop"}[m.GetSubdivisionSchemeAttr().Get()]
-    return ws.refine(ws.Mesh(pts, counts, indices, **kw), levels, scheme=scheme, device="cpu")
+    return as_baked(ws.refine(ws.Mesh(pts, counts, indices, **kw), levels, scheme=scheme, device="cpu"))
 
 
 def assert_refined(prim, expected, time=Usd.TimeCode.Default()):

@@ -82,11 +82,13 @@ def _parser() -> argparse.ArgumentParser:
                    help="USD: refine every variant of the variant sets that change a subdivision mesh (nested "
                         "sets too) and write each inside the same variant set and variant (default: the "
                         "selected variants, as composed)")
-    r.add_argument("--vertex-order", default="opensubdiv", choices=["opensubdiv", "compact", "auto"],
-                   help="USD: number refined vertices as OpenSubdiv does (default), or compactly: vertices that "
+    r.add_argument("--vertex-order", default="auto", choices=["auto", "compact", "opensubdiv"],
+                   help="USD: numbering of the refined vertices; the surface is the same. compact: vertices that "
                         "are children of control vertices keep their numbers, the others follow the faces that "
-                        "first use them, so that usdc compresses the indices well and writes them much faster "
-                        "(auto: compact for the piecewise-smooth rules); the surface is the same")
+                        "first use them, so that usdc compresses the indices well and writes them much faster; "
+                        "opensubdiv: OpenSubdiv's (and warp_subdiv.refine()'s) numbering; auto (default): "
+                        "compact for meshes refined with the piecewise-smooth rules, opensubdiv for "
+                        "rules=opensubdiv")
     r.add_argument("--semi-sharp-as-sharp", action="store_true",
                    help="make semi-sharp creases and corners (0 < sharpness < 10) infinitely sharp, with a warning "
                         "(default: they are refined as semi-sharp, with OpenSubdiv's semantics)")
@@ -320,8 +322,7 @@ def _refine_usd(args, max_memory, progress) -> int:
                precision=args.precision, frames=frames, limit=args.limit, normals=args.normals,
                max_memory=max_memory, flatten=args.flatten, semi_sharp="sharp" if args.semi_sharp_as_sharp else "keep",
                progress=progress)
-    if args.vertex_order != "opensubdiv":
-        run["vertex_order"] = args.vertex_order
+    run["vertex_order"] = args.vertex_order  # always passed: every chunk of a distributed bake numbers alike
     if args.all_variants:
         if args.workers or args.scheduler:
             raise UsageError("--all-variants does not combine with --workers or --scheduler")

@@ -359,7 +359,8 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
          progress=None, client=None, **run):
     """Refine the subdivision meshes of ``input_path`` on a Dask cluster and write ``output_path`` (see the
     module docstring). ``run``: :func:`warp_subdiv.usd.refine_usd`'s keywords (prims, scheme, rules, boundary,
-    device, precision, frames, limit, normals, max_memory, flatten, semi_sharp). ``workers``: worker processes
+    device, precision, frames, limit, normals, max_memory, flatten, semi_sharp, vertex_order: each
+    task passes it on, so every chunk numbers the refined vertices alike). ``workers``: worker processes
     of a local cluster (default: the cores this process may use); ``scheduler``: the address of an existing
     cluster's scheduler instead; ``client``: an existing ``distributed.Client``. ``threads``: evaluation
     threads per task (default: the local cluster's share of the cores, a remote worker's own cores).
