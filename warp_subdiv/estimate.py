@@ -191,12 +191,15 @@ def estimate(
     return Estimate(path, counts, working, output, items)
 
 
-def total_bytes(estimates) -> int:
-    """Peak bytes of refining these meshes one after the other into one layer."""
+def total_bytes(estimates, concurrent: int = 1) -> int:
+    """Peak bytes of refining these meshes into one layer, ``concurrent`` of them at a time (1: one after the
+    other; the USD bake's workers refine a few ahead of the writer): every output, the largest ``concurrent``
+    working sets, and the runtime."""
     estimates = list(estimates)
     if not estimates:
         return 0
-    return sum(e.output_bytes for e in estimates) + max(e.working_bytes for e in estimates) + RUNTIME_BYTES
+    working = sorted((e.working_bytes for e in estimates), reverse=True)[:max(1, int(concurrent))]
+    return sum(e.output_bytes for e in estimates) + sum(working) + RUNTIME_BYTES
 
 
 class MemoryGuardError(SubdivInputError):

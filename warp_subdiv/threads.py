@@ -12,6 +12,7 @@ set with :func:`set_default_threads` (the CLI's ``--threads``; a Dask worker set
 """
 from __future__ import annotations
 
+import contextlib
 import numbers
 import os
 import threading
@@ -115,6 +116,18 @@ def run(jobs, threads: int) -> list:
     if error is not None:
         raise error
     return results
+
+
+@contextlib.contextmanager
+def inline():
+    """Run the block's threaded work on the calling thread: for a thread that is itself one of several running
+    side by side (the USD bake's workers), so that they do not also queue their ranges on the shared pool."""
+    before = getattr(_local, "in_pool", False)
+    _local.in_pool = True
+    try:
+        yield
+    finally:
+        _local.in_pool = before
 
 
 def _pooled(job):

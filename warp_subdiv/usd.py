@@ -33,6 +33,7 @@ alike.
 from __future__ import annotations
 
 import contextvars
+import functools
 import os
 import time as _time
 from dataclasses import dataclass, field
@@ -42,6 +43,7 @@ from pxr import Sdf, Usd, Vt
 
 from . import __version__
 from . import phases as _phases
+from . import threads as _threads
 from .batch import MeshBatch, batch_key
 from .errors import SubdivInputError
 from .estimate import Estimate, MemoryGuardError, check_memory, estimate, total_bytes
@@ -157,16 +159,26 @@ def plan(
     scene = read_scene(stage, prims, read=read, all_variants=all_variants, where=input_path)
     out = Plan(input_path, stage, [], [], scene=scene)
     out.left_alone.extend(scene.left_alone)
-    for key, sp in scene.units.items():
-        if sp is None:
-            continue
+
+    def analyse(sp):
+        """The options, level-0 analysis and estimate of one mesh."""
         options = options_for(sp, precision=precision)
+        sp.analysed = make_refiner(sp, 0, options=options, device=device)
+        return options, estimate_prim(sp, levels, precision, normals, limit, sp.analysed)
+
+    # the meshes are independent: a few contiguous ranges of them on the threads (the first error in the
+    # plan's order is raised, as one after the other would raise it)
+    units = [(key, sp) for key, sp in scene.units.items() if sp is not None]
+    ranges = _threads.ranges(len(units), _threads.default_threads(), 1)
+    jobs = [functools.partial(contextvars.copy_context().run, lambda a, b: [analyse(sp) for _, sp in units[a:b]],
+                              a, b) for a, b in ranges]
+    analysed = [done for part in _threads.run(jobs, len(jobs)) for done in part]
+    for (key, sp), (options, e) in zip(units, analysed):
         out.prims.append(sp)
         out.keys.append(key)
         out.options.append(options)
         out.warnings.extend(f"{sp.path}: {w}" for w in sp.warnings)
-        sp.analysed = make_refiner(sp, 0, options=options, device=device)
-        out.estimates.append(estimate_prim(sp, levels, precision, normals, limit, sp.analysed))
+        out.estimates.append(e)
     if require_meshes and not out.prims:
         where = f"under {', '.join(prims)}" if prims else "in the file"
         why = "; ".join(f"{p} ({r})" for p, r in out.left_alone[:3])
@@ -353,7 +365,7 @@ def refine_usd(
     semi_sharp: str = "keep",
     progress=None,
     all_variants: bool = False,
-    vertex_order: str = "opensubdiv",
+    vertex_order: str = "auto",
     samples_only: bool = False,
     batch: bool = True,
 ) -> Result:
@@ -370,8 +382,10 @@ def refine_usd(
     ``semi_sharp``: "keep" (refine semi-sharp creases and corners as such) or "sharp" (treat them as infinitely
     sharp, with a warning).
     ``progress``: callable(fraction, label) or None. Errors in the input are SubdivInputError.
-    ``vertex_order``: "opensubdiv" (the refiner's), "compact" (indices that usdc compresses well, written
-    much faster; see :mod:`warp_subdiv.order`) or "auto" (compact for the piecewise-smooth rules).
+    ``vertex_order``: "auto" (the default: compact for meshes refined with the piecewise-smooth rules,
+    OpenSubdiv's for ``rules="opensubdiv"``), "opensubdiv" (the refiner's, as :func:`~warp_subdiv.refine` numbers
+    the vertices) or "compact" (indices that usdc compresses well, written much faster; see
+    :mod:`warp_subdiv.order`).
     ``batch``: evaluate small meshes (at most :data:`BATCH_VERTICES` refined vertices each with limit points or
     normals, :data:`BATCH_VERTICES_POINTS` without) that share their
     options, levels and time samples together, one evaluation of their disjoint union per time sample
@@ -412,6 +426,8 @@ def refine_usd(
     reports = []
     batches = _Batches(p, levels, device, limit, normals, defaults=not samples_only) if batch else None
     token = _BATCHES.set(batches)
+    ahead = _Ahead(p, levels, device, limit, normals, vertex_order, batches, samples_only=samples_only,
+                   max_memory=max_memory)
     try:
         out_layout = layout(p)
         for i, sp in enumerate(p.prims):
@@ -422,7 +438,7 @@ def refine_usd(
             sp.target = str(out_layout.homes[key])
             rep = _refine_prim(sp, p.options[i], layer, levels, device, limit, normals, warnings, work,
                                work.weights[i], f"[{i + 1}/{len(p.prims)}] {sp.path}", vertex_order,
-                               samples_only=samples_only)
+                               samples_only=samples_only, prepared=ahead.take(i))
             for dst in out_layout.copies[key]:
                 layer.copy(out_layout.homes[key], dst)
             rep.seconds = _time.perf_counter() - t0
@@ -438,8 +454,10 @@ def refine_usd(
         layer.discard()
         raise
     finally:
+        ahead.close()
         _BATCHES.reset(token)
-    return Result(out_abs, reports, warnings, _time.perf_counter() - start, p.predicted_bytes)
+    return Result(out_abs, reports, warnings, _time.perf_counter() - start,
+                  total_bytes(p.estimates, ahead.concurrent))
 
 
 #: The root prim of the output layer that holds refined prototypes and shared meshes (a class: not part of the
@@ -696,6 +714,105 @@ class _Batches:
         return self.ready.pop(id(sp), None)
 
 
+#: Refined vertices from which a mesh is refined ahead of the writer on a worker thread (:class:`_Ahead`);
+#: smaller ones cost less to refine than to hand over (and are batched, :class:`_Batches`).
+AHEAD_VERTICES = 16_384
+#: Bytes of results (points, normals, face-varying values) a worker computes ahead per mesh, besides its
+#: refiner; time samples beyond it are evaluated by the writer as they are written.
+AHEAD_BYTES = 256 * 2**20
+
+
+class _Ahead:
+    """Meshes refined ahead of the writer on worker threads, so that a bake keeps every core busy: while the
+    main thread writes one mesh (Vt arrays, specs; usd-core holds the GIL there), workers analyse and refine
+    the next ones (Warp's CPU launches and numpy's large array operations release the GIL).
+
+    A mesh is refined ahead when its topology does not change over time, it is not batched (:class:`_Batches`)
+    and it has at least :data:`AHEAD_VERTICES` refined vertices. A worker builds the mesh's :class:`_Context`
+    (the refiner, its topology and face map, exactly as the writer would) and evaluates what the writer will
+    ask of it (:meth:`_Context.run_ahead`: positions and face-varying channels, by their inputs); the writer
+    takes the context when it reaches the mesh (:meth:`take`) and writes it as it would have, so the layer is
+    the same with or without workers. A mesh whose inputs fail is left to the writer, which reports the error.
+
+    Workers: :func:`warp_subdiv.threads.default_threads` (``--threads``, ``WARP_SUBDIV_THREADS``, the cores),
+    on the CPU only; one thread means none. At most ``workers`` meshes are in flight besides the one being
+    written, fewer where ``max_memory`` does not allow their working sets at once (:attr:`concurrent`: the
+    meshes held at once, which the memory prediction counts)."""
+
+    def __init__(self, p: Plan, levels, device, limit, normals, vertex_order, batches, *, samples_only: bool,
+                 max_memory=None):
+        import warp as wp
+
+        from .estimate import memory_limit
+
+        self.p, self.levels, self.device = p, levels, device
+        self.limit, self.normals, self.vertex_order = limit, normals, vertex_order
+        self.samples_only = samples_only
+        self.futures: dict = {}
+        self.pool = None
+        self.concurrent = 1
+        self.queue = [i for i, (sp, e) in enumerate(zip(p.prims, p.estimates))
+                      if not sp.topologies and e.final.vertices >= AHEAD_VERTICES
+                      and (batches is None or i not in batches.chunk_of)]
+        workers = _threads.default_threads()
+        if workers < 2 or len(self.queue) < 2 or not wp.get_device(device).is_cpu:
+            return
+        limit_bytes = memory_limit(max_memory)
+        depth = workers
+        while depth and limit_bytes is not None and total_bytes(p.estimates, depth + 1) > limit_bytes:
+            depth -= 1
+        if depth == 0:
+            return
+        from concurrent.futures import ThreadPoolExecutor
+
+        from .evaluator import _load_kernels
+
+        _load_kernels(wp.get_device(device))  # loaded once, before threads launch them
+        self.depth, self.concurrent = depth, depth + 1
+        self.pool = ThreadPoolExecutor(workers, thread_name_prefix="warp-subdiv-bake")
+
+    def _fill(self, i: int) -> None:
+        """Keep :attr:`depth` meshes from ``i`` on in flight."""
+        while self.queue and self.queue[0] < i:
+            self.queue.pop(0)
+        while self.queue and len(self.futures) < self.depth:
+            j = self.queue.pop(0)
+            self.futures[j] = self.pool.submit(contextvars.copy_context().run, self._refine, j)
+
+    def _refine(self, i: int):
+        """A worker's job: the context of mesh ``i``, evaluated ahead; None where anything fails (the writer
+        builds it again and reports the error)."""
+        sp = self.p.prims[i]
+        try:
+            with _threads.inline():
+                ctx = _Context(sp, self.p.options[i], self.levels, self.device, self.limit, self.normals,
+                               self.vertex_order)
+                ctx.run_ahead(sp.face_varying_mode if sp.scheme != "bilinear" else None,
+                              defaults=not self.samples_only, budget=AHEAD_BYTES)
+            return ctx
+        except Exception:  # noqa: BLE001 (reported by the writer, which builds the context again)
+            return None
+
+    def take(self, i: int):
+        """The context of mesh ``i`` refined ahead (waiting for its worker), or None."""
+        if self.pool is None:
+            return None
+        self._fill(i)
+        future = self.futures.pop(i, None)
+        self._fill(i + 1)
+        if future is None:
+            return None
+        with _phases.phase("waiting"):
+            return future.result()
+
+    def close(self) -> None:
+        """Cancel what has not started and wait for the running jobs (nothing runs after the bake returns)."""
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.pool = None
+            self.futures.clear()
+
+
 def _read_points(sp: SubdivPrim, query, t):
     """The control points of ``sp`` at ``t`` as :meth:`SubdivPrim.points_at` reads them (float64 (n, 3)), read
     through an attribute query and without its checks (the batch's evaluation checks finite values and their
@@ -745,6 +862,41 @@ class _Context:
         self.complete = vertices_used(self.indices, refiner.num_vertices)
         self.limit, self.normals = limit, normals
         self._edges = None
+        self._ahead: dict = {}  # results a worker computed ahead of the writer (_Ahead), by their inputs
+
+    def run_ahead(self, fvar_mode, *, defaults: bool, budget: int) -> None:
+        """Compute ahead (on a worker thread, :class:`_Ahead`) what the writer will ask of this context: the
+        positions at the default time (``defaults``) and every selected time sample, and the channel of every
+        face-varying primvar (``fvar_mode`` None: none) at those times, defaults first, until the results hold
+        ``budget`` bytes. Each result is kept under its inputs and handed out once when the writer asks with the
+        same inputs (:meth:`positions`, :meth:`face_varying`); an input that cannot be read or refined is left to
+        the writer, which reports it where it belongs."""
+        sp = self.sp
+        channels = [pv for pv in sp.primvars if pv.interpolation == "faceVarying"] if fvar_mode is not None else []
+        first = [DEFAULT] if defaults else []
+        jobs = [(t, None) for t in first] + [(t, pv) for pv in channels for t in first]
+        jobs += [(t, None) for t in sp.point_times] + [(t, pv) for pv in channels for t in pv.times]
+        held = 0
+        for t, pv in jobs:
+            if held > budget:
+                return
+            try:
+                if pv is None:
+                    pts = sp.points_at(t)
+                    result = self.positions(pts)
+                    key = ("points", _points_key(pts))
+                else:
+                    rows, idx = pv.elements(t, sp.path)
+                    rows = rows.astype(np.float64)
+                    idx = np.arange(len(rows)) if idx is None else idx
+                    if len(idx) != len(sp.mesh.face_vertex_indices):
+                        continue  # the writer refuses it
+                    result = self.face_varying(rows, idx, fvar_mode)
+                    key = ("face-varying", fvar_mode, _points_key(rows), _points_key(idx))
+            except SubdivInputError:
+                continue
+            self._ahead[key] = result
+            held += sum(np.asarray(r).nbytes for r in result if r is not None)
 
     def linear_field(self, values):
         """Bilinear refinement of per-vertex data (varying primvars, bilinear meshes)."""
@@ -754,6 +906,10 @@ class _Context:
     def positions(self, pts):
         """Refined (or limit) points and limit normals (or None) of control points ``pts``."""
         sp, refiner = self.sp, self.refiner
+        if self._ahead:
+            found = self._ahead.pop(("points", _points_key(pts)), None)
+            if found is not None:
+                return found
         if sp.scheme == "bilinear":
             return self.linear_field(pts), None
         if self._prepared:  # evaluated with a batch of small meshes (_Batches), in the refiner's order
@@ -775,6 +931,16 @@ class _Context:
             nrm = -nrm  # refined as right-handed: the front of a left-handed mesh is the other side
         return (res.limit_points if self.limit else res.points), nrm
 
+    @_phases.timed("face-varying")
+    def face_varying(self, rows, idx, mode):
+        """(values, indices) of a face-varying primvar's refined channel (limit values with ``limit``)."""
+        if self._ahead:
+            found = self._ahead.pop(("face-varying", mode, _points_key(rows), _points_key(idx)), None)
+            if found is not None:
+                return found
+        channel = self.refiner.limit_face_varying if self.limit else self.refiner.evaluate_face_varying
+        return channel(rows, idx, mode=mode)
+
     @_phases.timed("refine")
     def vectors(self, data):
         """Velocities / accelerations: the derivatives of the points, so the same linear maps."""
@@ -792,11 +958,12 @@ class _Context:
 
 
 def _refine_prim(sp: SubdivPrim, options: Options, layer: OutputLayer, levels, device, limit, normals, warnings,
-                 work, weights, label, vertex_order="opensubdiv", *, samples_only=False) -> PrimReport:
+                 work, weights, label, vertex_order="opensubdiv", *, samples_only=False, prepared=None) -> PrimReport:
     """Refine one mesh and write it at :attr:`SubdivPrim.output_path` of ``layer``. A mesh whose topology changes
     over time gets one refiner per distinct control mesh (built once, used for every time that has it), and
     time-sampled topology: each written time takes the refiner of its control mesh. ``samples_only``: no
-    default values are written (see :func:`refine_usd`)."""
+    default values are written (see :func:`refine_usd`). ``prepared``: the mesh's :class:`_Context`, built
+    (and partly evaluated) ahead by a worker (:class:`_Ahead`), or None."""
     prim = layer.prim(sp.output_path)
     varying = bool(sp.topologies)
     groups = range(len(sp.topologies)) if varying else [0]
@@ -843,7 +1010,10 @@ def _refine_prim(sp: SubdivPrim, options: Options, layer: OutputLayer, levels, d
     report = None
     for group in groups:
         spg = sp.with_topology(group)
-        ctx = _Context(spg, options, levels, device, limit, normals, vertex_order)
+        if prepared is not None and not varying:
+            ctx, prepared = prepared, None
+        else:
+            ctx = _Context(spg, options, levels, device, limit, normals, vertex_order)
         counts, indices = ctx.counts, ctx.indices
         work.step(w_tables / len(groups), f"{label}: {levels} levels" + (f" (topology {group + 1})" if varying else ""))
 
@@ -881,8 +1051,7 @@ def _refine_prim(sp: SubdivPrim, options: Options, layer: OutputLayer, levels, d
                 continue
             times = mine(times_of(pv.times) if varying else [DEFAULT] + list(pv.times), group)
             try:
-                _write_primvar(spg, pv, layer, prim, ctx.refiner, ctx.fmap, ctx.linear_field, fvar_mode, warnings,
-                               limit, times)
+                _write_primvar(spg, pv, layer, prim, ctx, fvar_mode, warnings, limit, times)
             except SubdivInputError as exc:
                 dropped.add(pv.name)
                 _drop(sp, layer, prim, pv.name, str(exc).split(": ", 1)[-1], warnings)
@@ -909,27 +1078,27 @@ def _drop(sp, layer, prim, name, reason, warnings):
     warnings.append(f"{sp.path}: {name} dropped ({reason})")
 
 
-def _write_primvar(sp, pv, layer, prim, refiner, fmap, linear_field, fvar_mode=None, warnings=None, limit=False,
-                   times=None):
+def _write_primvar(sp, pv, layer, prim, ctx, fvar_mode=None, warnings=None, limit=False, times=None):
     """Refine one primvar at ``times`` (default: the default time and each of its selected samples). A default
     that does not fit the mesh beside time samples gives way to the first selected sample (with a warning).
     ``limit``: vertex and face-varying values are limit values (as the points are with ``limit``)."""
     for t in ([DEFAULT] + list(pv.times)) if times is None else times:
         try:
-            _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode, limit)
+            _write_primvar_at(sp, pv, t, layer, prim, ctx, fvar_mode, limit)
         except SubdivInputError as exc:
             if t != DEFAULT or not pv.times or pv.default_time is not None:
                 raise
             pv.default_time = pv.times[0]
-            _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode, limit)
+            _write_primvar_at(sp, pv, t, layer, prim, ctx, fvar_mode, limit)
             if warnings is not None:
                 warnings.append(f"{sp.path}: {pv.name} default does not fit the mesh ({str(exc).split(': ', 1)[-1]})"
                                 f": the sample at time {pv.times[0]:g} stands in for it")
 
 
 @_phases.timed("refine")
-def _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_mode, limit=False):
+def _write_primvar_at(sp, pv, t, layer, prim, ctx, fvar_mode, limit=False):
     mesh = sp.mesh
+    refiner, fmap, linear_field = ctx.refiner, ctx.fmap, ctx.linear_field
     where = sp.path
     n_expected = {"vertex": mesh.num_vertices, "varying": mesh.num_vertices, "uniform": mesh.num_faces,
                   "faceVarying": len(mesh.face_vertex_indices)}[pv.interpolation]
@@ -955,9 +1124,7 @@ def _write_primvar_at(sp, pv, t, layer, prim, refiner, fmap, linear_field, fvar_
         if len(idx) != n_expected:
             raise SubdivInputError(f"{where}: {pv.name} has {len(idx)} faceVarying values, the mesh needs "
                                    f"{n_expected}")
-        channel = refiner.limit_face_varying if limit else refiner.evaluate_face_varying
-        with _phases.phase("face-varying"):
-            values, new_idx = channel(rows.astype(np.float64), idx, mode=fvar_mode)
+        values, new_idx = ctx.face_varying(rows.astype(np.float64), idx, fvar_mode)
         values = np.asarray(values).reshape(len(values), -1)
         shaped = values.reshape((len(values) * pv.element_size,) + like.shape[1:])
         layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))

@@ -6,6 +6,7 @@ leaves no partial file. The input file is only ever opened for reading.
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import tempfile
 
@@ -247,6 +248,46 @@ class OutputLayer:
         self.created = []
 
 
+def from_numpy(cls, arr: np.ndarray):
+    """``cls.FromNumpy(arr)`` (a Vt array class, numeric ``arr`` of its layout), but about 15x faster and
+    without holding the GIL: usd-core's FromNumpy converts element by element with the GIL held (4.6 ms for
+    800,000 ints against 0.3 ms for one memcpy), which stalls every other thread of a bake. A new array of the
+    length is allocated and its storage, which the Vt array exports through the buffer protocol (read-only),
+    is filled with one ``ctypes.memmove`` (a foreign call: the GIL is released). Used where the export has the
+    array's layout and, for this class, is checked to be the array's own storage (:func:`_exports_storage`);
+    FromNumpy converts everything else."""
+    arr = np.ascontiguousarray(arr)
+    if arr.size and _exports_storage(cls):
+        out = cls(len(arr))
+        view = np.asarray(out)
+        if view.dtype == arr.dtype and view.shape == arr.shape and view.flags.c_contiguous:
+            ctypes.memmove(view.ctypes.data, arr.ctypes.data, arr.nbytes)
+            return out
+    return cls.FromNumpy(arr)
+
+
+_STORAGE: dict = {}  # Vt array class -> whether its buffer export is its storage (checked once)
+
+
+def _exports_storage(cls) -> bool:
+    """Whether a new ``cls`` array's buffer export is its own storage: bytes written there (a pattern of
+    distinct values) read back through the Vt API (``==`` against FromNumpy of the same values)."""
+    known = _STORAGE.get(cls)
+    if known is None:
+        known = False
+        try:
+            probe = cls(5)
+            view = np.asarray(probe)
+            if view.size and view.dtype.kind in "fiub" and view.flags.c_contiguous:
+                pattern = (np.arange(view.size) % 7 + 1).astype(view.dtype).reshape(view.shape)
+                ctypes.memmove(view.ctypes.data, pattern.ctypes.data, pattern.nbytes)
+                known = bool(probe == cls.FromNumpy(pattern))
+        except Exception:  # noqa: BLE001 (Boost.Python raises its own exception types; then FromNumpy it is)
+            known = False
+        _STORAGE[cls] = known
+    return known
+
+
 @_phases.timed("write")
 def vt_array(type_name: Sdf.ValueTypeName, values: np.ndarray, like=None):
     """A numpy array as the Vt array of ``type_name`` (rows of vectors, or scalars)."""
@@ -257,7 +298,7 @@ def vt_array(type_name: Sdf.ValueTypeName, values: np.ndarray, like=None):
         arr = arr.astype(dtype)
     if arr.dtype.kind in "fiub":
         try:
-            return cls.FromNumpy(np.ascontiguousarray(arr))
+            return from_numpy(cls, arr)
         except Exception:  # noqa: BLE001 (Boost.Python raises its own exception types here)
             pass
     return cls([v.tolist() if isinstance(v, np.ndarray) else v for v in arr])
@@ -265,12 +306,12 @@ def vt_array(type_name: Sdf.ValueTypeName, values: np.ndarray, like=None):
 
 @_phases.timed("write")
 def int_array(values) -> Vt.IntArray:
-    return Vt.IntArray.FromNumpy(np.ascontiguousarray(np.asarray(values, dtype=np.int32)))
+    return from_numpy(Vt.IntArray, np.asarray(values, dtype=np.int32))
 
 
 @_phases.timed("write")
 def vec3f_array(values) -> Vt.Vec3fArray:
-    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(np.asarray(values, dtype=np.float32).reshape(-1, 3)))
+    return from_numpy(Vt.Vec3fArray, np.asarray(values, dtype=np.float32).reshape(-1, 3))
 
 
 @_phases.timed("write")
