@@ -9,10 +9,14 @@ referenced by two prims (the same asset twice), about ``--faces`` control faces 
 once). Then, in one run:
 
 * **bake**: ``warp_subdiv.usd.refine_usd(scene, out.usdc, levels)`` end to end (read, analyse, refine,
-  face-varying, write; its phase times from ``Result.phases``), best of ``--reps``;
-* **floor**: usd-core writing a new ``.usdc`` layer holding the same arrays the bake wrote (every attribute of
-  the bake's output layer, read back into numpy first: ``Vt.*Array.FromNumpy``, ``Sdf`` specs, ``Save``), best
-  of ``--reps``; the bake's ratio to it is the figure of merit (target: at most 1.3x);
+  face-varying, write; its phase times from ``Result.phases``), best of ``--reps``, three ways: the default
+  (vertex order "auto": compact for these piecewise-smooth meshes; workers on every core), OpenSubdiv's vertex
+  order (``vertex_order="opensubdiv"``), and the default on one thread (``WARP_SUBDIV_THREADS=1``: no workers);
+* **floor**: usd-core writing a new ``.usdc`` layer holding the same arrays a bake wrote (every attribute of
+  the bake's output layer, read back into numpy first; Vt arrays made as the writer makes them,
+  ``warp_subdiv.usd_write.from_numpy``, 15x faster than ``FromNumpy``; ``Sdf`` specs, ``Save``), best of
+  ``--reps``, for the OpenSubdiv-order arrays and for the compact ones; the bake's ratio to the floor is the
+  figure of merit (target: at most 1.3x);
 * **face-varying vs vertex**: the face-varying phase against the vertex refinement of the same meshes
   (target: no more);
 * **Blender** (when ``--blender`` names a Python with ``bpy``, e.g. a venv made with ``pip install bpy``):
@@ -143,9 +147,16 @@ def layer_arrays(path: str) -> list:
     return out
 
 
-def write_floor(arrays: list, path: str) -> float:
-    """Seconds to write ``arrays`` (layer_arrays) into a new layer at ``path`` and save it."""
+def write_floor(arrays: list, path: str, fast: bool = True) -> float:
+    """Seconds to write ``arrays`` (layer_arrays) into a new layer at ``path`` and save it; Vt arrays made with
+    ``warp_subdiv.usd_write.from_numpy`` (``fast``) or usd-core's ``FromNumpy``."""
     from pxr import Sdf
+
+    from warp_subdiv.usd_write import from_numpy
+
+    if not fast:
+        def from_numpy(cls, values):
+            return cls.FromNumpy(values)
 
     t0 = time.perf_counter()
     layer = Sdf.Layer.CreateNew(path)
@@ -159,7 +170,7 @@ def write_floor(arrays: list, path: str) -> float:
             for k, v in info.items():
                 spec.SetInfo(k, v)
             if isinstance(default, tuple):
-                spec.default = default[0].FromNumpy(default[1])
+                spec.default = from_numpy(*default)
             elif default is not None:
                 spec.default = default
             for t, v in samples:
@@ -169,12 +180,18 @@ def write_floor(arrays: list, path: str) -> float:
 
 
 # ------------------------------------------------------------------------------------------------ the bake
-def bake(scene: str, out: str, levels: int, vertex_order: str = "opensubdiv") -> dict:
+def bake(scene: str, out: str, levels: int, vertex_order: str = "auto", threads: int | None = None) -> dict:
+    """One bake (``threads``: the workers' thread count, None for every core)."""
+    from warp_subdiv import threads as _threads
     from warp_subdiv.usd import refine_usd
 
-    t0 = time.perf_counter()
-    result = refine_usd(scene, out, levels, device="cpu", vertex_order=vertex_order)
-    wall = time.perf_counter() - t0
+    _threads.set_default_threads(threads)
+    try:
+        t0 = time.perf_counter()
+        result = refine_usd(scene, out, levels, device="cpu", vertex_order=vertex_order)
+        wall = time.perf_counter() - t0
+    finally:
+        _threads.set_default_threads(None)
     phases = dict(getattr(result, "phases", {}) or {})
     faces_out = sum(r.faces_out for r in result.reports)
     return {"seconds": wall, "phases": phases, "faces_out": faces_out,
@@ -244,17 +261,25 @@ def main(argv=None) -> int:
         warm = make_scene(os.path.join(folder, "warm"), 200, 1)
         bake(warm["scene"], os.path.join(folder, "warm", "out.usdc"), 1)
         scene = make_scene(folder, args.faces, args.meshes)
-        result = {"scene": scene, "levels": args.levels, "orders": {}}
-        for order in ("opensubdiv", "compact"):
-            out = os.path.join(folder, f"baked_{order}.usdc")
-            bakes = [bake(scene["scene"], out, args.levels, order) for _ in range(args.reps)]
-            best = min(bakes, key=lambda b: b["seconds"])
-            arrays = layer_arrays(out)
-            floor_path = os.path.join(folder, f"floor_{order}.usdc")
-            floors = [write_floor(arrays, floor_path) for _ in range(args.reps)]
-            result["orders"][order] = {"bake": best, "bakes": [b["seconds"] for b in bakes],
-                                       "floor_seconds": min(floors), "floors": floors,
-                                       "floor_bytes": os.path.getsize(floor_path)}
+        result = {"scene": scene, "levels": args.levels, "orders": {}, "cores": os.cpu_count()}
+        # the bakes take turns, rep by rep, so that a change in the machine's load touches each alike
+        runs = {"default": ("auto", None), "opensubdiv": ("opensubdiv", None), "one-thread": ("auto", 1)}
+        bakes: dict = {name: [] for name in runs}
+        for _ in range(args.reps):
+            for name, (order, threads) in runs.items():
+                bakes[name].append(bake(scene["scene"], os.path.join(folder, f"baked_{name}.usdc"), args.levels,
+                                        order, threads))
+        for name in runs:
+            best = min(bakes[name], key=lambda b: b["seconds"])
+            entry = {"bake": best, "bakes": [b["seconds"] for b in bakes[name]]}
+            if name != "one-thread":  # (the same arrays as the default's)
+                arrays = layer_arrays(os.path.join(folder, f"baked_{name}.usdc"))
+                floor_path = os.path.join(folder, f"floor_{name}.usdc")
+                floors = [write_floor(arrays, floor_path) for _ in range(args.reps)]
+                entry.update(floor_seconds=min(floors), floors=floors, floor_bytes=os.path.getsize(floor_path))
+                slow = [write_floor(arrays, floor_path, fast=False) for _ in range(args.reps)]
+                entry.update(floor_fromnumpy_seconds=min(slow))
+            result["orders"][name] = entry
         result["floor_seconds"] = result["orders"]["opensubdiv"]["floor_seconds"]
         if args.blender:
             runs = [blender(args.blender, scene["scene"], os.path.join(folder, "blender.usdc"), args.levels)
@@ -275,39 +300,52 @@ def main(argv=None) -> int:
 
 def _report(r: dict) -> None:
     s = r["scene"]
-    o, c = r["orders"]["opensubdiv"], r["orders"]["compact"]
-    floor = r["floor_seconds"]
+    runs = r["orders"]
+    d, o, one = runs["default"], runs["opensubdiv"], runs["one-thread"]
+    floor, compact_floor = r["floor_seconds"], d["floor_seconds"]
     print(f"scene: {s['mesh_prims']} mesh prims ({s['distinct_meshes']} distinct, one asset referenced twice), "
           f"{s['control_faces']:,} control faces ({s['distinct_control_faces']:,} distinct), UVs face-varying; "
-          f"level {r['levels']}: {c['bake']['faces_out']:,} faces, {c['bake']['vertices_out']:,} vertices refined")
-    names = list(dict.fromkeys(list(o["bake"]["phases"]) + list(c["bake"]["phases"])))
-    print("\n| phase (s) | bake, OpenSubdiv order | bake, compact order |\n|---|---:|---:|")
+          f"level {r['levels']}: {d['bake']['faces_out']:,} faces, {d['bake']['vertices_out']:,} vertices refined")
+    heads = {"default": "default (compact order, workers)", "opensubdiv": "OpenSubdiv order (workers)",
+             "one-thread": "default on one thread"}
+    names = list(dict.fromkeys(n for run in runs.values() for n in run["bake"]["phases"]))
+    print("\n| phase (s; thread time: workers overlap the writer) | " + " | ".join(heads[k] for k in runs)
+          + " |\n|---|" + "---:|" * len(runs))
     for name in names:
-        print(f"| {name} | {o['bake']['phases'].get(name, 0):.2f} | {c['bake']['phases'].get(name, 0):.2f} |")
-    print(f"| **end to end** | **{o['bake']['seconds']:.2f}** | **{c['bake']['seconds']:.2f}** |")
-    print("\n| measure | seconds | / floor |\n|---|---:|---:|")
-    print(f"| floor: usd-core saves the OpenSubdiv-order arrays | {floor:.2f} | 1.00 |")
-    print(f"| usd-core saves the compact-order arrays | {c['floor_seconds']:.2f} | {c['floor_seconds'] / floor:.2f} |")
-    print(f"| bake, OpenSubdiv order | {o['bake']['seconds']:.2f} | {o['bake']['seconds'] / floor:.2f} |")
-    print(f"| bake, compact order | {c['bake']['seconds']:.2f} | {c['bake']['seconds'] / floor:.2f} |")
+        print(f"| {name} | " + " | ".join(f"{run['bake']['phases'].get(name, 0):.2f}" for run in runs.values()) + " |")
+    print("| **end to end (wall)** | " + " | ".join(f"**{run['bake']['seconds']:.2f}**" for run in runs.values())
+          + " |")
+    print("\n| measure | seconds | / floor (OpenSubdiv-order arrays) | / floor (compact arrays) |")
+    print("|---|---:|---:|---:|")
+
+    def row(label, sec):
+        print(f"| {label} | {sec:.2f} | {sec / floor:.2f} | {sec / compact_floor:.2f} |")
+
+    row("floor: usd-core saves the OpenSubdiv-order arrays", floor)
+    row("floor: usd-core saves the compact-order arrays", compact_floor)
+    row("(floor, OpenSubdiv-order arrays, Vt arrays by usd-core's FromNumpy)", o["floor_fromnumpy_seconds"])
+    row("(floor, compact arrays, Vt arrays by usd-core's FromNumpy)", d["floor_fromnumpy_seconds"])
+    row("bake, default (compact order, workers)", d["bake"]["seconds"])
+    row("bake, OpenSubdiv order (workers)", o["bake"]["seconds"])
+    row("bake, default on one thread", one["bake"]["seconds"])
     bl = r.get("blender")
     if bl and "seconds" in bl:
-        print(f"| Blender: USD import (subdivision) + subsurf + USD export (tessellate) | {bl['seconds']:.2f} | "
-              f"{bl['seconds'] / floor:.2f} |")
+        row("Blender: USD import (subdivision) + subsurf + USD export (tessellate)", bl["seconds"])
         print(f"\nBlender runs: {', '.join(f'{x:.2f}' for x in r.get('blender_runs', []) if x)} s")
-        print(f"Blender / bake (compact): {bl['seconds'] / c['bake']['seconds']:.2f}x (import {bl['import']:.2f} s, "
+        print(f"Blender / bake (default): {bl['seconds'] / d['bake']['seconds']:.2f}x (import {bl['import']:.2f} s, "
               f"export {bl['export']:.2f} s, {bl['subsurf_modifiers']} subsurf modifiers, "
               f"{bl['bytes'] / 2**20:.1f} MiB)")
     elif bl:
         print(f"\nBlender failed: {bl.get('error', '')[-500:]}")
-    for name, b in (("OpenSubdiv order", o["bake"]), ("compact order", c["bake"])):
-        ph = b["phases"]
+    for name, run in runs.items():
+        ph = run["bake"]["phases"]
         vertex = ph.get("analyse", 0) + ph.get("refine", 0)
-        print(f"{name}: face-varying {ph.get('face-varying', 0):.2f} s vs vertex refinement (analyse + refine) "
-              f"{vertex:.2f} s; output {b['bytes'] / 2**20:.1f} MiB")
-    print(f"bake runs (compact): {', '.join(f'{x:.2f}' for x in c['bakes'])} s; floor runs: "
-          f"{', '.join(f'{x:.2f}' for x in o['floors'])} s")
-    print(f"load average at the end: {', '.join(f'{x:.2f}' for x in r['load_average'])}")
+        print(f"{heads[name]}: face-varying {ph.get('face-varying', 0):.2f} s vs vertex refinement (analyse + "
+              f"refine) {vertex:.2f} s; output {run['bake']['bytes'] / 2**20:.1f} MiB; runs "
+              f"{', '.join(f'{x:.2f}' for x in run['bakes'])} s")
+    print(f"floor runs: OpenSubdiv order {', '.join(f'{x:.2f}' for x in o['floors'])} s, compact "
+          f"{', '.join(f'{x:.2f}' for x in d['floors'])} s")
+    print(f"load average at the end: {', '.join(f'{x:.2f}' for x in r['load_average'])} ({r['cores']} cores)")
 
 
 if __name__ == "__main__":

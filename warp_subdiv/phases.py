@@ -10,7 +10,9 @@ The USD bake's phases (:func:`warp_subdiv.usd.refine_usd`, ``Result.phases``; ``
 --verbose``): ``read`` (open the stage, read and check the meshes, predict sizes), ``analyse`` (control-mesh
 analysis, per-level topology and tables), ``refine`` (vertex data: points, velocities, vertex and varying
 primvars), ``face-varying`` (face-varying channels: their topology and values), ``write`` (converting to Vt
-arrays, authoring the layer and saving it).
+arrays, authoring the layer and saving it), and ``waiting`` (the writer waiting for a mesh its workers refine
+ahead: ``warp_subdiv.usd._Ahead``; the workers' own time counts to analyse, refine and face-varying, so with
+workers the phases add up to more than the wall time).
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ import threading
 import time
 
 #: The order phases are reported in (others follow in the order they were first seen).
-ORDER = ("read", "analyse", "refine", "face-varying", "write")
+ORDER = ("read", "analyse", "refine", "face-varying", "write", "waiting")
 
 _active: contextvars.ContextVar = contextvars.ContextVar("warp_subdiv_phases", default=None)
 

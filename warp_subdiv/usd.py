@@ -426,9 +426,10 @@ def refine_usd(
     reports = []
     batches = _Batches(p, levels, device, limit, normals, defaults=not samples_only) if batch else None
     token = _BATCHES.set(batches)
-    ahead = _Ahead(p, levels, device, limit, normals, vertex_order, batches, samples_only=samples_only,
-                   max_memory=max_memory)
+    ahead = None
     try:
+        ahead = _Ahead(p, levels, device, limit, normals, vertex_order, batches, samples_only=samples_only,
+                       max_memory=max_memory)
         out_layout = layout(p)
         for i, sp in enumerate(p.prims):
             t0 = _time.perf_counter()
@@ -454,7 +455,8 @@ def refine_usd(
         layer.discard()
         raise
     finally:
-        ahead.close()
+        if ahead is not None:
+            ahead.close()
         _BATCHES.reset(token)
     return Result(out_abs, reports, warnings, _time.perf_counter() - start,
                   total_bytes(p.estimates, ahead.concurrent))
