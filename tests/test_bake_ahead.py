@@ -161,3 +161,20 @@ def test_vt_arrays_from_numpy_without_the_gil():
         assert type(got) is cls and got == expected or np.isnan(values).any(), cls
         assert np.asarray(got).tobytes() == np.asarray(expected).tobytes(), cls
     assert _exports_storage(Vt.IntArray) and _exports_storage(Vt.Vec3fArray)
+
+
+def test_cli_reports_the_writers_waiting(props_scene, tmp_path, every_mesh_ahead, capsys):
+    """`warp-subdiv refine --threads 2` with meshes refined ahead: its phase line gives the writer's waiting
+    and says that the workers' time overlaps the writer's; with --threads 1 neither appears."""
+    from warp_subdiv.cli import main
+
+    try:
+        assert main(["refine", props_scene, "-o", str(tmp_path / "two.usda"), "--levels", "2", "--threads", "2"]) == 0
+        two = [line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("phases:")]
+        assert main(["refine", props_scene, "-o", str(tmp_path / "one.usda"), "--levels", "2", "--threads", "1"]) == 0
+        one = [line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("phases:")]
+    finally:
+        threads.set_default_threads(None)
+    assert len(two) == 1 and "waiting" in two[0] and "overlap the writer" in two[0], two
+    assert len(one) == 1 and "waiting" not in one[0] and "overlap" not in one[0], one
+    assert any(ctx is not None for _, _, ctx, _ in every_mesh_ahead)

@@ -279,7 +279,8 @@ def _summary(source, output, levels, device, reports, seconds, predicted, phases
     print(f"  total: {len(reports)} mesh{'es' if len(reports) != 1 else ''}, faces {fin} -> {fout}, vertices {vin} -> "
           f"{vout}, {seconds:.2f} s (predicted memory {format_bytes(predicted)}); wrote {output}")
     if phases:  # where the time went (warp_subdiv.phases)
-        print("  phases: " + ", ".join(f"{name} {sec:.2f} s" for name, sec in phases.items()))
+        overlap = " (worker threads' time included: they overlap the writer)" if "waiting" in phases else ""
+        print("  phases: " + ", ".join(f"{name} {sec:.2f} s" for name, sec in phases.items()) + overlap)
 
 
 def _refine(args) -> int:
