@@ -124,6 +124,41 @@ def test_fast_face_varying_refuses_what_the_channel_refuses():
         fast_face_varying(refiner, bad, uvi)
 
 
+def test_appearance_order_equals_a_first_occurrence_sort():
+    """On random ids (repeats, unused ids, any keep, int32/int64/uint32 input) the numbering equals the one
+    np.unique's first occurrences give: kept ids, then the others by first use, then the unused; int32."""
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        num = int(rng.integers(1, 40))
+        ids = rng.integers(0, num, int(rng.integers(0, 120))).astype(rng.choice([np.int32, np.int64, np.uint32]))
+        keep = int(rng.integers(0, num + 1))
+        new, old = appearance_order(ids, num, keep)
+        uniq, first = np.unique(ids, return_index=True)
+        later = uniq[np.argsort(first)]
+        later = later[later >= keep]
+        expect = np.concatenate([np.arange(keep), later, np.setdiff1d(np.arange(keep, num), later)])
+        assert old.dtype == new.dtype == np.int32
+        np.testing.assert_array_equal(old, expect)
+        np.testing.assert_array_equal(new[old], np.arange(num))
+
+
+def test_ordered_refiner_reuses_its_face_varying_plan_only_for_the_same_channel():
+    """OrderedRefiner keeps the fast path's analysis of the last channel (indices and mode): a second set of
+    values, another mode or other indices give what a fresh OrderedRefiner gives, bit for bit."""
+    pts, counts, idx, uv, uvi = torus(16, 12)
+    refiner = ws.Refiner(ws.Mesh(pts, counts, idx), 2, device="cpu", precision="float64")
+    kept = OrderedRefiner(refiner)
+    other = uvi.copy()
+    other[5] = len(uv)  # one corner with a value of its own: another seam
+    uv2 = np.concatenate([uv, [[0.5, 0.5]]])
+    for values, indices, mode in ((uv, uvi, "none"), (uv * 3 + 1, uvi, "none"), (uv, uvi, "boundaries"),
+                                  (uv2, other, "boundaries"), (uv2[:, 0], other, "boundaries")):
+        got = kept.evaluate_face_varying(values, indices, mode=mode)
+        fresh = OrderedRefiner(refiner).evaluate_face_varying(values, indices, mode=mode)
+        for a, b in zip(got, fresh):
+            assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
+
+
 def _scene(path):
     from pxr import Sdf, Vt
 

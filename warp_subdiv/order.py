@@ -38,34 +38,33 @@ def check_vertex_order(value) -> str:
 def appearance_order(indices: np.ndarray, num: int, keep: int = 0):
     """(new id of every old id (num,), old id of every new id (num,)), int32 (int64 beyond its range): ids below
     ``keep`` keep their number; the others are numbered from ``keep`` in the order ``indices`` first uses them,
-    unused ones last (in their old order). O(len(indices) + num), no sort."""
+    unused ones last (in their old order). O(len(indices) + num), no sort.
+
+    One pass over ``indices`` scatters every id's first position (written in reverse, so the first use is the
+    last write); flagging those positions (num writes) then picks the first uses out of ``indices`` in order,
+    without comparing every position with its id's first one (the refined indices are 4x the vertices)."""
     indices = np.asarray(indices)
     n = len(indices)
     kind = np.int32 if max(n, num) < 2**31 - 1 else np.int64
     if indices.dtype != kind:
         indices = indices.astype(kind)
-    position = np.arange(n, dtype=kind)
-    first_use = np.empty(num, dtype=kind)
-    first_use[indices[::-1]] = position[::-1]  # repeated ids: the last assignment (the first use) wins
-    first = first_use[indices] == position
-    del first_use, position
-    if keep:
-        first &= indices >= keep
-    used = indices[first]
-    new_id = np.full(num, -1, dtype=kind)
-    new_id[:keep] = np.arange(keep, dtype=kind)
-    new_id[used] = np.arange(keep, keep + len(used), dtype=kind)
-    unused = np.flatnonzero(new_id < 0)
-    if len(unused):
-        new_id[unused] = np.arange(keep + len(used), num, dtype=kind)
-    old_id = np.empty(num, dtype=kind)
-    old_id[new_id] = np.arange(num, dtype=kind)
+    first_use = np.full(num, n, dtype=kind)  # n: unused
+    first_use[indices[::-1]] = np.arange(n - 1, -1, -1, dtype=kind)  # repeated ids: the first use wins
+    renumbered = first_use[keep:]
+    first = np.zeros(n + 1, dtype=bool)  # first[n]: where the unused ids point
+    first[renumbered] = True
+    unused = np.flatnonzero(renumbered == n).astype(kind, copy=False)
+    unused += keep
+    old_id = np.concatenate([np.arange(keep, dtype=kind), indices[first[:n]], unused])
+    new_id = np.empty(num, dtype=kind)
+    new_id[old_id] = np.arange(num, dtype=kind)
     return new_id, old_id
 
 
 def _rows(data, old_id):
-    """Rows of ``data`` (refined, in the refiner's order) in the compact order; 1-D data stays 1-D."""
-    return np.asarray(data)[old_id]
+    """Rows of ``data`` (refined, in the refiner's order) in the compact order; 1-D data stays 1-D. ``np.take``
+    along the rows: a fancy index copies rows of a 2-D array several times slower."""
+    return np.take(np.asarray(data), old_id, axis=0)
 
 
 class _OrderedHierarchy:
@@ -78,7 +77,7 @@ class _OrderedHierarchy:
     def vertex_parent(self, level: int):
         kind, parent = self._h.vertex_parent(level)
         if level == self._h.levels:
-            return kind[self._old_id], parent[self._old_id]
+            return _rows(kind, self._old_id), _rows(parent, self._old_id)
         return kind, parent
 
     def __getattr__(self, name):
@@ -94,8 +93,9 @@ class OrderedRefiner:
         counts, indices = refiner.topology()
         self.new_id, self.old_id = appearance_order(indices, refiner.num_vertices, refiner.mesh.num_vertices)
         self._counts = counts
-        self._indices = self.new_id[indices].astype(np.int32, copy=False)
+        self._indices = np.take(self.new_id, indices).astype(np.int32, copy=False)
         self.hierarchy = _OrderedHierarchy(refiner.hierarchy, self.old_id)
+        self._fast_plan: dict = {}  # the last face-varying channel's _FastPlan (see _fast_parts)
 
     def topology(self):
         return self._counts, self._indices
@@ -109,7 +109,7 @@ class OrderedRefiner:
 
     def _own(self, refined):
         """Refined data in the compact order back in the refiner's order."""
-        return np.asarray(refined)[self.new_id]
+        return _rows(refined, self.new_id)
 
     def limit_points(self, refined_points):
         return self.compact(self.refiner.limit_points(self._own(refined_points)))
@@ -135,17 +135,30 @@ class OrderedRefiner:
         return _rows(values, old_id[: int(used.sum())]), new_id[indices].astype(np.int32, copy=False)
 
     def evaluate_face_varying(self, values, indices, mode="corners-plus1"):
-        fast = fast_face_varying(self.refiner, values, indices, mode)
+        fast = _fast_parts(self.refiner, values, indices, mode, self._fast_plan)
         if fast is None:
             return self._face_varying(*self.refiner.evaluate_face_varying(values, indices, mode=mode))
         # values away from the seams are the vertices' (ids below N): numbered as the vertices are, so no
         # second renumbering pass; the values near the seams follow (a vertex only the faces near a seam use
-        # keeps a value that no corner uses)
-        out, value_of = fast
-        n = self.refiner.num_vertices
-        out = np.asarray(out)
-        lookup = np.concatenate([self.new_id, np.arange(n, len(out), dtype=self.new_id.dtype)])
-        return np.concatenate([out[:n][self.old_id], out[n:]]), lookup[value_of].astype(np.int32, copy=False)
+        # keeps a value that no corner uses). Written straight into the result: rows taken in the compact
+        # order, then the near values; the indices are the compact topology's, the near faces' replaced.
+        refined, sub = fast.refined, fast.sub_values
+        n = len(refined)
+        if fast.squeeze:
+            refined, sub = refined[:, 0], (None if sub is None else sub[:, 0])
+        if sub is None:
+            out = _rows(refined, self.old_id)
+        else:
+            out = np.empty((n + len(sub),) + refined.shape[1:], dtype=np.result_type(refined, sub))
+            if out.dtype == refined.dtype:
+                np.take(refined, self.old_id, axis=0, out=out[:n])
+            else:
+                out[:n] = _rows(refined, self.old_id)
+            out[n:] = sub
+        value_of = self._indices.copy()
+        if fast.near_values is not None:
+            value_of.reshape(-1, fast.plan.size)[fast.plan.near_face] = n + fast.near_values
+        return out, value_of
 
     def limit_face_varying(self, values, indices, mode="corners-plus1"):
         return self._face_varying(*self.refiner.limit_face_varying(values, indices, mode=mode))
@@ -188,19 +201,57 @@ def fast_face_varying(refiner, values, indices, mode="corners-plus1"):
     The values equal those of :meth:`Refiner.evaluate_face_varying` at every refined corner (up to float
     rounding); their numbering differs (the compact order renumbers them anyway). Applies to Catmull-Clark
     and to Loop on triangles, with Loop's beta, and not to the "all" mode."""
-    from .errors import NonManifoldWarning, SubdivInputError
-    from .facevarying import FaceVaryingChannel, check_indices
-    from .mesh import Mesh, check_rows
+    fast = _fast_parts(refiner, values, indices, mode)
+    if fast is None:
+        return None
+    refined, near = fast.refined, fast.near_values
+    _, indices_out = refiner.topology()
+    value_of = np.array(indices_out, dtype=np.int32 if len(refined) < 2**30 else np.int64)
+    if near is None:
+        out = refined
+    else:
+        value_of.reshape(-1, fast.plan.size)[fast.plan.near_face] = len(refined) + near
+        out = np.concatenate([refined, fast.sub_values])
+    return (out[:, 0] if fast.squeeze else out), value_of
+
+
+class _FastPlan:
+    """What :func:`fast_face_varying` derives from the mesh and the value indices alone (not the values), kept
+    by :class:`OrderedRefiner` so that later samples of a channel (same indices and mode) only evaluate.
+
+    ``vertices``, ``vertex_value``: the control vertices some face uses and the value index each takes (its last
+    corner's: for a vertex with one value, that value); ``size``: corners per refined face; ``near_face``: per
+    refined face, whether its control face is near a seam (None: no face is); ``channel``: the face-varying
+    channel of the part mesh around those faces; ``sub_near``: per refined face of that channel, whether its
+    control face is one of the near faces (the others only complete their neighbourhoods)."""
+
+    __slots__ = ("vertices", "vertex_value", "size", "near_face", "channel", "sub_near")
+
+
+class _FastParts:
+    """One evaluation of a :class:`_FastPlan`: ``refined`` the vertex refinement of the values (N, d);
+    ``sub_values`` the part channel's values (M, d) and ``near_values`` the value index (from N on) of every
+    corner of the refined faces near a seam, in face order, shape (faces, size) (both None when no face is
+    near a seam); ``squeeze``: the values were 1-D."""
+
+    __slots__ = ("plan", "refined", "sub_values", "near_values", "squeeze")
+
+
+def _fast_parts(refiner, values, indices, mode, cache: dict | None = None):
+    """The pieces of :func:`fast_face_varying`'s result (a :class:`_FastParts`), or None where the path does
+    not apply. ``cache``: a dict that keeps the last :class:`_FastPlan` with its key (mode and indices)."""
+    from .errors import SubdivInputError
+    from .facevarying import check_indices
+    from .mesh import check_rows
     from .options import FaceVaryingMode
-    from .rules import SMOOTH
 
     h = refiner.hierarchy
     options = refiner.options
-    vert_class = getattr(h, "base_vert_class", None)
     mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
     mesh = refiner.mesh
-    if (vert_class is None or refiner.levels < 1 or options.linear or mode == FaceVaryingMode.ALL
-            or h.parentage.control_face is not None or options.loop_beta.value != "loop"):
+    if (getattr(h, "base_vert_class", None) is None or refiner.levels < 1 or options.linear
+            or mode == FaceVaryingMode.ALL or h.parentage.control_face is not None
+            or options.loop_beta.value != "loop"):
         return None
     idx = check_indices(indices, len(mesh.face_vertex_indices))
     if len(idx) == 0:
@@ -210,6 +261,43 @@ def fast_face_varying(refiner, values, indices, mode="corners-plus1"):
         raise SubdivInputError(f"face-varying indices refer to value {int(idx.max())} but only {len(values)} values "
                                "were given", option="values", element="data", value=len(values))
     vals = check_rows(values, int(idx.max()) + 1, "face-varying values", at_least=True)
+    if cache is None:
+        plan = _fast_plan(refiner, idx, mode)
+    else:
+        key = (mode, idx.tobytes())
+        if cache.get("key") != key:
+            cache.clear()
+            cache.update(key=key, plan=_fast_plan(refiner, idx, mode))
+        plan = cache["plan"]
+    if plan is None:
+        return None
+
+    parts = _FastParts()
+    parts.plan, parts.squeeze = plan, squeeze
+    # away from the seams: the vertex refinement of the values
+    data = np.zeros((mesh.num_vertices, vals.shape[1]))
+    data[plan.vertices] = vals[plan.vertex_value]
+    parts.refined = refiner.evaluate(data, normal_control=False)
+    parts.sub_values = parts.near_values = None
+    # near the seams: the channel of the faces there and their 1-rings
+    if plan.channel is not None:
+        sub_values, sub_index = plan.channel.evaluate(vals)
+        parts.near_values = np.asarray(sub_index).reshape(-1, plan.size)[plan.sub_near]
+        parts.sub_values = np.asarray(sub_values).reshape(len(sub_values), -1)
+    return parts
+
+
+def _fast_plan(refiner, idx, mode):
+    """The :class:`_FastPlan` of value indices ``idx`` (checked) and ``mode`` (parsed), or None where every
+    control face is near a seam."""
+    from .errors import NonManifoldWarning
+    from .facevarying import FaceVaryingChannel
+    from .mesh import Mesh
+    from .rules import SMOOTH
+
+    h = refiner.hierarchy
+    options = refiner.options
+    mesh = refiner.mesh
     cv = mesh.face_vertex_indices.astype(np.int64)
     counts = mesh.face_vertex_counts.astype(np.int64)
     nv, nf = mesh.num_vertices, mesh.num_faces
@@ -217,19 +305,17 @@ def fast_face_varying(refiner, values, indices, mode="corners-plus1"):
     one_value = np.empty(nv, dtype=np.int64)
     one_value[cv] = idx
     multi = np.bincount(cv, weights=one_value[cv] != idx, minlength=nv) > 0
-    aligned = (vert_class == SMOOTH) & ~multi
+    aligned = (h.base_vert_class == SMOOTH) & ~multi
     bad_face = np.bincount(face_of, weights=~aligned[cv], minlength=nf) > 0
     bad_vertex = np.bincount(cv, weights=bad_face[face_of], minlength=nv) > 0
     near_seam = np.bincount(face_of, weights=bad_vertex[cv], minlength=nf) > 0
     if near_seam.all():
         return None
 
-    # away from the seams: the vertex refinement of the values
-    data = np.zeros((nv, vals.shape[1]))
-    data[cv] = vals[idx]
-    refined = refiner.evaluate(data, normal_control=False)
-    _, indices_out = refiner.topology()
-    size = h.final.face_size  # 4 or 3: every refined face has it
+    plan = _FastPlan()
+    plan.vertices = np.flatnonzero(np.bincount(cv, minlength=nv) > 0)
+    plan.vertex_value = one_value[plan.vertices]
+    plan.size = size = h.final.face_size  # 4 or 3: every refined face has it
 
     def near_faces(flags, sizes, hierarchy):
         """Per output face of ``hierarchy``: the flag of its control face (children of a control face are
@@ -240,47 +326,41 @@ def fast_face_varying(refiner, values, indices, mode="corners-plus1"):
         hole = hierarchy.final.face_hole
         return out[~hole] if hole is not None and hole.any() else out
 
-    near_face = near_faces(near_seam, counts, h)
-    value_of = np.array(indices_out, dtype=np.int32 if len(refined) < 2**30 else np.int64)
-    parts = [refined]
-
-    # near the seams: the channel of the faces there and their 1-rings
-    if near_seam.any():
-        touch = np.bincount(cv, weights=near_seam[face_of], minlength=nv) > 0
-        keep = np.bincount(face_of, weights=touch[cv], minlength=nf) > 0
-        faces = np.flatnonzero(keep)
-        corner_in = keep[face_of]
-        used = np.flatnonzero(np.bincount(cv[corner_in], minlength=nv) > 0)
-        vmap = np.full(nv, -1, dtype=np.int64)
-        vmap[used] = np.arange(len(used))
-        tags = {}
-        if len(mesh.creases):
-            on = np.bincount(mesh.edges.corner_edge[corner_in], minlength=mesh.num_edges) > 0
-            take = on[mesh.crease_edges]
-            if take.any():
-                tags["creases"] = vmap[mesh.creases[take]]
-                tags["crease_sharpness"] = mesh.crease_sharpness[take]
-        if len(mesh.corners):
-            take = vmap[mesh.corners] >= 0
-            if take.any():
-                tags["corners"] = vmap[mesh.corners[take]]
-                tags["corner_sharpness"] = mesh.corner_sharpness[take]
-        if len(mesh.holes):
-            fmap = np.full(nf, -1, dtype=np.int64)
-            fmap[faces] = np.arange(len(faces))
-            holes = fmap[mesh.holes]
-            if (holes >= 0).any():
-                tags["holes"] = holes[holes >= 0]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NonManifoldWarning)
-            part = Mesh(mesh.points[used], counts[faces], vmap[cv[corner_in]], **tags)
-            owner = _ChannelOwner(part, refiner.levels, options=options.replace(rules="opensubdiv", flatness=None),
-                                  device=refiner.device, refiner_type=type(refiner))
-            channel = FaceVaryingChannel(owner, idx[corner_in], mode)
-        sub_values, sub_index = channel.evaluate(vals)
-        sub = channel.refiner  # the value mesh's refiner: the part's faces, holes and face order
-        sub_near = near_faces(near_seam[faces], counts[faces], sub.hierarchy)
-        value_of.reshape(-1, size)[near_face] = (len(refined) + np.asarray(sub_index).reshape(-1, size)[sub_near])
-        parts.append(np.asarray(sub_values).reshape(len(sub_values), -1))
-    out = np.concatenate(parts) if len(parts) > 1 else parts[0]
-    return (out[:, 0] if squeeze else out), value_of
+    plan.near_face = plan.channel = plan.sub_near = None
+    if not near_seam.any():
+        return plan
+    plan.near_face = near_faces(near_seam, counts, h)
+    touch = np.bincount(cv, weights=near_seam[face_of], minlength=nv) > 0
+    keep = np.bincount(face_of, weights=touch[cv], minlength=nf) > 0
+    faces = np.flatnonzero(keep)
+    corner_in = keep[face_of]
+    used = np.flatnonzero(np.bincount(cv[corner_in], minlength=nv) > 0)
+    vmap = np.full(nv, -1, dtype=np.int64)
+    vmap[used] = np.arange(len(used))
+    tags = {}
+    if len(mesh.creases):
+        on = np.bincount(mesh.edges.corner_edge[corner_in], minlength=mesh.num_edges) > 0
+        take = on[mesh.crease_edges]
+        if take.any():
+            tags["creases"] = vmap[mesh.creases[take]]
+            tags["crease_sharpness"] = mesh.crease_sharpness[take]
+    if len(mesh.corners):
+        take = vmap[mesh.corners] >= 0
+        if take.any():
+            tags["corners"] = vmap[mesh.corners[take]]
+            tags["corner_sharpness"] = mesh.corner_sharpness[take]
+    if len(mesh.holes):
+        fmap = np.full(nf, -1, dtype=np.int64)
+        fmap[faces] = np.arange(len(faces))
+        holes = fmap[mesh.holes]
+        if (holes >= 0).any():
+            tags["holes"] = holes[holes >= 0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NonManifoldWarning)
+        part = Mesh(mesh.points[used], counts[faces], vmap[cv[corner_in]], **tags)
+        owner = _ChannelOwner(part, refiner.levels, options=options.replace(rules="opensubdiv", flatness=None),
+                              device=refiner.device, refiner_type=type(refiner))
+        plan.channel = FaceVaryingChannel(owner, idx[corner_in], mode)
+    sub = plan.channel.refiner  # the value mesh's refiner: the part's faces, holes and face order
+    plan.sub_near = near_faces(near_seam[faces], counts[faces], sub.hierarchy)
+    return plan
