@@ -131,11 +131,8 @@ def inline():
 
 
 def _pooled(job):
-    _local.in_pool = True
-    try:
+    with inline():  # a job of the pool: its nested work runs on its own thread
         return job()
-    finally:
-        _local.in_pool = False
 
 
 def map_ranges(fn, n: int, threads: int, min_rows: int = MIN_ROWS) -> list:

@@ -32,6 +32,7 @@ alike.
 """
 from __future__ import annotations
 
+import collections
 import contextvars
 import functools
 import os
@@ -169,9 +170,12 @@ def plan(
     # the meshes are independent: a few contiguous ranges of them on the threads (the first error in the
     # plan's order is raised, as one after the other would raise it)
     units = [(key, sp) for key, sp in scene.units.items() if sp is not None]
-    ranges = _threads.ranges(len(units), _threads.default_threads(), 1)
-    jobs = [functools.partial(contextvars.copy_context().run, lambda a, b: [analyse(sp) for _, sp in units[a:b]],
-                              a, b) for a, b in ranges]
+
+    def analyse_range(a, b):
+        return [analyse(sp) for _, sp in units[a:b]]
+
+    jobs = [functools.partial(contextvars.copy_context().run, analyse_range, a, b)
+            for a, b in _threads.ranges(len(units), _threads.default_threads(), 1)]
     analysed = [done for part in _threads.run(jobs, len(jobs)) for done in part]
     for (key, sp), (options, e) in zip(units, analysed):
         out.prims.append(sp)
@@ -753,9 +757,10 @@ class _Ahead:
         self.futures: dict = {}
         self.pool = None
         self.concurrent = 1
-        self.queue = [i for i, (sp, e) in enumerate(zip(p.prims, p.estimates))
-                      if not sp.topologies and e.final.vertices >= AHEAD_VERTICES
-                      and (batches is None or i not in batches.chunk_of)]
+        self.queue = collections.deque(
+            i for i, (sp, e) in enumerate(zip(p.prims, p.estimates))
+            if not sp.topologies and e.final.vertices >= AHEAD_VERTICES
+            and (batches is None or i not in batches.chunk_of))
         workers = _threads.default_threads()
         if workers < 2 or len(self.queue) < 2 or not wp.get_device(device).is_cpu:
             return
@@ -776,9 +781,9 @@ class _Ahead:
     def _fill(self, i: int) -> None:
         """Keep :attr:`depth` meshes from ``i`` on in flight."""
         while self.queue and self.queue[0] < i:
-            self.queue.pop(0)
+            self.queue.popleft()
         while self.queue and len(self.futures) < self.depth:
-            j = self.queue.pop(0)
+            j = self.queue.popleft()
             self.futures[j] = self.pool.submit(contextvars.copy_context().run, self._refine, j)
 
     def _refine(self, i: int):
@@ -888,11 +893,7 @@ class _Context:
                     result = self.positions(pts)
                     key = ("points", _points_key(pts))
                 else:
-                    rows, idx = pv.elements(t, sp.path)
-                    rows = rows.astype(np.float64)
-                    idx = np.arange(len(rows)) if idx is None else idx
-                    if len(idx) != len(sp.mesh.face_vertex_indices):
-                        continue  # the writer refuses it
+                    rows, idx = _face_varying_input(sp, pv, t)
                     result = self.face_varying(rows, idx, fvar_mode)
                     key = ("face-varying", fvar_mode, _points_key(rows), _points_key(idx))
             except SubdivInputError:
@@ -1121,12 +1122,7 @@ def _write_primvar_at(sp, pv, t, layer, prim, ctx, fvar_mode, limit=False):
         layer.set(idx_spec, *_default_or_sample(t, int_array(new_idx)))
         return
     if pv.interpolation == "faceVarying" and fvar_mode is not None:
-        rows, idx = pv.elements(t, where)
-        idx = np.arange(len(rows)) if idx is None else idx
-        if len(idx) != n_expected:
-            raise SubdivInputError(f"{where}: {pv.name} has {len(idx)} faceVarying values, the mesh needs "
-                                   f"{n_expected}")
-        values, new_idx = ctx.face_varying(rows.astype(np.float64), idx, fvar_mode)
+        values, new_idx = ctx.face_varying(*_face_varying_input(sp, pv, t), fvar_mode)
         values = np.asarray(values).reshape(len(values), -1)
         shaped = values.reshape((len(values) * pv.element_size,) + like.shape[1:])
         layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))
@@ -1151,6 +1147,18 @@ def _write_primvar_at(sp, pv, t, layer, prim, ctx, fvar_mode, limit=False):
     layer.set(spec, *_default_or_sample(t, vt_array(pv.type_name, shaped, like)))
     if pv.indexed and t == DEFAULT:
         layer.block(prim, pv.name + ":indices", T.IntArray)
+
+
+def _face_varying_input(sp: SubdivPrim, pv, t):
+    """(values as float64 rows, value index per face corner) of face-varying primvar ``pv`` at ``t``, checked
+    against the mesh's corners: what a refiner's face-varying channel takes. The writer and its workers
+    (:meth:`_Context.run_ahead`) read it here alike, so a result computed ahead is found by these inputs."""
+    rows, idx = pv.elements(t, sp.path)
+    idx = np.arange(len(rows)) if idx is None else idx
+    corners = len(sp.mesh.face_vertex_indices)
+    if len(idx) != corners:
+        raise SubdivInputError(f"{sp.path}: {pv.name} has {len(idx)} faceVarying values, the mesh needs {corners}")
+    return rows.astype(np.float64), idx
 
 
 def limit_values(refiner: Refiner, refined: np.ndarray) -> np.ndarray:
