@@ -261,9 +261,10 @@ def props_scene(tmp_path_factory):
 
 
 def _evaluations(monkeypatch):
-    """Count calls of Refiner.evaluate and evaluate_with_limits (the unions' and the prims' own)."""
+    """Count calls of Refiner.evaluate (through _evaluate_rows, which OrderedRefiner calls directly) and
+    evaluate_with_limits (the unions' and the prims' own)."""
     calls = []
-    for name in ("evaluate", "evaluate_with_limits"):
+    for name in ("_evaluate_rows", "evaluate_with_limits"):
         original = getattr(Refiner, name)
 
         def counted(self, *args, _original=original, **kwargs):

@@ -197,11 +197,13 @@ def test_normal_control_through_plans(graphs, device):
 
 
 def test_replays_make_no_launch_calls(device, monkeypatch):
-    """After the first call records its plan, later evaluate_device calls issue no ``wp.launch`` (the recorded
-    launches are replayed) and record nothing new; on CUDA the step loop is one captured graph."""
+    """Once a call has recorded its plan (on the CPU, after the third evaluation, which moves the quad steps to
+    their expanded tables), later evaluate_device calls issue no ``wp.launch`` (the recorded launches are
+    replayed) and record nothing new; on CUDA the step loop is one captured graph."""
     mesh = load_mesh("cube")
     r = ws.Refiner(mesh, 2, device=device, threads=1)
-    first = r.evaluate_device(mesh.points).numpy().copy()
+    for _ in range(3):
+        first = r.evaluate_device(mesh.points).numpy().copy()
     plans = dict(r.evaluator._plans)
     assert len(plans) == 1
     plan = next(iter(plans.values()))
@@ -394,3 +396,23 @@ def test_tables_store_nothing_index_arithmetic_gives():
     assert ico.table_bytes() / ico.num_vertices < 26
     creased = ws.Refiner(load_mesh("cube_creased"), 2, device="cpu")
     assert creased.steps[-1].edge_regular.size > 0  # crease edges are explicit rows
+
+
+def test_cpu_tables_expanded_from_the_third_evaluation():
+    """On the CPU with ``expand_tables`` None, the first two evaluations read the compact quad tables (expanding
+    them would cost more than it saves for a mesh evaluated once or twice) and the third and later the expanded
+    ones; every result is bitwise the same, and explicit True or False keeps its tables throughout."""
+    mesh = load_mesh("cube")
+    expected = ws.Refiner(mesh, 3, device="cpu", threads=1).evaluate(mesh.points)
+    r = ws.Refiner(mesh, 3, device="cpu", threads=1)
+    expanded = []
+    for _ in range(4):
+        np.testing.assert_array_equal(r.evaluate(mesh.points), expected)
+        expanded.append(getattr(r.evaluator.records()[-1].rows, "edge_ends", None) is not None)
+    assert expanded == [False, False, True, True]
+    for fixed in (True, False):
+        r = ws.Refiner(mesh, 3, device="cpu", threads=1)
+        r.evaluator.expand_tables = fixed
+        for _ in range(4):
+            np.testing.assert_array_equal(r.evaluate(mesh.points), expected)
+            assert (getattr(r.evaluator.records()[-1].rows, "edge_ends", None) is not None) == fixed

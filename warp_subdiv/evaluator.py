@@ -711,8 +711,11 @@ class Evaluator:
     many rows is split into that many contiguous row ranges. ``graphs``: capture plans as Warp graphs (None:
     on CUDA only; on the CPU Warp records every CPU launch made while a capture is open, from any thread, so
     it is an opt-in there). ``expand_tables`` (an attribute, set before the first evaluation): quad steps
-    read expanded tables (None: on the CPU, where they are about a third faster; on CUDA the compact ones,
-    half the bytes, see :mod:`warp_subdiv.kernels.regular`). Results depend on none of them.
+    read expanded tables (True), the compact ones (False), or (None) on CUDA the compact ones (half the bytes,
+    see :mod:`warp_subdiv.kernels.regular`) and on the CPU the compact ones for the first two evaluations and
+    the expanded ones from the third on: they make an evaluation up to a third faster but cost two or three
+    evaluations' gain to build, which a refiner evaluated once or twice (a mesh and its UVs baked at one
+    time) never gets back. Results depend on none of them.
     """
 
     def __init__(self, hierarchy, *, device, precision: str, threads: int | None = None, graphs: bool | None = None):
@@ -727,6 +730,8 @@ class Evaluator:
         self._scalar_np, self._scalar, self._vec = PRECISIONS[self.precision]
         self._lock = threading.RLock()
         self._records: list[StepRecord] | None = None
+        self._expanded = False  # whether the records hold expanded quad tables
+        self._evaluations = 0  # evaluations run (the CPU's tables are expanded for the third)
         self._buffers: _LevelBuffers | None = None
         self._limit: LimitMasks | None = None
         self._plans: dict = {}
@@ -750,8 +755,21 @@ class Evaluator:
         """The step records on this evaluator's device (uploaded on first use)."""
         with self._lock:
             if self._records is None:
-                self._records = upload(self.hierarchy, self.device, self.precision, self.expand_tables)
+                self._expanded = bool(self.expand_tables)  # None: compact tables first (see the class docstring)
+                self._records = upload(self.hierarchy, self.device, self.precision, self._expanded)
             return self._records
+
+    def _count_evaluation(self) -> None:
+        """Note one evaluation (lock held); before the third on the CPU with ``expand_tables`` None, the quad
+        steps' records are uploaded again with expanded tables, and the recorded launches that read the old ones
+        are dropped."""
+        self._evaluations += 1
+        if (self._evaluations == 3 and self.expand_tables is None and self.device.is_cpu and not self._expanded
+                and self._records is not None
+                and any(isinstance(t, RegularTables) and t.face_size == 4 for t in self.hierarchy.steps)):
+            self._expanded = True
+            self._records = upload(self.hierarchy, self.device, self.precision, True)
+            self._plans, self._limit_out = {}, {}
 
     def limit_masks(self) -> LimitMasks:
         """The limit masks on this evaluator's device (built and uploaded on first use)."""
@@ -892,17 +910,24 @@ class Evaluator:
     def _run(self, data, controls) -> wp.array:
         """Refine (n, d) data through every step (lock held); returns the last level's view. ``controls``:
         normal control in every step (a bool) or per step (a tuple)."""
+        self._count_evaluation()
         n = len(self.records())
         controls = (bool(controls),) * n if isinstance(controls, (bool, np.bool_)) else tuple(controls)
         self._load(0, data)
         self._steps_plan(data.shape[1], controls).run()
         return self._level_views(data.shape[1])[0][-1]
 
-    def evaluate(self, data, normal_control: bool) -> np.ndarray:
+    def evaluate(self, data, normal_control: bool, rows=None) -> np.ndarray:
         """Refine checked (n, d) data of any width in one pass; returns a new numpy array (N, d) of the
-        evaluation precision."""
+        evaluation precision, or with ``rows`` (int array) only those rows of it, in that order (on the CPU
+        gathered straight from the level buffer: one pass instead of a copy and a gather)."""
         with self._device_scope():
-            return self._host(self._run(data, normal_control))
+            result = self._run(data, normal_control)
+            if rows is None:
+                return self._host(result)
+            if self.device.is_cpu:
+                return np.take(result.numpy(), rows, axis=0)
+            return np.take(self._host(result), rows, axis=0)
 
     def evaluate_device(self, data, normal_control: bool, out: wp.array | None = None) -> wp.array:
         """Refine checked (n, 3) positions (host data or a device view); returns the last level's device array of
@@ -918,6 +943,7 @@ class Evaluator:
     def _last_step(self, points) -> wp.array:
         """Points of the second-to-last level (lock held) refined through the last step only; returns the last
         level's view. Normal control acts on (n, 3) data."""
+        self._count_evaluation()
         n = len(self.records())
         arr = self._input(points, self._level_rows(-2), "points of the second-to-last level")
         self._load(n - 1, arr)

@@ -105,8 +105,8 @@ class OrderedRefiner:
         """Rows of per-vertex data refined in the wrapped refiner's order, in the compact order."""
         return _rows(refined, self.old_id)
 
-    def evaluate(self, points, *args, **kwargs):
-        return self.compact(self.refiner.evaluate(points, *args, **kwargs))
+    def evaluate(self, points, normal_control=None):
+        return self.refiner._evaluate_rows(points, self.old_id, normal_control)
 
     def _own(self, refined):
         """Refined data in the compact order back in the refiner's order."""
@@ -136,26 +136,18 @@ class OrderedRefiner:
         return _rows(values, old_id[: int(used.sum())]), new_id[indices].astype(np.int32, copy=False)
 
     def evaluate_face_varying(self, values, indices, mode="corners-plus1"):
-        fast = _fast_parts(self.refiner, values, indices, mode, self._fast_plan)
+        fast = _fast_parts(self.refiner, values, indices, mode, self._fast_plan, rows=self.old_id)
         if fast is None:
             return self._face_varying(*self.refiner.evaluate_face_varying(values, indices, mode=mode))
-        # values away from the seams are the vertices' (ids below N): numbered as the vertices are, so no
-        # second renumbering pass; the values near the seams follow (a vertex only the faces near a seam use
-        # keeps a value that no corner uses). Written straight into the result: rows taken in the compact
-        # order, then the near values; the indices are the compact topology's, the near faces' replaced.
+        # values away from the seams are the vertices' (ids below N): numbered as the vertices are (the rows
+        # come in the compact order), so no second renumbering pass; the values near the seams follow (a vertex
+        # only the faces near a seam use keeps a value that no corner uses). The indices are the compact
+        # topology's, the near faces' replaced.
         refined, sub = fast.refined, fast.sub_values
         n = len(refined)
         if fast.squeeze:
             refined, sub = refined[:, 0], (None if sub is None else sub[:, 0])
-        if sub is None:
-            out = _rows(refined, self.old_id)
-        else:
-            out = np.empty((n + len(sub),) + refined.shape[1:], dtype=np.result_type(refined, sub))
-            if out.dtype == refined.dtype:
-                np.take(refined, self.old_id, axis=0, out=out[:n])
-            else:
-                out[:n] = _rows(refined, self.old_id)
-            out[n:] = sub
+        out = np.ascontiguousarray(refined) if sub is None else np.concatenate([refined, sub])
         value_of = self._indices.copy()
         if fast.near_values is not None:
             value_of.reshape(-1, fast.plan.size)[fast.plan.near_face] = n + fast.near_values
@@ -230,7 +222,8 @@ class _FastPlan:
 
 
 class _FastParts:
-    """One evaluation of a :class:`_FastPlan`: ``refined`` the vertex refinement of the values (N, d);
+    """One evaluation of a :class:`_FastPlan`: ``refined`` the vertex refinement of the values (N, d), in the
+    refiner's order or the order of the rows asked for (:func:`_fast_parts`);
     ``sub_values`` the part channel's values (M, d) and ``near_values`` the value index (from N on) of every
     corner of the refined faces near a seam, in face order, shape (faces, size) (both None when no face is
     near a seam); ``squeeze``: the values were 1-D."""
@@ -238,9 +231,10 @@ class _FastParts:
     __slots__ = ("plan", "refined", "sub_values", "near_values", "squeeze")
 
 
-def _fast_parts(refiner, values, indices, mode, cache: dict | None = None):
+def _fast_parts(refiner, values, indices, mode, cache: dict | None = None, rows=None):
     """The pieces of :func:`fast_face_varying`'s result (a :class:`_FastParts`), or None where the path does
-    not apply. ``cache``: a dict that keeps the last :class:`_FastPlan` with its key (mode and indices)."""
+    not apply. ``cache``: a dict that keeps the last :class:`_FastPlan` with its key (mode and indices);
+    ``rows``: the rows of the vertex refinement to keep, in that order (None: all, in the refiner's order)."""
     from .errors import SubdivInputError
     from .facevarying import check_indices
     from .mesh import check_rows
@@ -278,7 +272,7 @@ def _fast_parts(refiner, values, indices, mode, cache: dict | None = None):
     # away from the seams: the vertex refinement of the values
     data = np.zeros((mesh.num_vertices, vals.shape[1]))
     data[plan.vertices] = vals[plan.vertex_value]
-    parts.refined = refiner.evaluate(data, normal_control=False)
+    parts.refined = refiner._evaluate_rows(data, rows, normal_control=False)
     parts.sub_values = parts.near_values = None
     # near the seams: the channel of the faces there and their 1-rings
     if plan.channel is not None:

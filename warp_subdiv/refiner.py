@@ -219,9 +219,14 @@ class Refiner:
         device array (as :meth:`evaluate_device` takes); the result is numpy either way (on CUDA one transfer,
         into a reused pinned buffer).
         """
+        return self._evaluate_rows(points, None, normal_control)
+
+    def _evaluate_rows(self, points, rows, normal_control=None) -> np.ndarray:
+        """:meth:`evaluate`, or with ``rows`` (int array) only those rows of its result, in that order, without
+        a full copy first (:class:`warp_subdiv.order.OrderedRefiner` renumbers this way)."""
         arr, one_d = self._vertex_data(points)
         normal_control = normal_control_for(normal_control, arr.shape[1])
-        out = self.evaluator.evaluate(arr, normal_control)
+        out = self.evaluator.evaluate(arr, normal_control, rows)
         return out[:, 0] if one_d else out
 
     # --------------------------------------------------------------------------------------------- gradients

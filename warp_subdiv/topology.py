@@ -428,7 +428,11 @@ def base_level(
     has_start[label[twin < 0]] = True
     link = np.where((label == idx) & ~has_start[label], idx, cw)
     _, ring_pos = _list_rank(link, max_valence)
-    vcorners = np.lexsort((ring_pos, label, corner_vert))
+    if fans.max(initial=0) <= 1:  # one fan per vertex: ring_pos ranks its corners 0..k-1, so place them
+        vcorners = np.empty(C, dtype=np.int64)
+        vcorners[voff[corner_vert] + ring_pos] = idx
+    else:
+        vcorners = np.lexsort((ring_pos, label, corner_vert))
     nonmanifold_vert = fans > 1
     nonmanifold_vert[edge_verts[nonmanifold_edge].reshape(-1)] = True
 
@@ -559,23 +563,29 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
     reversed (section 9). Returns (vertex, offsets, ordered corners, theta, kind, flip) per sector.
     """
     C = len(corner_vert)
-    idx = np.arange(C, dtype=np.int64)
-    smooth_edge = ~edge_sharp[corner_edge]
-    cw = np.where(smooth_edge & (twin >= 0), nxt[np.maximum(twin, 0)], idx)
-    head, pos = _list_rank(cw, max_valence)
     tagged_vertex = ((vclass == CREASE) | (vclass == CORNER)) & (sharp_count >= 2)
+    # only the corners at those vertices are walked (a walk stays at its vertex): ``at`` lists them, and
+    # ``local`` numbers them
+    at = np.flatnonzero(tagged_vertex[corner_vert])
+    local = np.full(C, -1, dtype=np.int64)
+    local[at] = np.arange(len(at))
+    twin_at = twin[at]
+    cw_at = np.where(~edge_sharp[corner_edge[at]] & (twin_at >= 0), nxt[np.maximum(twin_at, 0)], at)
+    head_local, pos_at = _list_rank(local[cw_at], max_valence)
+    head_at = at[head_local]
     # a fan without a crease edge (a closed fan of a non-manifold vertex) walks in a circle: it has no head
     # and belongs to no sector
-    sel = tagged_vertex[corner_vert] & (cw[head] == head)
-    k_of_head = np.bincount(head[sel], minlength=C)
-    heads = np.flatnonzero(sel & (pos == 0))
+    sel = cw_at[head_local] == head_at
+    members = at[sel]
+    member_head, member_pos = head_at[sel], pos_at[sel]
+    k_of_head = np.bincount(member_head, minlength=C)
+    heads = members[member_pos == 0]
     sector_of_head = np.full(C, -1, dtype=np.int64)
     sector_of_head[heads] = np.arange(len(heads))
     k = k_of_head[heads]
     offsets = face_offsets_of(k)
-    members = np.flatnonzero(sel)
     ordered = np.empty(len(members), dtype=np.int64)
-    ordered[offsets[sector_of_head[head[members]]] + pos[members]] = members
+    ordered[offsets[sector_of_head[member_head]] + member_pos] = members
     tails = ordered[offsets[1:] - 1] if len(heads) else np.zeros(0, np.int64)
 
     pts = mesh.points
@@ -586,13 +596,15 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
 
     kind = np.where(vclass[c] == CREASE, rules.SECTOR_CREASE, rules.SECTOR_CONVEX).astype(np.int8)
     if len(mesh.concave):  # checked under both rule sets; only the piecewise-smooth rules use them
+        head = np.arange(C, dtype=np.int64)  # every corner's sector head (itself outside sectors)
+        head[at] = head_at
         concave_heads = _concave_sector_heads(mesh, corner_vert, nxt, corner_edge, edge_sharp, ecount, eoff,
                                               ecorners, edges, vclass, sharp_count, head, k_of_head[head])
         if rule_set == RuleSet.PIECEWISE_SMOOTH:
             kind[sector_of_head[concave_heads]] = rules.SECTOR_CONCAVE
     # straight sectors: corner sectors of k >= 2 faces whose crease edges are nearly collinear, in space and
     # in the plane of the sector's own faces (the sum of the face normals at c, (p_i - c) x (p_{i+1} - c))
-    sector_of_member = sector_of_head[head[members]]
+    sector_of_member = sector_of_head[member_head]
     fan = np.cross(pts[corner_vert[nxt[members]]] - pts[corner_vert[members]],
                    pts[corner_vert[prv[members]]] - pts[corner_vert[members]])
     plane = np.stack([np.bincount(sector_of_member, weights=fan[:, j], minlength=len(heads)) for j in range(3)], 1)

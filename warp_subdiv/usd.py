@@ -866,7 +866,7 @@ class _Context:
         self.counts, self.indices = refiner.topology()
         self.fmap = FaceMap(sp.mesh, levels, sp.scheme, options.boundary.value, hierarchy=refiner.hierarchy)
         self.fmap.check(self.counts)
-        self.complete = vertices_used(self.indices, refiner.num_vertices)
+        self._complete = None  # whether every refined vertex is used (linear_field), found on first use
         self.limit, self.normals = limit, normals
         self._edges = None
         self._ahead: dict = {}  # results a worker computed ahead of the writer (_Ahead), by their inputs
@@ -903,7 +903,9 @@ class _Context:
 
     def linear_field(self, values):
         """Bilinear refinement of per-vertex data (varying primvars, bilinear meshes)."""
-        return linear_vertex_data(self.refiner, self.fmap, values, self.indices, self.complete)
+        if self._complete is None:
+            self._complete = vertices_used(self.indices, self.refiner.num_vertices)
+        return linear_vertex_data(self.refiner, self.fmap, values, self.indices, self._complete)
 
     @_phases.timed("refine")
     def positions(self, pts):
