@@ -173,6 +173,7 @@ class MeshBatch:
         self._row_offsets = np.concatenate([[0], np.cumsum(np.bincount(label, minlength=M))])
         self._face_offsets_last = np.concatenate([[0], np.cumsum(F)])
         self._contiguous = bool(np.all(order == np.arange(len(order))))
+        self._starts = self._local = None  # made by the first topology() call
 
     @property
     def num_members(self) -> int:
@@ -240,14 +241,16 @@ class MeshBatch:
         h = self.refiner.hierarchy
         lvl = h.final
         lo, hi = int(self._face_offsets_last[i]), int(self._face_offsets_last[i + 1])
-        sizes = lvl.face_sizes()
-        starts = np.concatenate([[0], np.cumsum(sizes)])
+        if self._starts is None:  # once for all members: face starts, and every union row's member-local id
+            self._starts = np.concatenate([[0], np.cumsum(lvl.face_sizes())])
+            self._local = np.empty(len(self._order), dtype=np.int64)
+            self._local[self._order] = (np.arange(len(self._order), dtype=np.int64)
+                                        - np.repeat(self._row_offsets[:-1], np.diff(self._row_offsets)))
+        starts = self._starts
         keep = ~np.asarray(lvl.face_hole[lo:hi], dtype=bool)
         corners = np.asarray(lvl.corner_vert[starts[lo]:starts[hi]], dtype=np.int64)
-        local = np.empty(len(self._order), dtype=np.int64)
-        local[self.rows(i)] = np.arange(self.num_vertices(i), dtype=np.int64)
-        counts = sizes[lo:hi]
-        idx = local[corners][np.repeat(keep, counts)]
+        counts = np.diff(starts[lo:hi + 1])
+        idx = self._local[corners][np.repeat(keep, counts)]
         return counts[keep].astype(np.int32), idx.astype(np.int32)
 
 
