@@ -6,9 +6,13 @@ a refinement adds, per configuration, each in a fresh process.
 
 A worker loads its mesh, warms Warp up on a one-face mesh with the same options (so the kernel module is
 loaded), resets the peak-RSS counter (Linux: ``/proc/self/clear_refs``), records its RSS, runs the call, and
-reports VmHWM minus that RSS: the bytes the call added at its peak. The estimate is what the memory guard
-compares with ``max_memory``: the working set of ``Refiner(...)`` for library calls (``Estimate.working_bytes``),
-and everything but Warp's runtime for ``refine_usd`` (``Plan.predicted_bytes - RUNTIME_BYTES``).
+reports VmHWM minus that RSS: the bytes the call added at its peak. A library call is a refiner evaluated three
+times (a CPU refiner expands its quad tables before its third evaluation, and the estimate counts them).
+``--retain``: each worker keeps freed memory for reuse first, as the command line does. The estimate is what
+the memory guard compares with ``max_memory``: the working set of ``Refiner(...)`` for library calls
+(``Estimate.working_bytes``), and everything but Warp's runtime for ``refine_usd`` (``Plan.predicted_bytes -
+RUNTIME_BYTES``). Freed C-heap memory is returned to the system before the RSS is recorded (``malloc_trim``),
+so that the call cannot reuse it unseen.
 """
 from __future__ import annotations
 
@@ -133,6 +137,7 @@ def worker(name: str) -> dict:
                                  limit=limit, limit_deeper=control.limit_reads_deeper(levels)).working_bytes
         del control
     gc.collect()
+    _trim()  # freed memory still mapped would be reused by the call without showing in its peak
     with open("/proc/self/clear_refs", "w", encoding="ascii") as fh:
         fh.write("5")  # resets VmHWM to the current RSS
     before = proc_status()["VmRSS"]
@@ -141,7 +146,10 @@ def worker(name: str) -> dict:
         vertices = est.level_counts(mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, levels,
                                     scheme)[-1].vertices
     else:
-        refined = ws.refine(mesh, levels, scheme=scheme, device="cpu", **options)
+        refiner = ws.Refiner(mesh, levels, scheme=scheme, device="cpu", **options)
+        for _ in range(3):  # from its third evaluation a CPU refiner reads expanded quad tables (in the estimate)
+            refined = None
+            refined = refiner.refine()
         if limit:
             refined.limit_points(), refined.limit_normals()
         vertices = refined.num_vertices
@@ -150,12 +158,23 @@ def worker(name: str) -> dict:
             "vertices": vertices, "measured": measured, "predicted": predicted, "ratio": predicted / measured}
 
 
-def run(names, python=sys.executable) -> list[dict]:
+def _trim() -> None:
+    """Return the C heap's free memory to the system (glibc's malloc_trim; elsewhere nothing)."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
+def run(names, python=sys.executable, retain: bool = False) -> list[dict]:
     pythonpath = ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")
     rows = []
     for name in names:
-        res, why = run_child([python, os.path.abspath(__file__), "--worker", name], 600, None, MARK,
-                             {"PYTHONPATH": pythonpath})
+        res, why = run_child([python, os.path.abspath(__file__), "--worker", name] + (["--retain"] if retain else []),
+                             600, None, MARK, {"PYTHONPATH": pythonpath})
         if res is None:
             raise RuntimeError(f"{name}: worker failed: {why}")
         rows.append(res)
@@ -179,16 +198,23 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="only the configurations the test suite checks")
     ap.add_argument("--only", nargs="*", choices=sorted(CONFIGS), help="these configurations")
     ap.add_argument("--json", help="write the rows here")
+    ap.add_argument("--retain", action="store_true",
+                    help="each worker keeps freed memory for reuse, as the command line does "
+                         "(warp_subdiv.allocator.retain_freed_memory)")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker:
+        if args.retain:
+            from warp_subdiv.allocator import retain_freed_memory
+
+            retain_freed_memory()
         print(MARK + json.dumps(worker(args.worker)))
         return 0
     if not os.path.exists("/proc/self/clear_refs"):
         print("needs Linux's /proc/self/clear_refs to reset the peak-RSS counter", file=sys.stderr)
         return 2
     names = args.only or (QUICK if args.quick else list(CONFIGS))
-    rows = run(names)
+    rows = run(names, retain=args.retain)
     print(table(rows))
     worst = max(rows, key=lambda r: abs(r["ratio"] - 1))
     print(f"\nworst: {worst['config']} estimate/measured {worst['ratio']:.2f}")

@@ -562,6 +562,9 @@ def main(argv=None) -> int:
     try:
         parser = _parser()
         args = parser.parse_args(argv)
+        from .allocator import retain_for_command
+
+        retain_for_command()  # a bake's temporaries reuse freed memory (WARP_SUBDIV_RETAIN_MEMORY=0: not)
         run = {"refine": _refine, "info": _info, "render": _render, "stitch": _stitch,
                "tessellate": _tessellate}[args.command]
         with warnings.catch_warnings(record=True) as caught:
