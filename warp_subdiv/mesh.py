@@ -328,7 +328,7 @@ class Mesh:
         self.face_vertex_counts = counts.astype(np.int32)
         self.face_vertex_indices = indices.astype(np.int32)
         self.face_offsets = offsets
-        self.edges = find_edges(counts, indices, nv)
+        self._edges = None  # found on first use (:attr:`edges`): tags need them now, an analysis later
 
         # creases
         cr = _int_array(creases if creases is not None else [], "creases", (2,))
@@ -413,6 +413,15 @@ class Mesh:
     @property
     def num_faces(self) -> int:
         return len(self.face_vertex_counts)
+
+    @property
+    def edges(self) -> MeshEdges:
+        """The mesh's edges (:func:`find_edges`), found on first use: building a mesh without crease or
+        concave tags does not need them, so the USD reader leaves them to the analysis, which runs on threads.
+        (Two threads asking at once each find the same edges.)"""
+        if self._edges is None:
+            self._edges = find_edges(self.face_vertex_counts, self.face_vertex_indices, len(self.points))
+        return self._edges
 
     @property
     def num_edges(self) -> int:
