@@ -437,6 +437,10 @@ class Plan:
                 _threads.run(item, self.threads)
 
 
+#: ctypes argument structs of recorded CPU launches, by their fields (:func:`_cpu_call`).
+_ARG_STRUCTS: dict = {}
+
+
 def _cpu_call(launch):
     """A no-argument callable that runs a recorded CPU launch as Warp's ``Launch.launch`` does -- the kernel's
     forward entry point called with the launch bounds and the kernel's argument struct -- with the struct
@@ -448,8 +452,11 @@ def _cpu_call(launch):
                  and len(params) == len(kernel.adj.args) + 1)
         if not plain:
             return launch.launch
-        fields = [(arg.label, type(value)) for arg, value in zip(kernel.adj.args, params[1:])]
-        args = type("Args", (ctypes.Structure,), {"_fields_": fields})()
+        fields = tuple((arg.label, type(value)) for arg, value in zip(kernel.adj.args, params[1:]))
+        struct = _ARG_STRUCTS.get(fields)
+        if struct is None:  # a ctypes class per argument layout (making one costs about 0.1 ms)
+            struct = _ARG_STRUCTS.setdefault(fields, type("Args", (ctypes.Structure,), {"_fields_": list(fields)}))
+        args = struct()
         for (name, _), value in zip(fields, params[1:]):
             setattr(args, name, value)
         forward, bounds, packed = hooks.forward, ctypes.byref(params[0]), ctypes.byref(args)
