@@ -8,9 +8,10 @@ lies in face h // 4 and is followed by corner :func:`next_quad_corner` (h), so a
 corners and a vertex's ring as its corners (:func:`quad_edge_points`, :func:`quad_vertex_points`). The
 ``_expanded`` variants read the same rows from tables with those lookups done once (each edge's endpoints
 and faces, each vertex's ring vertices and faces): twice the table bytes, one dependent gather less per
-term, which on Warp's CPU backend (latency-bound gathers) is about a third faster; the evaluator uses them on
-the CPU from a refiner's third evaluation on (building them costs about two evaluations' gain). Both compute
-every row with the same operations in the same order: their results are bitwise equal.
+term, which on Warp's CPU backend (latency-bound gathers) makes a large step up to a third faster (a small
+one, no faster); the evaluator uses them on the CPU from a refiner's third evaluation on, for steps of at
+least ``evaluator.EXPAND_MIN_ROWS`` rows. Both compute every row with the same operations in the same order:
+their results are bitwise equal.
 Output layout: child vertices [vertex children, face children (Catmull-Clark), edge children].
 
 Vertex data comes in either layout of :mod:`warp_subdiv.kernels.layout` (vec3 rows, or (rows, width)

@@ -398,18 +398,30 @@ def test_tables_store_nothing_index_arithmetic_gives():
     assert creased.steps[-1].edge_regular.size > 0  # crease edges are explicit rows
 
 
-def test_cpu_tables_expanded_from_the_third_evaluation():
+def test_cpu_tables_expanded_from_the_third_evaluation(monkeypatch):
     """On the CPU with ``expand_tables`` None, the first two evaluations read the compact quad tables (expanding
     them would cost more than it saves for a mesh evaluated once or twice) and the third and later the expanded
-    ones; every result is bitwise the same, and explicit True or False keeps its tables throughout."""
+    ones of steps with EXPAND_MIN_ROWS rows or more (smaller steps keep the compact ones: they evaluate as fast);
+    every result is bitwise the same, and explicit True or False keeps its tables throughout."""
+    from warp_subdiv import evaluator
+
     mesh = load_mesh("cube")
     expected = ws.Refiner(mesh, 3, device="cpu", threads=1).evaluate(mesh.points)
-    r = ws.Refiner(mesh, 3, device="cpu", threads=1)
-    expanded = []
-    for _ in range(4):
-        np.testing.assert_array_equal(r.evaluate(mesh.points), expected)
-        expanded.append(getattr(r.evaluator.records()[-1].rows, "edge_ends", None) is not None)
-    assert expanded == [False, False, True, True]
+
+    def expansions(min_rows):
+        monkeypatch.setattr(evaluator, "EXPAND_MIN_ROWS", min_rows)
+        r = ws.Refiner(mesh, 3, device="cpu", threads=1)
+        seen = []
+        for _ in range(4):
+            np.testing.assert_array_equal(r.evaluate(mesh.points), expected)
+            seen.append([getattr(rec.rows, "edge_ends", None) is not None for rec in r.evaluator.records()])
+        return seen
+
+    steps = ws.Refiner(mesh, 3, device="cpu").hierarchy.steps
+    assert expansions(0) == [[False] * 3, [False] * 3, [True] * 3, [True] * 3]
+    last_only = steps[-1].num_rows  # only the last step is that large
+    assert expansions(last_only) == [[False] * 3, [False] * 3, [False, False, True], [False, False, True]]
+    assert expansions(last_only + 1) == [[False] * 3] * 4
     for fixed in (True, False):
         r = ws.Refiner(mesh, 3, device="cpu", threads=1)
         r.evaluator.expand_tables = fixed

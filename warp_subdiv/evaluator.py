@@ -202,10 +202,11 @@ class _Uploader:
     """Device arrays of host tables on ``device``; on the CPU they share the numpy arrays' memory instead of
     copying them (the hierarchy keeps its tables, so the memory stays alive)."""
 
-    def __init__(self, device, precision: str, expand: bool | None = None):
+    def __init__(self, device, precision: str, expand: bool | None = None, min_rows: int = 0):
         self.device = wp.get_device(device)
         self.scalar, _, self.vec = PRECISIONS[precision]
         self.expand = self.device.is_cpu if expand is None else bool(expand)
+        self.min_rows = int(min_rows)  # quad steps of fewer rows keep their compact tables
 
     def __call__(self, values, dtype=None):
         host = np.ascontiguousarray(values, dtype=self.scalar if dtype is None else dtype)
@@ -233,7 +234,7 @@ class _Uploader:
                       edge_weights=self(t.edge_weights), explicit=self.explicit(t.explicit))
         if t.face_size == 4:
             return QuadStep(num_faces=t.num_faces, corner_vert=self(t.corner_vert, i32), quarter=self([0.25]),
-                            **common, **(self.expanded(t) if self.expand else {}))
+                            **common, **(self.expanded(t) if self.expand and t.num_rows >= self.min_rows else {}))
         return TriangleStep(**common)
 
     def expanded(self, t: RegularTables) -> dict:
@@ -262,10 +263,11 @@ class _Uploader:
                           normals, count=t.num_rows)
 
 
-def upload(hierarchy, device, precision: str, expand: bool | None = None) -> list[StepRecord]:
+def upload(hierarchy, device, precision: str, expand: bool | None = None, min_rows: int = 0) -> list[StepRecord]:
     """The device records of every step of ``hierarchy`` (index tables, explicit stencils, displacements);
-    ``expand``: quad steps also get their expanded tables (None: on the CPU, see :mod:`warp_subdiv.kernels.regular`)."""
-    up = _Uploader(device, precision, expand)
+    ``expand``: quad steps of at least ``min_rows`` rows also get their expanded tables (None: on the CPU, see
+    :mod:`warp_subdiv.kernels.regular`)."""
+    up = _Uploader(device, precision, expand, min_rows)
     records = []
     for t, flat, norm in zip(hierarchy.steps, hierarchy.flatness_tables, hierarchy.normal_tables):
         rows = up.regular(t) if isinstance(t, RegularTables) else up.stencil(t)
@@ -436,6 +438,12 @@ class Plan:
             else:
                 _threads.run(item, self.threads)
 
+
+#: Quad steps of at least this many rows get expanded tables from a CPU refiner's third evaluation on (with
+#: ``Evaluator.expand_tables`` None): smaller steps evaluate about as fast from the compact ones, so building
+#: expanded tables for them is pure cost (``bench/bench_expand.py``, later evaluations: no faster at 208,000 rows,
+#: 0-20% faster at 832,000, 25-30% at 3.3 million).
+EXPAND_MIN_ROWS = 1 << 19
 
 #: ctypes argument structs of recorded CPU launches, by their fields (:func:`_cpu_call`).
 _ARG_STRUCTS: dict = {}
@@ -720,9 +728,10 @@ class Evaluator:
     it is an opt-in there). ``expand_tables`` (an attribute, set before the first evaluation): quad steps
     read expanded tables (True), the compact ones (False), or (None) on CUDA the compact ones (half the bytes,
     see :mod:`warp_subdiv.kernels.regular`) and on the CPU the compact ones for the first two evaluations and
-    the expanded ones from the third on: they make an evaluation up to a third faster but cost two or three
-    evaluations' gain to build, which a refiner evaluated once or twice (a mesh and its UVs baked at one
-    time) never gets back. Results depend on none of them.
+    from the third on the expanded ones for quad steps of :data:`EXPAND_MIN_ROWS` rows or more: they make an
+    evaluation of a large step up to a third faster (none of a small one) but cost two or three evaluations'
+    gain to build, which a refiner evaluated once or twice (a mesh and its UVs baked at one time) never gets
+    back. Results depend on none of them.
     """
 
     def __init__(self, hierarchy, *, device, precision: str, threads: int | None = None, graphs: bool | None = None):
@@ -773,9 +782,10 @@ class Evaluator:
         self._evaluations += 1
         if (self._evaluations == 3 and self.expand_tables is None and self.device.is_cpu and not self._expanded
                 and self._records is not None
-                and any(isinstance(t, RegularTables) and t.face_size == 4 for t in self.hierarchy.steps)):
+                and any(isinstance(t, RegularTables) and t.face_size == 4 and t.num_rows >= EXPAND_MIN_ROWS
+                        for t in self.hierarchy.steps)):
             self._expanded = True
-            self._records = upload(self.hierarchy, self.device, self.precision, True)
+            self._records = upload(self.hierarchy, self.device, self.precision, True, EXPAND_MIN_ROWS)
             self._plans, self._limit_out = {}, {}
 
     def limit_masks(self) -> LimitMasks:
