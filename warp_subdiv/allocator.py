@@ -3,8 +3,8 @@
 A bake makes many large temporaries (index arrays of 0.1 to 30 MB, most written once), and glibc's ``malloc``
 serves each with a fresh ``mmap`` and returns it with ``munmap`` on free (above its dynamic threshold, and it
 trims the top of its heap likewise), so every temporary faults its pages in again: zeroed by the kernel, a
-fault per 4 KiB page. Measured on the 2-core VM of BENCHMARKS.md, that is about 0.6 ms per MB touched, and
-``np.take`` of 800,000 values by int32 indices took 7.5 ms instead of 1.9 ms. :func:`retain_freed_memory`
+fault per 4 KiB page, which is slow on a virtual machine (BENCHMARKS.md, "Cheaper set-up, memory kept for
+reuse"). :func:`retain_freed_memory`
 raises both thresholds (``mallopt``): blocks up to ``mmap_threshold`` come from the heap, and up to
 ``trim_threshold`` of freed memory at its top stays mapped, so later temporaries reuse pages already faulted
 in. The bake's results are the same; the process keeps more memory mapped between uses (at most the trim
