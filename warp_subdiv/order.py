@@ -94,7 +94,8 @@ class OrderedRefiner:
         counts, indices = refiner.topology()
         self.new_id, self.old_id = appearance_order(indices, refiner.num_vertices, refiner.mesh.num_vertices)
         self._counts = counts
-        self._indices = np.take(self.new_id, indices).astype(np.int32, copy=False)
+        # (indices as intp first: np.take converts int32 indices itself, more slowly)
+        self._indices = np.take(self.new_id, np.asarray(indices, dtype=np.intp)).astype(np.int32, copy=False)
         self.hierarchy = _OrderedHierarchy(refiner.hierarchy, self.old_id)
         self._fast_plan: dict = {}  # the last face-varying channel's _FastPlan (see _fast_parts)
 
