@@ -592,7 +592,8 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
     c = corner_vert[heads]
     u = pts[corner_vert[nxt[heads]]] - pts[c]  # toward p_0
     w = pts[corner_vert[prv[tails]]] - pts[c]  # toward p_k
-    alpha = np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w))
+    crease_cross = np.cross(u, w)
+    alpha = np.arctan2(np.linalg.norm(crease_cross, axis=1), np.einsum("ij,ij->i", u, w))
 
     kind = np.where(vclass[c] == CREASE, rules.SECTOR_CREASE, rules.SECTOR_CONVEX).astype(np.int8)
     if len(mesh.concave):  # checked under both rule sets; only the piecewise-smooth rules use them
@@ -603,16 +604,22 @@ def _sectors(mesh, scheme, rule_set, corner_vert, nxt, prv, twin, corner_edge, e
         if rule_set == RuleSet.PIECEWISE_SMOOTH:
             kind[sector_of_head[concave_heads]] = rules.SECTOR_CONCAVE
     # straight sectors: corner sectors of k >= 2 faces whose crease edges are nearly collinear, in space and
-    # in the plane of the sector's own faces (the sum of the face normals at c, (p_i - c) x (p_{i+1} - c))
-    sector_of_member = sector_of_head[member_head]
-    fan = np.cross(pts[corner_vert[nxt[members]]] - pts[corner_vert[members]],
-                   pts[corner_vert[prv[members]]] - pts[corner_vert[members]])
-    plane = np.stack([np.bincount(sector_of_member, weights=fan[:, j], minlength=len(heads)) for j in range(3)], 1)
-    straight = ((kind != rules.SECTOR_CREASE) & (k >= 2) & (np.pi - alpha < rules.STRAIGHT_EPSILON_3D)
-                & (_in_plane_gap(u, w, plane, alpha) < rules.STRAIGHT_EPSILON))
-    kind[straight] = rules.SECTOR_STRAIGHT
+    # in the plane of the sector's own faces (the sum of the face normals at c, (p_i - c) x (p_{i+1} - c)); the
+    # plane is summed only for the sectors nearly straight in space (usually none), over their own members
+    candidate = (kind != rules.SECTOR_CREASE) & (k >= 2) & (np.pi - alpha < rules.STRAIGHT_EPSILON_3D)
+    if candidate.any():
+        sector_of_member = sector_of_head[member_head]
+        take = candidate[sector_of_member]
+        mine, at = members[take], sector_of_member[take]
+        fan = np.cross(pts[corner_vert[nxt[mine]]] - pts[corner_vert[mine]],
+                       pts[corner_vert[prv[mine]]] - pts[corner_vert[mine]])
+        plane = np.stack([np.bincount(at, weights=fan[:, j], minlength=len(heads)) for j in range(3)], 1)
+        sel = np.flatnonzero(candidate)
+        straight = np.zeros(len(heads), dtype=bool)
+        straight[sel] = _in_plane_gap(u[sel], w[sel], plane[sel], alpha[sel]) < rules.STRAIGHT_EPSILON
+        kind[straight] = rules.SECTOR_STRAIGHT
     theta = rules.sector_theta(kind, np.maximum(k, 1), alpha)
-    flip = _opposite_corner_normals(mesh, corner_vert, nxt, prv, c, kind, np.cross(u, w))
+    flip = _opposite_corner_normals(mesh, corner_vert, nxt, prv, c, kind, crease_cross)
     return c, offsets, ordered, theta, kind, flip
 
 
