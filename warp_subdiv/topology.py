@@ -463,10 +463,13 @@ def base_level(
     # non-manifold vertices are corners, except a "fin" inside the mesh (two non-manifold edges, no boundary
     # edge, more faces than edges), which OpenSubdiv keeps a crease
     ends = edge_verts.reshape(-1)
-    nonmanifold_edges_at = np.bincount(ends, weights=np.repeat(nonmanifold_edge, 2), minlength=nv)
-    boundary_edges_at = np.bincount(ends, weights=np.repeat(boundary_edge, 2), minlength=nv)
     edges_at = np.bincount(ends, minlength=nv)
-    fin = (nonmanifold_edges_at == 2) & (boundary_edges_at == 0) & (vcount > edges_at)
+    if nonmanifold_edge.any():
+        nonmanifold_edges_at = np.bincount(ends, weights=np.repeat(nonmanifold_edge, 2), minlength=nv)
+        boundary_edges_at = np.bincount(ends, weights=np.repeat(boundary_edge, 2), minlength=nv)
+        fin = (nonmanifold_edges_at == 2) & (boundary_edges_at == 0) & (vcount > edges_at)
+    else:  # no non-manifold edge: no fin
+        fin = np.zeros(nv, dtype=bool)
     forced = nonmanifold_vert & ~fin
     if boundary == Boundary.EDGE_AND_CORNER:  # a topological corner: one face, two edges
         forced |= (vcount == 1) & (edges_at == 2)
