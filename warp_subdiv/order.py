@@ -107,7 +107,13 @@ class OrderedRefiner:
         return _rows(refined, self.old_id)
 
     def evaluate(self, points, normal_control=None):
-        return self.refiner._evaluate_rows(points, self.old_id, normal_control)
+        return self._evaluate_rows(points, None, normal_control)
+
+    def _evaluate_rows(self, points, rows, normal_control=None):
+        """:meth:`Refiner._evaluate_rows` in the compact order (``rows``: compact ids, None: all): gathered
+        from the wrapped refiner's level buffer in one pass."""
+        own = self.old_id if rows is None else self.old_id[np.asarray(rows)]
+        return self.refiner._evaluate_rows(points, own, normal_control)
 
     def _own(self, refined):
         """Refined data in the compact order back in the refiner's order."""
