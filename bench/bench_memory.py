@@ -107,6 +107,7 @@ def worker(name: str) -> dict:
     quiet_warp()
     import warp_subdiv as ws
     from warp_subdiv import estimate as est
+    from warp_subdiv.allocator import release_free_memory
 
     mesh_name, scheme, levels, options = CONFIGS[name]
     options = dict(options)
@@ -137,7 +138,7 @@ def worker(name: str) -> dict:
                                  limit=limit, limit_deeper=control.limit_reads_deeper(levels)).working_bytes
         del control
     gc.collect()
-    _trim()  # freed memory still mapped would be reused by the call without showing in its peak
+    release_free_memory()  # freed memory still mapped would be reused by the call without showing in its peak
     with open("/proc/self/clear_refs", "w", encoding="ascii") as fh:
         fh.write("5")  # resets VmHWM to the current RSS
     before = proc_status()["VmRSS"]
@@ -156,17 +157,6 @@ def worker(name: str) -> dict:
     measured = proc_status()["VmHWM"] - before
     return {"config": name, "mesh": mesh_name, "scheme": scheme, "levels": levels, "options": CONFIGS[name][3],
             "vertices": vertices, "measured": measured, "predicted": predicted, "ratio": predicted / measured}
-
-
-def _trim() -> None:
-    """Return the C heap's free memory to the system (glibc's malloc_trim; elsewhere nothing)."""
-    import ctypes
-    import ctypes.util
-
-    try:
-        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
 
 
 def run(names, python=sys.executable, retain: bool = False) -> list[dict]:

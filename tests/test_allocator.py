@@ -1,7 +1,4 @@
 """The command line keeps freed memory for reuse (warp_subdiv.allocator); the library leaves it to the user."""
-import ctypes
-import ctypes.util
-import sys
 
 import numpy as np
 import pytest
@@ -11,19 +8,12 @@ from conftest import mesh_path
 from warp_subdiv import cli
 
 
-def _glibc() -> bool:
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        return hasattr(libc, "gnu_get_libc_version")
-    except OSError:
-        return False
-
-
-@pytest.mark.skipif(not (sys.platform.startswith("linux") and _glibc()), reason="glibc's mallopt only")
+@pytest.mark.skipif(allocator.glibc() is None, reason="glibc's mallopt only")
 def test_retain_freed_memory_sets_glibc_thresholds():
     """On glibc both mallopt calls succeed (True), and numpy keeps working on temporaries across the heap/mmap
     boundary it moves (arrays of 64 KiB to 64 MiB, freed and made again, with the same contents)."""
     assert allocator.retain_freed_memory() is True
+    assert allocator.release_free_memory() is True
     for size in (1 << 13, 1 << 20, 1 << 22, 1 << 23):  # float64 counts: 64 KiB .. 64 MiB
         a = np.arange(size, dtype=np.float64)
         b = a * 2
@@ -36,7 +26,9 @@ def test_retain_freed_memory_does_nothing_off_linux(monkeypatch):
     """Elsewhere than Linux nothing is called and the answer is False."""
     monkeypatch.setattr(allocator.sys, "platform", "darwin")
     monkeypatch.setattr(allocator.ctypes, "CDLL", lambda *a, **k: pytest.fail("no C library is loaded"))
+    assert allocator.glibc() is None
     assert allocator.retain_freed_memory() is False
+    assert allocator.release_free_memory() is False
 
 
 @pytest.mark.parametrize("value, expected", [(None, True), ("1", True), ("0", False), (" 0 ", False)])

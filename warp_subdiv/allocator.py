@@ -30,21 +30,40 @@ MMAP_THRESHOLD = 32 << 20
 TRIM_THRESHOLD = 512 << 20
 
 
+def glibc():
+    """This process's C library when it is glibc's on Linux (the one whose ``mallopt`` and ``malloc_trim`` do
+    what this module relies on; musl's ``mallopt`` does nothing), else None."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        _ = libc.gnu_get_libc_version, libc.mallopt, libc.malloc_trim
+    except (OSError, AttributeError):
+        return None
+    return libc
+
+
 def retain_freed_memory(*, mmap_threshold: int = MMAP_THRESHOLD, trim_threshold: int = TRIM_THRESHOLD) -> bool:
     """Set glibc's M_MMAP_THRESHOLD and M_TRIM_THRESHOLD for this process (see the module docstring); True
     where both were set, False where the C library is not glibc's (nothing changes)."""
-    if not sys.platform.startswith("linux"):
+    libc = glibc()
+    if libc is None:
         return False
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-        _ = libc.gnu_get_libc_version  # glibc only: musl has a mallopt that does nothing
-    except (OSError, AttributeError):
-        return False
+    mallopt = libc.mallopt
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt.restype = ctypes.c_int
     return bool(mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold))) and bool(mallopt(_M_TRIM_THRESHOLD,
                                                                                   int(trim_threshold)))
+
+
+def release_free_memory() -> bool:
+    """Return the C heap's free memory to the system now (glibc's ``malloc_trim(0)``); False elsewhere. For
+    measurements that must not count memory an earlier step freed but left mapped."""
+    libc = glibc()
+    if libc is None:
+        return False
+    libc.malloc_trim(0)
+    return True
 
 
 def retain_for_command() -> bool:
