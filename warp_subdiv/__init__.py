@@ -4,15 +4,15 @@ Zorin (SIGGRAPH 2000) and an OpenSubdiv-compatible rule set.
 Pipeline (see the README's "How it works"): mesh -> options -> hierarchy (topology, rules, tables) ->
 evaluator (Warp kernels) -> USD.
 """
+from .version import __version__
 from .errors import NonManifoldWarning, SubdivInputError
 from .evaluator import default_device
 from .mesh import Mesh
 from .options import (Boundary, CreaseMethod, FaceVaryingMode, LoopBeta, Options, Precision, RuleSet, Scheme,
                       TriangleSubdivision)
 from .refiner import Refined, Refiner, refine
-from .limit import LimitEvaluation, LimitSurface  # noqa: F401  (issue 13: limit evaluation and tessellation)
+from .limit import LimitEvaluation, LimitSurface
 
 __all__ = ["Mesh", "Options", "Refiner", "Refined", "refine", "default_device", "SubdivInputError",
            "NonManifoldWarning", "Scheme", "RuleSet", "Boundary", "Precision", "LoopBeta", "CreaseMethod",
-           "TriangleSubdivision", "FaceVaryingMode"]
-__version__ = "0.1.0"
+           "TriangleSubdivision", "FaceVaryingMode", "LimitSurface", "LimitEvaluation", "__version__"]

@@ -43,7 +43,7 @@ from dataclasses import asdict, dataclass
 
 from pxr import Sdf, Usd, UsdUtils, Vt
 
-from . import __version__
+from .version import __version__
 from .errors import SubdivInputError
 from .usd_write import USD_EXTENSIONS, check_output_path, make_folders, relative_asset_path, remove_folders
 

@@ -663,7 +663,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     checked: every tessellated mesh must compose to its tessellation."""
     import os
 
-    from . import __version__
+    from .version import __version__
     from .usd import Plan, layout
     from .usd_read import open_stage, parse_frames, read_mesh, read_scene
     from .usd_write import OutputLayer, check_output_path

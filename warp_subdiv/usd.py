@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pxr import Sdf, Usd, Vt
 
-from . import __version__
+from .version import __version__
 from . import phases as _phases
 from . import threads as _threads
 from .batch import MeshBatch, batch_key
