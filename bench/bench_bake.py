@@ -27,7 +27,7 @@ once). Then, in one run:
   the bake at least 2x faster).
 
 The process keeps freed memory for reuse first, as the ``warp-subdiv`` command does
-(``warp_subdiv.allocator.retain_freed_memory``); the floor is measured in the same process, under the same
+(``warp_subdiv.runtime.allocator.retain_freed_memory``); the floor is measured in the same process, under the same
 setting. ``--system-allocator`` leaves the C allocator as it is.
 
 Prints a Markdown table; ``--json`` writes every figure.
@@ -200,7 +200,7 @@ def floor_child(baked: str, path: str, reps: int) -> list:
 # ------------------------------------------------------------------------------------------------ the bake
 def bake(scene: str, out: str, levels: int, vertex_order: str = "auto", threads: int | None = None) -> dict:
     """One bake (``threads``: the workers' thread count, None for every core)."""
-    from warp_subdiv import threads as _threads
+    from warp_subdiv.runtime import threads as _threads
     from warp_subdiv.usd import refine_usd
 
     _threads.set_default_threads(threads)
@@ -267,7 +267,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json")
     ap.add_argument("--system-allocator", action="store_true",
                     help="leave the C allocator as it is (default: keep freed memory for reuse, as the "
-                         "warp-subdiv command does; warp_subdiv.allocator)")
+                         "warp-subdiv command does; warp_subdiv.runtime.allocator)")
     ap.add_argument("--floor-of", nargs=3, metavar=("BAKED", "OUT", "REPS"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.floor_of:  # a floor_child: the system's allocator
@@ -275,7 +275,7 @@ def main(argv=None) -> int:
         arrays = layer_arrays(baked)
         print("FLOOR " + json.dumps([write_floor(arrays, path) for _ in range(int(reps))]))
         return 0
-    from warp_subdiv.allocator import retain_freed_memory
+    from warp_subdiv.runtime.allocator import retain_freed_memory
 
     retained = False if args.system_allocator else retain_freed_memory()
     import warp as wp
@@ -396,7 +396,7 @@ def _report(r: dict) -> None:
           f"{runs_of(o.get('floors_system_allocator', []))} s), compact {runs_of(d['floors'])} s "
           f"({runs_of(d.get('floors_system_allocator', []))} s)")
     print(f"load average at the end: {', '.join(f'{x:.2f}' for x in r['load_average'])} ({r['cores']} cores); "
-          f"freed memory kept for reuse (warp_subdiv.allocator): {'yes' if r.get('retain_freed_memory') else 'no'}")
+          f"freed memory kept for reuse (warp_subdiv.runtime.allocator): {'yes' if r.get('retain_freed_memory') else 'no'}")
 
 
 if __name__ == "__main__":

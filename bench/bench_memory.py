@@ -1,4 +1,4 @@
-"""Memory estimate against measured peak memory: warp_subdiv.estimate's prediction beside the peak resident memory
+"""Memory estimate against measured peak memory: warp_subdiv.runtime.estimate's prediction beside the peak resident memory
 a refinement adds, per configuration, each in a fresh process.
 
     python bench/bench_memory.py                 # the full table (BENCHMARKS.md, "Memory estimate")
@@ -106,8 +106,8 @@ def worker(name: str) -> dict:
 
     quiet_warp()
     import warp_subdiv as ws
-    from warp_subdiv import estimate as est
-    from warp_subdiv.allocator import release_free_memory
+    from warp_subdiv.runtime import estimate as est
+    from warp_subdiv.runtime.allocator import release_free_memory
 
     mesh_name, scheme, levels, options = CONFIGS[name]
     options = dict(options)
@@ -190,12 +190,12 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="write the rows here")
     ap.add_argument("--retain", action="store_true",
                     help="each worker keeps freed memory for reuse, as the command line does "
-                         "(warp_subdiv.allocator.retain_freed_memory)")
+                         "(warp_subdiv.runtime.allocator.retain_freed_memory)")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker:
         if args.retain:
-            from warp_subdiv.allocator import retain_freed_memory
+            from warp_subdiv.runtime.allocator import retain_freed_memory
 
             retain_freed_memory()
         print(MARK + json.dumps(worker(args.worker)))

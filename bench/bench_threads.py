@@ -188,7 +188,7 @@ def main(argv=None) -> int:
     if args.commit:
         args.lib_root, sha = export_commit(args.commit)
     sys.path.insert(0, args.lib_root)
-    from warp_subdiv.threads import available_cores
+    from warp_subdiv.runtime.threads import available_cores
 
     cores = available_cores()
     counts = [int(x) for x in args.threads.split(",")] if args.threads else sorted({1, cores})

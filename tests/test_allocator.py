@@ -1,9 +1,9 @@
-"""The command line keeps freed memory for reuse (warp_subdiv.allocator); the library leaves it to the user."""
+"""The command line keeps freed memory for reuse (warp_subdiv.runtime.allocator); the library leaves it to the user."""
 
 import numpy as np
 import pytest
 
-import warp_subdiv.allocator as allocator
+import warp_subdiv.runtime.allocator as allocator
 from conftest import mesh_path
 from warp_subdiv import cli
 

@@ -374,7 +374,7 @@ def test_option_values_in_any_letter_case():
 def test_max_memory_values():
     """Item 9: max_memory takes bytes or a size string as the CLI's --max-memory does ("512M", "1G"; "none" and
     None: no limit); negative numbers and other types are refused (SubdivInputError, option "max_memory")."""
-    from warp_subdiv.estimate import MemoryGuardError
+    from warp_subdiv.runtime.estimate import MemoryGuardError
 
     cube = load_mesh("cube")
     assert ws.refine(cube, 1, device="cpu", max_memory="1G").num_faces == 24

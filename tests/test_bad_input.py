@@ -446,7 +446,7 @@ def test_size_guards_refuse_before_any_work():
     memory limit refuses predictions above it with the amount needed."""
     import time
 
-    from warp_subdiv.estimate import MemoryGuardError
+    from warp_subdiv.runtime.estimate import MemoryGuardError
 
     cube = load_mesh("cube")
     start = time.perf_counter()

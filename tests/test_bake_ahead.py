@@ -8,9 +8,9 @@ import pytest
 from test_batch import _props_scene, _same_layers
 
 import warp_subdiv.usd as usd
-from warp_subdiv import threads
+from warp_subdiv.runtime import threads
 from warp_subdiv.errors import SubdivInputError
-from warp_subdiv.estimate import total_bytes
+from warp_subdiv.runtime.estimate import total_bytes
 
 
 @pytest.fixture(scope="module")

@@ -105,7 +105,8 @@ def test_ci_runs_the_readme_test_command():
 def test_internal_errors_exit_1_with_the_debug_hint(tmp_path, monkeypatch, capsys):
     """Only input errors exit 2: a plain ValueError from inside (a bug) exits 1 with one line that says it is
     an internal error and how to see the traceback; WARP_SUBDIV_DEBUG=1 lets the exception through."""
-    from warp_subdiv import cli, objio
+    from warp_subdiv import cli
+    from warp_subdiv import objio
 
     def broken(path):
         raise ValueError("something inside went wrong")
@@ -126,7 +127,8 @@ def test_internal_errors_exit_1_with_the_debug_hint(tmp_path, monkeypatch, capsy
 def test_input_errors_exit_2_with_the_flag_named(tmp_path, monkeypatch, capsys):
     """A SubdivInputError from the same place exits 2; errors about an option the command line set name its
     flag (the library's messages name the keyword)."""
-    from warp_subdiv import cli, objio
+    from warp_subdiv import cli
+    from warp_subdiv import objio
     from warp_subdiv.errors import SubdivInputError
 
     def bad(path):

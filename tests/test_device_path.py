@@ -7,9 +7,10 @@ import pytest
 import warp as wp
 
 import warp_subdiv as ws
-from warp_subdiv import estimate, interop
+from warp_subdiv.runtime import estimate
+from warp_subdiv import interop
 from warp_subdiv import evaluator as ev
-from warp_subdiv import threads as wthreads
+from warp_subdiv.runtime import threads as wthreads
 
 from conftest import load_mesh
 
@@ -334,7 +335,8 @@ def test_32_bit_refusals_come_before_allocating(monkeypatch):
         r.evaluate(mesh.points)
     monkeypatch.undo()
     monkeypatch.setattr(estimate, "INT32_MAX", 100)
-    from warp_subdiv import projections, topology
+    from warp_subdiv import projections
+    from warp_subdiv import topology
 
     level = r.hierarchy.final
     if level.edge_verts is None:  # built faces-only: the full last level

@@ -7,7 +7,7 @@ import warp as wp
 
 import warp_subdiv as ws
 from warp_subdiv import gradients as G
-from warp_subdiv import threads as th
+from warp_subdiv.runtime import threads as th
 
 from conftest import load_mesh
 

@@ -24,7 +24,8 @@ def fan_corners(points, counts, indices):
 
 def rendered_soup(monkeypatch, args):
     """Run `warp-subdiv render ARGS` in this process and return the triangle soup it would ray-cast."""
-    from warp_subdiv import cli, render
+    from warp_subdiv import cli
+    from warp_subdiv import render
 
     seen = {}
 

@@ -6,7 +6,9 @@ the end points of the semi-sharp blends, and the regular cases where a modified 
 import numpy as np
 import pytest
 
-from warp_subdiv import crease, masks, rules
+from warp_subdiv import crease
+from warp_subdiv import masks
+from warp_subdiv import rules
 from warp_subdiv.rules import CATMULL_CLARK, CORNER, CREASE, DART, LOOP, SMOOTH
 
 VALENCES = np.arange(3, 13)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import warp_subdiv as ws
-from warp_subdiv import threads as th
+from warp_subdiv.runtime import threads as th
 
 from conftest import load_mesh
 

@@ -91,7 +91,7 @@ import pytest  # noqa: E402
 
 import warp_subdiv as ws  # noqa: E402
 from conftest import load_mesh  # noqa: E402
-from warp_subdiv.estimate import BUILD_PEAK, LIMIT_PEAK, RUNTIME_BYTES, estimate, level_counts, parse_size, total_bytes  # noqa: E402
+from warp_subdiv.runtime.estimate import BUILD_PEAK, LIMIT_PEAK, RUNTIME_BYTES, estimate, level_counts, parse_size, total_bytes  # noqa: E402
 from warp_subdiv.errors import SubdivInputError  # noqa: E402
 from warp_subdiv.primvars import FaceMap  # noqa: E402
 

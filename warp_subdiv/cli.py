@@ -216,7 +216,7 @@ def _quiet_warp():
 
 
 def _max_memory(text):
-    from .estimate import default_max_memory, parse_size
+    from .runtime.estimate import default_max_memory, parse_size
 
     if text is None:
         return default_max_memory()
@@ -264,7 +264,7 @@ def _table(rows, header, left=(0, 1, 2)) -> list:
 
 
 def _summary(source, output, levels, device, reports, seconds, predicted, phases=None) -> None:
-    from .estimate import format_bytes
+    from .runtime.estimate import format_bytes
 
     print(f"{source} -> {output}: {levels} levels on {device}")
     header = ("prim", "scheme", "rules", "faces in", "faces out", "vertices out", "samples", "time")
@@ -278,7 +278,7 @@ def _summary(source, output, levels, device, reports, seconds, predicted, phases
     vout = sum(r.vertices_out for r in reports)
     print(f"  total: {len(reports)} mesh{'es' if len(reports) != 1 else ''}, faces {fin} -> {fout}, vertices {vin} -> "
           f"{vout}, {seconds:.2f} s (predicted memory {format_bytes(predicted)}); wrote {output}")
-    if phases:  # where the time went (warp_subdiv.phases)
+    if phases:  # where the time went (warp_subdiv.runtime.phases)
         overlap = " (worker threads' time included: they overlap the writer)" if "waiting" in phases else ""
         print("  phases: " + ", ".join(f"{name} {sec:.2f} s" for name, sec in phases.items()) + overlap)
 
@@ -298,7 +298,7 @@ def _refine(args) -> int:
             raise UsageError(f"{flag} must be >= 1, got {value}")
     if kind == "obj" and (args.workers or args.scheduler):
         raise UsageError("--workers and --scheduler apply to USD input only")
-    from .threads import set_default_threads
+    from .runtime.threads import set_default_threads
 
     set_default_threads(args.threads)
     show = args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())
@@ -352,7 +352,7 @@ def _device_name(device) -> str:
 
 def _refine_obj(args, out_kind, max_memory, progress) -> int:
     _quiet_warp()
-    from .estimate import check_memory, estimate
+    from .runtime.estimate import check_memory, estimate
     from .objio import read_obj, write_obj
     from .usd import make_refiner, options_for
 
@@ -415,7 +415,7 @@ def _stitch(args) -> int:
 # -- info ----------------------------------------------------------------------------------------------
 
 def _info(args) -> int:
-    from .estimate import estimate, format_bytes
+    from .runtime.estimate import estimate, format_bytes
 
     kind = _check_input(args.input)
     if args.levels < 0:
@@ -494,7 +494,7 @@ def _print_control(mesh, scheme, boundary, rules, usd_scheme=None, orientation=N
 
 def _print_levels(estimate_at, levels: int) -> None:
     """A table of predicted faces, vertices and memory for levels 1..levels."""
-    from .estimate import format_bytes
+    from .runtime.estimate import format_bytes
 
     rows = []
     for lv in range(1, levels + 1):
@@ -562,7 +562,7 @@ def main(argv=None) -> int:
     try:
         parser = _parser()
         args = parser.parse_args(argv)
-        from .allocator import retain_for_command
+        from .runtime.allocator import retain_for_command
 
         retain_for_command()  # a bake's temporaries reuse freed memory (WARP_SUBDIV_RETAIN_MEMORY=0: not)
         run = {"refine": _refine, "info": _info, "render": _render, "stitch": _stitch,

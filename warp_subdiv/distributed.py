@@ -112,7 +112,7 @@ def _worker_setup(threads):
     """Per task on a worker: the thread count evaluation uses, and the worker's memory limit (bytes or None)."""
     import warp as wp
 
-    from . import threads as th
+    from .runtime import threads as th
 
     wp.config.log_level = 30  # no start-up banner or module-load lines in the workers' logs
     th.set_default_threads(threads)
@@ -365,7 +365,7 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     cluster's scheduler instead; ``client``: an existing ``distributed.Client``. ``threads``: evaluation
     threads per task (default: the local cluster's share of the cores, a remote worker's own cores).
     Returns a :class:`warp_subdiv.usd.Result`."""
-    from . import threads as th
+    from .runtime import threads as th
     from .usd import PrimReport, Result, plan
     from .usd_write import OutputLayer
 
@@ -480,7 +480,7 @@ def _wait_idle(client, keys, timeout: float = 60.0) -> None:
 
 
 def _reraise(record: dict) -> SubdivInputError:
-    from .estimate import MemoryGuardError
+    from .runtime.estimate import MemoryGuardError
 
     cls = MemoryGuardError if record["type"] == "MemoryGuardError" else SubdivInputError
     return cls(record["message"], option=record["option"], element=record["element"], index=record["index"],

@@ -11,7 +11,7 @@ evaluation over typed records:
 * :func:`apply` (dispatching on the record's type), :func:`refine_step`, :func:`limit_positions` and
   :func:`limit_normals` launch the kernels of :mod:`warp_subdiv.kernels` over a record and source and
   destination buffers, always on an explicit device, through a :class:`Launcher`: on the CPU it splits each
-  launch into a few contiguous row ranges run on several threads (:mod:`warp_subdiv.threads`; Warp runs one
+  launch into a few contiguous row ranges run on several threads (:mod:`warp_subdiv.runtime.threads`; Warp runs one
   CPU launch on one thread and releases the GIL while a kernel runs). Every row is computed by the same code
   whatever the split, so results are bitwise equal to one thread's.
 
@@ -38,7 +38,7 @@ from functools import singledispatch
 import numpy as np
 import warp as wp
 
-from . import threads as _threads
+from .runtime import threads as _threads
 from .errors import SubdivInputError
 from .tables import RegularTables
 from .topology import small_pages
@@ -722,7 +722,7 @@ class Evaluator:
     each gets its own result. Device results (:meth:`evaluate_device`, ``on_device``) are views of shared
     buffers, valid until the next call.
 
-    ``threads``: CPU threads per launch (None: :func:`warp_subdiv.threads.default_threads`); each launch of
+    ``threads``: CPU threads per launch (None: :func:`warp_subdiv.runtime.threads.default_threads`); each launch of
     many rows is split into that many contiguous row ranges. ``graphs``: capture plans as Warp graphs (None:
     on CUDA only; on the CPU Warp records every CPU launch made while a capture is open, from any thread, so
     it is an opt-in there). ``expand_tables`` (an attribute, set before the first evaluation): quad steps
@@ -805,7 +805,7 @@ class Evaluator:
             self._buffers = _LevelBuffers(self.level_rows(), [r.num_moved for r in records], self.device,
                                           self._scalar)
         if width > self._buffers.width:
-            from . import estimate  # the buffers of this width must fit 32-bit sizes and the device
+            from .runtime import estimate  # the buffers of this width must fit 32-bit sizes and the device
 
             rows = self._buffers.rows + self._buffers.moved
             estimate.check_buffer_elements(max(rows) * width, f"data of width {width}")

@@ -51,12 +51,13 @@ import contextvars
 
 import numpy as np
 
-from . import estimate, projections
+from .runtime import estimate
+from . import projections
 from .mesh import Mesh
 from .options import Options, Scheme
 from .rules import edge_gamma_shift
 from .tables import StencilTable, build_regular, build_stencils
-from .threads import run as run_jobs
+from .runtime.threads import run as run_jobs
 from .topology import Level, Refinement, base_faces, base_level, refine_level, small_pages
 
 
@@ -83,7 +84,7 @@ class Hierarchy:
         self.threads = max(1, int(threads))
         # Overlapping a step's tables with the next level's topology saved about 10% of a build on 2 cores
         # (cube64 level 4: 1.16 -> 1.05 s) but raised its peak memory by 8-25% (bench/bench_memory.py), beyond
-        # the memory guard's model (warp_subdiv.estimate): off unless asked for.
+        # the memory guard's model (warp_subdiv.runtime.estimate): off unless asked for.
         self.concurrent_build = bool(concurrent_build)
         self.mesh = mesh
         self.levels = levels

@@ -19,7 +19,7 @@ import numpy as np
 
 from . import masks as M
 from .errors import SubdivInputError
-from .estimate import check_int32
+from .runtime.estimate import check_int32
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, SMOOTH
 from .mesh import INFINITE_SHARPNESS, face_offsets_of
 from .tables import StencilTable, crease_neighbours

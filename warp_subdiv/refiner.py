@@ -13,14 +13,15 @@ import numpy as np
 import warp as wp
 
 from .errors import SubdivInputError
-from . import estimate, interop
+from .runtime import estimate
+from . import interop
 from .evaluator import Evaluated, Evaluator, default_device, normal_control_for
 from .facevarying import FaceVaryingChannel, check_indices
 from .hierarchy import Hierarchy
 from .mesh import DATA_BOUND, Mesh, check_rows
 from .options import FaceVaryingMode, Options
 from .tables import StencilTable
-from .threads import resolve as resolve_threads
+from .runtime.threads import resolve as resolve_threads
 
 
 @dataclass
@@ -135,7 +136,7 @@ class Refiner:
 
     def _device_guard(self) -> None:
         """On CUDA, refuse before any work when the step tables and the level buffers of positions would not
-        fit the device's free memory (:func:`warp_subdiv.estimate.check_device_memory`; nothing on the CPU)."""
+        fit the device's free memory (:func:`warp_subdiv.runtime.estimate.check_device_memory`; nothing on the CPU)."""
         mesh, o = self.mesh, self.options
         counts = estimate.level_counts(mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, self.levels,
                                        "loop" if o.scheme.value == "loop" else "catmull-clark")
@@ -420,7 +421,7 @@ def refine(mesh: Mesh, levels: int, *, options: Options | None = None, device=No
     ``max_memory``: bytes; refuse (``SubdivInputError``) before any work when the predicted memory is above it.
     Requests whose last level would not fit 32-bit indices are always refused.
     ``threads``: CPU threads for evaluation and the table build (None: the cores this process may use, see
-    :func:`warp_subdiv.threads.default_threads`); results are bitwise the same for any value.
+    :func:`warp_subdiv.runtime.threads.default_threads`); results are bitwise the same for any value.
     """
     return Refiner(mesh, levels, options=options, device=device, max_memory=max_memory, threads=threads,
                    **option_keywords).refine()

@@ -12,8 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import crease, rules
-from .estimate import check_int32
+from . import crease
+from . import rules
+from .runtime.estimate import check_int32
 from .mesh import face_offsets_of
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
 from .topology import Level, child_rules, child_sharpness, expand_counts, fractional_weight, has_semi_sharpness

@@ -744,7 +744,7 @@ def refine_level(level: Level, faces_only: bool = False, *, threads: int = 1) ->
     ``faces_only`` builds just the child faces (for the last level, which nothing refines further).
     ``threads``: the per-face tables of a level of one face size (child corners, edges inside faces) are
     written in blocks of :data:`BLOCK_FACES` faces, the blocks split into that many contiguous ranges on the
-    thread pool of :mod:`warp_subdiv.threads`, and the step's edge tables, vertex-corner lists and classes are
+    thread pool of :mod:`warp_subdiv.runtime.threads`, and the step's edge tables, vertex-corner lists and classes are
     three jobs on it (:func:`_assemble`); every block and job is computed by the same code whatever the split,
     so the result is bitwise the one-thread result.
     """
@@ -761,8 +761,8 @@ BLOCK_FACES = 16384
 
 def _blocks(num_faces: int, threads: int, fill) -> None:
     """``fill(a, b)`` over the faces 0..num_faces in blocks of :data:`BLOCK_FACES`, the blocks split into
-    ``threads`` contiguous ranges (:func:`warp_subdiv.threads.map_ranges`)."""
-    from .threads import map_ranges
+    ``threads`` contiguous ranges (:func:`warp_subdiv.runtime.threads.map_ranges`)."""
+    from .runtime.threads import map_ranges
 
     def blocks(a, b):
         for s in range(a, b, BLOCK_FACES):
@@ -1155,7 +1155,7 @@ def _assemble(level: Level, *, num_vertices: int, face_size: int, corner_vert, c
 
     # the three read the parent level and the step's tables only: with threads, at once (numpy releases the
     # GIL inside large gathers and scatters; the results do not depend on it)
-    from .threads import run as run_jobs
+    from .runtime.threads import run as run_jobs
 
     (child_edge_verts, child_eoff, child_ecorners), (child_voff, child_vcorners), \
         (child_class, child_edge_sharpness, child_vert_sharpness, sectors) = \

@@ -43,11 +43,11 @@ import numpy as np
 from pxr import Sdf, Usd, Vt
 
 from .version import __version__
-from . import phases as _phases
-from . import threads as _threads
+from .runtime import phases as _phases
+from .runtime import threads as _threads
 from .batch import MeshBatch, batch_key
 from .errors import SubdivInputError
-from .estimate import Estimate, MemoryGuardError, check_memory, estimate, total_bytes
+from .runtime.estimate import Estimate, MemoryGuardError, check_memory, estimate, total_bytes
 from .hierarchy import shipped
 from .objio import ObjData
 from .options import Boundary, Options, Precision, RuleSet, Scheme
@@ -111,7 +111,7 @@ class Result:
     warnings: list
     seconds: float
     predicted_bytes: int
-    phases: dict = field(default_factory=dict)  # seconds per phase (warp_subdiv.phases): read, analyse, ...
+    phases: dict = field(default_factory=dict)  # seconds per phase (warp_subdiv.runtime.phases): read, analyse, ...
 
 
 def _sample_count(sp: SubdivPrim) -> int:
@@ -740,7 +740,7 @@ class _Ahead:
     takes the context when it reaches the mesh (:meth:`take`) and writes it as it would have, so the layer is
     the same with or without workers. A mesh whose inputs fail is left to the writer, which reports the error.
 
-    Workers: :func:`warp_subdiv.threads.default_threads` (``--threads``, ``WARP_SUBDIV_THREADS``, the cores),
+    Workers: :func:`warp_subdiv.runtime.threads.default_threads` (``--threads``, ``WARP_SUBDIV_THREADS``, the cores),
     on the CPU only; one thread means none. At most ``workers`` meshes are in flight besides the one being
     written, fewer where ``max_memory`` does not allow their working sets at once (:attr:`concurrent`: the
     meshes held at once, which the memory prediction counts)."""
@@ -749,7 +749,7 @@ class _Ahead:
                  max_memory=None):
         import warp as wp
 
-        from .estimate import memory_limit
+        from .runtime.estimate import memory_limit
 
         self.p, self.levels, self.device = p, levels, device
         self.limit, self.normals, self.vertex_order = limit, normals, vertex_order

@@ -13,7 +13,7 @@ import tempfile
 import numpy as np
 from pxr import Sdf, Usd, Vt
 
-from . import phases as _phases
+from .runtime import phases as _phases
 from .errors import SubdivInputError
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc")

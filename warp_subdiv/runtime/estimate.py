@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import SubdivInputError
+from ..errors import SubdivInputError
 
 #: Bytes per control face corner of the control-mesh analysis (edges, rings, sectors): at its own peak, and
 #: what stays (level 0 and the first step's tables) while the later levels are built.

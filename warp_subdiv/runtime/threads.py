@@ -18,7 +18,7 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
-from .errors import SubdivInputError
+from ..errors import SubdivInputError
 
 #: Rows below which a launch is not split (a launch costs about 24 us of GIL-held Python time).
 MIN_ROWS = 32768
