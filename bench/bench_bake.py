@@ -396,7 +396,8 @@ def _report(r: dict) -> None:
           f"{runs_of(o.get('floors_system_allocator', []))} s), compact {runs_of(d['floors'])} s "
           f"({runs_of(d.get('floors_system_allocator', []))} s)")
     print(f"load average at the end: {', '.join(f'{x:.2f}' for x in r['load_average'])} ({r['cores']} cores); "
-          f"freed memory kept for reuse (warp_subdiv.runtime.allocator): {'yes' if r.get('retain_freed_memory') else 'no'}")
+          f"freed memory kept for reuse (warp_subdiv.runtime.allocator): "
+          f"{'yes' if r.get('retain_freed_memory') else 'no'}")
 
 
 if __name__ == "__main__":

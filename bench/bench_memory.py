@@ -1,5 +1,5 @@
-"""Memory estimate against measured peak memory: warp_subdiv.runtime.estimate's prediction beside the peak resident memory
-a refinement adds, per configuration, each in a fresh process.
+"""Memory estimate against measured peak memory: warp_subdiv.runtime.estimate's prediction beside the peak resident
+memory a refinement adds, per configuration, each in a fresh process.
 
     python bench/bench_memory.py                 # the full table (BENCHMARKS.md, "Memory estimate")
     python bench/bench_memory.py --quick         # the configurations tests/test_memory.py checks

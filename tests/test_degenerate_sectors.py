@@ -18,8 +18,8 @@ import pytest
 import warp as wp
 
 import warp_subdiv as ws
-from warp_subdiv import masks as M
-from warp_subdiv.rules import SECTOR_CONVEX, SECTOR_CREASE, SECTOR_STRAIGHT
+from warp_subdiv.rules import limit_masks as M
+from warp_subdiv.rules.weights import SECTOR_CONVEX, SECTOR_CREASE, SECTOR_STRAIGHT
 from warp_subdiv.topology import base_level
 
 SCHEMES = ("catmull-clark", "loop")

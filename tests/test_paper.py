@@ -11,8 +11,8 @@ from numpy import pi
 import warp_subdiv as ws
 from conftest import dense, load_mesh
 from fans import local_ids, local_matrix, only_at_centre, options_for, patch
-from warp_subdiv import masks as M
-from warp_subdiv.rules import SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE
+from warp_subdiv.rules import limit_masks as M
+from warp_subdiv.rules.weights import SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE
 
 KIND = {"crease": SECTOR_CREASE, "convex": SECTOR_CONVEX, "concave": SECTOR_CONCAVE}
 

@@ -1,4 +1,4 @@
-"""The pure role masks of warp_subdiv.rules and the sharpness arithmetic of warp_subdiv.crease, without a mesh.
+"""The pure role masks of warp_subdiv.rules and the sharpness arithmetic of warp_subdiv.rules.crease, without a mesh.
 
 Every mask is checked on parameters alone: affine invariance (weights sum to 1 over the whole neighbourhood),
 the end points of the semi-sharp blends, and the regular cases where a modified rule equals the plain one.
@@ -6,10 +6,10 @@ the end points of the semi-sharp blends, and the regular cases where a modified 
 import numpy as np
 import pytest
 
-from warp_subdiv import crease
-from warp_subdiv import masks
-from warp_subdiv import rules
-from warp_subdiv.rules import CATMULL_CLARK, CORNER, CREASE, DART, LOOP, SMOOTH
+from warp_subdiv.rules import crease
+from warp_subdiv.rules import limit_masks as masks
+from warp_subdiv.rules import weights as rules
+from warp_subdiv.rules.weights import CATMULL_CLARK, CORNER, CREASE, DART, LOOP, SMOOTH
 
 VALENCES = np.arange(3, 13)
 

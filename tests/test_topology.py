@@ -4,7 +4,7 @@ import pytest
 
 import warp_subdiv as ws
 from conftest import load_mesh
-from warp_subdiv import rules
+from warp_subdiv.rules import weights as rules
 from warp_subdiv.topology import base_level, refine_level, triangulate
 
 CASES = [

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from . import masks as M
+from .rules import limit_masks as M
 from . import projections
 from .hierarchy import Hierarchy
 from .mesh import INFINITE_SHARPNESS, Mesh

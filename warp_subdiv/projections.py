@@ -2,7 +2,7 @@
 
 Flatness follows docs/rules.md section 6, normal control section 7, and limit masks sections 8 and 9.
 
-Each table is built from a level's sector and ring tables plus the pure masks of :mod:`warp_subdiv.masks`;
+Each table is built from a level's sector and ring tables plus the pure masks of :mod:`warp_subdiv.rules.limit_masks`;
 the Warp kernels in ``kernels/projection.py`` apply them without knowing what a sector is.
 
 * Flatness and normal control are *displacement* tables: rows are the points that move; a row holds
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import masks as M
+from .rules import limit_masks as M
 from .errors import SubdivInputError
 from .runtime.estimate import check_int32
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, SMOOTH

@@ -2,7 +2,7 @@
 
 Rows follow the child vertex order of :mod:`warp_subdiv.topology` (vertex children, face children for
 Catmull-Clark, edge children). As OpenSubdiv's ``far/stencilTableFactory`` expands ``Sdc`` masks, this module
-only decides which class each row is (from the level's vertex classes and :mod:`warp_subdiv.crease`'s
+only decides which class each row is (from the level's vertex classes and :mod:`warp_subdiv.rules.crease`'s
 sharpness decay), gathers the neighbourhood indices (by index arithmetic over the level's tables) and lays
 out the role masks that :mod:`warp_subdiv.rules` returns for that class. Weights are float64.
 """
@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import crease
-from . import rules
+from .rules import crease
+from .rules import weights as rules
 from .runtime.estimate import check_int32
 from .mesh import face_offsets_of
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
@@ -181,7 +181,7 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     corner_vert = level.corner_vert
     h0, h1 = edge_corners if edge_corners is not None else level.edge_corner_pair()
 
-    # ----- which rule each row follows before and after the step (sharpness decay: warp_subdiv.crease)
+    # ----- which rule each row follows before and after the step (sharpness decay: warp_subdiv.rules.crease)
     parent_rule = level.vert_class[vs]
     sharp = level.edge_sharp[es]
     if has_semi_sharpness(level):

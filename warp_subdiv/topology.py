@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import rules
+from .rules import weights as rules
 from .errors import NonManifoldWarning, SubdivInputError
 from .mesh import INFINITE_SHARPNESS, Mesh, MeshEdges, face_offsets_of, find_edges
 from .options import Boundary, CreaseMethod, RuleSet, Scheme
@@ -201,8 +201,8 @@ class Level:
 # sharpness (OpenSubdiv's Sdc::Crease semantics; DeRose, Kass, Truong 1998). The arithmetic on sharpness
 # values lives in warp_subdiv/crease.py; these wrappers read its inputs off a Level.
 
-from . import crease  # noqa: E402  (imported inside this block; base_level uses the two names below)
-from .crease import semi_sharp_vertices, vertex_rule  # noqa: E402
+from .rules import crease  # noqa: E402  (imported inside this block; base_level uses the two names below)
+from .rules import semi_sharp_vertices, vertex_rule  # noqa: E402
 
 
 def has_semi_sharpness(level: Level) -> bool:

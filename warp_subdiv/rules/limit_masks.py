@@ -17,7 +17,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .rules import (
+from .weights import (
     CATMULL_CLARK,
     LOOP,
     SECTOR_CONCAVE,

@@ -16,7 +16,7 @@ The rules come in two forms:
   :func:`crease_neighbour_edge_mask` applies the paper's gamma(theta) endpoint shift; the semi-sharp blends
   (:func:`transition_weights`, :func:`semi_sharp_edge_weights`) scale the masks they combine.
 
-Which rule a vertex follows as sharpness decays is :mod:`warp_subdiv.crease`'s business.
+Which rule a vertex follows as sharpness decays is :mod:`warp_subdiv.rules.crease`'s business.
 """
 from __future__ import annotations
 
@@ -350,14 +350,14 @@ def expand_edge_face_points(mask: EdgeMask, face_size_0, face_size_1) -> EdgeMas
 
 
 # --------------------------------------------------------------------------------------------------------
-# semi-sharp blends (OpenSubdiv's Sdc::Scheme; the weights come from warp_subdiv.crease)
+# semi-sharp blends (OpenSubdiv's Sdc::Scheme; the weights come from warp_subdiv.rules.crease)
 
 
 def transition_weights(fractional_weight):
     """(parent rule weight, child rule weight) of a vertex whose rule changes during the step.
 
     The child is the parent rule's mask times the fractional weight w (from
-    :func:`warp_subdiv.crease.fractional_weight`) plus the child rule's mask times 1 - w; a vertex whose rule
+    :func:`warp_subdiv.rules.crease.fractional_weight`) plus the child rule's mask times 1 - w; a vertex whose rule
     does not change has w = 1 (docs/rules.md section 15.2)."""
     w = np.asarray(fractional_weight, dtype=np.float64)
     return w, 1.0 - w

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mesh import INFINITE_SHARPNESS
-from .rules import CORNER, CREASE, DART, SMOOTH
+from ..mesh import INFINITE_SHARPNESS
+from .weights import CORNER, CREASE, DART, SMOOTH
 
 
 def is_semi_sharp(sharpness) -> np.ndarray:
