@@ -31,9 +31,8 @@ import warp as wp
 
 from . import evaluator as ev
 from .errors import SubdivInputError
-from .mesh import DATA_BOUND, check_rows
+from .mesh import DATA_BOUND, check_rows, expand_counts
 from .tables import RegularTables, StencilTable, rows_of
-from .topology import expand_counts
 
 __all__ = ["Adjoint", "CSRMatrix", "adjoint", "evaluate", "evaluate_vjp", "limit_normals", "limit_normals_vjp",
            "limit_points", "limit_points_vjp", "matrix"]

@@ -57,6 +57,14 @@ def face_offsets_of(counts: np.ndarray) -> np.ndarray:
     return offsets
 
 
+def expand_counts(counts: np.ndarray):
+    """For a list of groups of the given sizes: (group of each item, rank of the item inside its group)."""
+    counts = np.asarray(counts, dtype=np.int64)
+    group = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
+    rank = np.arange(len(group), dtype=np.int64) - np.repeat(face_offsets_of(counts)[:-1], counts)
+    return group, rank
+
+
 def next_corner_of(counts: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """For every corner, the next corner of the same face (wrapping around)."""
     total = int(offsets[-1])

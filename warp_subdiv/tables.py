@@ -15,9 +15,9 @@ import numpy as np
 from .rules import crease
 from .rules import weights as rules
 from .runtime.estimate import check_int32
-from .mesh import face_offsets_of
+from .mesh import expand_counts, face_offsets_of
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
-from .topology import Level, child_rules, child_sharpness, expand_counts, fractional_weight, has_semi_sharpness
+from .topology import Level, child_rules, child_sharpness, fractional_weight, has_semi_sharpness
 
 
 @dataclass

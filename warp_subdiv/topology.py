@@ -24,17 +24,9 @@ import numpy as np
 
 from .rules import weights as rules
 from .errors import NonManifoldWarning, SubdivInputError
-from .mesh import INFINITE_SHARPNESS, Mesh, MeshEdges, face_offsets_of, find_edges
+from .mesh import INFINITE_SHARPNESS, Mesh, MeshEdges, expand_counts, face_offsets_of, find_edges
 from .options import Boundary, CreaseMethod, RuleSet, Scheme
 from .rules import CATMULL_CLARK, CORNER, CREASE, LOOP, SMOOTH
-
-
-def expand_counts(counts: np.ndarray):
-    """For a list of groups of the given sizes: (group of each item, rank of the item inside its group)."""
-    counts = np.asarray(counts, dtype=np.int64)
-    group = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
-    rank = np.arange(len(group), dtype=np.int64) - np.repeat(face_offsets_of(counts)[:-1], counts)
-    return group, rank
 
 
 def _face_sizes(faces) -> np.ndarray:

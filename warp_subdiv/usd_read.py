@@ -21,9 +21,8 @@ import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom
 
 from .errors import SubdivInputError
-from .mesh import INFINITE_SHARPNESS, Mesh
+from .mesh import INFINITE_SHARPNESS, Mesh, expand_counts
 from .options import FaceVaryingMode, RuleSet
-from .topology import expand_counts
 
 #: USD subdivisionScheme -> the scheme warp-subdiv refines with ("none" meshes are left alone).
 USD_SCHEMES = {"catmullClark": "catmull-clark", "loop": "loop", "bilinear": "bilinear"}
