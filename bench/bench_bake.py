@@ -14,7 +14,7 @@ once). Then, in one run:
   order (``vertex_order="opensubdiv"``), and the default on one thread (``WARP_SUBDIV_THREADS=1``: no workers);
 * **floor**: usd-core writing a new ``.usdc`` layer holding the same arrays a bake wrote (every attribute of
   the bake's output layer, read back into numpy first; Vt arrays made as the writer makes them,
-  ``warp_subdiv.usd_write.from_numpy``, 15x faster than ``FromNumpy``; ``Sdf`` specs, ``Save``), best of
+  ``warp_subdiv.io.usd_write.from_numpy``, 15x faster than ``FromNumpy``; ``Sdf`` specs, ``Save``), best of
   ``--reps``, for the OpenSubdiv-order arrays and for the compact ones, each rep right after that rep's bakes,
   and again in a fresh process whose C allocator is the system's (the faster counts); the bake's ratio to the
   floor is the figure of merit (target: at most 1.3x), best against best and rep by rep (the median of the
@@ -155,10 +155,10 @@ def layer_arrays(path: str) -> list:
 
 def write_floor(arrays: list, path: str, fast: bool = True) -> float:
     """Seconds to write ``arrays`` (layer_arrays) into a new layer at ``path`` and save it; Vt arrays made with
-    ``warp_subdiv.usd_write.from_numpy`` (``fast``) or usd-core's ``FromNumpy``."""
+    ``warp_subdiv.io.usd_write.from_numpy`` (``fast``) or usd-core's ``FromNumpy``."""
     from pxr import Sdf
 
-    from warp_subdiv.usd_write import from_numpy
+    from warp_subdiv.io.usd_write import from_numpy
 
     if not fast:
         def from_numpy(cls, values):

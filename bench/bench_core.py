@@ -64,7 +64,7 @@ def worker(args) -> dict:
 
     wp = quiet_warp()
     import warp_subdiv as ws
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     wp.init()
     file, scheme = MESHES[args.mesh]
@@ -156,7 +156,7 @@ def profile_build(args):
 
     quiet_warp()
     import warp_subdiv as ws
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     scheme, _, level = args.profile.partition(":")
     names = [n for n, (_, s) in MESHES.items() if s == scheme]

@@ -117,7 +117,7 @@ def worker(args) -> dict:
 
     wp = quiet_warp()
     import warp_subdiv as ws
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     wp.init()
     device = wp.get_device(args.device)

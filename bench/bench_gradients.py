@@ -34,7 +34,7 @@ def measure(name: str, level: int, repeats: int, threads: int, wall: bool, devic
     wp = quiet_warp()
     import warp_subdiv as ws
     from warp_subdiv import gradients
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     wp.init()
     file, scheme = MESHES[name]

@@ -51,7 +51,7 @@ def run(points: int, reps: int, seed: int) -> list:
     quiet_warp()
     import warp_subdiv as ws
     from peers import osd_peer
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     have_bfr = osd_peer.bfr_available()
     rows = []

@@ -65,7 +65,7 @@ def make_mesh(name: str):
     import numpy as np
 
     import warp_subdiv as ws
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     if name.startswith(("grid:", "trigrid:")):
         n = int(name.split(":")[1])

@@ -44,7 +44,7 @@ def worker(args) -> dict:
     import warp_subdiv as ws
 
     assert os.path.abspath(ws.__file__).startswith(os.path.abspath(args.lib_root)), ws.__file__
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     file, scheme = MESHES[args.mesh]
     mesh = read_obj(os.path.join(HERE, "meshes", file)).mesh

@@ -311,7 +311,7 @@ def _usd_path(case) -> None:
         from pxr import Sdf, Usd, Vt
     except ImportError:
         return
-    from warp_subdiv import usd_read
+    from warp_subdiv.io import usd_read
 
     layer = Sdf.Layer.CreateAnonymous(".usda")
     prim = Sdf.CreatePrimInLayer(layer, "/M")

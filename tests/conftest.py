@@ -17,7 +17,7 @@ def mesh_path(name: str) -> str:
 
 def load_mesh(name: str):
     """A test mesh from tests/data/meshes (with its side files) as a warp_subdiv.Mesh."""
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     return read_obj(mesh_path(name)).mesh
 

@@ -426,7 +426,7 @@ def test_failed_refiner_does_not_touch_mesh():
 
 
 def test_obj_bad_lines_name_file_and_line(tmp_path):
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     p = tmp_path / "bad.obj"
     p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n")
@@ -460,7 +460,7 @@ def test_size_guards_refuse_before_any_work():
 
 def test_obj_bad_crease_method_names_file_and_line(tmp_path):
     """An OBJ creasemethod tag that is neither uniform nor chaikin is refused where it is read."""
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     p = tmp_path / "bad.obj"
     p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nt creasemethod 0/0/1 bspline\n")

@@ -145,7 +145,7 @@ def test_vt_arrays_from_numpy_without_the_gil():
     (float64 rows for float3 points) and empty input go through FromNumpy."""
     from pxr import Vt
 
-    from warp_subdiv.usd_write import _exports_storage, from_numpy
+    from warp_subdiv.io.usd_write import _exports_storage, from_numpy
 
     rng = np.random.default_rng(3)
     cases = [(Vt.IntArray, rng.integers(-9, 9, 1000).astype(np.int32)),

@@ -9,7 +9,7 @@ import pytest
 
 import warp_subdiv as ws
 from conftest import load_mesh, mesh_path
-from warp_subdiv.objio import read_obj
+from warp_subdiv.io.obj import read_obj
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -73,7 +73,7 @@ def test_unwritable_output_leaves_no_file(tmp_path):
 
 
 def test_failed_write_leaves_no_partial_file(tmp_path, monkeypatch):
-    from warp_subdiv import objio
+    from warp_subdiv.io import obj as objio
 
     def boom(*a, **k):
         raise OSError("disk full")
@@ -106,7 +106,7 @@ def test_internal_errors_exit_1_with_the_debug_hint(tmp_path, monkeypatch, capsy
     """Only input errors exit 2: a plain ValueError from inside (a bug) exits 1 with one line that says it is
     an internal error and how to see the traceback; WARP_SUBDIV_DEBUG=1 lets the exception through."""
     from warp_subdiv import cli
-    from warp_subdiv import objio
+    from warp_subdiv.io import obj as objio
 
     def broken(path):
         raise ValueError("something inside went wrong")
@@ -128,7 +128,7 @@ def test_input_errors_exit_2_with_the_flag_named(tmp_path, monkeypatch, capsys):
     """A SubdivInputError from the same place exits 2; errors about an option the command line set name its
     flag (the library's messages name the keyword)."""
     from warp_subdiv import cli
-    from warp_subdiv import objio
+    from warp_subdiv.io import obj as objio
     from warp_subdiv.errors import SubdivInputError
 
     def bad(path):

@@ -30,7 +30,7 @@ from conftest import DATA, load_mesh
 from warp_subdiv import SubdivInputError
 from warp_subdiv.hierarchy import Hierarchy
 from warp_subdiv.limit_patches import END_CAP, LOOP_BEZIER, TRI_BEZIER_INDEX, TRI_RING
-from warp_subdiv.objio import read_obj
+from warp_subdiv.io.obj import read_obj
 from warp_subdiv.topology import base_level, refine_level
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -15,7 +15,7 @@ Known disagreements are strict xfails in section 5 whose reasons say exactly wha
 when fixed (one remains: normals at vertices with several sectors, where warp-subdiv averages the sectors'
 normals); section 5 also pins cases that once differed.
 
-The peer's input is parsed from the OBJ files here, independently of warp_subdiv.objio. Loop with polygons:
+The peer's input is parsed from the OBJ files here, independently of warp_subdiv.io.obj. Loop with polygons:
 the peer gets the fan triangulation warp-subdiv documents, (v0, vi, vi+1) per polygon in face order.
 """
 import glob
@@ -40,7 +40,7 @@ if not osd_peer.available():
 
 import warp_subdiv as ws  # noqa: E402
 from conftest import DATA, MESHES  # noqa: E402
-from warp_subdiv.objio import read_obj  # noqa: E402
+from warp_subdiv.io.obj import read_obj  # noqa: E402
 
 SHAPES = os.path.join(DATA, "opensubdiv-shapes")
 RTOL = 1e-6      # of the largest coordinate magnitude
@@ -63,7 +63,7 @@ SEMI_SHARP_BOUNDARY_NONE = (
 
 # ------------------------------------------------------------------------------------------- mesh input
 def parse_obj(path: str) -> dict:
-    """The OBJ (and .creases/.corners side files) as peer keywords, parsed here, not with warp_subdiv.objio.
+    """The OBJ (and .creases/.corners side files) as peer keywords, parsed here, not with warp_subdiv.io.obj.
 
     Keys: points, counts, indices, creases, crease_sharpness, corners, corner_sharpness, holes, and the tag
     options boundary (None when not tagged) and creasing."""

@@ -81,7 +81,7 @@ def test_usd_preview_refines_as_the_bake(tmp_path, monkeypatch):
 def test_the_options_each_make_a_difference(tmp_path):
     """The scene above is a real check: each option it asks for moves the refined points."""
     from warp_subdiv.usd import make_refiner, options_for
-    from warp_subdiv.usd_read import open_stage, read_mesh
+    from warp_subdiv.io.usd_read import open_stage, read_mesh
 
     stage = open_stage(mixed_scene(tmp_path / "mixed.usda"))
     sp = read_mesh(stage.GetPrimAtPath("/World/Mesh"))
@@ -98,7 +98,7 @@ def test_obj_preview_refines_as_the_bake(tmp_path, monkeypatch):
     """render --levels and refine --levels agree on OBJ input too, the file's interpolateboundary tag included
     (the preview used to ignore it)."""
     from warp_subdiv import cli
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     pts, counts, idx = grid(2, 2)
     pts = np.array(pts, dtype=np.float64)

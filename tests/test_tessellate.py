@@ -137,7 +137,7 @@ def test_command_writes_obj_and_usd(tmp_path):
     layer over the input with the mesh's points, faces and normals, subdivisionScheme none."""
     out = tmp_path / "cube.obj"
     assert main(["tessellate", mesh_path("cube"), "-o", str(out), "--rate", "3", "--quiet"]) == 0
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
     back = read_obj(str(out)).mesh
     assert len(back.face_vertex_counts) == 6 * 9
     out2 = tmp_path / "cube_len.obj"

@@ -59,7 +59,7 @@ def test_large_level_splits_without_patching():
     matches one thread bitwise."""
     import os
 
-    from warp_subdiv.objio import read_obj
+    from warp_subdiv.io.obj import read_obj
 
     mesh = read_obj(os.path.join(os.path.dirname(__file__), "..", "bench", "meshes", "cube64_noisy.obj")).mesh
     one = ws.Refiner(mesh, 2, device="cpu", threads=1)

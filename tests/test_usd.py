@@ -11,7 +11,7 @@ from test_usd_support import SCENES_DIR, as_baked, digest, grid, scene_module, w
 from warp_subdiv.errors import SubdivInputError
 from warp_subdiv.order import OrderedRefiner
 from warp_subdiv.usd import MemoryGuardError, refine_usd
-from warp_subdiv.usd_read import open_stage, read_mesh
+from warp_subdiv.io.usd_read import open_stage, read_mesh
 
 SCENES = scene_module().SCENES
 LEVELS = 2
@@ -396,7 +396,7 @@ def test_reader_errors_name_the_prim_and_attribute(tmp_path, attrs, custom, need
 def test_library_errors_are_put_in_usd_terms_from_their_fields():
     """usd_error names the USD attribute from an error's structured fields (the Mesh argument or refiner option,
     else the element), never from its text, keeps the fields, and turns a crease edge into its USD crease."""
-    from warp_subdiv.usd_read import usd_error
+    from warp_subdiv.io.usd_read import usd_error
 
     cases = [
         (SubdivInputError("flatness must lie in [0, 1], got 2", option="flatness", value=2),

@@ -235,7 +235,7 @@ def _check_device(device) -> None:
 
 
 def _kind(path: str) -> str:
-    from .usd_write import USD_EXTENSIONS
+    from .io.usd_write import USD_EXTENSIONS
 
     ext = os.path.splitext(path)[1].lower()
     if ext == ".obj":
@@ -316,7 +316,7 @@ def _refine(args) -> int:
 def _refine_usd(args, max_memory, progress) -> int:
     _quiet_warp()
     from .usd import refine_usd
-    from .usd_read import parse_frames
+    from .io.usd_read import parse_frames
 
     frames = parse_frames(args.frames)
     run = dict(prims=args.prim, scheme=args.scheme, rules=args.rules, boundary=args.boundary, device=args.device,
@@ -353,7 +353,7 @@ def _device_name(device) -> str:
 def _refine_obj(args, out_kind, max_memory, progress) -> int:
     _quiet_warp()
     from .runtime.estimate import check_memory, estimate
-    from .objio import read_obj, write_obj
+    from .io.obj import read_obj, write_obj
     from .usd import make_refiner, options_for
 
     if args.prim or args.frames:
@@ -375,7 +375,7 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     progress(0.7, f"{args.input}: points")
     refined = refiner.refine()
     progress(0.9, f"writing {args.output}")
-    from .usd_write import make_folders, remove_folders, write_mesh_layer
+    from .io.usd_write import make_folders, remove_folders, write_mesh_layer
 
     out_dir = os.path.dirname(os.path.abspath(args.output))
     created = []
@@ -422,7 +422,7 @@ def _info(args) -> int:
         raise UsageError(f"--levels must be >= 0, got {args.levels}")
     if kind == "obj":
         _quiet_warp()
-        from .objio import read_obj
+        from .io.obj import read_obj
         from .usd import make_refiner, options_for
 
         data = read_obj(args.input)
@@ -439,7 +439,7 @@ def _info(args) -> int:
     from pxr import UsdGeom
 
     from .usd import estimate_prim, make_refiner, plan
-    from .usd_read import summarize_tags
+    from .io.usd_read import summarize_tags
 
     p = plan(args.input, args.levels, prims=args.prim, require_meshes=False)
     stage = p.stage
@@ -595,7 +595,7 @@ def main(argv=None) -> int:
         return 2
     except Exception as exc:  # the last line of defence: no traceback for the user
         if _is_usd_error(exc):  # USD could not read the input
-            from .usd_read import tf_message
+            from .io.usd_read import tf_message
 
             print(f"{PROG}: error: {tf_message(exc)}", file=sys.stderr)
             return 2

@@ -45,7 +45,7 @@ from pxr import Sdf, Usd, UsdUtils, Vt
 
 from .version import __version__
 from .errors import SubdivInputError
-from .usd_write import USD_EXTENSIONS, check_output_path, make_folders, relative_asset_path, remove_folders
+from .io.usd_write import USD_EXTENSIONS, check_output_path, make_folders, relative_asset_path, remove_folders
 
 #: Fewest time samples a frame chunk holds (an animated mesh with fewer than twice this is one unit).
 MIN_CHUNK_SAMPLES = 4
@@ -367,7 +367,7 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     Returns a :class:`warp_subdiv.usd.Result`."""
     from .runtime import threads as th
     from .usd import PrimReport, Result, plan
-    from .usd_write import OutputLayer
+    from .io.usd_write import OutputLayer
 
     start = _time.perf_counter()
     if isinstance(levels, bool) or not isinstance(levels, int) or levels < 0:
@@ -595,7 +595,7 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
     25:50) interpolate across chunk boundaries; with 1:25, 26:50 values between 25 and 26 hold at 25.
     Returns a :class:`warp_subdiv.usd.Result` (no reports)."""
     from .usd import Result
-    from .usd_write import OutputLayer
+    from .io.usd_write import OutputLayer
 
     start = _time.perf_counter()
     if not chunk_paths:

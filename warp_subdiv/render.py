@@ -25,7 +25,7 @@ import numpy as np
 
 from .errors import SubdivInputError
 from .mesh import face_offsets_of, next_corner_of
-from .usd_write import make_folders, publish, remove_folders
+from .io.usd_write import make_folders, publish, remove_folders
 
 BACKGROUND_TOP = np.array([0.93, 0.94, 0.96])
 BACKGROUND_BOTTOM = np.array([0.78, 0.80, 0.84])
@@ -236,7 +236,7 @@ def mesh_placements(stage, prims=None, time=None, where: str = "render"):
     instancer's space, without the instances its ``invisibleIds`` / ``inactiveIds`` mask."""
     from pxr import Gf, Usd, UsdGeom
 
-    from .usd_read import check_roots
+    from .io.usd_read import check_roots
 
     t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     roots = check_roots(stage, prims, where) or [stage.GetPseudoRoot().GetPath()]
@@ -364,7 +364,7 @@ def _refined(prim, t, levels, device):
     refined as ``warp-subdiv refine`` refines it (same options, same bilinear handling)."""
     from .primvars import FaceMap
     from .usd import linear_vertex_data, make_refiner
-    from .usd_read import DEFAULT, read_mesh
+    from .io.usd_read import DEFAULT, read_mesh
 
     sp = read_mesh(prim)
     time = DEFAULT if t.IsDefault() else t.GetValue()
@@ -632,7 +632,7 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
     width, height = size
     aspect = width / height
     if kind == "obj":
-        from .objio import read_obj
+        from .io.obj import read_obj
 
         if camera:
             raise SubdivInputError("camera needs a USD file", option="camera", value=camera)
@@ -650,7 +650,7 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
     else:
         from pxr import UsdGeom
 
-        from .usd_read import open_stage
+        from .io.usd_read import open_stage
 
         stage = open_stage(path)
         if time is None and stage.HasAuthoredTimeCodeRange():
@@ -671,7 +671,7 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
         up_axis = UsdGeom.GetStageUpAxis(stage)
     edges = None
     if cage:
-        from .usd_read import open_stage
+        from .io.usd_read import open_stage
 
         edges = cage_edges(open_stage(cage), time, prims)
     if not len(soup.corners):

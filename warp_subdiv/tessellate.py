@@ -623,7 +623,7 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
     import os
     import time
 
-    from .objio import read_obj, write_obj
+    from .io.obj import read_obj, write_obj
     from .usd import options_for
 
     t0 = time.perf_counter()
@@ -634,7 +634,7 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
     if out_kind == "obj":
         write_obj(output_path, t.points, t.face_vertex_counts, t.face_vertex_indices)
     else:
-        from .usd_write import write_mesh_layer
+        from .io.usd_write import write_mesh_layer
 
         name = os.path.splitext(os.path.basename(input_path))[0]
         write_mesh_layer(output_path, name, t.points, t.face_vertex_counts, t.face_vertex_indices)
@@ -654,7 +654,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     control face and face-varying (u, v) are written as ``primvars:tessellation:baseFace`` (uniform) and
     ``primvars:tessellation:uv`` (faceVarying).
 
-    Where the data goes is refine's layout (:func:`warp_subdiv.usd_read.read_scene`,
+    Where the data goes is refine's layout (:func:`warp_subdiv.io.usd_read.read_scene`,
     :func:`warp_subdiv.usd.layout`): meshes inside scene-graph instances (and instanceable PointInstancer
     prototypes) are tessellated once per prototype into ``/__warpSubdiv/Prototype_<n>``, which every instance
     of that prototype references (instances stay instances); meshes with identical inputs outside instances
@@ -665,8 +665,8 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
 
     from .version import __version__
     from .usd import Plan, layout
-    from .usd_read import open_stage, parse_frames, read_mesh, read_scene
-    from .usd_write import OutputLayer, check_output_path
+    from .io.usd_read import open_stage, parse_frames, read_mesh, read_scene
+    from .io.usd_write import OutputLayer, check_output_path
 
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
@@ -714,15 +714,15 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
 
 def _tessellate_prim(sp, layer, warnings_, *, rate, edge_length, scheme, rules, boundary, depth, quads,
                      device) -> MeshReport:
-    """Tessellate one mesh (as read) and write it at :attr:`~warp_subdiv.usd_read.SubdivPrim.output_path` of
+    """Tessellate one mesh (as read) and write it at :attr:`~warp_subdiv.io.usd_read.SubdivPrim.output_path` of
     ``layer``."""
     import time
 
     from pxr import Sdf, UsdGeom, Vt
 
     from .usd import options_for
-    from .usd_read import DEFAULT, SUBDIVISION_ATTRIBUTES
-    from .usd_write import extent_of
+    from .io.usd_read import DEFAULT, SUBDIVISION_ATTRIBUTES
+    from .io.usd_write import extent_of
 
     T = Sdf.ValueTypeNames
     t0 = time.perf_counter()
@@ -886,7 +886,7 @@ def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=No
     point, time-sampled) are blocked."""
     from pxr import Sdf
 
-    from .usd_write import vt_array
+    from .io.usd_write import vt_array
 
     V = sp.mesh.num_vertices
     C = len(sp.mesh.face_vertex_indices)

@@ -20,7 +20,7 @@ The output layer sublayers the input and holds an ``over`` of every refined mesh
 Meshes inside scene-graph instances go into a refined prototype (``/__warpSubdiv/Prototype_<n>``, under a
 class) that every instance of the prototype references; identical meshes elsewhere are refined once and
 written once (``/__warpSubdiv/Mesh_<n>``, referenced); with ``all_variants`` every variant that changes a mesh
-is refined into the same variant set and variant (:class:`Layout`, :func:`warp_subdiv.usd_read.read_scene`).
+is refined into the same variant set and variant (:class:`Layout`, :func:`warp_subdiv.io.usd_read.read_scene`).
 Topology that changes over time is refined per sample, with a refiner per distinct control mesh.
 
 Transforms, materials, relationships and every other prim come from the input unchanged.
@@ -49,14 +49,14 @@ from .batch import MeshBatch, batch_key
 from .errors import SubdivInputError
 from .runtime.estimate import Estimate, MemoryGuardError, check_memory, estimate, total_bytes
 from .hierarchy import shipped
-from .objio import ObjData
+from .io.obj import ObjData
 from .options import Boundary, Options, Precision, RuleSet, Scheme
 from .order import OrderedRefiner, check_vertex_order
 from .primvars import FaceMap, corners_to_vertices, vertices_used
 from .refiner import Refiner
-from .usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, open_stage, read_mesh,
+from .io.usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, open_stage, read_mesh,
                        read_scene)
-from .usd_write import OutputLayer, check_output_path, extent_of, int_array, vec3f_array, vt_array
+from .io.usd_write import OutputLayer, check_output_path, extent_of, int_array, vec3f_array, vt_array
 
 T = Sdf.ValueTypeNames
 
@@ -140,7 +140,7 @@ def plan(
     """Open ``input_path`` and read every subdivision mesh at or under ``prims``; predict output sizes.
 
     Meshes inside scene-graph instances and PointInstancer prototypes are read once per prototype, meshes
-    whose composed inputs are identical once (:func:`~warp_subdiv.usd_read.read_scene`; :attr:`Plan.scene`
+    whose composed inputs are identical once (:func:`~warp_subdiv.io.usd_read.read_scene`; :attr:`Plan.scene`
     says where each one's refined data goes). ``all_variants``: every variant of the variant sets that change
     a mesh is read too. An explicit ``scheme`` with ``prims`` refines the meshes there whatever their
     subdivisionScheme says (polygonal meshes too).
@@ -210,9 +210,9 @@ def options_for(source, *, scheme=None, rules=None, boundary=None, precision="fl
     """The refinement options of one control mesh, as its file gives them, with the run's overrides.
 
     The one place every front end (the USD bake, ``info``, ``render --levels``, OBJ refinement) gets its
-    options from. ``source`` is a :class:`~warp_subdiv.usd_read.SubdivPrim` (a USD mesh as read: its scheme,
+    options from. ``source`` is a :class:`~warp_subdiv.io.usd_read.SubdivPrim` (a USD mesh as read: its scheme,
     ``subdiv:rules``, ``interpolateBoundary``, ``subdiv:flatness``, ``subdiv:normalStrength``,
-    ``triangleSubdivisionRule``) or an :class:`~warp_subdiv.objio.ObjData` (OBJ: Loop for an all-triangle
+    ``triangleSubdivisionRule``) or an :class:`~warp_subdiv.io.obj.ObjData` (OBJ: Loop for an all-triangle
     mesh, else Catmull-Clark; its ``interpolateboundary`` and ``creasemethod`` tags). ``scheme`` ("auto" or
     None: the file's), ``rules`` and ``boundary`` (None: the file's) override what the file says.
 

@@ -13,8 +13,8 @@ import tempfile
 import numpy as np
 from pxr import Sdf, Usd, Vt
 
-from .runtime import phases as _phases
-from .errors import SubdivInputError
+from ..runtime import phases as _phases
+from ..errors import SubdivInputError
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc")
 #: Layer metadata that is the input's own business and is not copied to the output layer.

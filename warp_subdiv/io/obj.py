@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import SubdivInputError
-from .mesh import Mesh
-from .options import CreaseMethod
+from ..errors import SubdivInputError
+from ..mesh import Mesh
+from ..options import CreaseMethod
 
 BOUNDARY_FROM_TAG = {0: "none", 1: "edge-and-corner", 2: "edge-only"}
 

@@ -20,9 +20,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom
 
-from .errors import SubdivInputError
-from .mesh import INFINITE_SHARPNESS, Mesh, expand_counts
-from .options import FaceVaryingMode, RuleSet
+from ..errors import SubdivInputError
+from ..mesh import INFINITE_SHARPNESS, Mesh, expand_counts
+from ..options import FaceVaryingMode, RuleSet
 
 #: USD subdivisionScheme -> the scheme warp-subdiv refines with ("none" meshes are left alone).
 USD_SCHEMES = {"catmullClark": "catmull-clark", "loop": "loop", "bilinear": "bilinear"}
