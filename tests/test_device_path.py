@@ -336,7 +336,7 @@ def test_32_bit_refusals_come_before_allocating(monkeypatch):
     monkeypatch.undo()
     monkeypatch.setattr(estimate, "INT32_MAX", 100)
     from warp_subdiv import projections
-    from warp_subdiv import topology
+    from warp_subdiv.topology import refinement as topology
 
     level = r.hierarchy.final
     if level.edge_verts is None:  # built faces-only: the full last level

@@ -158,7 +158,7 @@ def test_threaded_topology_is_bitwise_one_thread(monkeypatch, name, scheme, rule
     """Refinement steps whose per-face tables are written in blocks split over 2 threads (blocks of 2 faces,
     so that these small meshes split) give, array for array, the levels, step tables and topology of a
     one-thread build in one block."""
-    from warp_subdiv import topology
+    from warp_subdiv.topology import refinement as topology
     from warp_subdiv.hierarchy import Hierarchy
     from warp_subdiv.options import Options
 

@@ -5,7 +5,7 @@ import pytest
 import warp_subdiv as ws
 from conftest import load_mesh
 from warp_subdiv.rules import weights as rules
-from warp_subdiv.topology import base_level, refine_level, triangulate
+from warp_subdiv.topology.refinement import base_level, refine_level, triangulate
 
 CASES = [
     ("cube", "catmull-clark"),
@@ -175,7 +175,7 @@ def test_fan_triangulation():
 def test_small_pages_restores_numpy_hint_after_nesting_and_errors():
     """Topology steps switch numpy's huge-page hint off; the host's setting comes back afterwards, also when
     uses nest (concurrent refiners) or a step raises."""
-    from warp_subdiv.topology import small_pages
+    from warp_subdiv.runtime.pages import small_pages
 
     switch = getattr(getattr(getattr(np, "_core", None), "multiarray", None), "_set_madvise_hugepage", None)
     if switch is None:

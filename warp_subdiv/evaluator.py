@@ -41,7 +41,7 @@ import warp as wp
 from .runtime import threads as _threads
 from .errors import SubdivInputError
 from .tables import RegularTables
-from .topology import small_pages
+from .runtime.pages import small_pages
 
 PRECISIONS = {"float32": (np.float32, wp.float32, wp.vec3f), "float64": (np.float64, wp.float64, wp.vec3d)}
 

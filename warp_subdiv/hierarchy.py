@@ -58,7 +58,8 @@ from .options import Options, Scheme
 from .rules import edge_gamma_shift
 from .tables import StencilTable, build_regular, build_stencils
 from .runtime.threads import run as run_jobs
-from .topology import Level, Refinement, base_faces, base_level, refine_level, small_pages
+from .runtime.pages import small_pages
+from .topology import Level, Refinement, base_faces, base_level, refine_level
 
 
 class Hierarchy:

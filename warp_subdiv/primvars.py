@@ -17,7 +17,8 @@ import numpy as np
 from .hierarchy import Parentage
 from .mesh import Mesh
 from .options import Boundary, Scheme
-from .topology import CATMULL_CLARK, Refinement, triangulate
+from .rules import CATMULL_CLARK
+from .topology import Refinement, triangulate
 
 
 class FaceMap:

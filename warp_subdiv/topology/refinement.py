@@ -14,19 +14,18 @@ Because that order is closed-form index arithmetic, a step's child-to-parent map
 """
 from __future__ import annotations
 
-import contextlib
-import threading
 import warnings
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 
-from .rules import weights as rules
-from .errors import NonManifoldWarning, SubdivInputError
-from .mesh import INFINITE_SHARPNESS, Mesh, MeshEdges, expand_counts, face_offsets_of, find_edges
-from .options import Boundary, CreaseMethod, RuleSet, Scheme
-from .rules import CATMULL_CLARK, CORNER, CREASE, LOOP, SMOOTH
+from ..rules import weights as rules
+from ..errors import NonManifoldWarning, SubdivInputError
+from ..mesh import INFINITE_SHARPNESS, Mesh, MeshEdges, expand_counts, face_offsets_of, find_edges
+from ..options import Boundary, CreaseMethod, RuleSet, Scheme
+from ..rules import CATMULL_CLARK, CORNER, CREASE, LOOP, SMOOTH
+from ..runtime.pages import small_pages
 
 
 def _face_sizes(faces) -> np.ndarray:
@@ -193,8 +192,8 @@ class Level:
 # sharpness (OpenSubdiv's Sdc::Crease semantics; DeRose, Kass, Truong 1998). The arithmetic on sharpness
 # values lives in warp_subdiv/crease.py; these wrappers read its inputs off a Level.
 
-from .rules import crease  # noqa: E402  (imported inside this block; base_level uses the two names below)
-from .rules import semi_sharp_vertices, vertex_rule  # noqa: E402
+from ..rules import crease  # noqa: E402  (imported inside this block; base_level uses the two names below)
+from ..rules import semi_sharp_vertices, vertex_rule  # noqa: E402
 
 
 def has_semi_sharpness(level: Level) -> bool:
@@ -754,43 +753,13 @@ BLOCK_FACES = 16384
 def _blocks(num_faces: int, threads: int, fill) -> None:
     """``fill(a, b)`` over the faces 0..num_faces in blocks of :data:`BLOCK_FACES`, the blocks split into
     ``threads`` contiguous ranges (:func:`warp_subdiv.runtime.threads.map_ranges`)."""
-    from .runtime.threads import map_ranges
+    from ..runtime.threads import map_ranges
 
     def blocks(a, b):
         for s in range(a, b, BLOCK_FACES):
             fill(s, min(b, s + BLOCK_FACES))
 
     map_ranges(blocks, num_faces, max(1, int(threads)), min_rows=BLOCK_FACES)
-
-
-_pages_lock = threading.Lock()
-_pages_state = {"depth": 0, "previous": None}
-
-
-@contextlib.contextmanager
-def small_pages():
-    """Let numpy skip its transparent-huge-page hint for arrays written once and read in order.
-
-    A refinement step writes many large temporaries once each; with the hint the kernel zeroes (and on a
-    fragmented machine first compacts) 2 MiB pages at every first touch (BENCHMARKS.md, "Where the build
-    time goes"). Used for topology steps and output copies; everything else keeps the host's setting.
-    numpy's switch is private: without it, nothing changes.
-    """
-    switch = getattr(getattr(getattr(np, "_core", None), "multiarray", None), "_set_madvise_hugepage", None)
-    if switch is None:
-        yield
-        return
-    with _pages_lock:  # nested or concurrent users: the first switches off, the last restores
-        if _pages_state["depth"] == 0:
-            _pages_state["previous"] = switch(False)
-        _pages_state["depth"] += 1
-    try:
-        yield
-    finally:
-        with _pages_lock:
-            _pages_state["depth"] -= 1
-            if _pages_state["depth"] == 0:
-                switch(_pages_state["previous"])
 
 
 def _side(level: Level, h: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -1147,7 +1116,7 @@ def _assemble(level: Level, *, num_vertices: int, face_size: int, corner_vert, c
 
     # the three read the parent level and the step's tables only: with threads, at once (numpy releases the
     # GIL inside large gathers and scatters; the results do not depend on it)
-    from .runtime.threads import run as run_jobs
+    from ..runtime.threads import run as run_jobs
 
     (child_edge_verts, child_eoff, child_ecorners), (child_voff, child_vcorners), \
         (child_class, child_edge_sharpness, child_vert_sharpness, sectors) = \
