@@ -203,7 +203,7 @@ def main(argv=None) -> int:
 
     wp.config.log_level = 30
 
-    from warp_subdiv.hierarchy import Hierarchy
+    from warp_subdiv.tables.hierarchy import Hierarchy
     from warp_subdiv.options import Options
     from warp_subdiv.usd import plan
 

@@ -335,7 +335,7 @@ def test_32_bit_refusals_come_before_allocating(monkeypatch):
         r.evaluate(mesh.points)
     monkeypatch.undo()
     monkeypatch.setattr(estimate, "INT32_MAX", 100)
-    from warp_subdiv import projections
+    from warp_subdiv.tables import projections
     from warp_subdiv.topology import refinement as topology
 
     level = r.hierarchy.final

@@ -5,9 +5,9 @@ import pytest
 
 import warp_subdiv as ws
 from conftest import load_mesh
-from warp_subdiv.hierarchy import Hierarchy, Parentage
+from warp_subdiv.tables.hierarchy import Hierarchy, Parentage
 from warp_subdiv.options import Options
-from warp_subdiv.primvars import FaceMap
+from warp_subdiv.tables.face_map import FaceMap
 from warp_subdiv.topology.refinement import EDGE, FACE, VERTEX, Refinement, base_level, refine_level
 
 
@@ -249,7 +249,7 @@ def test_a_shipped_level_0_analysis_is_reused_and_changes_nothing(name, scheme, 
     """A hierarchy built while a level-0 hierarchy of the same mesh and options is shipped (what the USD bake
     does with the plan's analysis) does not analyse the control mesh again, and its tables, last level and
     refined points are bitwise those of a hierarchy built from scratch."""
-    from warp_subdiv import hierarchy as hmod
+    from warp_subdiv.tables import hierarchy as hmod
 
     mesh = mesh_of(name)
     options = Options(scheme=scheme, rules=rules)
@@ -281,7 +281,7 @@ def test_the_usd_bake_analyses_each_control_mesh_once(tmp_path, monkeypatch):
     control mesh is analysed once per mesh, not once for the estimate and again for the refinement."""
     import os
 
-    from warp_subdiv import hierarchy as hmod
+    from warp_subdiv.tables import hierarchy as hmod
     from warp_subdiv.usd import refine_usd
 
     calls = []

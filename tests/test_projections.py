@@ -5,7 +5,7 @@ import pytest
 import warp_subdiv as ws
 from conftest import load_mesh
 from warp_subdiv.rules import limit_masks as M
-from warp_subdiv.projections import sector_local_vectors
+from warp_subdiv.tables.projections import sector_local_vectors
 from warp_subdiv.rules.weights import SECTOR_CREASE
 from warp_subdiv.topology.refinement import base_level, refine_level
 

@@ -135,7 +135,7 @@ def _arrays(obj, prefix="", seen=None) -> dict:
 def test_threaded_build_is_bitwise_one_thread(name, scheme):
     """The hierarchy built with 2 threads (step tables and the next level at once) has, array for array,
     the tables, displacements and final topology of the one-thread build."""
-    from warp_subdiv.hierarchy import Hierarchy
+    from warp_subdiv.tables.hierarchy import Hierarchy
     from warp_subdiv.options import Options
 
     mesh = load_mesh(name)
@@ -159,7 +159,7 @@ def test_threaded_topology_is_bitwise_one_thread(monkeypatch, name, scheme, rule
     so that these small meshes split) give, array for array, the levels, step tables and topology of a
     one-thread build in one block."""
     from warp_subdiv.topology import refinement as topology
-    from warp_subdiv.hierarchy import Hierarchy
+    from warp_subdiv.tables.hierarchy import Hierarchy
     from warp_subdiv.options import Options
 
     mesh = load_mesh(name)

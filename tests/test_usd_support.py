@@ -93,7 +93,7 @@ import warp_subdiv as ws  # noqa: E402
 from conftest import load_mesh  # noqa: E402
 from warp_subdiv.runtime.estimate import BUILD_PEAK, LIMIT_PEAK, RUNTIME_BYTES, estimate, level_counts, parse_size, total_bytes  # noqa: E402
 from warp_subdiv.errors import SubdivInputError  # noqa: E402
-from warp_subdiv.primvars import FaceMap  # noqa: E402
+from warp_subdiv.tables.face_map import FaceMap  # noqa: E402
 
 
 @pytest.mark.parametrize("name,scheme", [("cube", "catmull-clark"), ("mixed_prism", "catmull-clark"),

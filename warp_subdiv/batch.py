@@ -12,7 +12,7 @@ Where each member's rows are
 A refinement step numbers the child vertices [vertex children | face children (Catmull-Clark) | edge
 children], each block in the order of its parents; child faces follow their parent faces (and so their parent
 corners), child edges are [one per parent corner | two halves per parent edge] (see
-:mod:`warp_subdiv.hierarchy`). The union's level 0 lists the members one after the other in every element kind
+:mod:`warp_subdiv.tables.hierarchy`). The union's level 0 lists the members one after the other in every element kind
 (vertices and faces by construction; edges, which :func:`~warp_subdiv.mesh.find_edges` numbers in the order of
 the corners that make them, and a Loop fan triangulation likewise), and every step keeps each member's elements
 in its own relative order inside each block. So the member of every element of every level follows from the

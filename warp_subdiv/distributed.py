@@ -11,7 +11,7 @@ meshes of a USD file on a Dask cluster: a local one of ``workers`` worker proces
   semantics, so values held or interpolated at the range's ends are written there) into its own chunk layer.
   Neighbouring ranges share their boundary sample, so values between two samples interpolate across chunks.
   The mesh's topology and tables are computed once by a topology task and shipped to its frame tasks
-  (:func:`warp_subdiv.hierarchy.shipped`): the tasks read the mesh at their own frames but refine with the
+  (:func:`warp_subdiv.tables.hierarchy.shipped`): the tasks read the mesh at their own frames but refine with the
   tables of the single-process bake, so they produce its values. A mesh's chunks after its first hold only
   time samples (``refine_usd(..., samples_only=True)``: no topology, no defaults), all that value clips read
   from them; saving the refined ``faceVertexIndices`` was most of a short chunk's cost.
@@ -172,7 +172,7 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
     """Refine one unit into ``folder/unit.layer`` (written under a private name, then renamed); ``topology``:
     the mesh's (hierarchy, seconds) from :func:`topology_task`, or None. Returns its reports and warnings, or
     {"error": ...} for input errors (the driver raises them)."""
-    from .hierarchy import shipped
+    from .tables import shipped
     from .usd import refine_usd
 
     start = _time.perf_counter()

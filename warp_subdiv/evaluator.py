@@ -1,4 +1,4 @@
-"""Evaluation of a :class:`~warp_subdiv.hierarchy.Hierarchy`'s step tables with Warp kernels.
+"""Evaluation of a :class:`~warp_subdiv.tables.hierarchy.Hierarchy`'s step tables with Warp kernels.
 
 The evaluator knows nothing about creases or schemes. As OpenSubdiv's ``Osd::CpuEvaluator`` it is stateless
 evaluation over typed records:
@@ -276,7 +276,7 @@ def upload(hierarchy, device, precision: str, expand: bool | None = None, min_ro
 
 
 def upload_limit(tables, device, precision: str) -> LimitMasks:
-    """The device records of a :class:`~warp_subdiv.projections.LimitTables`."""
+    """The device records of a :class:`~warp_subdiv.tables.projections.LimitTables`."""
     up = _Uploader(device, precision)
     return LimitMasks(up.stencil(tables.position), up.stencil(tables.tangent_u), up.stencil(tables.tangent_v),
                       up(tables.vertex_offsets, np.int32), num_vertices=tables.position.num_rows,

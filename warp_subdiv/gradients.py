@@ -277,7 +277,7 @@ def transposed_step(t: StencilTable, split: bool | None = None) -> TransposedSte
 
 @dataclass
 class _Displacement:
-    """A transposed displacement table, in the layout of :class:`~warp_subdiv.projections.DisplacementTable`."""
+    """A transposed displacement table, in the layout of :class:`~warp_subdiv.tables.projections.DisplacementTable`."""
 
     targets: np.ndarray
     offsets: np.ndarray

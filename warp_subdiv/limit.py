@@ -407,8 +407,8 @@ class LimitSurface:
         ``values`` (m,) or (m, k), ``indices`` one value index per face corner (the order of the mesh's
         ``face_vertex_indices``), ``mode``: OpenSubdiv's FVarLinearInterpolation ("none", "corners-only",
         "corners-plus1" (USD's default), "corners-plus2", "boundaries", "all"; see
-        :mod:`warp_subdiv.facevarying`). As OpenSubdiv's Bfr evaluates face-varying data, the channel is the limit
-        surface of its value mesh (:func:`~warp_subdiv.facevarying.value_mesh`: the same faces in the same
+        :mod:`warp_subdiv.tables.facevarying`). As OpenSubdiv's Bfr evaluates face-varying data, the channel is the
+        limit surface of its value mesh (:func:`~warp_subdiv.tables.facevarying.value_mesh`: the same faces in the same
         order, seams as boundaries, the mode's sharp values), subdivided with OpenSubdiv's rules as
         ``Refiner.limit_face_varying`` does, so at refined corners the two agree; (face, u, v) means the same
         point as in :meth:`evaluate`. Mode "all" (and any mode on a linear surface) is linear interpolation
@@ -469,7 +469,7 @@ class LimitSurface:
 
     def _face_varying_channel(self, indices, mode) -> dict:
         """The value mesh of a channel as a limit surface (cached for the last indices and mode)."""
-        from .facevarying import check_indices, value_mesh
+        from .tables import check_indices, value_mesh
         from .topology import triangulate
 
         idx = check_indices(indices, len(self.mesh.face_vertex_indices))

@@ -34,8 +34,8 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from .rules import limit_masks as M
-from . import projections
-from .hierarchy import Hierarchy
+from .tables import projections
+from .tables import Hierarchy
 from .mesh import INFINITE_SHARPNESS, Mesh
 from .options import Options, Scheme
 from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CREASE, SMOOTH, edge_gamma_shift

@@ -168,7 +168,7 @@ class OrderedRefiner:
 
 
 class _ChannelOwner:
-    """What a :class:`~warp_subdiv.facevarying.FaceVaryingChannel` reads of the refiner that owns it (mesh,
+    """What a :class:`~warp_subdiv.tables.facevarying.FaceVaryingChannel` reads of the refiner that owns it (mesh,
     options, levels, device), without building that refiner's vertex tables. The channel refines its value mesh
     with ``type(owner)(mesh, levels, options=, device=)``, which here builds a ``refiner_type``."""
 
@@ -243,7 +243,7 @@ def _fast_parts(refiner, values, indices, mode, cache: dict | None = None, rows=
     not apply. ``cache``: a dict that keeps the last :class:`_FastPlan` with its key (mode and indices);
     ``rows``: the rows of the vertex refinement to keep, in that order (None: all, in the refiner's order)."""
     from .errors import SubdivInputError
-    from .facevarying import check_indices
+    from .tables import check_indices
     from .mesh import check_rows
     from .options import FaceVaryingMode
 
@@ -293,7 +293,7 @@ def _fast_plan(refiner, idx, mode):
     """The :class:`_FastPlan` of value indices ``idx`` (checked) and ``mode`` (parsed), or None where every
     control face is near a seam."""
     from .errors import NonManifoldWarning
-    from .facevarying import FaceVaryingChannel
+    from .tables import FaceVaryingChannel
     from .mesh import Mesh
     from .rules import SMOOTH
 

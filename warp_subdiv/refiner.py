@@ -1,6 +1,6 @@
 """The public entry points: :class:`Refiner` (topology and tables once, evaluate many times) and :func:`refine`.
 
-A :class:`Refiner` is a thin facade: a :class:`~warp_subdiv.hierarchy.Hierarchy` (numpy: levels, step tables,
+A :class:`Refiner` is a thin facade: a :class:`~warp_subdiv.tables.hierarchy.Hierarchy` (numpy: levels, step tables,
 parent maps) evaluated by an :class:`~warp_subdiv.evaluator.Evaluator` (Warp kernels), plus the face-varying
 channels it owns.
 """
@@ -16,8 +16,8 @@ from .errors import SubdivInputError
 from .runtime import estimate
 from . import interop
 from .evaluator import Evaluated, Evaluator, default_device, normal_control_for
-from .facevarying import FaceVaryingChannel, check_indices
-from .hierarchy import Hierarchy
+from .tables import FaceVaryingChannel, check_indices
+from .tables import Hierarchy
 from .mesh import DATA_BOUND, Mesh, check_rows
 from .options import FaceVaryingMode, Options
 from .tables import StencilTable
@@ -356,7 +356,7 @@ class Refiner:
         Returns (refined values, refined indices int32, one per corner of the refined faces as in
         :meth:`topology`). ``mode``: OpenSubdiv's FVarLinearInterpolation, a
         :class:`~warp_subdiv.options.FaceVaryingMode` or its value ("none", "corners-only", "corners-plus1"
-        (USD's default), "corners-plus2", "boundaries", "all"); see :mod:`warp_subdiv.facevarying`. The
+        (USD's default), "corners-plus2", "boundaries", "all"); see :mod:`warp_subdiv.tables.facevarying`. The
         channel's topology is built on the first call for given indices and mode and reused, so later frames
         cost one evaluation.
         """
@@ -371,7 +371,7 @@ class Refiner:
         """The refiner's face-varying channel for ``indices`` and ``mode`` (built once, then reused).
 
         The refiner owns its channel and passes itself in: the channel refines its value mesh with a refiner of
-        this type and these options (:class:`~warp_subdiv.facevarying.FaceVaryingChannel`)."""
+        this type and these options (:class:`~warp_subdiv.tables.facevarying.FaceVaryingChannel`)."""
 
         mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
         indices = check_indices(indices, len(self.mesh.face_vertex_indices))  # before the cache: 1-D int64

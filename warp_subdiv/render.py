@@ -362,7 +362,7 @@ def _authored_normals(mesh, counts, indices, n_points, t):
 def _refined(prim, t, levels, device):
     """(points, counts, indices, control face of each refined face) of a subdivision mesh at time ``t``,
     refined as ``warp-subdiv refine`` refines it (same options, same bilinear handling)."""
-    from .primvars import FaceMap
+    from .tables import FaceMap
     from .usd import linear_vertex_data, make_refiner
     from .io.usd_read import DEFAULT, read_mesh
 

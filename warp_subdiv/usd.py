@@ -48,11 +48,11 @@ from .runtime import threads as _threads
 from .batch import MeshBatch, batch_key
 from .errors import SubdivInputError
 from .runtime.estimate import Estimate, MemoryGuardError, check_memory, estimate, total_bytes
-from .hierarchy import shipped
+from .tables import shipped
 from .io.obj import ObjData
 from .options import Boundary, Options, Precision, RuleSet, Scheme
 from .order import OrderedRefiner, check_vertex_order
-from .primvars import FaceMap, corners_to_vertices, vertices_used
+from .tables import FaceMap, corners_to_vertices, vertices_used
 from .refiner import Refiner
 from .io.usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, open_stage, read_mesh,
                        read_scene)
@@ -643,7 +643,7 @@ class _Batches:
     preparing leaves the chunk (or that sample) to the unbatched path, which reports it as it would."""
 
     def __init__(self, p: Plan, levels, device, limit, normals, *, defaults: bool = True):
-        from .hierarchy import _shipped_for
+        from .tables import _shipped_for
 
         self.levels, self.device, self.limit, self.normals = levels, device, limit, normals
         self.defaults = defaults  # whether default values are written (not with samples_only)

@@ -10,7 +10,7 @@ child vertices are [one per parent vertex, one per parent face (Catmull-Clark), 
 child faces follow parent corners; child edges are [edges inside parent faces, two halves per parent edge].
 Because that order is closed-form index arithmetic, a step's child-to-parent maps need no stored tables:
 :class:`Refinement` states them as rules over the parent level's counts and materialises arrays on demand
-(the conventions are documented in :mod:`warp_subdiv.hierarchy`, which keeps one per step).
+(the conventions are documented in :mod:`warp_subdiv.tables.hierarchy`, which keeps one per step).
 """
 from __future__ import annotations
 
@@ -299,7 +299,7 @@ class BaseFaces:
 def base_faces(mesh: Mesh, scheme: str, boundary: str = "edge-and-corner",
                triangulate_polygons: bool = True) -> BaseFaces:
     """The faces, edges and holes of level 0 (cheap: no fans, classes or sectors), shared by
-    :func:`base_level` and the face bookkeeping of :mod:`warp_subdiv.primvars`."""
+    :func:`base_level` and the face bookkeeping of :mod:`warp_subdiv.tables.face_map`."""
     nv = mesh.num_vertices
     counts = mesh.face_vertex_counts
     indices = mesh.face_vertex_indices
@@ -1145,7 +1145,7 @@ class Refinement:
     ``_childVertexParentIndex`` and a tag per child. Here the child order of :func:`refine_level` makes them
     closed-form index arithmetic, so a step keeps its parent's counts and materialises arrays only when asked.
     The one stored array is ``face_offsets`` of a parent with mixed polygons (only the control mesh has them),
-    of control size. The conventions are listed in :mod:`warp_subdiv.hierarchy`.
+    of control size. The conventions are listed in :mod:`warp_subdiv.tables.hierarchy`.
     """
 
     scheme: str

@@ -1,8 +1,8 @@
 """Face-level bookkeeping of a refinement: which control face every refined face comes from, and bilinear
 refinement of per-face-corner data.
 
-Both read the refinement's recorded parentage (:class:`warp_subdiv.hierarchy.Parentage`: child faces, their
-parents and the rotation of their corners; conventions in :mod:`warp_subdiv.hierarchy`), either a refiner's
+Both read the refinement's recorded parentage (:class:`warp_subdiv.tables.hierarchy.Parentage`: child faces, their
+parents and the rotation of their corners; conventions in :mod:`warp_subdiv.tables.hierarchy`), either a refiner's
 own (``FaceMap(..., hierarchy=refiner.hierarchy)``) or one built from the mesh's faces alone, without analysing
 it. Bilinear meshes follow Catmull-Clark's child order, and Loop fan-triangulates polygons first.
 
@@ -15,10 +15,10 @@ from __future__ import annotations
 import numpy as np
 
 from .hierarchy import Parentage
-from .mesh import Mesh
-from .options import Boundary, Scheme
-from .rules import CATMULL_CLARK
-from .topology import Refinement, triangulate
+from ..mesh import Mesh
+from ..options import Boundary, Scheme
+from ..rules import CATMULL_CLARK
+from ..topology import Refinement, triangulate
 
 
 class FaceMap:
@@ -28,7 +28,7 @@ class FaceMap:
     ``boundary`` matters only for "none", whose faces touching an untagged boundary are left out (as holes
     are). ``parent[i]`` is the control face of refined face i, for the faces the refiner outputs; ``keep``
     says which of all refined faces (holes included) those are. ``hierarchy``: the refiner's
-    :class:`~warp_subdiv.hierarchy.Hierarchy` of at least ``levels`` levels, whose recorded parentage is read
+    :class:`~warp_subdiv.tables.hierarchy.Hierarchy` of at least ``levels`` levels, whose recorded parentage is read
     instead of being derived from the mesh's faces (same result, no second pass over the mesh).
     """
 

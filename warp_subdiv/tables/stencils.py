@@ -12,12 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rules import crease
-from .rules import weights as rules
-from .runtime.estimate import check_int32
-from .mesh import expand_counts, face_offsets_of
-from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
-from .topology import Level, child_rules, child_sharpness, fractional_weight, has_semi_sharpness
+from ..rules import crease
+from ..rules import weights as rules
+from ..runtime.estimate import check_int32
+from ..mesh import expand_counts, face_offsets_of
+from ..rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
+from ..topology import Level, child_rules, child_sharpness, fractional_weight, has_semi_sharpness
 
 
 @dataclass

@@ -17,13 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rules import limit_masks as M
-from .errors import SubdivInputError
-from .runtime.estimate import check_int32
-from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, SMOOTH
-from .mesh import INFINITE_SHARPNESS, face_offsets_of
-from .tables import StencilTable, crease_neighbours
-from .topology import Level
+from ..rules import limit_masks as M
+from ..errors import SubdivInputError
+from ..runtime.estimate import check_int32
+from ..rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, SMOOTH
+from ..mesh import INFINITE_SHARPNESS, face_offsets_of
+from .stencils import StencilTable, crease_neighbours
+from ..topology import Level
 
 
 @dataclass

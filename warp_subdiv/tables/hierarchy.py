@@ -9,7 +9,7 @@ OpenSubdiv's ``Vtr::Refinement::refine`` is:
    :mod:`warp_subdiv.tables`), ``refine topology`` (the child level by index arithmetic,
    :func:`topology.refine_level`, and the step's parentage rules, :class:`topology.Refinement`),
    ``projections`` (flatness and normal-control displacement tables of the child level,
-   :mod:`warp_subdiv.projections`).
+   :mod:`warp_subdiv.tables.projections`).
 
 What the evaluator needs per step is in :attr:`steps`, :attr:`flatness_tables` and :attr:`normal_tables`;
 the last level's topology is :meth:`topology`; limit masks are built on demand by :meth:`limit_tables`.
@@ -51,15 +51,15 @@ import contextvars
 
 import numpy as np
 
-from .runtime import estimate
+from ..runtime import estimate
 from . import projections
-from .mesh import Mesh
-from .options import Options, Scheme
-from .rules import edge_gamma_shift
-from .tables import StencilTable, build_regular, build_stencils
-from .runtime.threads import run as run_jobs
-from .runtime.pages import small_pages
-from .topology import Level, Refinement, base_faces, base_level, refine_level
+from ..mesh import Mesh
+from ..options import Options, Scheme
+from ..rules import edge_gamma_shift
+from .stencils import StencilTable, build_regular, build_stencils
+from ..runtime.threads import run as run_jobs
+from ..runtime.pages import small_pages
+from ..topology import Level, Refinement, base_faces, base_level, refine_level
 
 
 class Hierarchy:

@@ -24,10 +24,10 @@ import warnings
 
 import numpy as np
 
-from .errors import NonManifoldWarning, SubdivInputError
-from .mesh import INFINITE_SHARPNESS, Mesh, check_rows
-from .options import FaceVaryingMode, Scheme
-from .topology import base_level, triangulate
+from ..errors import NonManifoldWarning, SubdivInputError
+from ..mesh import INFINITE_SHARPNESS, Mesh, check_rows
+from ..options import FaceVaryingMode, Scheme
+from ..topology import base_level, triangulate
 
 
 def check_indices(indices, num_corners: int) -> np.ndarray:
