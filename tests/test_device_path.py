@@ -8,8 +8,8 @@ import warp as wp
 
 import warp_subdiv as ws
 from warp_subdiv.runtime import estimate
-from warp_subdiv import interop
-from warp_subdiv import evaluator as ev
+from warp_subdiv.evaluator import interop
+from warp_subdiv.evaluator import evaluator as ev
 from warp_subdiv.runtime import threads as wthreads
 
 from conftest import load_mesh
@@ -405,7 +405,7 @@ def test_cpu_tables_expanded_from_the_third_evaluation(monkeypatch):
     them would cost more than it saves for a mesh evaluated once or twice) and the third and later the expanded
     ones of steps with EXPAND_MIN_ROWS rows or more (smaller steps keep the compact ones: they evaluate as fast);
     every result is bitwise the same, and explicit True or False keeps its tables throughout."""
-    from warp_subdiv import evaluator
+    from warp_subdiv.evaluator import evaluator
 
     mesh = load_mesh("cube")
     expected = ws.Refiner(mesh, 3, device="cpu", threads=1).evaluate(mesh.points)

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from . import evaluator as ev
+from .evaluator import evaluator as ev
 from .errors import SubdivInputError
 from .mesh import DATA_BOUND, check_rows, expand_counts
 from .tables import RegularTables, StencilTable, rows_of

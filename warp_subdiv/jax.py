@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import warp as wp
 
-from . import evaluator as ev
+from .evaluator import evaluator as ev
 from . import gradients as G
 
 __all__ = ["evaluate", "limit_normals", "limit_points", "function"]

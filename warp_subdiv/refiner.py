@@ -14,7 +14,7 @@ import warp as wp
 
 from .errors import SubdivInputError
 from .runtime import estimate
-from . import interop
+from .evaluator import interop
 from .evaluator import Evaluated, Evaluator, default_device, normal_control_for
 from .tables import FaceVaryingChannel, check_indices
 from .tables import Hierarchy
@@ -159,7 +159,7 @@ class Refiner:
                                      f"limit masks of level {self.levels}")
 
     def _rows_data(self, data, rows: int, what: str):
-        """(data, one_d): a device array as a checked (rows, d) Warp view (:mod:`warp_subdiv.interop`; values
+        """(data, one_d): a device array as a checked (rows, d) Warp view (:mod:`warp_subdiv.evaluator.interop`; values
         are not read back to be checked), or host data checked by :func:`~warp_subdiv.mesh.check_rows`
         (finite, within the precision's bound); one_d: the data was (rows,)."""
         view = interop.device_rows(data, rows, what, self.device)

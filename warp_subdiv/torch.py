@@ -22,7 +22,7 @@ from __future__ import annotations
 import torch
 import warp as wp
 
-from . import evaluator as ev
+from .evaluator import evaluator as ev
 from . import gradients as G
 
 __all__ = ["evaluate", "limit_normals", "limit_points"]

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .errors import SubdivInputError
+from ..errors import SubdivInputError
 
 #: DLPack device types whose memory the CPU can read (kDLCPU, kDLCUDAHost) and CUDA devices (kDLCUDA,
 #: kDLCUDAManaged).

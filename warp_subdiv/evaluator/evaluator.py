@@ -38,10 +38,10 @@ from functools import singledispatch
 import numpy as np
 import warp as wp
 
-from .runtime import threads as _threads
-from .errors import SubdivInputError
-from .tables import RegularTables
-from .runtime.pages import small_pages
+from ..runtime import threads as _threads
+from ..errors import SubdivInputError
+from ..tables import RegularTables
+from ..runtime.pages import small_pages
 
 PRECISIONS = {"float32": (np.float32, wp.float32, wp.vec3f), "float64": (np.float64, wp.float64, wp.vec3d)}
 
@@ -52,13 +52,13 @@ def default_device() -> str:
 
 
 def _kernels():
-    from . import kernels  # imported late: building a hierarchy needs no Warp module
+    from .. import kernels  # imported late: building a hierarchy needs no Warp module
 
     return kernels
 
 
 def _convert():
-    from .kernels import convert
+    from ..kernels import convert
 
     return convert
 
@@ -713,7 +713,7 @@ class Evaluator:
     call. Each kind of call records its launches once (a :class:`Plan`, per data width and normal-control
     choice) and replays them after: no argument packing per call; on CUDA (and on the CPU with ``graphs=True``)
     the whole step loop is one captured graph. Input data is host data (a checked numpy array) or a device
-    array as a (rows, width) Warp view (:mod:`warp_subdiv.interop`); it is copied into the level-0 buffer (on
+    array as a (rows, width) Warp view (:mod:`warp_subdiv.evaluator.interop`); it is copied into the level-0 buffer (on
     CUDA from a reused pinned buffer, or on the device). On CUDA the evaluator works on a stream of its own,
     ordered after the device's current stream on entry, and the current stream waits for it on exit.
 
@@ -805,7 +805,7 @@ class Evaluator:
             self._buffers = _LevelBuffers(self.level_rows(), [r.num_moved for r in records], self.device,
                                           self._scalar)
         if width > self._buffers.width:
-            from .runtime import estimate  # the buffers of this width must fit 32-bit sizes and the device
+            from ..runtime import estimate  # the buffers of this width must fit 32-bit sizes and the device
 
             rows = self._buffers.rows + self._buffers.moved
             estimate.check_buffer_elements(max(rows) * width, f"data of width {width}")
