@@ -509,7 +509,7 @@ def _print_levels(estimate_at, levels: int) -> None:
 
 def _tessellate(args) -> int:
     _quiet_warp()
-    from .tessellate import tessellate_file
+    from .limit import tessellate_file
 
     if args.rate is not None and args.rate < 1:
         raise UsageError(f"--rate must be at least 1, got {args.rate}")

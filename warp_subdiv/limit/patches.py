@@ -33,14 +33,14 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .rules import limit_masks as M
-from .tables import projections
-from .tables import Hierarchy
-from .mesh import INFINITE_SHARPNESS, Mesh
-from .options import Options, Scheme
-from .rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CREASE, SMOOTH, edge_gamma_shift
-from .tables import build_stencils
-from .topology import Level, base_level, refine_level
+from ..rules import limit_masks as M
+from ..tables import projections
+from ..tables import Hierarchy
+from ..mesh import INFINITE_SHARPNESS, Mesh
+from ..options import Options, Scheme
+from ..rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CREASE, SMOOTH, edge_gamma_shift
+from ..tables import build_stencils
+from ..topology import Level, base_level, refine_level
 
 #: Rings of context faces cut out around the faces refined locally. The artificial boundary of a cut-out
 #: changes the rules of its outermost ring of faces; after one step its influence reaches less than one and a

@@ -34,7 +34,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .errors import SubdivInputError
+from ..errors import SubdivInputError
 
 #: Refuse tessellations with more vertices than this (before any allocation of their size).
 MAX_VERTICES = 50_000_000
@@ -612,7 +612,7 @@ def _kind(path: str) -> str:
 
 
 def _surface(mesh, options, depth, device):
-    from .limit import DEFAULT_DEPTH, LimitSurface
+    from .surface import DEFAULT_DEPTH, LimitSurface
 
     return LimitSurface(mesh, options=options, depth=DEFAULT_DEPTH if depth is None else depth, device=device)
 
@@ -623,8 +623,8 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
     import os
     import time
 
-    from .io.obj import read_obj, write_obj
-    from .usd import options_for
+    from ..io.obj import read_obj, write_obj
+    from ..usd import options_for
 
     t0 = time.perf_counter()
     data = read_obj(input_path)
@@ -634,7 +634,7 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
     if out_kind == "obj":
         write_obj(output_path, t.points, t.face_vertex_counts, t.face_vertex_indices)
     else:
-        from .io.usd_write import write_mesh_layer
+        from ..io.usd_write import write_mesh_layer
 
         name = os.path.splitext(os.path.basename(input_path))[0]
         write_mesh_layer(output_path, name, t.points, t.face_vertex_counts, t.face_vertex_indices)
@@ -663,10 +663,10 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     checked: every tessellated mesh must compose to its tessellation."""
     import os
 
-    from .version import __version__
-    from .usd import Plan, layout
-    from .io.usd_read import open_stage, parse_frames, read_mesh, read_scene
-    from .io.usd_write import OutputLayer, check_output_path
+    from ..version import __version__
+    from ..usd import Plan, layout
+    from ..io.usd_read import open_stage, parse_frames, read_mesh, read_scene
+    from ..io.usd_write import OutputLayer, check_output_path
 
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
@@ -720,9 +720,9 @@ def _tessellate_prim(sp, layer, warnings_, *, rate, edge_length, scheme, rules, 
 
     from pxr import Sdf, UsdGeom, Vt
 
-    from .usd import options_for
-    from .io.usd_read import DEFAULT, SUBDIVISION_ATTRIBUTES
-    from .io.usd_write import extent_of
+    from ..usd import options_for
+    from ..io.usd_read import DEFAULT, SUBDIVISION_ATTRIBUTES
+    from ..io.usd_write import extent_of
 
     T = Sdf.ValueTypeNames
     t0 = time.perf_counter()
@@ -792,7 +792,7 @@ def _tessellate_prim(sp, layer, warnings_, *, rate, edge_length, scheme, rules, 
 
 def _with_points(mesh, points):
     """``mesh`` (topology, creases, corners, concave tags, holes) with other ``points`` and no prescribed normals."""
-    from .mesh import Mesh
+    from ..mesh import Mesh
 
     return Mesh(points, mesh.face_vertex_counts, mesh.face_vertex_indices, creases=mesh.creases,
                 crease_sharpness=mesh.crease_sharpness, corners=mesh.corners, corner_sharpness=mesh.corner_sharpness,
@@ -815,7 +815,7 @@ def corner_weights(surface, faces, uv, *, derivatives: bool = False) -> tuple:
     n-gon: bilinear in the sub-face (corner, edge middles, centre = mean of the corners); a Loop polygon:
     barycentric in its fan triangle (v0, v_k+1, v_k+2). ``derivatives``: also the weights' derivatives
     d/du, d/dv and d2/dudv (each (n, m)): (corners, weights, du, dv, duv)."""
-    from .limit import DIRECT, FAN, SUBFACES
+    from .surface import DIRECT, FAN, SUBFACES
 
     faces = np.asarray(faces, dtype=np.int64).reshape(-1)
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
@@ -886,7 +886,7 @@ def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=No
     point, time-sampled) are blocked."""
     from pxr import Sdf
 
-    from .io.usd_write import vt_array
+    from ..io.usd_write import vt_array
 
     V = sp.mesh.num_vertices
     C = len(sp.mesh.face_vertex_indices)

@@ -39,11 +39,11 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from . import limit_patches
-from .errors import NonManifoldWarning, SubdivInputError
-from .evaluator import default_device
-from .mesh import Mesh, check_rows
-from .options import FaceVaryingMode, Options, Scheme
+from . import patches as limit_patches
+from ..errors import NonManifoldWarning, SubdivInputError
+from ..evaluator import default_device
+from ..mesh import Mesh, check_rows
+from ..options import FaceVaryingMode, Options, Scheme
 
 #: Default depth of local refinement below a base face before end caps (see README "Limit surface").
 DEFAULT_DEPTH = 8
@@ -289,7 +289,7 @@ class LimitSurface:
                                host(dvv) if second else None, patch.numpy())
 
     def _linear_weights(self, faces_a, u_a, v_a):
-        from .tessellate import corner_weights
+        from .tessellation import corner_weights
 
         corners, w, wu, wv, wuv = corner_weights(self, faces_a, np.stack([u_a, v_a], 1), derivatives=True)
         valid = corners >= 0
@@ -324,7 +324,7 @@ class LimitSurface:
     def _launch(self, queries, n: int, second: bool, points):
         """One run of the evaluation kernel over the tree's nodes and patches with control ``points`` (a Warp
         vec3d array: the tree's points, or three columns of data carried through the same tree)."""
-        from . import kernels
+        from .. import kernels
 
         dev = self.device
         a = self._arrays()
@@ -469,8 +469,8 @@ class LimitSurface:
 
     def _face_varying_channel(self, indices, mode) -> dict:
         """The value mesh of a channel as a limit surface (cached for the last indices and mode)."""
-        from .tables import check_indices, value_mesh
-        from .topology import triangulate
+        from ..tables import check_indices, value_mesh
+        from ..topology import triangulate
 
         idx = check_indices(indices, len(self.mesh.face_vertex_indices))
         key = (mode, idx.tobytes())
@@ -505,7 +505,7 @@ class LimitSurface:
 
     def tessellate(self, *, rate=None, edge_length=None, quads: bool = True):
         """A watertight tessellation of the limit surface (see :func:`warp_subdiv.tessellate.tessellate`)."""
-        from .tessellate import tessellate
+        from .tessellation import tessellate
 
         return tessellate(self, rate=rate, edge_length=edge_length, quads=quads)
 
