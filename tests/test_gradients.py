@@ -6,7 +6,7 @@ import pytest
 import warp as wp
 
 import warp_subdiv as ws
-from warp_subdiv import gradients as G
+from warp_subdiv.gradients import operators as G
 from warp_subdiv.runtime import threads as th
 
 from conftest import load_mesh

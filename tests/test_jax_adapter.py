@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import warp_subdiv as ws
-from warp_subdiv import gradients as G
+from warp_subdiv.gradients import operators as G
 
 from conftest import load_mesh
 

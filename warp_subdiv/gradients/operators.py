@@ -29,10 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .evaluator import evaluator as ev
-from .errors import SubdivInputError
-from .mesh import DATA_BOUND, check_rows, expand_counts
-from .tables import RegularTables, StencilTable, rows_of
+from ..evaluator import evaluator as ev
+from ..errors import SubdivInputError
+from ..mesh import DATA_BOUND, check_rows, expand_counts
+from ..tables import RegularTables, StencilTable, rows_of
 
 __all__ = ["Adjoint", "CSRMatrix", "adjoint", "evaluate", "evaluate_vjp", "limit_normals", "limit_normals_vjp",
            "limit_points", "limit_points_vjp", "matrix"]
@@ -400,7 +400,7 @@ def regular_adjoint(level, t, split: bool | None = None) -> RegularAdjoint:
 def _levels(refiner):
     """The levels 0..levels - 1 of ``refiner`` with their full topology, rebuilt from the control mesh as
     :meth:`Hierarchy.full_stencils` rebuilds them (the hierarchy keeps only its last two)."""
-    from .topology import base_level, refine_level
+    from ..topology import base_level, refine_level
 
     h, o = refiner.hierarchy, refiner.options
     level = base_level(h.mesh, o.scheme, o.boundary, o.rules, o.triangulate,
@@ -578,7 +578,7 @@ def _load(device) -> None:
         return
     with _adjoint_lock:
         if key not in _kernels_loaded:
-            from . import kernels
+            from .. import kernels
 
             for module in (kernels.regular, kernels.stencil, kernels.projection, kernels.adjoint):
                 wp.load_module(module, device=device)
@@ -894,7 +894,7 @@ class Adjoint:
 
 
 def _kernels():
-    from . import kernels
+    from .. import kernels
 
     return kernels
 
