@@ -5,7 +5,7 @@
     python bench/bench_distributed.py --commit HEAD       # a commit's library (git archive), not the work tree
 
 The scene (a grid of quads waving over ``--frames`` time samples, written once as .usdc into ``--work``) is
-baked by ``warp-subdiv refine`` in one process, then by ``warp_subdiv.distributed.bake`` (what ``refine
+baked by ``warp-subdiv refine`` in one process, then by ``warp_subdiv.usd.distributed.bake`` (what ``refine
 --workers N`` runs) with each worker count, each in a fresh process, outputs removed in between. The table
 gives wall times (the bake with its cluster's start, and without it), the ratio against one worker from the
 same run, and where the time went (the bake's own timings: cluster start, topology task, unit tasks,
@@ -64,7 +64,7 @@ def make_scene(path: str, faces: int, frames: int) -> None:
 def child(args) -> None:
     """In a fresh process: one bake with ``args.workers`` workers; prints its timings."""
     sys.path.insert(0, args.lib_root)
-    from warp_subdiv.distributed import bake
+    from warp_subdiv.usd.distributed import bake
 
     import warp_subdiv
 
@@ -90,7 +90,7 @@ def project(runs: dict, frames: int, workers_list=(10, 100), bandwidth=1e9, pick
     * a unit task costs ``o + f * n`` for n frames: o and f solved from the mean task wall time of the two
       runs (their chunks hold different numbers of frames);
     * stitching costs ``s0 + s1 * C`` for C chunks, solved the same way;
-    * W workers get C = min(frames / 4, 3 W) chunks (warp_subdiv.distributed.plan_units), so the tasks take
+    * W workers get C = min(frames / 4, 3 W) chunks (warp_subdiv.usd.distributed.plan_units), so the tasks take
       ceil(C / W) rounds of ``o + f * frames / C``;
     * the topology task and the output write as measured; each worker fetches the mesh's tables
       (``pickle_bytes``) once, at ``bandwidth`` bytes/s, all fetches from one copy one after the other
@@ -205,7 +205,7 @@ def main(argv=None) -> int:
 
     from warp_subdiv.tables.hierarchy import Hierarchy
     from warp_subdiv.options import Options
-    from warp_subdiv.usd import plan
+    from warp_subdiv.usd.bake import plan
 
     p = plan(scene, args.levels)
     h = Hierarchy(p.prims[0].mesh, args.levels, Options(scheme="catmull-clark"), threads=1)

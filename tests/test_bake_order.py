@@ -1,4 +1,4 @@
-"""The compact vertex order of the USD bake (warp_subdiv.order): the same surface and values, renumbered so that
+"""The compact vertex order of the USD bake (warp_subdiv.usd.order): the same surface and values, renumbered so that
 usdc compresses the indices; and the face-varying fast path that refines UVs on the vertex topology away from
 their seams."""
 import os
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import warp_subdiv as ws
-from warp_subdiv.order import OrderedRefiner, appearance_order, fast_face_varying
+from warp_subdiv.usd.order import OrderedRefiner, appearance_order, fast_face_varying
 
 MODES = ("none", "corners-only", "corners-plus1", "corners-plus2", "boundaries")
 
@@ -188,7 +188,7 @@ def test_bake_in_compact_order_writes_the_same_surface(tmp_path):
     from pxr import Usd, UsdGeom
 
     from warp_subdiv.cli import main
-    from warp_subdiv.usd import refine_usd
+    from warp_subdiv.usd.bake import refine_usd
 
     src = str(tmp_path / "torus.usda")
     _scene(src)
@@ -240,7 +240,7 @@ def test_default_bake_order_is_compact_for_piecewise_smooth_and_opensubdivs_for_
     from pxr import Sdf
 
     from warp_subdiv.cli import main
-    from warp_subdiv.usd import refine_usd
+    from warp_subdiv.usd.bake import refine_usd
 
     src = str(tmp_path / "tori.usda")
     _scene(src)

@@ -7,7 +7,8 @@ pxr = pytest.importorskip("pxr")
 from pxr import Sdf, Usd, UsdGeom, Vt  # noqa: E402
 
 import warp_subdiv as ws  # noqa: E402
-from warp_subdiv.limit.tessellation import corner_weights, tessellate_file  # noqa: E402
+from warp_subdiv.limit.parameterisation import corner_weights  # noqa: E402
+from warp_subdiv.usd.tessellate import tessellate_file  # noqa: E402
 
 from test_usd_production import (assert_instancing_kept, new_stage, place, validation_errors,  # noqa: E402
                                  with_selections)

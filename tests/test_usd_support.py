@@ -70,13 +70,13 @@ def write_mesh(path, points, counts, indices, *, prim="/World/Mesh", scheme="cat
 
 def as_baked(refined):
     """``warp_subdiv.refine()``'s result numbered as the USD bake's default (``vertex_order="auto"``) writes it:
-    the compact order (:class:`warp_subdiv.order.OrderedRefiner`) for the piecewise-smooth rules, unchanged
+    the compact order (:class:`warp_subdiv.usd.order.OrderedRefiner`) for the piecewise-smooth rules, unchanged
     (OpenSubdiv's order) for rules="opensubdiv". ``limit_points()`` / ``limit_normals()`` follow the same order;
-    ``refiner`` is the :class:`~warp_subdiv.order.OrderedRefiner` (its ``evaluate``, ``evaluate_face_varying``
+    ``refiner`` is the :class:`~warp_subdiv.usd.order.OrderedRefiner` (its ``evaluate``, ``evaluate_face_varying``
     return the bake's numbering too)."""
     import dataclasses
 
-    from warp_subdiv.order import OrderedRefiner
+    from warp_subdiv.usd.order import OrderedRefiner
 
     if refined.rules == "opensubdiv":
         return refined

@@ -329,7 +329,7 @@ def _refine_usd(args, max_memory, progress) -> int:
             raise UsageError("--all-variants does not combine with --workers or --scheduler")
         run["all_variants"] = True
     if args.workers or args.scheduler:
-        from .distributed import bake
+        from .usd import bake
 
         result = bake(args.input, args.output, args.levels, workers=args.workers, scheduler=args.scheduler,
                       chunk_frames=args.chunk_frames, threads=args.threads, **run)
@@ -403,7 +403,7 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
 # -- stitch --------------------------------------------------------------------------------------------
 
 def _stitch(args) -> int:
-    from .distributed import stitch
+    from .usd import stitch
 
     result = stitch(args.chunks, args.output, flatten=args.flatten)
     if not args.quiet:
@@ -509,7 +509,7 @@ def _print_levels(estimate_at, levels: int) -> None:
 
 def _tessellate(args) -> int:
     _quiet_warp()
-    from .limit import tessellate_file
+    from .usd.tessellate import tessellate_file
 
     if args.rate is not None and args.rate < 1:
         raise UsageError(f"--rate must be at least 1, got {args.rate}")

@@ -224,7 +224,7 @@ class Refiner:
 
     def _evaluate_rows(self, points, rows, normal_control=None) -> np.ndarray:
         """:meth:`evaluate`, or with ``rows`` (int array) only those rows of its result, in that order, without
-        a full copy first (:class:`warp_subdiv.order.OrderedRefiner` renumbers this way)."""
+        a full copy first (:class:`warp_subdiv.usd.order.OrderedRefiner` renumbers this way)."""
         arr, one_d = self._vertex_data(points)
         normal_control = normal_control_for(normal_control, arr.shape[1])
         out = self.evaluator.evaluate(arr, normal_control, rows)

@@ -1,7 +1,10 @@
-"""The limit surface: exact evaluation at any (face, u, v) from a tree of patches (Bezier patches of regular regions,
-exact eigen-masks at extraordinary vertices), and tessellation of the limit surface by uniform or per-edge rates.
+"""The limit surface: exact evaluation at any (face, u, v) from a tree of patches (Bezier patches of regular
+regions, exact eigen-masks at extraordinary vertices), and watertight tessellation of the limit surface by uniform
+or per-edge rates.
 """
-from .surface import LimitEvaluation, LimitSurface
-from .tessellation import tessellate_file
+from .parameterisation import DIRECT, FAN, SUBFACES, corner_weights
+from .surface import DEFAULT_DEPTH, DataEvaluation, LimitEvaluation, LimitSurface
+from .tessellation import Tessellation, tessellate
 
-__all__ = ["LimitEvaluation", "LimitSurface", "tessellate_file"]
+__all__ = ["LimitSurface", "LimitEvaluation", "DataEvaluation", "Tessellation", "tessellate", "corner_weights",
+           "DEFAULT_DEPTH", "DIRECT", "SUBFACES", "FAN"]

@@ -25,7 +25,7 @@ planes from the geometry), so the result is linear in the data and data equal to
 :meth:`LimitSurface.evaluate_face_varying` evaluates a face-varying channel (UVs) on the limit surface of its
 value mesh under OpenSubdiv's face-varying interpolation mode (as Bfr builds a face-varying surface per face).
 
-How it is computed and how exact it is: :mod:`warp_subdiv.limit_patches` (a tree of Bezier patches per face:
+How it is computed and how exact it is: :mod:`warp_subdiv.limit.patches` (a tree of Bezier patches per face:
 exact polynomial patches wherever the surface is one, local refinement with the library's own rules and
 projections near irregular features down to ``depth`` levels, end caps below that). The tree is built once;
 :meth:`LimitSurface.evaluate` runs one Warp kernel (:mod:`warp_subdiv.kernels.limit`) on the CPU or CUDA.
@@ -40,6 +40,8 @@ import numpy as np
 import warp as wp
 
 from . import patches as limit_patches
+from .parameterisation import DIRECT, FAN, SUBFACES, corner_weights
+from .tessellation import tessellate
 from ..errors import NonManifoldWarning, SubdivInputError
 from ..evaluator import default_device
 from ..mesh import Mesh, check_rows
@@ -48,7 +50,6 @@ from ..options import FaceVaryingMode, Options, Scheme
 #: Default depth of local refinement below a base face before end caps (see README "Limit surface").
 DEFAULT_DEPTH = 8
 
-DIRECT, SUBFACES, FAN = 0, 1, 2
 
 
 @dataclass
@@ -289,8 +290,6 @@ class LimitSurface:
                                host(dvv) if second else None, patch.numpy())
 
     def _linear_weights(self, faces_a, u_a, v_a):
-        from .tessellation import corner_weights
-
         corners, w, wu, wv, wuv = corner_weights(self, faces_a, np.stack([u_a, v_a], 1), derivatives=True)
         valid = corners >= 0
         return np.maximum(corners, 0), [x * valid for x in (w, wu, wv, wuv)]
@@ -504,9 +503,7 @@ class LimitSurface:
         return cache
 
     def tessellate(self, *, rate=None, edge_length=None, quads: bool = True):
-        """A watertight tessellation of the limit surface (see :func:`warp_subdiv.tessellate.tessellate`)."""
-        from .tessellation import tessellate
-
+        """A watertight tessellation of the limit surface (see :func:`warp_subdiv.limit.tessellate`)."""
         return tessellate(self, rate=rate, edge_length=edge_length, quads=quads)
 
     def __repr__(self) -> str:

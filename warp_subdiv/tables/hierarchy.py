@@ -133,7 +133,7 @@ class Hierarchy:
                                crease_method=o.crease_method, linear=o.linear)
         self.base_num_vertices = level.num_vertices
         self.base_face_size = level.face_size
-        self.base_vert_class = level.vert_class  # (V,) int8: the control vertices' rules (warp_subdiv.order)
+        self.base_vert_class = level.vert_class  # (V,) int8: the control vertices' rules (warp_subdiv.usd.order)
         self.normal_vertices = mesh.normal_vertices.astype(np.int64)
         self.normal_vectors = mesh.normal_vectors
         base_s = projections.resolve_flatness(level) if o.piecewise_smooth else np.zeros(level.num_sectors)
@@ -272,7 +272,7 @@ def shipped(*hierarchies):
     shipped one's tables; with other levels it is built from the shipped one's control points.
 
     A distributed bake computes each mesh's topology and tables once and ships them to the tasks that refine
-    its frames (:mod:`warp_subdiv.distributed`): a task reads the mesh at its own frames, whose points may
+    its frames (:mod:`warp_subdiv.usd.distributed`): a task reads the mesh at its own frames, whose points may
     differ from those the tables were built from (sector angles are measured on the control points), so the
     shipped tables are also what keeps every task's result equal to the single-process bake's."""
     extra = tuple(h for h in hierarchies if h is not None)

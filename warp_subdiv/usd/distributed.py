@@ -43,9 +43,9 @@ from dataclasses import asdict, dataclass
 
 from pxr import Sdf, Usd, UsdUtils, Vt
 
-from .version import __version__
-from .errors import SubdivInputError
-from .io.usd_write import USD_EXTENSIONS, check_output_path, make_folders, relative_asset_path, remove_folders
+from ..version import __version__
+from ..errors import SubdivInputError
+from ..io.usd_write import USD_EXTENSIONS, check_output_path, make_folders, relative_asset_path, remove_folders
 
 #: Fewest time samples a frame chunk holds (an animated mesh with fewer than twice this is one unit).
 MIN_CHUNK_SAMPLES = 4
@@ -112,7 +112,7 @@ def _worker_setup(threads):
     """Per task on a worker: the thread count evaluation uses, and the worker's memory limit (bytes or None)."""
     import warp as wp
 
-    from .runtime import threads as th
+    from ..runtime import threads as th
 
     wp.config.log_level = 30  # no start-up banner or module-load lines in the workers' logs
     th.set_default_threads(threads)
@@ -153,7 +153,7 @@ def _error_record(exc: SubdivInputError) -> dict:
 def topology_task(input_path, path, levels, run, threads=None):
     """(hierarchy, seconds): the topology and tables of the mesh at ``path``, built as the single-process bake
     builds them (``run``: refine_usd's keywords), for the mesh's frame tasks."""
-    from .usd import make_refiner, plan
+    from .bake import make_refiner, plan
 
     start = _time.perf_counter()
     limit = _worker_setup(threads)
@@ -172,8 +172,8 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
     """Refine one unit into ``folder/unit.layer`` (written under a private name, then renamed); ``topology``:
     the mesh's (hierarchy, seconds) from :func:`topology_task`, or None. Returns its reports and warnings, or
     {"error": ...} for input errors (the driver raises them)."""
-    from .tables import shipped
-    from .usd import refine_usd
+    from ..tables import shipped
+    from .bake import refine_usd
 
     start = _time.perf_counter()
     hierarchy = topology[0] if topology is not None else None
@@ -365,9 +365,9 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     cluster's scheduler instead; ``client``: an existing ``distributed.Client``. ``threads``: evaluation
     threads per task (default: the local cluster's share of the cores, a remote worker's own cores).
     Returns a :class:`warp_subdiv.usd.Result`."""
-    from .runtime import threads as th
-    from .usd import PrimReport, Result, plan
-    from .io.usd_write import OutputLayer
+    from ..runtime import threads as th
+    from .bake import PrimReport, Result, plan
+    from ..io.usd_write import OutputLayer
 
     start = _time.perf_counter()
     if isinstance(levels, bool) or not isinstance(levels, int) or levels < 0:
@@ -480,7 +480,7 @@ def _wait_idle(client, keys, timeout: float = 60.0) -> None:
 
 
 def _reraise(record: dict) -> SubdivInputError:
-    from .runtime.estimate import MemoryGuardError
+    from ..runtime.estimate import MemoryGuardError
 
     cls = MemoryGuardError if record["type"] == "MemoryGuardError" else SubdivInputError
     return cls(record["message"], option=record["option"], element=record["element"], index=record["index"],
@@ -594,8 +594,8 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
     Chunks stay where they are and are referenced by relative paths. Ranges that share their ends (1:25,
     25:50) interpolate across chunk boundaries; with 1:25, 26:50 values between 25 and 26 hold at 25.
     Returns a :class:`warp_subdiv.usd.Result` (no reports)."""
-    from .usd import Result
-    from .io.usd_write import OutputLayer
+    from .bake import Result
+    from ..io.usd_write import OutputLayer
 
     start = _time.perf_counter()
     if not chunk_paths:

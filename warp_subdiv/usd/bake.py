@@ -42,21 +42,21 @@ from dataclasses import dataclass, field
 import numpy as np
 from pxr import Sdf, Usd, Vt
 
-from .version import __version__
-from .runtime import phases as _phases
-from .runtime import threads as _threads
-from .batch import MeshBatch, batch_key
-from .errors import SubdivInputError
-from .runtime.estimate import Estimate, MemoryGuardError, check_memory, estimate, total_bytes
-from .tables import shipped
-from .io.obj import ObjData
-from .options import Boundary, Options, Precision, RuleSet, Scheme
+from ..version import __version__
+from ..runtime import phases as _phases
+from ..runtime import threads as _threads
+from ..batch import MeshBatch, batch_key
+from ..errors import SubdivInputError
+from ..runtime.estimate import Estimate, MemoryGuardError, check_memory, estimate, total_bytes
+from ..tables import shipped
+from ..io.obj import ObjData
+from ..options import Boundary, Options, Precision, RuleSet, Scheme
 from .order import OrderedRefiner, check_vertex_order
-from .tables import FaceMap, corners_to_vertices, vertices_used
-from .refiner import Refiner
-from .io.usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, open_stage, read_mesh,
+from ..tables import FaceMap, corners_to_vertices, vertices_used
+from ..refiner import Refiner
+from ..io.usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, open_stage, read_mesh,
                        read_scene)
-from .io.usd_write import OutputLayer, check_output_path, extent_of, int_array, vec3f_array, vt_array
+from ..io.usd_write import OutputLayer, check_output_path, extent_of, int_array, vec3f_array, vt_array
 
 T = Sdf.ValueTypeNames
 
@@ -389,7 +389,7 @@ def refine_usd(
     ``vertex_order``: "auto" (the default: compact for meshes refined with the piecewise-smooth rules,
     OpenSubdiv's for ``rules="opensubdiv"``), "opensubdiv" (the refiner's, as :func:`~warp_subdiv.refine` numbers
     the vertices) or "compact" (indices that usdc compresses well, written much faster; see
-    :mod:`warp_subdiv.order`).
+    :mod:`warp_subdiv.usd.order`).
     ``batch``: evaluate small meshes (at most :data:`BATCH_VERTICES` refined vertices each with limit points or
     normals, :data:`BATCH_VERTICES_POINTS` without) that share their
     options, levels and time samples together, one evaluation of their disjoint union per time sample
@@ -643,7 +643,7 @@ class _Batches:
     preparing leaves the chunk (or that sample) to the unbatched path, which reports it as it would."""
 
     def __init__(self, p: Plan, levels, device, limit, normals, *, defaults: bool = True):
-        from .tables import _shipped_for
+        from ..tables import _shipped_for
 
         self.levels, self.device, self.limit, self.normals = levels, device, limit, normals
         self.defaults = defaults  # whether default values are written (not with samples_only)
@@ -749,7 +749,7 @@ class _Ahead:
                  max_memory=None):
         import warp as wp
 
-        from .runtime.estimate import memory_limit
+        from ..runtime.estimate import memory_limit
 
         self.p, self.levels, self.device = p, levels, device
         self.limit, self.normals, self.vertex_order = limit, normals, vertex_order
@@ -772,7 +772,7 @@ class _Ahead:
             return
         from concurrent.futures import ThreadPoolExecutor
 
-        from .evaluator import _load_kernels
+        from ..evaluator import _load_kernels
 
         _load_kernels(wp.get_device(device))  # loaded once, before threads launch them
         self.depth, self.concurrent = depth, depth + 1
@@ -1186,8 +1186,8 @@ class EdgeMap:
     edge that holds both its ends (or one end and the other at that edge's control vertex)."""
 
     def __init__(self, mesh, refiner: Refiner, indices, counts):
-        from .mesh import face_offsets_of, next_corner_of
-        from .topology import EDGE, VERTEX, base_faces
+        from ..mesh import face_offsets_of, next_corner_of
+        from ..topology import EDGE, VERTEX, base_faces
 
         options = refiner.options
         self.mesh = mesh

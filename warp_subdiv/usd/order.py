@@ -27,7 +27,7 @@ VERTEX_ORDERS = ("auto", "opensubdiv", "compact")
 
 
 def check_vertex_order(value) -> str:
-    from .errors import SubdivInputError
+    from ..errors import SubdivInputError
 
     if value not in VERTEX_ORDERS:
         raise SubdivInputError(f"vertex_order must be one of {', '.join(VERTEX_ORDERS)}, got {value!r}",
@@ -242,10 +242,10 @@ def _fast_parts(refiner, values, indices, mode, cache: dict | None = None, rows=
     """The pieces of :func:`fast_face_varying`'s result (a :class:`_FastParts`), or None where the path does
     not apply. ``cache``: a dict that keeps the last :class:`_FastPlan` with its key (mode and indices);
     ``rows``: the rows of the vertex refinement to keep, in that order (None: all, in the refiner's order)."""
-    from .errors import SubdivInputError
-    from .tables import check_indices
-    from .mesh import check_rows
-    from .options import FaceVaryingMode
+    from ..errors import SubdivInputError
+    from ..tables import check_indices
+    from ..mesh import check_rows
+    from ..options import FaceVaryingMode
 
     h = refiner.hierarchy
     options = refiner.options
@@ -292,10 +292,10 @@ def _fast_parts(refiner, values, indices, mode, cache: dict | None = None, rows=
 def _fast_plan(refiner, idx, mode):
     """The :class:`_FastPlan` of value indices ``idx`` (checked) and ``mode`` (parsed), or None where every
     control face is near a seam."""
-    from .errors import NonManifoldWarning
-    from .tables import FaceVaryingChannel
-    from .mesh import Mesh
-    from .rules import SMOOTH
+    from ..errors import NonManifoldWarning
+    from ..tables import FaceVaryingChannel
+    from ..mesh import Mesh
+    from ..rules import SMOOTH
 
     h = refiner.hierarchy
     options = refiner.options

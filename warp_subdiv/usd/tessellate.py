@@ -1,0 +1,375 @@
+"""The ``tessellate`` command's library side: the limit surfaces of an OBJ or USD file tessellated and written
+as OBJ or as a USD layer over the input (primvars and subsets carried to the tessellation).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SubdivInputError
+from ..limit import DEFAULT_DEPTH, LimitSurface, corner_weights
+
+@dataclass
+class MeshReport:
+    """One tessellated mesh, for the command's summary."""
+
+    path: str
+    scheme: str
+    rules: str
+    faces_in: int
+    faces_out: int
+    vertices_out: int
+    seconds: float
+
+
+@dataclass
+class FileResult:
+    """What :func:`tessellate_file` did: one report per mesh, warnings, seconds."""
+
+    reports: list
+    warnings: list
+    seconds: float
+
+
+def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length=None, prims=None, scheme="auto",
+                    rules=None, boundary=None, depth=None, quads: bool = True, device=None,
+                    flatten: bool = False, frames=None, all_variants: bool = False) -> FileResult:
+    """Tessellate the limit surfaces of an OBJ or USD file (the ``tessellate`` command's library side).
+
+    OBJ input is written as OBJ or as a USD layer holding one mesh; USD input as a layer over it (see
+    :func:`tessellate_usd`). ``rate`` / ``edge_length`` as for :func:`tessellate`; ``prims``, ``scheme``,
+    ``rules``, ``boundary`` as for the USD bake; ``depth`` of the :class:`~warp_subdiv.limit.LimitSurface`
+    (None: its default); ``quads=False`` for triangles only; ``flatten`` (USD) for one self-contained layer;
+    ``all_variants`` (USD) tessellates every variant that changes a mesh, as refine does. Errors name options by
+    keyword."""
+    import os
+    import time
+
+    start = time.perf_counter()
+    kind, out_kind = _kind(input_path), _kind(output_path)
+    if not os.path.exists(input_path):
+        raise SubdivInputError(f"{input_path}: no such file")
+    options = dict(rate=rate, edge_length=edge_length, scheme=scheme, rules=rules, boundary=boundary, depth=depth,
+                   quads=quads, device=device)
+    if kind == "obj":
+        for name, value in (("prims", prims), ("flatten", flatten), ("frames", frames),
+                            ("all_variants", all_variants)):
+            if value:
+                raise SubdivInputError(f"{name} applies to USD input only", option=name)
+        reports, warnings_ = tessellate_obj(input_path, output_path, out_kind, **options)
+    else:
+        if out_kind != "usd":
+            raise SubdivInputError(f"{output_path}: USD input is written as .usd, .usda or .usdc")
+        reports, warnings_ = tessellate_usd(input_path, output_path, prims=prims, flatten=flatten, frames=frames,
+                                            all_variants=all_variants, **options)
+    return FileResult(reports, warnings_, time.perf_counter() - start)
+
+
+def _kind(path: str) -> str:
+    ext = path.lower().rsplit(".", 1)[-1] if "." in path else ""
+    if ext == "obj":
+        return "obj"
+    if ext in ("usd", "usda", "usdc"):
+        return "usd"
+    raise SubdivInputError(f"{path}: unknown file type (use .obj, .usd, .usda or .usdc)")
+
+
+def _surface(mesh, options, depth, device):
+    return LimitSurface(mesh, options=options, depth=DEFAULT_DEPTH if depth is None else depth, device=device)
+
+
+def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, scheme, rules, boundary, depth, quads,
+                   device):
+    """Tessellate an OBJ file's mesh; write OBJ or a USD layer holding one mesh (as ``refine`` does)."""
+    import os
+    import time
+
+    from ..io.obj import read_obj, write_obj
+    from .bake import options_for
+
+    t0 = time.perf_counter()
+    data = read_obj(input_path)
+    options = options_for(data, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+    surface = _surface(data.mesh, options, depth, device)
+    t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
+    if out_kind == "obj":
+        write_obj(output_path, t.points, t.face_vertex_counts, t.face_vertex_indices)
+    else:
+        from ..io.usd_write import write_mesh_layer
+
+        name = os.path.splitext(os.path.basename(input_path))[0]
+        write_mesh_layer(output_path, name, t.points, t.face_vertex_counts, t.face_vertex_indices)
+    report = MeshReport(os.path.basename(input_path), options.scheme.value, options.rules.value,
+                        len(data.mesh.face_vertex_counts), t.num_faces, t.num_vertices, time.perf_counter() - t0)
+    return [report], []
+
+
+def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length, scheme, rules, boundary, depth,
+                   quads, device, frames=None, all_variants: bool = False):
+    """Tessellate every subdivision mesh of a USD file and write a layer over it, with the conventions of
+    refine (:func:`warp_subdiv.usd.refine_usd`): an ``over`` at each mesh's path with ``subdivisionScheme =
+    "none"``, its points, faces, normals and extent (at the default time and every selected time sample of the
+    points), the subdivision attributes and ``subdiv:`` tags blocked, the ``extentsHint`` of its ancestors
+    recomputed. Uniform primvars and face subsets follow their control faces, vertex and face-varying primvars
+    are evaluated on the limit surface, varying ones linearly (:func:`_write_primvars`); the tessellation's
+    control face and face-varying (u, v) are written as ``primvars:tessellation:baseFace`` (uniform) and
+    ``primvars:tessellation:uv`` (faceVarying).
+
+    Where the data goes is refine's layout (:func:`warp_subdiv.io.usd_read.read_scene`,
+    :func:`warp_subdiv.usd.layout`): meshes inside scene-graph instances (and instanceable PointInstancer
+    prototypes) are tessellated once per prototype into ``/__warpSubdiv/Prototype_<n>``, which every instance
+    of that prototype references (instances stay instances); meshes with identical inputs outside instances
+    are tessellated once, written once (``/__warpSubdiv/Mesh_<n>``) and referenced; with ``all_variants`` every
+    variant that changes a mesh is tessellated into the same variant set and variant. The composed output is
+    checked: every tessellated mesh must compose to its tessellation."""
+    import os
+
+    from ..version import __version__
+    from .bake import Plan, layout
+    from ..io.usd_read import open_stage, parse_frames, read_mesh, read_scene
+    from ..io.usd_write import OutputLayer, check_output_path
+
+    if not os.path.exists(input_path):
+        raise SubdivInputError(f"{input_path}: no such file")
+    stage = open_stage(input_path)
+    out_abs = check_output_path(output_path, stage)
+    chosen = parse_frames(frames)
+
+    def read(prim):
+        return read_mesh(prim, scheme=scheme, rules=rules, boundary=boundary, frames=chosen)
+
+    scene = read_scene(stage, prims, read=read, all_variants=all_variants, where=input_path)
+    p = Plan(input_path, stage, [], [], scene=scene)
+    p.left_alone.extend(scene.left_alone)
+    for key, sp in scene.units.items():
+        if sp is not None:
+            p.prims.append(sp)
+            p.keys.append(key)
+    if not p.prims:
+        raise SubdivInputError(f"{input_path}: no subdivision meshes to tessellate"
+                               + (f" under {', '.join(prims)}" if prims else ""))
+    warnings_ = [f"{sp.path}: {w}" for sp in p.prims for w in sp.warnings]
+    custom = {"warpSubdiv": {"version": __version__, "command": "tessellate", "source": os.path.basename(input_path),
+                             "rate": int(rate) if rate is not None else 0,
+                             "edgeLength": float(edge_length) if edge_length is not None else 0.0,
+                             "allVariants": bool(all_variants)}}
+    layer = OutputLayer(out_abs, stage, custom)
+    reports = []
+    try:
+        out_layout = layout(p)
+        for sp, key in zip(p.prims, p.keys):
+            sp.target = str(out_layout.homes[key])  # its own path, a prototype's content or a shared mesh
+            reports.append(_tessellate_prim(sp, layer, warnings_, rate=rate, edge_length=edge_length, scheme=scheme,
+                                            rules=rules, boundary=boundary, depth=depth, quads=quads, device=device))
+            for dst in out_layout.copies[key]:
+                layer.copy(out_layout.homes[key], dst)
+        out_layout.write(layer)
+        out_layout.check(layer, p, reports)
+        layer.override_extents_hints(stage, out_layout.hint_roots(p), chosen)
+        layer.commit(flatten=flatten)
+    except BaseException:
+        layer.discard()
+        raise
+    return reports, warnings_
+
+
+def _tessellate_prim(sp, layer, warnings_, *, rate, edge_length, scheme, rules, boundary, depth, quads,
+                     device) -> MeshReport:
+    """Tessellate one mesh (as read) and write it at :attr:`~warp_subdiv.io.usd_read.SubdivPrim.output_path` of
+    ``layer``."""
+    import time
+
+    from pxr import Sdf, UsdGeom, Vt
+
+    from .bake import options_for
+    from ..io.usd_read import DEFAULT, SUBDIVISION_ATTRIBUTES
+    from ..io.usd_write import extent_of
+
+    T = Sdf.ValueTypeNames
+    t0 = time.perf_counter()
+    usd_prim = sp.prim
+    if sp.topologies:
+        raise SubdivInputError(f"{sp.path}: its topology changes over time; tessellate takes one topology")
+    options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+    linear = sp.scheme == "bilinear"
+    if linear:  # bilinear patches (quads; a polygon's quad sub-faces, as bilinear refinement splits it)
+        options = options.replace(linear=True)
+    try:
+        surface = _surface(sp.mesh, options, depth, device)
+        t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
+    except SubdivInputError as exc:
+        raise sp.error(exc) from None
+    prim = layer.prim(sp.output_path)
+    layer.set(layer.attr(prim, "subdivisionScheme", T.Token, uniform=True), "none")
+    layer.set(layer.attr(prim, "points", T.Point3fArray), Vt.Vec3fArray.FromNumpy(t.points.astype(np.float32)))
+    layer.set(layer.attr(prim, "faceVertexCounts", T.IntArray), Vt.IntArray.FromNumpy(t.face_vertex_counts))
+    layer.set(layer.attr(prim, "faceVertexIndices", T.IntArray), Vt.IntArray.FromNumpy(t.face_vertex_indices))
+    corner_face = np.repeat(t.face_base_face.astype(np.int64), t.face_vertex_counts)
+    if linear:  # flat patches meet at creases: one normal per face corner, from the corner's own face
+        normals = surface.evaluate(corner_face, t.face_uv[:, 0], t.face_uv[:, 1]).normals
+    else:
+        normals = t.normals
+    normals = -normals if sp.orientation == "leftHanded" else normals
+    spec = layer.attr(prim, "normals", T.Normal3fArray)
+    spec.SetInfo("interpolation", "faceVarying" if linear else "vertex")
+    layer.set(spec, Vt.Vec3fArray.FromNumpy(normals.astype(np.float32)))
+    layer.set(layer.attr(prim, "extent", T.Float3Array), extent_of(t.points))
+    for when in sp.point_times:  # the same tessellation (edge rates) of the points at every sample
+        try:
+            moved = _surface(_with_points(sp.mesh, sp.points_at(when)), options, depth, device)
+            ev = moved.evaluate(t.base_face, t.uv[:, 0], t.uv[:, 1])
+            nt = moved.evaluate(corner_face, t.face_uv[:, 0], t.face_uv[:, 1]).normals if linear \
+                else ev.normals
+        except SubdivInputError as exc:
+            raise sp.error(exc) from None
+        layer.set(layer.attr(prim, "points", T.Point3fArray), None,
+                  [(when, Vt.Vec3fArray.FromNumpy(ev.points.astype(np.float32)))])
+        nt = -nt if sp.orientation == "leftHanded" else nt
+        layer.set(layer.attr(prim, "normals", T.Normal3fArray), None,
+                  [(when, Vt.Vec3fArray.FromNumpy(nt.astype(np.float32)))])
+        layer.set(layer.attr(prim, "extent", T.Float3Array), None, [(when, extent_of(ev.points))])
+    for name in SUBDIVISION_ATTRIBUTES:
+        attr = usd_prim.GetAttribute(name)
+        layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
+    for name in sp.subdiv_attributes:
+        attr = usd_prim.GetAttribute(name)
+        layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform,
+                    custom=True)
+    for name in list(sp.authored_normals) + ["velocities", "accelerations"]:
+        if name == "normals" or not usd_prim.GetAttribute(name).HasAuthoredValue():
+            continue
+        layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
+    _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
+    _write_subsets(sp, layer, t)
+    base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
+    base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
+    layer.set(base, Vt.IntArray.FromNumpy(t.face_base_face))
+    uv = layer.attr(prim, "primvars:tessellation:uv", T.TexCoord2fArray, custom=False)
+    uv.SetInfo("interpolation", UsdGeom.Tokens.faceVarying)
+    layer.set(uv, Vt.Vec2fArray.FromNumpy(t.face_uv.astype(np.float32)))
+    return MeshReport(sp.path, options.scheme.value, options.rules.value, len(sp.mesh.face_vertex_counts),
+                      t.num_faces, t.num_vertices, time.perf_counter() - t0)
+
+
+def _with_points(mesh, points):
+    """``mesh`` (topology, creases, corners, concave tags, holes) with other ``points`` and no prescribed normals."""
+    from ..mesh import Mesh
+
+    return Mesh(points, mesh.face_vertex_counts, mesh.face_vertex_indices, creases=mesh.creases,
+                crease_sharpness=mesh.crease_sharpness, corners=mesh.corners, corner_sharpness=mesh.corner_sharpness,
+                concave=mesh.concave, holes=mesh.holes)
+
+
+def vertex_data(surface, data, faces, uv) -> np.ndarray:
+    """The limit of per-control-vertex ``data`` (V, k) at (``faces``, ``uv``): (n, k) float64, by
+    :meth:`~warp_subdiv.limit.LimitSurface.evaluate_data` (the data subdivided with the positions' weights, as
+    ``refine`` refines vertex primvars)."""
+    data = np.asarray(data, dtype=np.float64)
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    return surface.evaluate_data(data.reshape(len(data), -1), faces, uv[:, 0], uv[:, 1]).values
+
+
+def _interpolate(corner_values, corners, weights) -> np.ndarray:
+    vals = corner_values[np.maximum(corners, 0)]  # (n, m, k)
+    return np.einsum("nm,nmk->nk", weights * (corners >= 0), vals)
+
+
+def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=None) -> None:
+    """Uniform primvars follow their control faces; vertex primvars are evaluated on the limit surface
+    (subdivided with the points' weights, as refine refines them), varying ones linearly inside the control
+    face at each vertex's (u, v), face-varying ones on the limit surface of their value mesh under the mesh's
+    faceVaryingLinearInterpolation (as refine and OpenSubdiv's Bfr; "all" is linear inside the control face) at
+    each output corner's (u, v) (written unindexed); constant ones are left as they are; others (not floating
+    point, time-sampled) are blocked."""
+    from pxr import Sdf
+
+    from ..io.usd_write import vt_array
+
+    V = sp.mesh.num_vertices
+    C = len(sp.mesh.face_vertex_indices)
+    for pv in sp.primvars:
+        if pv.interpolation == "constant":
+            continue
+        attr = pv.primvar.GetAttr()
+        if pv.interpolation == "uniform" and not pv.times:
+            values = pv.primvar.ComputeFlattened()
+            if values is not None and len(values) == len(sp.mesh.face_vertex_counts) * max(pv.element_size, 1):
+                arr = np.asarray(values)
+                per_face = arr.reshape(len(sp.mesh.face_vertex_counts), -1) if pv.element_size > 1 else arr
+                out = per_face[t.face_base_face].reshape((-1,) + arr.shape[1:])
+                spec = layer.attr(prim, pv.name, pv.type_name)
+                spec.SetInfo("interpolation", "uniform")
+                try:
+                    value = type(values).FromNumpy(np.ascontiguousarray(out))
+                except (AttributeError, TypeError):
+                    value = type(values)(out.tolist())
+                layer.set(spec, value)
+                if pv.indexed:
+                    layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)
+                continue
+        why = "not tessellated"
+        if pv.interpolation in ("vertex", "varying", "faceVarying") and surface is not None:
+            if not pv.linear:
+                why = "not floating point"
+            elif pv.times:
+                why = "time-sampled primvars are not tessellated"
+            else:
+                fv_index = None
+                try:
+                    if pv.interpolation == "faceVarying":
+                        rows, fv_index = pv.elements(default_time, sp.path)
+                        fv_index = np.arange(len(rows)) if fv_index is None else np.asarray(fv_index, np.int64)
+                    else:
+                        rows = pv.flattened(default_time, sp.path)
+                except SubdivInputError as exc:
+                    rows, why = None, str(exc)
+                want = C if pv.interpolation == "faceVarying" else V
+                given = None if rows is None else len(rows) if fv_index is None else len(fv_index)
+                if rows is not None and given == want:
+                    rows = rows.astype(np.float64)
+                    if pv.interpolation == "vertex":
+                        out = vertex_data(surface, rows, t.base_face, t.uv)
+                    elif pv.interpolation == "varying":
+                        corner_rows = rows[np.asarray(sp.mesh.face_vertex_indices, dtype=np.int64)]
+                        out = _interpolate(corner_rows, *corner_weights(surface, t.base_face, t.uv))
+                    else:  # on the limit surface of the channel's values, under the mesh's interpolation mode
+                        nfc = np.repeat(t.face_base_face.astype(np.int64), t.face_vertex_counts)
+                        try:
+                            out = surface.evaluate_face_varying(rows, fv_index, nfc, t.face_uv[:, 0], t.face_uv[:, 1],
+                                                                mode=sp.face_varying_mode).values
+                        except SubdivInputError as exc:
+                            raise sp.error(exc) from None
+                        out = out.reshape(len(out), -1)
+                    probe = np.asarray(pv.primvar.GetAttr().Get(default_time) or [])
+                    dims = out.shape[1] // max(pv.element_size, 1)
+                    value = vt_array(pv.type_name, out.reshape(-1, dims) if dims > 1 else out.reshape(-1),
+                                     like=probe.reshape(-1) if probe.size else None)
+                    spec = layer.attr(prim, pv.name, pv.type_name, custom=attr.IsCustom())
+                    spec.SetInfo("interpolation", pv.interpolation)
+                    if pv.element_size > 1:
+                        spec.SetInfo("elementSize", pv.element_size)
+                    layer.set(spec, value)
+                    if pv.indexed:
+                        layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)
+                    continue
+                if rows is not None:
+                    why = f"{given} values for {want} {'corners' if want == C else 'vertices'}"
+        warnings_.append(f"{sp.path}: primvar {pv.name} ({pv.interpolation}) is not tessellated ({why}); blocked")
+        layer.block(prim, pv.name, attr.GetTypeName(), custom=attr.IsCustom())
+        if pv.indexed:
+            layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)
+
+
+def _write_subsets(sp, layer, t) -> None:
+    """Face subsets: the output faces whose control face is in the subset."""
+    from pxr import Sdf, Vt
+
+    for subset in sp.subsets:
+        if subset.element != "face" or subset.times:
+            continue
+        ids = np.asarray(subset.attr.Get() or [], dtype=np.int64)
+        keep = np.flatnonzero(np.isin(t.face_base_face, ids)).astype(np.int32)
+        spec = layer.attr(layer.prim(sp.output_path + subset.path[len(sp.path):]), "indices",
+                          Sdf.ValueTypeNames.IntArray)
+        layer.set(spec, Vt.IntArray.FromNumpy(keep))
