@@ -201,7 +201,7 @@ def floor_child(baked: str, path: str, reps: int) -> list:
 def bake(scene: str, out: str, levels: int, vertex_order: str = "auto", threads: int | None = None) -> dict:
     """One bake (``threads``: the workers' thread count, None for every core)."""
     from warp_subdiv.runtime import threads as _threads
-    from warp_subdiv.usd.bake import refine_usd
+    from warp_subdiv.usd.refine import refine_usd
 
     _threads.set_default_threads(threads)
     try:

@@ -71,7 +71,7 @@ def make_scene(path: str, count: int, cuts: int, frames: int, seed: int = 0) -> 
 
 def worker(args) -> dict:
     quiet_warp()
-    from warp_subdiv.usd.bake import refine_usd
+    from warp_subdiv.usd.refine import refine_usd
 
     with tempfile.TemporaryDirectory(prefix="wsbatch_") as tmp:
         cpu = time.process_time()

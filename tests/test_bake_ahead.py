@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from test_batch import _props_scene, _same_layers
 
-import warp_subdiv.usd.bake as usd
+import warp_subdiv.usd.refine as usd
 from warp_subdiv.runtime import threads
 from warp_subdiv.errors import SubdivInputError
 from warp_subdiv.runtime.estimate import total_bytes

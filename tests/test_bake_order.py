@@ -188,7 +188,7 @@ def test_bake_in_compact_order_writes_the_same_surface(tmp_path):
     from pxr import Usd, UsdGeom
 
     from warp_subdiv.cli import main
-    from warp_subdiv.usd.bake import refine_usd
+    from warp_subdiv.usd.refine import refine_usd
 
     src = str(tmp_path / "torus.usda")
     _scene(src)
@@ -240,7 +240,7 @@ def test_default_bake_order_is_compact_for_piecewise_smooth_and_opensubdivs_for_
     from pxr import Sdf
 
     from warp_subdiv.cli import main
-    from warp_subdiv.usd.bake import refine_usd
+    from warp_subdiv.usd.refine import refine_usd
 
     src = str(tmp_path / "tori.usda")
     _scene(src)

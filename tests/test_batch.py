@@ -277,7 +277,7 @@ def _evaluations(monkeypatch):
 
 def _counting(monkeypatch):
     """Count the MeshBatch unions the writer builds and their members."""
-    import warp_subdiv.usd.bake as usd
+    import warp_subdiv.usd.refine as usd
 
     seen = []
 
@@ -300,7 +300,7 @@ def test_usd_batched_layer_is_identical(props_scene, tmp_path, monkeypatch, run)
     """The writer with batching (the default) and with batch=False writes the same layer: every attribute of
     every prim at every time bitwise, and the same text; small meshes were batched (unions built, and their
     results used: far fewer evaluator calls), the big, bilinear and time-varying ones were not."""
-    from warp_subdiv.usd.bake import refine_usd
+    from warp_subdiv.usd.refine import refine_usd
 
     run = dict(run)
     levels = run.pop("levels", 2)
@@ -321,7 +321,7 @@ def test_usd_batched_layer_is_identical(props_scene, tmp_path, monkeypatch, run)
 def test_usd_batch_memory_cap_splits_chunks(props_scene, tmp_path, monkeypatch):
     """With a small cap on rows x samples, batches are smaller and more numerous, and the layer is the same;
     batch=False builds no union."""
-    import warp_subdiv.usd.bake as usd
+    import warp_subdiv.usd.refine as usd
 
     seen = _counting(monkeypatch)
     usd.refine_usd(props_scene, str(tmp_path / "off.usda"), 2, device="cpu", batch=False)
@@ -336,7 +336,7 @@ def test_usd_batch_bound_depends_on_what_is_written(props_scene, tmp_path, monke
     """A prim is batched up to BATCH_VERTICES refined vertices where limit points or normals are written, and only
     up to BATCH_VERTICES_POINTS where only points are (its own evaluation is then cheap): with the points-only
     bound below every prop, nothing is batched for points, and the same props are batched with normals."""
-    import warp_subdiv.usd.bake as usd
+    import warp_subdiv.usd.refine as usd
 
     seen = _counting(monkeypatch)
     monkeypatch.setattr(usd, "BATCH_VERTICES_POINTS", 1)
@@ -352,7 +352,7 @@ def test_usd_batch_input_errors_as_unbatched(tmp_path, bad):
     batched writer raises the very error the unbatched one raises (the batch leaves that time to the prim)."""
     from pxr import Usd, UsdGeom, Vt
 
-    from warp_subdiv.usd.bake import refine_usd
+    from warp_subdiv.usd.refine import refine_usd
 
     cube = load_mesh("cube")
     path = str(tmp_path / "bad.usda")

@@ -10,7 +10,7 @@ import pytest
 from pxr import Sdf, Usd
 
 from warp_subdiv.usd import distributed as dist
-from warp_subdiv.usd.bake import refine_usd
+from warp_subdiv.usd.refine import refine_usd
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ANIMATED = os.path.join(ROOT, "scenes", "animated.usda")  # one creased plate, frames 1-24, primvars, a subset

@@ -282,7 +282,7 @@ def test_the_usd_bake_analyses_each_control_mesh_once(tmp_path, monkeypatch):
     import os
 
     from warp_subdiv.tables import hierarchy as hmod
-    from warp_subdiv.usd.bake import refine_usd
+    from warp_subdiv.usd.refine import refine_usd
 
     calls = []
     real = hmod.base_level

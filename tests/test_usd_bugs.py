@@ -10,7 +10,7 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 
 from test_usd_support import grid, write_mesh
 from warp_subdiv.errors import SubdivInputError
-from warp_subdiv.usd.bake import refine_usd
+from warp_subdiv.usd.refine import refine_usd
 
 T = Sdf.ValueTypeNames
 _OPEN = []

@@ -13,7 +13,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdValidation, Vt
 import warp_subdiv as ws
 from warp_subdiv import cli
 from warp_subdiv.errors import SubdivInputError
-from warp_subdiv.usd.bake import refine_usd
+from warp_subdiv.usd.refine import refine_usd
 
 from test_usd_support import SCENES_DIR, as_baked
 
@@ -456,7 +456,7 @@ def test_time_varying_topology_is_refined_per_sample(tmp_path, monkeypatch):
     """Topology that changes over time (a plate of 2 quads at times 1 and 2, 3 quads at 3, 2 again at 5) is
     refined per sample with the topology of that time: one refiner per distinct topology (2), time-sampled
     faceVertexCounts / faceVertexIndices in the output wherever the topology changes."""
-    from warp_subdiv.usd import bake as usd
+    from warp_subdiv.usd import refine as usd
 
     folder = tmp_path / "in"
     folder.mkdir()
@@ -577,7 +577,7 @@ def test_bundled_scenes_refine_to_valid_usd(name, tmp_path):
 def test_info_and_plan_say_where_one_refinement_goes(assets, tmp_path, capsys):
     """`info` lists a prototype's mesh once and says how many meshes it is refined for; Plan.one_place_each
     tells a mesh-by-mesh (distributed) bake whether each refined mesh goes to its own path only."""
-    from warp_subdiv.usd.bake import plan
+    from warp_subdiv.usd.refine import plan
 
     src = instanced_scene(tmp_path, assets["cube"])
     assert cli.main(["info", str(src), "--levels", "1"]) == 0

@@ -153,7 +153,7 @@ def _error_record(exc: SubdivInputError) -> dict:
 def topology_task(input_path, path, levels, run, threads=None):
     """(hierarchy, seconds): the topology and tables of the mesh at ``path``, built as the single-process bake
     builds them (``run``: refine_usd's keywords), for the mesh's frame tasks."""
-    from .bake import make_refiner, plan
+    from .refine import make_refiner, plan
 
     start = _time.perf_counter()
     limit = _worker_setup(threads)
@@ -173,7 +173,7 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
     the mesh's (hierarchy, seconds) from :func:`topology_task`, or None. Returns its reports and warnings, or
     {"error": ...} for input errors (the driver raises them)."""
     from ..tables import shipped
-    from .bake import refine_usd
+    from .refine import refine_usd
 
     start = _time.perf_counter()
     hierarchy = topology[0] if topology is not None else None
@@ -366,7 +366,7 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     threads per task (default: the local cluster's share of the cores, a remote worker's own cores).
     Returns a :class:`warp_subdiv.usd.Result`."""
     from ..runtime import threads as th
-    from .bake import PrimReport, Result, plan
+    from .refine import PrimReport, Result, plan
     from ..io.usd_write import OutputLayer
 
     start = _time.perf_counter()
@@ -594,7 +594,7 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
     Chunks stay where they are and are referenced by relative paths. Ranges that share their ends (1:25,
     25:50) interpolate across chunk boundaries; with 1:25, 26:50 values between 25 and 26 hold at 25.
     Returns a :class:`warp_subdiv.usd.Result` (no reports)."""
-    from .bake import Result
+    from .refine import Result
     from ..io.usd_write import OutputLayer
 
     start = _time.perf_counter()

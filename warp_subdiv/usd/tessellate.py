@@ -86,7 +86,7 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
     import time
 
     from ..io.obj import read_obj, write_obj
-    from .bake import options_for
+    from .refine import options_for
 
     t0 = time.perf_counter()
     data = read_obj(input_path)
@@ -126,7 +126,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     import os
 
     from ..version import __version__
-    from .bake import Plan, layout
+    from .refine import Plan, layout
     from ..io.usd_read import open_stage, parse_frames, read_mesh, read_scene
     from ..io.usd_write import OutputLayer, check_output_path
 
@@ -182,7 +182,7 @@ def _tessellate_prim(sp, layer, warnings_, *, rate, edge_length, scheme, rules, 
 
     from pxr import Sdf, UsdGeom, Vt
 
-    from .bake import options_for
+    from .refine import options_for
     from ..io.usd_read import DEFAULT, SUBDIVISION_ATTRIBUTES
     from ..io.usd_write import extent_of
 
