@@ -5,6 +5,7 @@
     python bench/bench_core.py --levels 3-4 --frames 9 --device cpu --json out/bench.json
     python bench/bench_core.py --profile catmull-clark:4   # cProfile of one Refiner build (top functions)
     python bench/bench_core.py --commit HEAD      # measure a commit's library (git archive), not the work tree
+    python bench/bench_core.py --baseline cf72af6  # before/after in one run: each case on both, back to back
 
 Exit status 1 when a worker crashed (a library error); a level stopped by the timeout or memory guard is
 reported in the output but is not a failure.
@@ -64,7 +65,7 @@ def worker(args) -> dict:
 
     wp = quiet_warp()
     import warp_subdiv as ws
-    from warp_subdiv.io.obj import read_obj
+    read_obj = obj_reader()
 
     wp.init()
     file, scheme = MESHES[args.mesh]
@@ -156,7 +157,7 @@ def profile_build(args):
 
     quiet_warp()
     import warp_subdiv as ws
-    from warp_subdiv.io.obj import read_obj
+    read_obj = obj_reader()
 
     scheme, _, level = args.profile.partition(":")
     names = [n for n, (_, s) in MESHES.items() if s == scheme]
@@ -236,6 +237,32 @@ def machine_info() -> dict:
             "python": platform.python_version(), "numpy": numpy.__version__, "warp": warp.__version__}
 
 
+def obj_reader():
+    """The library's OBJ reader, wherever the library under test keeps it (``--commit`` / ``--baseline`` may
+    measure a commit from before the package was layered)."""
+    try:
+        from warp_subdiv.io.obj import read_obj
+    except ImportError:
+        from warp_subdiv.objio import read_obj
+    return read_obj
+
+
+def fmt_comparison(pairs) -> str:
+    """Before/after table: one row per (mesh, level) measured with both libraries, ratios after / before."""
+    head = ["mesh (scheme)", "level", "build s before", "after", "ratio", "eval ms before", "after", "ratio",
+            "refine s before", "after", "ratio", "peak RSS ratio"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] + ["---:"] * (len(head) - 1)) + "|"]
+    for b, a in pairs:
+        def trio(key, scale=1.0, fmt="{:.3f}"):
+            if key not in b or key not in a:
+                return ["–", "–", "–"]
+            return [fmt.format(b[key] * scale), fmt.format(a[key] * scale), f"{a[key] / max(b[key], 1e-12):.2f}"]
+        lines.append("| " + " | ".join([f"{a['mesh']} ({a['scheme']})", str(a["level"])] + trio("build_s")
+                                       + trio("eval_s", 1e3, "{:.2f}") + trio("refine_s")
+                                       + [f"{a['peak_rss'] / max(b['peak_rss'], 1):.2f}"]) + " |")
+    return "\n".join(lines)
+
+
 def fmt_table(rows) -> str:
     head = ["mesh (scheme)", "level", "output verts", "build s", "build sys %", "warm-up s", "eval ms/frame",
             "refine s", "table B/vert", "eval Mverts/s", "peak RSS MiB", "Δ peak MiB"]
@@ -269,6 +296,9 @@ def main(argv=None):
     p.add_argument("--skip-refine", action="store_true", help="do not time ws.refine end to end")
     p.add_argument("--json", help="also write all measurements to this JSON file")
     p.add_argument("--profile", metavar="SCHEME:LEVEL", help="cProfile one Refiner build and exit")
+    p.add_argument("--baseline", metavar="REV",
+                   help="also measure this commit's library, each (mesh, level) right before the working tree's "
+                        "(before/after in one run, a table of ratios after / before)")
     p.add_argument("--commit", metavar="REV",
                    help="benchmark warp_subdiv/ and kernels/ of this git commit (exported to a temporary folder) "
                         "instead of the working tree")
@@ -304,11 +334,16 @@ def main(argv=None):
             if commit:
                 shutil.rmtree(args.lib_root, ignore_errors=True)
         return 0
+    args.baseline_root = None
+    if args.baseline:
+        args.baseline_root, _ = export_commit(args.baseline)
     try:
         return run_benchmark(p, args, commit)
     finally:
         if commit:
             shutil.rmtree(args.lib_root, ignore_errors=True)
+        if args.baseline_root:
+            shutil.rmtree(args.baseline_root, ignore_errors=True)
 
 
 def run_benchmark(p, args, commit) -> int:
@@ -345,11 +380,16 @@ def run_benchmark(p, args, commit) -> int:
                     f"{comp['compile_s']:.2f} s; the rows below load it from Warp's kernel cache."
                     if comp else f"Warp module compile could not be timed: {why}")
 
-    rows, notes, crashed = [], [], False
+    rows, notes, crashed, pairs = [], [], False, []
     for m in meshes:
         for lv in levels:
             cmd = [sys.executable, os.path.abspath(__file__), "--worker", "--mesh", m, "--level", str(lv),
                    "--frames", str(args.frames)] + common + (["--skip-refine"] if args.skip_refine else [])
+            before = None
+            if args.baseline_root:  # the baseline right before, so both see the machine in the same state
+                before, why = run_worker(cmd, args.timeout, mem_limit, args.baseline_root)
+                if before is None:
+                    notes.append(f"{m} level {lv}: baseline {args.baseline} stopped ({why})")
             t = time.perf_counter()
             res, why = run_worker(cmd, args.timeout, mem_limit, args.lib_root)
             wall = time.perf_counter() - t
@@ -365,6 +405,8 @@ def run_benchmark(p, args, commit) -> int:
                 break
             res["subprocess_wall_s"] = wall
             rows.append(res)
+            if before is not None:
+                pairs.append((before, res))
             print(f"  {m} level {lv}: {res['num_vertices']:,} verts, build {res['build_s']:.2f} s, "
                   f"eval {res['eval_s'] * 1e3:.1f} ms, subprocess {wall:.1f} s", file=sys.stderr, flush=True)
 
@@ -376,6 +418,10 @@ def run_benchmark(p, args, commit) -> int:
     print()
     print(fmt_table(rows))
     print()
+    if pairs:
+        print(f"Before ({args.baseline}) and after (this library), each pair measured back to back:\n")
+        print(fmt_comparison(pairs))
+        print()
     print("build = Refiner(): topology + stencil tables of all levels (numpy, CPU); build sys % = kernel share "
           "of the build's CPU time (getrusage; page faults of fresh memory); warm-up = first evaluate "
           "(table upload + Warp module load); eval = median of "
@@ -395,6 +441,7 @@ def run_benchmark(p, args, commit) -> int:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         with open(args.json, "w", encoding="utf-8") as fh:
             json.dump({"command": cmdline, "machine": info, "library": lib, "rows": rows, "notes": notes,
+                       "baseline": args.baseline, "baseline_rows": [b for b, _ in pairs],
                        "compile": comp, "total_s": total,
                        "loadavg_start": load0, "loadavg_end": load1}, fh, indent=1)
     return 1 if crashed else 0
