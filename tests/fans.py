@@ -3,7 +3,7 @@ import numpy as np
 
 import warp_subdiv as ws
 from warp_subdiv.tables.projections import ring_local_vectors, sector_local_vectors
-from warp_subdiv.topology.refinement import base_level, refine_level
+from warp_subdiv.topology import base_level, refine_level
 
 SCHEME_FACES = {"catmull-clark": 4, "loop": 3}
 

@@ -14,7 +14,7 @@ import warp_subdiv as ws
 from conftest import load_mesh
 from warp_subdiv import SubdivInputError
 from warp_subdiv.options import FaceVaryingMode
-from warp_subdiv.topology.refinement import triangulate
+from warp_subdiv.topology import triangulate
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 try:

@@ -20,7 +20,7 @@ import warp as wp
 import warp_subdiv as ws
 from warp_subdiv.rules import limit_masks as M
 from warp_subdiv.rules.weights import SECTOR_CONVEX, SECTOR_CREASE, SECTOR_STRAIGHT
-from warp_subdiv.topology.refinement import base_level
+from warp_subdiv.topology import base_level
 
 SCHEMES = ("catmull-clark", "loop")
 

@@ -8,7 +8,7 @@ from conftest import load_mesh
 from warp_subdiv.tables.hierarchy import Hierarchy, Parentage
 from warp_subdiv.options import Options
 from warp_subdiv.tables.face_map import FaceMap
-from warp_subdiv.topology.refinement import EDGE, FACE, VERTEX, Refinement, base_level, refine_level
+from warp_subdiv.topology import EDGE, FACE, VERTEX, Refinement, base_level, refine_level
 
 
 def polygons():

@@ -31,7 +31,7 @@ from warp_subdiv import SubdivInputError
 from warp_subdiv.tables.hierarchy import Hierarchy
 from warp_subdiv.limit.patches import END_CAP, LOOP_BEZIER, TRI_BEZIER_INDEX, TRI_RING
 from warp_subdiv.io.obj import read_obj
-from warp_subdiv.topology.refinement import base_level, refine_level
+from warp_subdiv.topology import base_level, refine_level
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 if ROOT not in sys.path:

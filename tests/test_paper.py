@@ -377,7 +377,7 @@ def mask_tangents(scheme, mesh, level, vertex, points, **options):
     k = int(np.sum(mesh.face_vertex_indices == vertex))
     ids = local_ids(scheme, mesh, "interior", k, levels=level)[-1] if vertex == 0 else None
     from warp_subdiv.tables.projections import ring_local_vectors
-    from warp_subdiv.topology.refinement import base_level, refine_level
+    from warp_subdiv.topology import base_level, refine_level
 
     lv = base_level(mesh, scheme, "edge-and-corner", "piecewise-smooth")
     for _ in range(level):

@@ -7,7 +7,7 @@ from conftest import load_mesh
 from warp_subdiv.rules import limit_masks as M
 from warp_subdiv.tables.projections import sector_local_vectors
 from warp_subdiv.rules.weights import SECTOR_CREASE
-from warp_subdiv.topology.refinement import base_level, refine_level
+from warp_subdiv.topology import base_level, refine_level
 
 
 def tagged(name, **tags):

@@ -5,7 +5,7 @@ import pytest
 
 import warp_subdiv as ws
 from conftest import load_mesh
-from warp_subdiv.topology.refinement import base_level, refine_level
+from warp_subdiv.topology import base_level, refine_level
 
 
 def cube_with(creases, sharpness, corners=None, corner_sharpness=None):

@@ -5,7 +5,7 @@ import pytest
 import warp_subdiv as ws
 from conftest import load_mesh
 from warp_subdiv.rules import weights as rules
-from warp_subdiv.topology.refinement import base_level, refine_level, triangulate
+from warp_subdiv.topology import base_level, refine_level, triangulate
 
 CASES = [
     ("cube", "catmull-clark"),

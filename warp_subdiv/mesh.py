@@ -269,6 +269,132 @@ def check_rows(data, rows: int, what: str, *, at_least: bool = False, bound: flo
     return arr
 
 
+def _checked_points(points) -> np.ndarray:
+    """The control points as finite float64 (n, 3)."""
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise SubdivInputError(f"points must have shape (n, 3), got {pts.shape}", option="points")
+    bad = np.flatnonzero(~np.all(np.isfinite(pts), axis=1))
+    if len(bad):
+        raise SubdivInputError(f"point {bad[0]} is not finite: {pts[bad[0]].tolist()}", option="points",
+                               element="vertex", index=int(bad[0]))
+    return pts
+
+
+def _checked_faces(face_vertex_counts, face_vertex_indices, num_vertices: int):
+    """(counts, indices) as int64 and the face offsets: at least one face, every face of three or more corners,
+    counts that add up to the indices, every index a vertex, and few enough corners for 32-bit tables."""
+    counts = _int_array(face_vertex_counts, "face_vertex_counts")
+    indices = _int_array(face_vertex_indices, "face_vertex_indices")
+    if len(counts) == 0:
+        raise SubdivInputError("the mesh has no faces", option="face_vertex_counts")
+    small = np.flatnonzero(counts < 3)
+    if len(small):
+        raise SubdivInputError(f"face {small[0]} has {counts[small[0]]} vertices; a face needs at least 3",
+                               option="face_vertex_counts", element="face", index=int(small[0]),
+                               value=int(counts[small[0]]))
+    if int(counts.sum()) != len(indices):
+        raise SubdivInputError(
+            f"face_vertex_counts add up to {int(counts.sum())} but face_vertex_indices has {len(indices)} entries",
+            option="face_vertex_counts",
+        )
+    if len(indices) >= 2**31 // 16:
+        raise SubdivInputError(f"{len(indices)} face-vertex indices exceed what 32-bit tables can refine",
+                               option="face_vertex_indices")
+    offsets = face_offsets_of(counts)
+    corner_face = np.repeat(np.arange(len(counts)), counts)
+    out = np.flatnonzero((indices < 0) | (indices >= num_vertices))
+    if len(out):
+        h = out[0]
+        f = corner_face[h]
+        raise SubdivInputError(
+            f"face {f} corner {h - offsets[f]} refers to vertex {_given(face_vertex_indices, h)}, outside "
+            f"[0, {num_vertices})",
+            option="face_vertex_indices", element="face", index=int(f), value=_given(face_vertex_indices, h),
+        )
+    # faces that use a vertex more than once are accepted, as OpenSubdiv accepts them: their repeated
+    # vertex pairs and degenerate edges are non-manifold edges (find_edges; topology.base_level)
+    return counts, indices, offsets
+
+
+def _edges_of_pairs(mesh: Mesh, pairs: np.ndarray) -> np.ndarray:
+    """Edge ids of vertex pairs (m, 2) (-1: not an edge); the mesh's edges are found only when there are pairs."""
+    return mesh.edges.find(pairs, mesh.num_vertices) if len(pairs) else np.zeros(0, np.int64)
+
+
+def _checked_creases(mesh: Mesh, creases, crease_sharpness):
+    """(creases (m, 2) int32, their sharpness, their edge ids): every pair two vertices and an edge of ``mesh``."""
+    cr = _int_array(creases if creases is not None else [], "creases", (2,))
+    _check_vertex_ids(cr, mesh.num_vertices, "creases", "crease", given=creases)
+    cr_sharp = _sharpness(crease_sharpness, len(cr), "crease_sharpness", "crease")
+    cr_edges = _edges_of_pairs(mesh, cr)
+    missing = np.flatnonzero(cr_edges < 0)
+    if len(missing):
+        i = missing[0]
+        raise SubdivInputError(f"crease {i} ({cr[i, 0]}, {cr[i, 1]}) is not an edge of the mesh",
+                               option="creases", element="crease", index=int(i))
+    return cr.astype(np.int32), cr_sharp, cr_edges
+
+
+def _checked_concave(mesh: Mesh, concave):
+    """(concave tags (t, 2) int32, their edge ids): every pair two vertices and an edge of ``mesh``."""
+    cc = _int_array(concave if concave is not None else [], "concave", (2,))
+    _check_vertex_ids(cc, mesh.num_vertices, "concave", "concave", given=concave)
+    cc_edges = _edges_of_pairs(mesh, cc)
+    missing = np.flatnonzero(cc_edges < 0)
+    if len(missing):
+        i = missing[0]
+        raise SubdivInputError(
+            f"concave tag {i} ({cc[i, 0]}, {cc[i, 1]}): the pair is not an edge of the mesh",
+            option="concave", element="concave", index=int(i),
+        )
+    return cc.astype(np.int32), cc_edges
+
+
+def _checked_normals(normals, num_vertices: int):
+    """(vertex ids int32, unit normals (n, 3)) of the prescribed normals (none when ``normals`` is None): a
+    pair of vertex ids and normals of length 1 (within 1e-3, then normalised), at most one per vertex."""
+    if normals is None:
+        return np.zeros(0, np.int32), np.zeros((0, 3))
+    try:
+        ids, vecs = normals
+    except (TypeError, ValueError):
+        raise SubdivInputError("normals must be a pair (vertex ids, unit normals)", option="normals") from None
+    given_ids = ids
+    ids = _int_array(ids, "normals vertex ids", option="normals")
+    _check_vertex_ids(ids, num_vertices, "normals vertex ids", "vertex", option="normals", given=given_ids)
+    vecs = np.asarray(vecs, dtype=np.float64)
+    if vecs.shape != (len(ids), 3):
+        raise SubdivInputError(
+            f"normals need shape ({len(ids)}, 3) for {len(ids)} vertex ids, got {vecs.shape}",
+            option="normals", element="normal",
+        )
+    length = np.linalg.norm(vecs, axis=1)
+    bad = np.flatnonzero(~np.isfinite(length) | (np.abs(length - 1.0) > 1e-3))
+    if len(bad):
+        raise SubdivInputError(
+            f"prescribed normal for vertex {ids[bad[0]]} has length {length[bad[0]]:.6g}; give unit normals",
+            option="normals", element="normal", index=int(bad[0]), value=float(length[bad[0]]),
+        )
+    uniq, cnt = np.unique(ids, return_counts=True)
+    if np.any(cnt > 1):
+        vertex = int(uniq[cnt > 1][0])
+        raise SubdivInputError(f"vertex {vertex} has more than one prescribed normal", option="normals",
+                               element="vertex", index=vertex)
+    return ids.astype(np.int32), vecs / length[:, None]
+
+
+def _checked_holes(holes, num_faces: int) -> np.ndarray:
+    """The hole face ids as int32, every one a face."""
+    ho = _int_array(holes if holes is not None else [], "holes")
+    bad = np.flatnonzero((ho < 0) | (ho >= num_faces))
+    if len(bad):
+        value = _given(holes, int(bad[0]))
+        raise SubdivInputError(f"hole {bad[0]} is face {value}, outside [0, {num_faces})", option="holes",
+                               element="hole", index=int(bad[0]), value=value)
+    return ho.astype(np.int32)
+
+
 class Mesh:
     """A polygon control mesh with subdivision tags.
 
@@ -293,126 +419,24 @@ class Mesh:
         normals=None,
         holes=None,
     ):
-        pts = np.asarray(points, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3:
-            raise SubdivInputError(f"points must have shape (n, 3), got {pts.shape}", option="points")
-        bad = np.flatnonzero(~np.all(np.isfinite(pts), axis=1))
-        if len(bad):
-            raise SubdivInputError(f"point {bad[0]} is not finite: {pts[bad[0]].tolist()}", option="points",
-                                   element="vertex", index=int(bad[0]))
-        nv = len(pts)
-
-        counts = _int_array(face_vertex_counts, "face_vertex_counts")
-        indices = _int_array(face_vertex_indices, "face_vertex_indices")
-        if len(counts) == 0:
-            raise SubdivInputError("the mesh has no faces", option="face_vertex_counts")
-        small = np.flatnonzero(counts < 3)
-        if len(small):
-            raise SubdivInputError(f"face {small[0]} has {counts[small[0]]} vertices; a face needs at least 3",
-                                   option="face_vertex_counts", element="face", index=int(small[0]),
-                                   value=int(counts[small[0]]))
-        if int(counts.sum()) != len(indices):
-            raise SubdivInputError(
-                f"face_vertex_counts add up to {int(counts.sum())} but face_vertex_indices has {len(indices)} entries",
-                option="face_vertex_counts",
-            )
-        if len(indices) >= 2**31 // 16:
-            raise SubdivInputError(f"{len(indices)} face-vertex indices exceed what 32-bit tables can refine",
-                                   option="face_vertex_indices")
-        offsets = face_offsets_of(counts)
-        corner_face = np.repeat(np.arange(len(counts)), counts)
-        out = np.flatnonzero((indices < 0) | (indices >= nv))
-        if len(out):
-            h = out[0]
-            f = corner_face[h]
-            raise SubdivInputError(
-                f"face {f} corner {h - offsets[f]} refers to vertex {_given(face_vertex_indices, h)}, outside "
-                f"[0, {nv})",
-                option="face_vertex_indices", element="face", index=int(f), value=_given(face_vertex_indices, h),
-            )
-        # faces that use a vertex more than once are accepted, as OpenSubdiv accepts them: their repeated
-        # vertex pairs and degenerate edges are non-manifold edges (find_edges; topology.base_level)
-        self.points = pts
+        """Validates every argument in this order (points, faces, creases, corners, concave tags, normals,
+        holes); the first problem found is raised."""
+        self.points = _checked_points(points)
+        nv = len(self.points)
+        counts, indices, offsets = _checked_faces(face_vertex_counts, face_vertex_indices, nv)
         self.face_vertex_counts = counts.astype(np.int32)
         self.face_vertex_indices = indices.astype(np.int32)
         self.face_offsets = offsets
         self._edges = None  # found on first use (:attr:`edges`): tags need them now, an analysis later
 
-        # creases
-        cr = _int_array(creases if creases is not None else [], "creases", (2,))
-        _check_vertex_ids(cr, nv, "creases", "crease", given=creases)
-        cr_sharp = _sharpness(crease_sharpness, len(cr), "crease_sharpness", "crease")
-        cr_edges = self.edges.find(cr, nv) if len(cr) else np.zeros(0, np.int64)
-        missing = np.flatnonzero(cr_edges < 0)
-        if len(missing):
-            i = missing[0]
-            raise SubdivInputError(f"crease {i} ({cr[i, 0]}, {cr[i, 1]}) is not an edge of the mesh",
-                                   option="creases", element="crease", index=int(i))
-        self.creases = cr.astype(np.int32)
-        self.crease_sharpness = cr_sharp
-        self.crease_edges = cr_edges
-
-        # corners
+        self.creases, self.crease_sharpness, self.crease_edges = _checked_creases(self, creases, crease_sharpness)
         co = _int_array(corners if corners is not None else [], "corners")
         _check_vertex_ids(co, nv, "corners", "corner", given=corners)
         self.corners = co.astype(np.int32)
         self.corner_sharpness = _sharpness(corner_sharpness, len(co), "corner_sharpness", "corner")
-
-        # concave sectors
-        cc = _int_array(concave if concave is not None else [], "concave", (2,))
-        _check_vertex_ids(cc, nv, "concave", "concave", given=concave)
-        cc_edges = self.edges.find(cc, nv) if len(cc) else np.zeros(0, np.int64)
-        missing = np.flatnonzero(cc_edges < 0)
-        if len(missing):
-            i = missing[0]
-            raise SubdivInputError(
-                f"concave tag {i} ({cc[i, 0]}, {cc[i, 1]}): the pair is not an edge of the mesh",
-                option="concave", element="concave", index=int(i),
-            )
-        self.concave = cc.astype(np.int32)
-        self.concave_edges = cc_edges
-
-        # prescribed normals
-        if normals is None:
-            self.normal_vertices = np.zeros(0, np.int32)
-            self.normal_vectors = np.zeros((0, 3))
-        else:
-            try:
-                ids, vecs = normals
-            except (TypeError, ValueError):
-                raise SubdivInputError("normals must be a pair (vertex ids, unit normals)", option="normals") from None
-            given_ids = ids
-            ids = _int_array(ids, "normals vertex ids", option="normals")
-            _check_vertex_ids(ids, nv, "normals vertex ids", "vertex", option="normals", given=given_ids)
-            vecs = np.asarray(vecs, dtype=np.float64)
-            if vecs.shape != (len(ids), 3):
-                raise SubdivInputError(
-                    f"normals need shape ({len(ids)}, 3) for {len(ids)} vertex ids, got {vecs.shape}",
-                    option="normals", element="normal",
-                )
-            length = np.linalg.norm(vecs, axis=1)
-            bad = np.flatnonzero(~np.isfinite(length) | (np.abs(length - 1.0) > 1e-3))
-            if len(bad):
-                raise SubdivInputError(
-                    f"prescribed normal for vertex {ids[bad[0]]} has length {length[bad[0]]:.6g}; give unit normals",
-                    option="normals", element="normal", index=int(bad[0]), value=float(length[bad[0]]),
-                )
-            uniq, cnt = np.unique(ids, return_counts=True)
-            if np.any(cnt > 1):
-                vertex = int(uniq[cnt > 1][0])
-                raise SubdivInputError(f"vertex {vertex} has more than one prescribed normal", option="normals",
-                                       element="vertex", index=vertex)
-            self.normal_vertices = ids.astype(np.int32)
-            self.normal_vectors = vecs / length[:, None]
-
-        # holes
-        ho = _int_array(holes if holes is not None else [], "holes")
-        bad = np.flatnonzero((ho < 0) | (ho >= len(counts)))
-        if len(bad):
-            value = _given(holes, int(bad[0]))
-            raise SubdivInputError(f"hole {bad[0]} is face {value}, outside [0, {len(counts)})", option="holes",
-                                   element="hole", index=int(bad[0]), value=value)
-        self.holes = ho.astype(np.int32)
+        self.concave, self.concave_edges = _checked_concave(self, concave)
+        self.normal_vertices, self.normal_vectors = _checked_normals(normals, nv)
+        self.holes = _checked_holes(holes, len(counts))
 
     @property
     def num_vertices(self) -> int:

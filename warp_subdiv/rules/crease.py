@@ -6,7 +6,7 @@ one level to the next (uniformly or by Chaikin's rule), and the fractional weigh
 rules where they change during a step. Nothing here reads a mesh level or knows stencil weights: inputs are
 numpy arrays of sharpness values (edge sharpness (E,), vertex sharpness (V,)), counts, the crease method
 and, where a vertex's edges matter, the edges' two end vertices (E, 2) to sum over.
-:mod:`warp_subdiv.topology` reads these arrays off a level; :mod:`warp_subdiv.rules` turns the chosen rules
+:mod:`warp_subdiv.topology.sharpness` reads these arrays off a level; :mod:`warp_subdiv.rules` turns the chosen rules
 and weights into masks.
 
 Sharpness 0 is smooth; :data:`~warp_subdiv.mesh.INFINITE_SHARPNESS` (10) and above is infinitely sharp;

@@ -121,22 +121,52 @@ def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatn
     count = len(theta)
     n = local_size(scheme, k, sector=True)
     s = np.zeros(count) if flatness is None else np.asarray(flatness, dtype=np.float64)
+    crease = kind == SECTOR_CREASE
+    corner = ~crease
 
-    def z():
-        return np.zeros((count, n))
+    corner_l1, corner_l2, corner_x1, corner_x2 = _corner_sector_masks(scheme, k, theta, n)
+    l0_crease, cl1, cl2, cx1, cx2 = _crease_sector_masks(scheme, k, s, count, n)
+    l0 = np.zeros((count, n))
+    l0[corner, 0] = 1.0
+    l0[crease] = l0_crease
+    l1 = np.where(crease[:, None], cl1, corner_l1)
+    l2 = np.where(crease[:, None], cl2, corner_l2)
+    x1 = np.where(crease[:, None], cx1, corner_x1)
+    x2 = np.where(crease[:, None], cx2, corner_x2)
 
-    l0, l1, l2, x1, x2 = z(), z(), z(), z(), z()
+    # --- orientation (docs/rules.md section 9): normal = tu x tv
+    if scheme == LOOP and k >= 2:
+        crease_uv = (l1, l2)  # t1 along x t2 across
+    else:
+        crease_uv = (l2, l1)  # CC: t2 along x t1 across; Loop k = 1: along (l2) x across (l1)
+    concave = (kind == SECTOR_CONCAVE)[:, None]
+    convex = (kind == SECTOR_CONVEX)[:, None]
+    tu = np.where(concave, l1, np.where(convex, l2, crease_uv[0]))
+    tv = np.where(concave, l2, np.where(convex, l1, crease_uv[1]))
+
+    # --- straight sectors (docs/rules.md section 8.7): l1/x1 along, l2/x2 across, l3/x3 the kink; tu x tv =
+    # along x across points outward, as at a Loop crease
+    l3, x3 = np.zeros((count, n)), np.zeros((count, n))
+    straight = kind == SECTOR_STRAIGHT
+    if np.any(straight):
+        v = straight_sector_vectors(scheme, k)
+        for dst, src in ((l0, v["l0"]), (l1, v["l1"]), (l2, v["l2"]), (l3, v["l3"]), (x1, v["x1"]),
+                         (x2, v["x2"]), (x3, v["x3"]), (tu, v["l1"]), (tv, v["l2"])):
+            dst[straight] = src
+    return LocalMasks(l0, l1, l2, x1, x2, tu, tv, l3, x3)
+
+
+def _corner_sector_masks(scheme: str, k: int, theta: np.ndarray, n: int):
+    """(l1, l2, x1, x2), each (S, n), of corner sectors of k faces and angles ``theta`` (S,) (docs/rules.md
+    sections 8.3 and 8.6): convex and concave share the formulas; theta carries the difference."""
+    count = len(theta)
+    l1, l2, x1, x2 = (np.zeros((count, n)) for _ in range(4))
     P = slice(1, k + 2)  # p_0..p_k
     Q = slice(k + 2, n)  # q_0..q_{k-1} (Catmull-Clark)
     ip = np.arange(k + 1)
     iq = np.arange(k)
-    crease = kind == SECTOR_CREASE
-    corner = ~crease
-
-    # --- corners (convex and concave share the formulas; theta carries the difference)
     th = _col(theta)
     skt = np.sin(k * th)
-    l0[corner, 0] = 1.0
     x1[:, P] = np.sin(ip * th) / skt
     x2[:, P] = np.sin((k - ip) * th) / skt
     if scheme == CATMULL_CLARK:
@@ -144,10 +174,18 @@ def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatn
         x2[:, Q] = (np.sin((k - iq) * th) + np.sin((k - iq - 1) * th)) / skt
     l1[:, 0], l1[:, 1 + k] = -1.0, 1.0  # e_{p_k} - e_c
     l2[:, 0], l2[:, 1] = -1.0, 1.0  # e_{p_0} - e_c
-    corner_l1, corner_l2, corner_x1, corner_x2 = l1.copy(), l2.copy(), x1.copy(), x2.copy()
+    return l1, l2, x1, x2
 
-    # --- smooth creases
-    cl1, cl2, cx1, cx2 = z(), z(), z(), z()
+
+def _crease_sector_masks(scheme: str, k: int, s, count: int, n: int):
+    """(l0 (n,), l1, l2, x1, x2 (count, n)) of smooth crease sectors of k faces with flatness ``s`` ((count,)
+    or one value) (docs/rules.md sections 8.2 and 8.5; for k >= 2 the cross-crease mask is l_cross(s),
+    section 6)."""
+    cl1, cl2, cx1, cx2 = (np.zeros((count, n)) for _ in range(4))
+    P = slice(1, k + 2)  # p_0..p_k
+    Q = slice(k + 2, n)  # q_0..q_{k-1} (Catmull-Clark)
+    ip = np.arange(k + 1)
+    iq = np.arange(k)
     tk = np.pi / k
     c_, s_ = np.cos(tk), np.sin(tk)
     l0_crease = np.zeros(n)
@@ -194,32 +232,7 @@ def sector_masks(scheme: str, kind: np.ndarray, k: int, theta: np.ndarray, flatn
         m_hat = np.zeros(n)
         m_hat[0], m_hat[1], m_hat[1 + k] = 1.0 / 3.0, -1.0 / 6.0, -1.0 / 6.0
         lc += (s * g3)[:, None] * m_hat
-    l0[crease] = l0_crease
-    l1 = np.where(crease[:, None], cl1, corner_l1)
-    l2 = np.where(crease[:, None], cl2, corner_l2)
-    x1 = np.where(crease[:, None], cx1, corner_x1)
-    x2 = np.where(crease[:, None], cx2, corner_x2)
-
-    # --- orientation (docs/rules.md section 9): normal = tu x tv
-    if scheme == LOOP and k >= 2:
-        crease_uv = (l1, l2)  # t1 along x t2 across
-    else:
-        crease_uv = (l2, l1)  # CC: t2 along x t1 across; Loop k = 1: along (l2) x across (l1)
-    concave = (kind == SECTOR_CONCAVE)[:, None]
-    convex = (kind == SECTOR_CONVEX)[:, None]
-    tu = np.where(concave, l1, np.where(convex, l2, crease_uv[0]))
-    tv = np.where(concave, l2, np.where(convex, l1, crease_uv[1]))
-
-    # --- straight sectors (docs/rules.md section 8.7): l1/x1 along, l2/x2 across, l3/x3 the kink; tu x tv =
-    # along x across points outward, as at a Loop crease
-    l3, x3 = z(), z()
-    straight = kind == SECTOR_STRAIGHT
-    if np.any(straight):
-        v = straight_sector_vectors(scheme, k)
-        for dst, src in ((l0, v["l0"]), (l1, v["l1"]), (l2, v["l2"]), (l3, v["l3"]), (x1, v["x1"]),
-                         (x2, v["x2"]), (x3, v["x3"]), (tu, v["l1"]), (tv, v["l2"])):
-            dst[straight] = src
-    return LocalMasks(l0, l1, l2, x1, x2, tu, tv, l3, x3)
+    return l0_crease, cl1, cl2, cx1, cx2
 
 
 # --------------------------------------------------------------------------------------------------------

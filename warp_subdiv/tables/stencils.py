@@ -17,7 +17,7 @@ from ..rules import weights as rules
 from ..runtime.estimate import check_int32
 from ..mesh import expand_counts, face_offsets_of
 from ..rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
-from ..topology import Level, child_rules, child_sharpness, fractional_weight, has_semi_sharpness
+from ..topology import Level, child_sharpness, has_semi_sharpness, level_child_rules, level_fractional_weight
 
 
 @dataclass
@@ -186,11 +186,11 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     sharp = level.edge_sharp[es]
     if has_semi_sharpness(level):
         halves, child_vs = child_sharpness(level)
-        child_rule, edge_child_rule = child_rules(level, halves, child_vs)
+        child_rule, edge_child_rule = level_child_rules(level, halves, child_vs)
         child_rule, edge_child_rule = child_rule[vs], edge_child_rule[es]
         transition = crease.vertex_transitions(parent_rule, child_rule)
         # rows without a transition follow their parent rule alone (fractional weight 1)
-        fraction = (np.where(transition, fractional_weight(level, halves, child_vs)[vs], 1.0)
+        fraction = (np.where(transition, level_fractional_weight(level, halves, child_vs)[vs], 1.0)
                     if np.any(transition) else np.ones(nv))
         child_pairs = crease_neighbours(level, halves > 0, vs)
     else:  # no sharpness decays: every rule stays as it is
