@@ -316,7 +316,7 @@ def _refine(args) -> int:
 def _refine_usd(args, max_memory, progress) -> int:
     _quiet_warp()
     from .usd import refine_usd
-    from .io.usd_read import parse_frames
+    from .io.usd_stage import parse_frames
 
     frames = parse_frames(args.frames)
     run = dict(prims=args.prim, scheme=args.scheme, rules=args.rules, boundary=args.boundary, device=args.device,
@@ -439,7 +439,6 @@ def _info(args) -> int:
     from pxr import UsdGeom
 
     from .usd import estimate_prim, make_refiner, plan
-    from .io.usd_read import summarize_tags
 
     p = plan(args.input, args.levels, prims=args.prim, require_meshes=False)
     stage = p.stage
@@ -454,7 +453,7 @@ def _info(args) -> int:
         if uses.get(key, 1) > 1:
             print(f"  refined once for {uses[key]} meshes (instances of one prototype, or identical inputs)")
         _print_control(sp.mesh, sp.scheme, sp.boundary, sp.rules, sp.usd_scheme, sp.orientation)
-        print(f"  tags: {summarize_tags(sp)}")
+        print(f"  tags: {_tags_summary(sp)}")
         if sp.point_times:
             times = sp.point_times
             print(f"  time: points have {len(times)} samples ({times[0]:g} to {times[-1]:g})")
@@ -490,6 +489,18 @@ def _print_control(mesh, scheme, boundary, rules, usd_scheme=None, orientation=N
     print(f"{head}, rules {rules if scheme != 'bilinear' else '-'}, boundary {boundary}"
           + (f", {orientation}" if orientation else ""))
     print(f"  control: {mesh.num_vertices} points, {mesh.num_faces} faces ({', '.join(kinds)}), {mesh.num_edges} edges")
+
+
+def _tags_summary(sp) -> str:
+    """The tags a USD mesh as read (a SubdivPrim) carries, in one line."""
+    m = sp.mesh
+    parts = [f"{len(m.creases)} crease edges", f"{len(m.corners)} corners", f"{len(m.concave)} concave",
+             f"{len(m.holes)} holes", f"{len(m.normal_vertices)} normals"]
+    if sp.flatness is not None:
+        parts.append("flatness " + (f"{sp.flatness:g}" if isinstance(sp.flatness, float) else "per point"))
+    if sp.normal_strength is not None:
+        parts.append(f"normal strength {sp.normal_strength:g}")
+    return ", ".join(parts)
 
 
 def _print_levels(estimate_at, levels: int) -> None:
@@ -595,7 +606,7 @@ def main(argv=None) -> int:
         return 2
     except Exception as exc:  # the last line of defence: no traceback for the user
         if _is_usd_error(exc):  # USD could not read the input
-            from .io.usd_read import tf_message
+            from .io.usd_stage import tf_message
 
             print(f"{PROG}: error: {tf_message(exc)}", file=sys.stderr)
             return 2

@@ -236,7 +236,7 @@ def mesh_placements(stage, prims=None, time=None, where: str = "render"):
     instancer's space, without the instances its ``invisibleIds`` / ``inactiveIds`` mask."""
     from pxr import Gf, Usd, UsdGeom
 
-    from .io.usd_read import check_roots
+    from .io.usd_stage import check_roots
 
     t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     roots = check_roots(stage, prims, where) or [stage.GetPseudoRoot().GetPath()]
@@ -364,7 +364,8 @@ def _refined(prim, t, levels, device):
     refined as ``warp-subdiv refine`` refines it (same options, same bilinear handling)."""
     from .tables import FaceMap
     from .usd import linear_vertex_data, make_refiner
-    from .io.usd_read import DEFAULT, read_mesh
+    from .io.usd_read import read_mesh
+    from .io.usd_stage import DEFAULT
 
     sp = read_mesh(prim)
     time = DEFAULT if t.IsDefault() else t.GetValue()
@@ -650,7 +651,7 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
     else:
         from pxr import UsdGeom
 
-        from .io.usd_read import open_stage
+        from .io.usd_stage import open_stage
 
         stage = open_stage(path)
         if time is None and stage.HasAuthoredTimeCodeRange():
@@ -671,7 +672,7 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
         up_axis = UsdGeom.GetStageUpAxis(stage)
     edges = None
     if cage:
-        from .io.usd_read import open_stage
+        from .io.usd_stage import open_stage
 
         edges = cage_edges(open_stage(cage), time, prims)
     if not len(soup.corners):
