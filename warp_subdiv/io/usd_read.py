@@ -340,17 +340,8 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
         )
     chosen = USD_SCHEMES[usd_scheme] if scheme == "auto" else scheme
 
-    # times: points samples in the selected frames decide what is written (and topology samples, where the
-    # topology changes over time)
     points_attr = geom.GetPointsAttr()
-    all_times = points_attr.GetTimeSamples()
-    point_times = times_for_frames(all_times, frames)
-    if all_times and frames is not None and not any(in_frames(t, frames) for t in all_times):
-        warn.append(f"frames {format_frames(frames)} hold no time sample of points (its {len(all_times)} samples run "
-                    f"from {all_times[0]:g} to {all_times[-1]:g}): the value USD holds there is refined")
-    topology_times = _topology_times(prim, frames)
-    ref_time = point_times[0] if point_times else (topology_times[0] if topology_times else DEFAULT)
-
+    point_times, topology_times, ref_time = _sample_times(prim, points_attr, frames, warn)
     counts = _get(geom.GetFaceVertexCountsAttr(), ref_time)
     indices = _get(geom.GetFaceVertexIndicesAttr(), ref_time)
     pts = _get(points_attr, ref_time) if point_times else _get(points_attr, DEFAULT)
@@ -400,10 +391,39 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     )
     if topology_times:
         _read_topologies(sp, geom, control, ref_time, topology_times, semi_sharp)
-    # the default written: the input's, unless it is missing or does not fit the mesh beside time samples
-    # (an empty default is common in exports): then the first selected sample stands in for it
+    _read_point_defaults(sp, points_attr, pts)
+    _read_point_arrays(sp, frames)
+    for name in ("normals", "primvars:normals"):
+        attr = prim.GetAttribute(name)
+        if attr and attr.HasAuthoredValue():
+            sp.authored_normals.append(name)
+    _read_primvars(sp, geom, frames)
+    _read_subsets(sp, geom, frames)
+    return sp
+
+
+def _sample_times(prim: Usd.Prim, points_attr: Usd.Attribute, frames, warn: list):
+    """(point times, topology times, reference time): the selected time samples of points, those of the
+    topology where it changes over time (:func:`_topology_times`), and the time the control mesh is first
+    read at (the first of them, else the default). The samples of points in the selected frames decide what
+    is written; a range that holds none of them is warned about."""
+    all_times = points_attr.GetTimeSamples()
+    point_times = times_for_frames(all_times, frames)
+    if all_times and frames is not None and not any(in_frames(t, frames) for t in all_times):
+        warn.append(f"frames {format_frames(frames)} hold no time sample of points (its {len(all_times)} samples run "
+                    f"from {all_times[0]:g} to {all_times[-1]:g}): the value USD holds there is refined")
+    topology_times = _topology_times(prim, frames)
+    ref_time = point_times[0] if point_times else (topology_times[0] if topology_times else DEFAULT)
+    return point_times, topology_times, ref_time
+
+
+def _read_point_defaults(sp: SubdivPrim, points_attr: Usd.Attribute, pts) -> None:
+    """The points written at the default time: the input's default, unless it is missing or does not fit the
+    mesh beside time samples (an empty default is common in exports): then the first selected sample stands
+    in for it, and with a time-varying topology, that sample's control mesh is the default one. ``pts``: the
+    points read at the reference time."""
     default_mesh = sp.mesh_at(DEFAULT)
-    default = (None if _stands_in(points_attr, sp.point_times, default_mesh.num_vertices, warn)
+    default = (None if _stands_in(points_attr, sp.point_times, default_mesh.num_vertices, sp.warnings)
                else points_attr.Get(DEFAULT))
     if default is None and sp.topologies:
         sp.default_topology = sp.topology_index(sp.point_times[0])  # the stand-in's topology
@@ -412,19 +432,17 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     sp.points_default = np.asarray(pts if default is None and not sp.topologies else
                                    (points_attr.Get(sp.point_times[0]) if default is None else default),
                                    dtype=np.float64).reshape(-1, 3)
+
+
+def _read_point_arrays(sp: SubdivPrim, frames) -> None:
+    """The authored velocities and accelerations: their selected time samples, and whether their first sample
+    stands in for their default (as for points)."""
     for name in ("velocities", "accelerations"):
-        attr = prim.GetAttribute(name)
+        attr = sp.prim.GetAttribute(name)
         if attr and attr.HasAuthoredValue():
             sp.point_arrays[name] = times_for_frames(attr.GetTimeSamples(), frames)
-            if _stands_in(attr, sp.point_arrays[name], sp.mesh_at(DEFAULT).num_vertices, warn):
+            if _stands_in(attr, sp.point_arrays[name], sp.mesh_at(DEFAULT).num_vertices, sp.warnings):
                 sp.stand_in_defaults.add(name)
-    for name in ("normals", "primvars:normals"):
-        attr = prim.GetAttribute(name)
-        if attr and attr.HasAuthoredValue():
-            sp.authored_normals.append(name)
-    _read_primvars(sp, geom, frames)
-    _read_subsets(sp, geom, frames)
-    return sp
 
 
 @dataclass
