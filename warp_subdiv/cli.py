@@ -377,6 +377,7 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     _quiet_warp()
     from .runtime.estimate import check_memory, estimate
     from .io.obj import read_obj, write_obj
+    from .tables import shipped
     from .usd import make_refiner, options_for
 
     if args.prim or args.frames:
@@ -389,12 +390,15 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     options = options_for(data, scheme=args.scheme, rules=args.rules, boundary=args.boundary,
                           precision=args.precision)
     scheme, rules = options.scheme.value, options.rules.value
-    control = make_refiner(data, 0, options=options, device=args.device)  # the analysis: does it project?
+    # the control mesh is analysed once: the analysis says whether the refiner projects (the memory it
+    # predicts), and the refiner of args.levels starts from it
+    control = make_refiner(data, 0, options=options, device=args.device)
     est = estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, args.levels, scheme,
                    precision=options.precision.value, projecting=control.projects)
     check_memory([est], max_memory, args.levels)
     progress(0.0, f"{args.input}: {args.levels} levels")
-    refiner = make_refiner(data, args.levels, options=options, device=args.device)
+    with shipped(control.hierarchy):
+        refiner = make_refiner(data, args.levels, options=options, device=args.device)
     progress(0.7, f"{args.input}: points")
     refined = refiner.refine()
     progress(0.9, f"writing {args.output}")
