@@ -578,9 +578,9 @@ def _render(args) -> int:
         raise UsageError(f"{args.output}: the preview is written as .png")
     kind = _check_input(args.input)
     _quiet_warp()
-    from .render import check_view, parse_size, render_file
+    from .render import check_view, parse_resolution, render_file
 
-    size = parse_size(args.size)
+    size = parse_resolution(args.size)
     view = check_view(args.view)
     if args.samples < 1 or args.samples > 8:
         raise UsageError(f"--samples must be 1 to 8, got {args.samples}")

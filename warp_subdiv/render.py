@@ -85,8 +85,8 @@ class Camera:
         return (x + 1.0) * 0.5 * width, (1.0 - y) * 0.5 * height, dist
 
 
-def parse_size(text: str):
-    """'WIDTHxHEIGHT' -> (width, height), each 1 to 8192."""
+def parse_resolution(text: str):
+    """An image resolution: 'WIDTHxHEIGHT' -> (width, height) in pixels, each 1 to 8192."""
     try:
         w, h = (int(v) for v in str(text).lower().split("x"))
     except ValueError:
