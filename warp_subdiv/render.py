@@ -190,7 +190,9 @@ def _material_color(material):
     return None if value is None else np.array(value, dtype=np.float64)
 
 
-def _mesh_colors(prim, mesh, counts, indices, time) -> np.ndarray:
+def _mesh_colors(prim, counts, indices, time) -> np.ndarray:
+    """Per-corner colours in [0, 1]: the bound material's diffuseColor (per face subset too), else
+    displayColor, else grey."""
     from pxr import UsdGeom, UsdShade
 
     n = len(indices)
@@ -330,7 +332,7 @@ def _local_mesh(prim, t, levels, device):
     if not valid or np.any(counts < 3):
         raise SubdivInputError(f"{prim.GetPath()}: cannot render: {why or 'a face has fewer than 3 vertices'}")
     try:
-        colors = _mesh_colors(prim, mesh, counts, indices, t)
+        colors = _mesh_colors(prim, counts, indices, t)
     except Exception:  # noqa: BLE001 (a preview keeps going in grey)
         colors = np.tile(DEFAULT_COLOR, (len(indices), 1))
     normals = None
@@ -341,11 +343,12 @@ def _local_mesh(prim, t, levels, device):
         pts, counts, indices, parent = _refined(prim, t, levels, device)
         colors = np.repeat(face_color[parent], counts, axis=0)
     elif scheme == "none":
-        normals = _authored_normals(mesh, counts, indices, len(pts), t)
+        normals = _authored_normals(mesh, counts, indices, t)
     return pts, counts, indices, normals, colors
 
 
-def _authored_normals(mesh, counts, indices, n_points, t):
+def _authored_normals(mesh, counts, indices, t):
+    """Per-corner normals of a polygonal mesh from its primvars:normals or normals, else None."""
     from pxr import UsdGeom
 
     pv = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("normals")

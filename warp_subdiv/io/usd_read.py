@@ -397,7 +397,7 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
         attr = prim.GetAttribute(name)
         if attr and attr.HasAuthoredValue():
             sp.authored_normals.append(name)
-    _read_primvars(sp, geom, frames)
+    _read_primvars(sp, frames)
     _read_subsets(sp, geom, frames)
     return sp
 
@@ -705,7 +705,9 @@ def _check_unit_interval(path, name, values, allow_nan=False):
                                index=int(bad[0]) if len(values) > 1 else None, value=float(values[bad[0]]))
 
 
-def _read_primvars(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
+def _read_primvars(sp: SubdivPrim, frames) -> None:
+    """The primvars the refined mesh needs (:attr:`SubdivPrim.primvars`), with their selected time samples;
+    those that cannot be refined are listed in :attr:`SubdivPrim.dropped`, with the reason."""
     api = UsdGeom.PrimvarsAPI(sp.prim)
     for pv in api.GetPrimvarsWithAuthoredValues():
         name = pv.GetAttr().GetName()
@@ -733,6 +735,7 @@ def _read_primvars(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
 
 
 def _read_subsets(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
+    """The face and edge GeomSubsets, whose indices the refined mesh remaps (:attr:`SubdivPrim.subsets`)."""
     for subset in UsdGeom.Subset.GetAllGeomSubsets(geom):
         et = subset.GetElementTypeAttr().Get()
         attr = subset.GetIndicesAttr()
