@@ -1,5 +1,6 @@
-"""Reading subdivision meshes from USD: every ``UsdGeom.Mesh`` with a subdivision scheme becomes a tagged
-:class:`warp_subdiv.Mesh`, with its options, time samples and primvars.
+"""Reading one subdivision mesh from USD: a ``UsdGeom.Mesh`` prim with a subdivision scheme becomes a tagged
+:class:`warp_subdiv.Mesh`, with its options, time samples and primvars (:func:`read_mesh`). Which prims are read,
+and where their refined data goes, is the scene's business (:mod:`.usd_scene`).
 
 USD attributes read (``UsdGeom.Mesh``): ``points``, ``faceVertexCounts``, ``faceVertexIndices``,
 ``subdivisionScheme``, ``interpolateBoundary``, ``orientation``, ``holeIndices``, ``creaseIndices`` /
