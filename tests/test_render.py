@@ -112,12 +112,12 @@ def test_framing_camera_sees_every_point():
 
 
 @pytest.mark.parametrize("text", ["12", "axb", "0x10"])
-def test_bad_sizes_are_usage_errors(text):
+def test_bad_resolutions_are_usage_errors(text):
     from warp_subdiv.errors import SubdivInputError
-    from warp_subdiv.render import parse_size
+    from warp_subdiv.render import parse_resolution
 
     with pytest.raises(SubdivInputError, match=f"^size {text!r}: ") as info:
-        parse_size(text)
+        parse_resolution(text)
     assert info.value.option == "size"
 
 

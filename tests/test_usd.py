@@ -11,7 +11,8 @@ from test_usd_support import SCENES_DIR, as_baked, digest, grid, scene_module, w
 from warp_subdiv.errors import SubdivInputError
 from warp_subdiv.usd.order import OrderedRefiner
 from warp_subdiv.usd.refine import MemoryGuardError, refine_usd
-from warp_subdiv.io.usd_read import open_stage, read_mesh
+from warp_subdiv.io.usd_read import read_mesh
+from warp_subdiv.io.usd_stage import open_stage
 
 SCENES = scene_module().SCENES
 LEVELS = 2

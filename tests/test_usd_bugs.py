@@ -489,7 +489,7 @@ def test_flattened_layer_doc_names_no_temporary_file(tmp_path):
 @pytest.mark.parametrize("text", ["nan", "1:inf", "-inf:3", "nan:", ":inf"])
 def test_frames_must_be_finite(text):
     """--frames nan, 1:inf and the like are refused (time codes are finite)."""
-    from warp_subdiv.io.usd_read import parse_frames
+    from warp_subdiv.io.usd_stage import parse_frames
 
     with pytest.raises(SubdivInputError, match="frames .*finite"):
         parse_frames(text)

@@ -46,128 +46,151 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
+    """The command line: one subcommand per job, each with its own arguments."""
     p = _Parser(prog=PROG, description="Loop and Catmull-Clark subdivision of OBJ and USD meshes, with the "
                 "piecewise-smooth rules of Biermann, Levin and Zorin (2000) or OpenSubdiv's; exit codes: 0 "
                 "success, 2 usage or input errors, 1 internal errors.")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    r = sub.add_parser("refine", help="refine the subdivision meshes of an OBJ or USD file",
-                       description="Refine every subdivision mesh of IN (or those at or under --prim) and write OUT. "
-                                   "USD output is a layer that sublayers IN and overrides the refined meshes.")
-    r.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
-    r.add_argument("-o", "--output", required=True, help="output file (.obj for OBJ input; .usd/.usda/.usdc)")
-    r.add_argument("--levels", type=int, required=True, help="number of refinement levels (>= 0)")
-    r.add_argument("--prim", action="append", metavar="PATH",
-                   help="refine only the meshes at or under this prim path (repeatable; USD only)")
-    r.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
-                   help="auto: each USD mesh's subdivisionScheme (OBJ: Loop for all-triangle meshes, else "
-                        "Catmull-Clark); otherwise force this scheme on every subdivision mesh")
-    r.add_argument("--rules", default=None, choices=["piecewise-smooth", "opensubdiv"],
-                   help="rule set for every mesh (default: each mesh's subdiv:rules, else piecewise-smooth)")
-    r.add_argument("--boundary", default=None, choices=["edge-and-corner", "edge-only", "none"],
-                   help="boundary interpolation (default: the file's interpolateBoundary / tag)")
-    r.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
-    r.add_argument("--precision", default="float32", choices=["float32", "float64"])
-    r.add_argument("--frames", default=None, metavar="A:B",
-                   help="refine only the time samples in [A, B] (A:, :B and A work too; USD only)")
-    r.add_argument("--limit", action="store_true", help="write limit points instead of refined control points")
-    r.add_argument("--normals", action="store_true", help="write limit normals (vertex interpolation)")
-    r.add_argument("--max-memory", default=None, metavar="SIZE",
-                   help="refuse when the predicted memory is larger (e.g. 512M, 8G; 'none': no limit; "
-                        "default: half of the physical memory)")
-    r.add_argument("--flatten", action="store_true",
-                   help="write one self-contained layer (the composed, flattened stage) instead of an "
-                        "override layer that sublayers the input")
-    r.add_argument("--all-variants", action="store_true",
-                   help="USD: refine every variant of the variant sets that change a subdivision mesh (nested "
-                        "sets too) and write each inside the same variant set and variant (default: the "
-                        "selected variants, as composed)")
-    r.add_argument("--vertex-order", default="auto", choices=["auto", "compact", "opensubdiv"],
-                   help="USD: numbering of the refined vertices; the surface is the same. compact: vertices that "
-                        "are children of control vertices keep their numbers, the others follow the faces that "
-                        "first use them, so that usdc compresses the indices well and writes them much faster; "
-                        "opensubdiv: OpenSubdiv's (and warp_subdiv.refine()'s) numbering; auto (default): "
-                        "compact for meshes refined with the piecewise-smooth rules, opensubdiv for "
-                        "rules=opensubdiv")
-    r.add_argument("--semi-sharp-as-sharp", action="store_true",
-                   help="make semi-sharp creases and corners (0 < sharpness < 10) infinitely sharp, with a warning "
-                        "(default: they are refined as semi-sharp, with OpenSubdiv's semantics)")
-    r.add_argument("--progress", default="auto", choices=["auto", "on", "off"],
-                   help="progress bar on stderr (auto: when stderr is a terminal)")
-    r.add_argument("--quiet", action="store_true", help="print nothing on success (warnings still go to stderr)")
-    r.add_argument("--threads", type=int, default=None, metavar="N",
-                   help="CPU threads for evaluation (default: the cores this process may use); results do not "
-                        "depend on it")
-    r.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="bake on a local Dask cluster of N worker processes (USD; needs the 'distributed' extra)")
-    r.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="bake on the Dask cluster whose scheduler is at ADDRESS (e.g. tcp://host:8786)")
-    r.add_argument("--chunk-frames", type=int, default=None, metavar="N",
-                   help="with --workers/--scheduler: time samples per frame task of an animated mesh "
-                        "(default: about 3 tasks per worker)")
+    _add_refine(sub)
+    _add_stitch(sub)
+    _add_info(sub)
+    _add_render(sub)
+    _add_tessellate(sub)
+    return p
 
-    s = sub.add_parser("stitch", help="stitch the layers of `refine --frames A:B` runs into one output",
-                       description="Assemble chunk layers written by `warp-subdiv refine IN -o CHUNK --frames A:B` "
-                                   "runs (same input, levels and options) into OUT: each animated mesh's chunks "
-                                   "become USD value clips. Give the ranges shared ends (1:25 25:50) for values "
-                                   "between frames to interpolate across chunks.")
-    s.add_argument("chunks", nargs="+", metavar="CHUNK", help="chunk layers (.usd, .usda, .usdc), any order")
-    s.add_argument("-o", "--output", required=True, help="output layer (.usd, .usda, .usdc)")
-    s.add_argument("--flatten", action="store_true", help="write one self-contained layer (clips baked in)")
-    s.add_argument("--quiet", action="store_true", help="print nothing on success")
 
-    i = sub.add_parser("info", help="list the subdivision meshes of a file with predicted output sizes")
-    i.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
-    i.add_argument("--levels", type=int, default=4, help="predict sizes for levels 1..N (default 4)")
-    i.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path")
+def _add_refine(sub) -> None:
+    """The arguments of ``refine``."""
+    cmd = sub.add_parser("refine", help="refine the subdivision meshes of an OBJ or USD file",
+                         description="Refine every subdivision mesh of IN (or those at or under --prim) and write OUT. "
+                                     "USD output is a layer that sublayers IN and overrides the refined meshes.")
+    cmd.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
+    cmd.add_argument("-o", "--output", required=True, help="output file (.obj for OBJ input; .usd/.usda/.usdc)")
+    cmd.add_argument("--levels", type=int, required=True, help="number of refinement levels (>= 0)")
+    cmd.add_argument("--prim", action="append", metavar="PATH",
+                     help="refine only the meshes at or under this prim path (repeatable; USD only)")
+    cmd.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
+                     help="auto: each USD mesh's subdivisionScheme (OBJ: Loop for all-triangle meshes, else "
+                          "Catmull-Clark); otherwise force this scheme on every subdivision mesh")
+    cmd.add_argument("--rules", default=None, choices=["piecewise-smooth", "opensubdiv"],
+                     help="rule set for every mesh (default: each mesh's subdiv:rules, else piecewise-smooth)")
+    cmd.add_argument("--boundary", default=None, choices=["edge-and-corner", "edge-only", "none"],
+                     help="boundary interpolation (default: the file's interpolateBoundary / tag)")
+    cmd.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
+    cmd.add_argument("--precision", default="float32", choices=["float32", "float64"])
+    cmd.add_argument("--frames", default=None, metavar="A:B",
+                     help="refine only the time samples in [A, B] (A:, :B and A work too; USD only)")
+    cmd.add_argument("--limit", action="store_true", help="write limit points instead of refined control points")
+    cmd.add_argument("--normals", action="store_true", help="write limit normals (vertex interpolation)")
+    cmd.add_argument("--max-memory", default=None, metavar="SIZE",
+                     help="refuse when the predicted memory is larger (e.g. 512M, 8G; 'none': no limit; "
+                          "default: half of the physical memory)")
+    cmd.add_argument("--flatten", action="store_true",
+                     help="write one self-contained layer (the composed, flattened stage) instead of an "
+                          "override layer that sublayers the input")
+    cmd.add_argument("--all-variants", action="store_true",
+                     help="USD: refine every variant of the variant sets that change a subdivision mesh (nested "
+                          "sets too) and write each inside the same variant set and variant (default: the "
+                          "selected variants, as composed)")
+    cmd.add_argument("--vertex-order", default="auto", choices=["auto", "compact", "opensubdiv"],
+                     help="USD: numbering of the refined vertices; the surface is the same. compact: vertices that "
+                          "are children of control vertices keep their numbers, the others follow the faces that "
+                          "first use them, so that usdc compresses the indices well and writes them much faster; "
+                          "opensubdiv: OpenSubdiv's (and warp_subdiv.refine()'s) numbering; auto (default): "
+                          "compact for meshes refined with the piecewise-smooth rules, opensubdiv for "
+                          "rules=opensubdiv")
+    cmd.add_argument("--semi-sharp-as-sharp", action="store_true",
+                     help="make semi-sharp creases and corners (0 < sharpness < 10) infinitely sharp, with a warning "
+                          "(default: they are refined as semi-sharp, with OpenSubdiv's semantics)")
+    cmd.add_argument("--progress", default="auto", choices=["auto", "on", "off"],
+                     help="progress bar on stderr (auto: when stderr is a terminal)")
+    cmd.add_argument("--quiet", action="store_true", help="print nothing on success (warnings still go to stderr)")
+    cmd.add_argument("--threads", type=int, default=None, metavar="N",
+                     help="CPU threads for evaluation (default: the cores this process may use); results do not "
+                          "depend on it")
+    cmd.add_argument("--workers", type=int, default=None, metavar="N",
+                     help="bake on a local Dask cluster of N worker processes (USD; needs the 'distributed' extra)")
+    cmd.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                     help="bake on the Dask cluster whose scheduler is at ADDRESS (e.g. tcp://host:8786)")
+    cmd.add_argument("--chunk-frames", type=int, default=None, metavar="N",
+                     help="with --workers/--scheduler: time samples per frame task of an animated mesh "
+                          "(default: about 3 tasks per worker)")
 
-    g = sub.add_parser("render", help="render a shaded preview PNG (Warp ray casting, CPU or CUDA)")
-    g.add_argument("input", help="a USD file (or .obj)")
-    g.add_argument("-o", "--output", required=True, help="output .png")
-    g.add_argument("--prim", action="append", metavar="PATH", help="render only meshes at or under this path")
-    g.add_argument("--camera", default=None, metavar="PATH",
-                   help="a UsdGeom.Camera prim to look through (default: frame the meshes from --view)")
-    g.add_argument("--view", nargs=2, type=float, default=(-60.0, 30.0), metavar=("AZ", "EL"),
-                   help="azimuth and elevation in degrees of the framing camera around the up axis "
-                        "(default -60 30)")
-    g.add_argument("--size", default="800x600", metavar="WxH", help="image size in pixels (default 800x600)")
-    g.add_argument("--time", default=None,
-                   help="time code to render (default: the stage's start time; without one, the first time "
-                        "sample of points that have no default value)")
-    g.add_argument("--levels", type=int, default=0,
-                   help="refine subdivision meshes this many levels before rendering (default 0: as stored)")
-    g.add_argument("--cage", default=None, metavar="FILE",
-                   help="draw the control meshes of this USD file (e.g. the input of a refinement) as lines")
-    g.add_argument("--samples", type=int, default=2, help="samples per pixel along each axis (default 2)")
-    g.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
-    t = sub.add_parser("tessellate", help="tessellate the limit surfaces of an OBJ or USD file (watertight, "
-                                          "adaptive by edge length or a rate)",
-                       description="Evaluate the limit surface of every subdivision mesh of IN (or those at or under "
-                                   "--prim) and write a watertight tessellation to OUT, with the conventions of "
-                                   "refine (USD: a layer that sublayers IN and overrides the meshes).")
-    t.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
-    t.add_argument("-o", "--output", required=True, help="output file (.obj for OBJ input; .usd/.usda/.usdc)")
-    how = t.add_mutually_exclusive_group(required=True)
+
+def _add_stitch(sub) -> None:
+    """The arguments of ``stitch``."""
+    cmd = sub.add_parser("stitch", help="stitch the layers of `refine --frames A:B` runs into one output",
+                         description="Assemble chunk layers written by `warp-subdiv refine IN -o CHUNK --frames A:B` "
+                                     "runs (same input, levels and options) into OUT: each animated mesh's chunks "
+                                     "become USD value clips. Give the ranges shared ends (1:25 25:50) for values "
+                                     "between frames to interpolate across chunks.")
+    cmd.add_argument("chunks", nargs="+", metavar="CHUNK", help="chunk layers (.usd, .usda, .usdc), any order")
+    cmd.add_argument("-o", "--output", required=True, help="output layer (.usd, .usda, .usdc)")
+    cmd.add_argument("--flatten", action="store_true", help="write one self-contained layer (clips baked in)")
+    cmd.add_argument("--quiet", action="store_true", help="print nothing on success")
+
+
+def _add_info(sub) -> None:
+    """The arguments of ``info``."""
+    cmd = sub.add_parser("info", help="list the subdivision meshes of a file with predicted output sizes")
+    cmd.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
+    cmd.add_argument("--levels", type=int, default=4, help="predict sizes for levels 1..N (default 4)")
+    cmd.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path")
+
+
+def _add_render(sub) -> None:
+    """The arguments of ``render``."""
+    cmd = sub.add_parser("render", help="render a shaded preview PNG (Warp ray casting, CPU or CUDA)")
+    cmd.add_argument("input", help="a USD file (or .obj)")
+    cmd.add_argument("-o", "--output", required=True, help="output .png")
+    cmd.add_argument("--prim", action="append", metavar="PATH", help="render only meshes at or under this path")
+    cmd.add_argument("--camera", default=None, metavar="PATH",
+                     help="a UsdGeom.Camera prim to look through (default: frame the meshes from --view)")
+    cmd.add_argument("--view", nargs=2, type=float, default=(-60.0, 30.0), metavar=("AZ", "EL"),
+                     help="azimuth and elevation in degrees of the framing camera around the up axis "
+                          "(default -60 30)")
+    cmd.add_argument("--size", default="800x600", metavar="WxH", help="image size in pixels (default 800x600)")
+    cmd.add_argument("--time", default=None,
+                     help="time code to render (default: the stage's start time; without one, the first time "
+                          "sample of points that have no default value)")
+    cmd.add_argument("--levels", type=int, default=0,
+                     help="refine subdivision meshes this many levels before rendering (default 0: as stored)")
+    cmd.add_argument("--cage", default=None, metavar="FILE",
+                     help="draw the control meshes of this USD file (e.g. the input of a refinement) as lines")
+    cmd.add_argument("--samples", type=int, default=2, help="samples per pixel along each axis (default 2)")
+    cmd.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
+
+
+def _add_tessellate(sub) -> None:
+    """The arguments of ``tessellate``."""
+    cmd = sub.add_parser("tessellate", help="tessellate the limit surfaces of an OBJ or USD file (watertight, "
+                                            "adaptive by edge length or a rate)",
+                         description="Evaluate the limit surface of every subdivision mesh of IN (or those at or under "
+                                     "--prim) and write a watertight tessellation to OUT, with the conventions of "
+                                     "refine (USD: a layer that sublayers IN and overrides the meshes).")
+    cmd.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
+    cmd.add_argument("-o", "--output", required=True, help="output file (.obj for OBJ input; .usd/.usda/.usdc)")
+    how = cmd.add_mutually_exclusive_group(required=True)
     how.add_argument("--edge-length", type=float, metavar="L",
                      help="target edge length in object space: each control edge gets ceil(limit length / L) "
                           "segments")
     how.add_argument("--rate", type=int, metavar="N", help="segments per control edge (uniform)")
-    t.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path (USD)")
-    t.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
-                   help="as for refine: auto takes each mesh's subdivisionScheme (OBJ: Loop for all triangles)")
-    t.add_argument("--rules", default=None, choices=["piecewise-smooth", "opensubdiv"])
-    t.add_argument("--boundary", default=None, choices=["edge-and-corner", "edge-only", "none"])
-    t.add_argument("--depth", type=int, default=None,
-                   help="levels of local refinement near irregular features before end caps (default 8)")
-    t.add_argument("--triangles", action="store_true", help="triangles only (default: quads where uniform)")
-    t.add_argument("--frames", default=None, metavar="A:B",
-                   help="as for refine: tessellate the points' time samples in [A, B] (default: all)")
-    t.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
-    t.add_argument("--flatten", action="store_true", help="write one self-contained layer (USD)")
-    t.add_argument("--all-variants", action="store_true",
-                   help="as for refine: tessellate every variant that changes a mesh, inside its variant set (USD)")
-    t.add_argument("--quiet", action="store_true", help="print nothing on success")
-    return p
+    cmd.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path (USD)")
+    cmd.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
+                     help="as for refine: auto takes each mesh's subdivisionScheme (OBJ: Loop for all triangles)")
+    cmd.add_argument("--rules", default=None, choices=["piecewise-smooth", "opensubdiv"])
+    cmd.add_argument("--boundary", default=None, choices=["edge-and-corner", "edge-only", "none"])
+    cmd.add_argument("--depth", type=int, default=None,
+                     help="levels of local refinement near irregular features before end caps (default 8)")
+    cmd.add_argument("--triangles", action="store_true", help="triangles only (default: quads where uniform)")
+    cmd.add_argument("--frames", default=None, metavar="A:B",
+                     help="as for refine: tessellate the points' time samples in [A, B] (default: all)")
+    cmd.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
+    cmd.add_argument("--flatten", action="store_true", help="write one self-contained layer (USD)")
+    cmd.add_argument("--all-variants", action="store_true",
+                     help="as for refine: tessellate every variant that changes a mesh, inside its variant set (USD)")
+    cmd.add_argument("--quiet", action="store_true", help="print nothing on success")
 
 
 # -- progress and messages -------------------------------------------------------------------------------
@@ -316,7 +339,7 @@ def _refine(args) -> int:
 def _refine_usd(args, max_memory, progress) -> int:
     _quiet_warp()
     from .usd import refine_usd
-    from .io.usd_read import parse_frames
+    from .io.usd_stage import parse_frames
 
     frames = parse_frames(args.frames)
     run = dict(prims=args.prim, scheme=args.scheme, rules=args.rules, boundary=args.boundary, device=args.device,
@@ -354,6 +377,7 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     _quiet_warp()
     from .runtime.estimate import check_memory, estimate
     from .io.obj import read_obj, write_obj
+    from .tables import shipped
     from .usd import make_refiner, options_for
 
     if args.prim or args.frames:
@@ -366,12 +390,15 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     options = options_for(data, scheme=args.scheme, rules=args.rules, boundary=args.boundary,
                           precision=args.precision)
     scheme, rules = options.scheme.value, options.rules.value
-    control = make_refiner(data, 0, options=options, device=args.device)  # the analysis: does it project?
+    # the control mesh is analysed once: the analysis says whether the refiner projects (the memory it
+    # predicts), and the refiner of args.levels starts from it
+    control = make_refiner(data, 0, options=options, device=args.device)
     est = estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, args.levels, scheme,
                    precision=options.precision.value, projecting=control.projects)
     check_memory([est], max_memory, args.levels)
     progress(0.0, f"{args.input}: {args.levels} levels")
-    refiner = make_refiner(data, args.levels, options=options, device=args.device)
+    with shipped(control.hierarchy):
+        refiner = make_refiner(data, args.levels, options=options, device=args.device)
     progress(0.7, f"{args.input}: points")
     refined = refiner.refine()
     progress(0.9, f"writing {args.output}")
@@ -439,7 +466,6 @@ def _info(args) -> int:
     from pxr import UsdGeom
 
     from .usd import estimate_prim, make_refiner, plan
-    from .io.usd_read import summarize_tags
 
     p = plan(args.input, args.levels, prims=args.prim, require_meshes=False)
     stage = p.stage
@@ -454,7 +480,7 @@ def _info(args) -> int:
         if uses.get(key, 1) > 1:
             print(f"  refined once for {uses[key]} meshes (instances of one prototype, or identical inputs)")
         _print_control(sp.mesh, sp.scheme, sp.boundary, sp.rules, sp.usd_scheme, sp.orientation)
-        print(f"  tags: {summarize_tags(sp)}")
+        print(f"  tags: {_tags_summary(sp)}")
         if sp.point_times:
             times = sp.point_times
             print(f"  time: points have {len(times)} samples ({times[0]:g} to {times[-1]:g})")
@@ -492,6 +518,18 @@ def _print_control(mesh, scheme, boundary, rules, usd_scheme=None, orientation=N
     print(f"  control: {mesh.num_vertices} points, {mesh.num_faces} faces ({', '.join(kinds)}), {mesh.num_edges} edges")
 
 
+def _tags_summary(sp) -> str:
+    """The tags a USD mesh as read (a SubdivPrim) carries, in one line."""
+    m = sp.mesh
+    parts = [f"{len(m.creases)} crease edges", f"{len(m.corners)} corners", f"{len(m.concave)} concave",
+             f"{len(m.holes)} holes", f"{len(m.normal_vertices)} normals"]
+    if sp.flatness is not None:
+        parts.append("flatness " + (f"{sp.flatness:g}" if isinstance(sp.flatness, float) else "per point"))
+    if sp.normal_strength is not None:
+        parts.append(f"normal strength {sp.normal_strength:g}")
+    return ", ".join(parts)
+
+
 def _print_levels(estimate_at, levels: int) -> None:
     """A table of predicted faces, vertices and memory for levels 1..levels."""
     from .runtime.estimate import format_bytes
@@ -505,7 +543,7 @@ def _print_levels(estimate_at, levels: int) -> None:
             print("    " + line)
 
 
-# -- render --------------------------------------------------------------------------------------------
+# -- tessellate and render -----------------------------------------------------------------------------
 
 def _tessellate(args) -> int:
     _quiet_warp()
@@ -540,9 +578,9 @@ def _render(args) -> int:
         raise UsageError(f"{args.output}: the preview is written as .png")
     kind = _check_input(args.input)
     _quiet_warp()
-    from .render import check_view, parse_size, render_file
+    from .render import check_view, parse_resolution, render_file
 
-    size = parse_size(args.size)
+    size = parse_resolution(args.size)
     view = check_view(args.view)
     if args.samples < 1 or args.samples > 8:
         raise UsageError(f"--samples must be 1 to 8, got {args.samples}")
@@ -595,7 +633,7 @@ def main(argv=None) -> int:
         return 2
     except Exception as exc:  # the last line of defence: no traceback for the user
         if _is_usd_error(exc):  # USD could not read the input
-            from .io.usd_read import tf_message
+            from .io.usd_stage import tf_message
 
             print(f"{PROG}: error: {tf_message(exc)}", file=sys.stderr)
             return 2

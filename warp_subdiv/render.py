@@ -85,8 +85,8 @@ class Camera:
         return (x + 1.0) * 0.5 * width, (1.0 - y) * 0.5 * height, dist
 
 
-def parse_size(text: str):
-    """'WIDTHxHEIGHT' -> (width, height), each 1 to 8192."""
+def parse_resolution(text: str):
+    """An image resolution: 'WIDTHxHEIGHT' -> (width, height) in pixels, each 1 to 8192."""
     try:
         w, h = (int(v) for v in str(text).lower().split("x"))
     except ValueError:
@@ -190,7 +190,9 @@ def _material_color(material):
     return None if value is None else np.array(value, dtype=np.float64)
 
 
-def _mesh_colors(prim, mesh, counts, indices, time) -> np.ndarray:
+def _mesh_colors(prim, counts, indices, time) -> np.ndarray:
+    """Per-corner colours in [0, 1]: the bound material's diffuseColor (per face subset too), else
+    displayColor, else grey."""
     from pxr import UsdGeom, UsdShade
 
     n = len(indices)
@@ -236,7 +238,7 @@ def mesh_placements(stage, prims=None, time=None, where: str = "render"):
     instancer's space, without the instances its ``invisibleIds`` / ``inactiveIds`` mask."""
     from pxr import Gf, Usd, UsdGeom
 
-    from .io.usd_read import check_roots
+    from .io.usd_stage import check_roots
 
     t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     roots = check_roots(stage, prims, where) or [stage.GetPseudoRoot().GetPath()]
@@ -330,7 +332,7 @@ def _local_mesh(prim, t, levels, device):
     if not valid or np.any(counts < 3):
         raise SubdivInputError(f"{prim.GetPath()}: cannot render: {why or 'a face has fewer than 3 vertices'}")
     try:
-        colors = _mesh_colors(prim, mesh, counts, indices, t)
+        colors = _mesh_colors(prim, counts, indices, t)
     except Exception:  # noqa: BLE001 (a preview keeps going in grey)
         colors = np.tile(DEFAULT_COLOR, (len(indices), 1))
     normals = None
@@ -341,11 +343,12 @@ def _local_mesh(prim, t, levels, device):
         pts, counts, indices, parent = _refined(prim, t, levels, device)
         colors = np.repeat(face_color[parent], counts, axis=0)
     elif scheme == "none":
-        normals = _authored_normals(mesh, counts, indices, len(pts), t)
+        normals = _authored_normals(mesh, counts, indices, t)
     return pts, counts, indices, normals, colors
 
 
-def _authored_normals(mesh, counts, indices, n_points, t):
+def _authored_normals(mesh, counts, indices, t):
+    """Per-corner normals of a polygonal mesh from its primvars:normals or normals, else None."""
     from pxr import UsdGeom
 
     pv = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("normals")
@@ -364,7 +367,8 @@ def _refined(prim, t, levels, device):
     refined as ``warp-subdiv refine`` refines it (same options, same bilinear handling)."""
     from .tables import FaceMap
     from .usd import linear_vertex_data, make_refiner
-    from .io.usd_read import DEFAULT, read_mesh
+    from .io.usd_read import read_mesh
+    from .io.usd_stage import DEFAULT
 
     sp = read_mesh(prim)
     time = DEFAULT if t.IsDefault() else t.GetValue()
@@ -650,7 +654,7 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
     else:
         from pxr import UsdGeom
 
-        from .io.usd_read import open_stage
+        from .io.usd_stage import open_stage
 
         stage = open_stage(path)
         if time is None and stage.HasAuthoredTimeCodeRange():
@@ -671,7 +675,7 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
         up_axis = UsdGeom.GetStageUpAxis(stage)
     edges = None
     if cage:
-        from .io.usd_read import open_stage
+        from .io.usd_stage import open_stage
 
         edges = cage_edges(open_stage(cage), time, prims)
     if not len(soup.corners):

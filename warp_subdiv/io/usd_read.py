@@ -1,5 +1,6 @@
-"""Reading subdivision meshes from USD: every ``UsdGeom.Mesh`` with a subdivision scheme becomes a tagged
-:class:`warp_subdiv.Mesh`, with its options, time samples and primvars.
+"""Reading one subdivision mesh from USD: a ``UsdGeom.Mesh`` prim with a subdivision scheme becomes a tagged
+:class:`warp_subdiv.Mesh`, with its options, time samples and primvars (:func:`read_mesh`). Which prims are read,
+and where their refined data goes, is the scene's business (:mod:`.usd_scene`).
 
 USD attributes read (``UsdGeom.Mesh``): ``points``, ``faceVertexCounts``, ``faceVertexIndices``,
 ``subdivisionScheme``, ``interpolateBoundary``, ``orientation``, ``holeIndices``, ``creaseIndices`` /
@@ -13,16 +14,16 @@ their structured fields.
 from __future__ import annotations
 
 import hashlib
-import math
 import re
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from pxr import Sdf, Tf, Usd, UsdGeom
+from pxr import Sdf, Usd, UsdGeom
 
 from ..errors import SubdivInputError
 from ..mesh import INFINITE_SHARPNESS, Mesh, expand_counts
 from ..options import FaceVaryingMode, RuleSet
+from .usd_stage import DEFAULT, format_frames, in_frames, times_for_frames
 
 #: USD subdivisionScheme -> the scheme warp-subdiv refines with ("none" meshes are left alone).
 USD_SCHEMES = {"catmullClark": "catmull-clark", "loop": "loop", "bilinear": "bilinear"}
@@ -79,17 +80,6 @@ SUBDIVISION_ATTRIBUTES = ("interpolateBoundary", "faceVaryingLinearInterpolation
 
 #: Value types that interpolate linearly (the primvar's scalar type name).
 _LINEAR_SCALARS = re.compile(r"^(half|float|double)[234]?$|^(color|normal|point|vector)[34][hfd]$|^texCoord[23][hfd]$")
-
-DEFAULT = Usd.TimeCode.Default()
-
-
-def tf_message(exc: BaseException) -> str:
-    """The useful part of a (multi-line) USD error: the first quoted message, without C++ namespaces."""
-    text = str(exc)
-    msgs = re.findall(r" : '(.*?)'(?:\n|$)", text, re.S)
-    msg = msgs[0] if msgs else text.strip()
-    msg = re.sub(r"pxrInternal_v\d+_\d+__pxrReserved__::", "", msg)
-    return " ".join(msg.split())
 
 
 @dataclass
@@ -303,63 +293,6 @@ def usd_error(path: str, exc: SubdivInputError, crease_of_edge=None) -> SubdivIn
     return SubdivInputError(text, option=option, element=element, index=index, value=exc.value)
 
 
-def parse_frames(text: str | None):
-    """'A:B', 'A:', ':B' or 'A' -> (start, end) with None for an open end; None -> None (all samples)."""
-    if text is None:
-        return None
-    parts = str(text).split(":")
-    try:
-        if len(parts) == 1:
-            a = b = float(parts[0])
-        elif len(parts) == 2:
-            a = float(parts[0]) if parts[0].strip() else None
-            b = float(parts[1]) if parts[1].strip() else None
-        else:
-            raise ValueError
-    except ValueError:
-        raise SubdivInputError(f"frames {text!r}: give A:B, A:, :B or A (time codes)", option="frames",
-                               value=text) from None
-    if any(v is not None and not math.isfinite(v) for v in (a, b)):
-        raise SubdivInputError(f"frames {text!r}: time codes must be finite numbers", option="frames", value=text)
-    if a is not None and b is not None and a > b:
-        raise SubdivInputError(f"frames {text!r}: the start is after the end", option="frames", value=text)
-    return a, b
-
-
-def _within(t, frames) -> bool:
-    a, b = frames
-    return (a is None or t >= a) and (b is None or t <= b)
-
-
-def _in_frames(times, frames) -> list:
-    """The times at which an attribute with time samples ``times`` is evaluated for ``frames`` (all its samples
-    when None): its samples in [A, B], and A (B) where a sample lies before A (after B), so that the value USD
-    holds or interpolates at the ends of the range from samples outside it is written too. Between those
-    times the output has the input's own samples, and refinement is linear: every time in [A, B] reads as in
-    the input. Non-empty whenever ``times`` is."""
-    times = sorted(float(t) for t in times)
-    if frames is None or not times:
-        return times
-    a, b = frames
-    out = [t for t in times if _within(t, frames)]
-    if a is not None and a not in out and times[0] < a:
-        out.insert(0, float(a))
-    if b is not None and b not in out and times[-1] > b:
-        out.append(float(b))
-    return out
-
-
-def open_stage(path: str) -> Usd.Stage:
-    """Open a USD file with everything loaded; SubdivInputError with one line when it cannot be read."""
-    try:
-        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
-    except Tf.ErrorException as exc:
-        raise SubdivInputError(f"{path}: cannot open as USD: {tf_message(exc)}") from None
-    if stage is None:
-        raise SubdivInputError(f"{path}: cannot open as USD")
-    return stage
-
-
 def _get(attr: Usd.Attribute, time):
     """The attribute's value at ``time``; at the default time, its first time sample if it has no default."""
     if not attr or not attr.IsValid():
@@ -380,60 +313,6 @@ def _floats(value) -> np.ndarray:
 
 def _type_of(attr: Usd.Attribute) -> str:
     return str(attr.GetTypeName())
-
-
-def mesh_prims(stage: Usd.Stage, prim_paths=None, where: str = ""):
-    """(meshes, instanced): the UsdGeom.Mesh prims at or under ``prim_paths`` (default: the whole stage),
-    and the paths of meshes inside instances (which cannot be overridden per instance)."""
-    roots = []
-    if prim_paths:
-        for p in prim_paths:
-            if not Sdf.Path.IsValidPathString(p) or not Sdf.Path(p).IsAbsolutePath():
-                raise SubdivInputError(f"prims {p!r}: not an absolute prim path such as /World/Mesh",
-                                       option="prims", value=p)
-            prim = stage.GetPrimAtPath(p)
-            if not prim or not prim.IsValid():
-                raise SubdivInputError(f"{where}: {_missing(stage, p)}")
-            _check_traversable(prim, where)
-            roots.append(prim)
-    else:
-        roots.append(stage.GetPseudoRoot())
-    meshes, instanced, seen = [], [], set()
-    for root in roots:
-        for prim in Usd.PrimRange(root, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
-            if not prim.IsA(UsdGeom.Mesh) or prim.GetPath() in seen:
-                continue
-            seen.add(prim.GetPath())
-            (instanced if prim.IsInstanceProxy() else meshes).append(prim)
-    return meshes, instanced
-
-
-def _missing(stage: Usd.Stage, path: str) -> str:
-    """Why there is no prim at ``path``: below an inactive prim (whose children are not composed), or none."""
-    anc = Sdf.Path(path).GetParentPath()
-    while anc != Sdf.Path.absoluteRootPath and not anc.isEmpty:
-        prim = stage.GetPrimAtPath(anc)
-        if prim and prim.IsValid():
-            if not prim.IsActive():
-                return f"{path} is under the inactive prim {anc} (active = false)"
-            break
-        anc = anc.GetParentPath()
-    return f"no prim at {path}"
-
-
-def _check_traversable(prim: Usd.Prim, where: str) -> None:
-    """A prim picked by path must be part of the scene: active, not abstract (a class or under one), defined."""
-    path = prim.GetPath()
-    if not prim.IsActive():
-        raise SubdivInputError(f"{where}: {path} is inactive (active = false)")
-    if prim.IsAbstract():
-        cls = prim
-        while cls and cls.GetSpecifier() != Sdf.SpecifierClass:
-            cls = cls.GetParent()
-        what = "a class" if cls == prim else f"under the class {cls.GetPath()}"
-        raise SubdivInputError(f"{where}: {path} is abstract ({what}), not part of the scene")
-    if not prim.IsDefined():
-        raise SubdivInputError(f"{where}: {path} is not defined (only an over), not part of the scene")
 
 
 def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: str = "auto",
@@ -462,17 +341,8 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
         )
     chosen = USD_SCHEMES[usd_scheme] if scheme == "auto" else scheme
 
-    # times: points samples in the selected frames decide what is written (and topology samples, where the
-    # topology changes over time)
     points_attr = geom.GetPointsAttr()
-    all_times = points_attr.GetTimeSamples()
-    point_times = _in_frames(all_times, frames)
-    if all_times and frames is not None and not any(_within(t, frames) for t in all_times):
-        warn.append(f"frames {_frames_text(frames)} hold no time sample of points (its {len(all_times)} samples run "
-                    f"from {all_times[0]:g} to {all_times[-1]:g}): the value USD holds there is refined")
-    topology_times = _topology_times(prim, frames)
-    ref_time = point_times[0] if point_times else (topology_times[0] if topology_times else DEFAULT)
-
+    point_times, topology_times, ref_time = _sample_times(prim, points_attr, frames, warn)
     counts = _get(geom.GetFaceVertexCountsAttr(), ref_time)
     indices = _get(geom.GetFaceVertexIndicesAttr(), ref_time)
     pts = _get(points_attr, ref_time) if point_times else _get(points_attr, DEFAULT)
@@ -522,10 +392,39 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     )
     if topology_times:
         _read_topologies(sp, geom, control, ref_time, topology_times, semi_sharp)
-    # the default written: the input's, unless it is missing or does not fit the mesh beside time samples
-    # (an empty default is common in exports): then the first selected sample stands in for it
+    _read_point_defaults(sp, points_attr, pts)
+    _read_point_arrays(sp, frames)
+    for name in ("normals", "primvars:normals"):
+        attr = prim.GetAttribute(name)
+        if attr and attr.HasAuthoredValue():
+            sp.authored_normals.append(name)
+    _read_primvars(sp, frames)
+    _read_subsets(sp, geom, frames)
+    return sp
+
+
+def _sample_times(prim: Usd.Prim, points_attr: Usd.Attribute, frames, warn: list):
+    """(point times, topology times, reference time): the selected time samples of points, those of the
+    topology where it changes over time (:func:`_topology_times`), and the time the control mesh is first
+    read at (the first of them, else the default). The samples of points in the selected frames decide what
+    is written; a range that holds none of them is warned about."""
+    all_times = points_attr.GetTimeSamples()
+    point_times = times_for_frames(all_times, frames)
+    if all_times and frames is not None and not any(in_frames(t, frames) for t in all_times):
+        warn.append(f"frames {format_frames(frames)} hold no time sample of points (its {len(all_times)} samples run "
+                    f"from {all_times[0]:g} to {all_times[-1]:g}): the value USD holds there is refined")
+    topology_times = _topology_times(prim, frames)
+    ref_time = point_times[0] if point_times else (topology_times[0] if topology_times else DEFAULT)
+    return point_times, topology_times, ref_time
+
+
+def _read_point_defaults(sp: SubdivPrim, points_attr: Usd.Attribute, pts) -> None:
+    """The points written at the default time: the input's default, unless it is missing or does not fit the
+    mesh beside time samples (an empty default is common in exports): then the first selected sample stands
+    in for it, and with a time-varying topology, that sample's control mesh is the default one. ``pts``: the
+    points read at the reference time."""
     default_mesh = sp.mesh_at(DEFAULT)
-    default = (None if _stands_in(points_attr, sp.point_times, default_mesh.num_vertices, warn)
+    default = (None if _stands_in(points_attr, sp.point_times, default_mesh.num_vertices, sp.warnings)
                else points_attr.Get(DEFAULT))
     if default is None and sp.topologies:
         sp.default_topology = sp.topology_index(sp.point_times[0])  # the stand-in's topology
@@ -534,19 +433,17 @@ def read_mesh(prim: Usd.Prim, *, frames=None, semi_sharp: str = "keep", scheme: 
     sp.points_default = np.asarray(pts if default is None and not sp.topologies else
                                    (points_attr.Get(sp.point_times[0]) if default is None else default),
                                    dtype=np.float64).reshape(-1, 3)
+
+
+def _read_point_arrays(sp: SubdivPrim, frames) -> None:
+    """The authored velocities and accelerations: their selected time samples, and whether their first sample
+    stands in for their default (as for points)."""
     for name in ("velocities", "accelerations"):
-        attr = prim.GetAttribute(name)
+        attr = sp.prim.GetAttribute(name)
         if attr and attr.HasAuthoredValue():
-            sp.point_arrays[name] = _in_frames(attr.GetTimeSamples(), frames)
-            if _stands_in(attr, sp.point_arrays[name], sp.mesh_at(DEFAULT).num_vertices, warn):
+            sp.point_arrays[name] = times_for_frames(attr.GetTimeSamples(), frames)
+            if _stands_in(attr, sp.point_arrays[name], sp.mesh_at(DEFAULT).num_vertices, sp.warnings):
                 sp.stand_in_defaults.add(name)
-    for name in ("normals", "primvars:normals"):
-        attr = prim.GetAttribute(name)
-        if attr and attr.HasAuthoredValue():
-            sp.authored_normals.append(name)
-    _read_primvars(sp, geom, frames)
-    _read_subsets(sp, geom, frames)
-    return sp
 
 
 @dataclass
@@ -640,10 +537,10 @@ def _topology_times(prim: Usd.Prim, frames) -> list:
         return []
     times = set()
     for attr in sampled:
-        times.update(_in_frames(attr.GetTimeSamples(), frames))
+        times.update(times_for_frames(attr.GetTimeSamples(), frames))
     if frames is not None and frames[0] is not None and times and frames[0] not in times:
         times.add(float(frames[0]))  # the topology held at the start of the range
-    times = sorted(t for t in times if frames is None or _within(t, frames))
+    times = sorted(t for t in times if frames is None or in_frames(t, frames))
     keys = {topology_key(prim, t) for t in times} | {topology_key(prim, DEFAULT)}
     return times if len(keys) > 1 else []
 
@@ -696,11 +593,6 @@ def _stands_in(attr, times, num_points: int, warn: list) -> bool:
         warn.append(f"{attr.GetName()} default has {len(default)} entries, the mesh has {num_points} points: the "
                     f"sample at time {times[0]:g} stands in for it")
     return True
-
-
-def _frames_text(frames) -> str:
-    a, b = frames
-    return f"{'' if a is None else f'{a:g}'}:{'' if b is None else f'{b:g}'}"
 
 
 def _check_range(path, name, ids, n, element, what="vertex"):
@@ -814,7 +706,9 @@ def _check_unit_interval(path, name, values, allow_nan=False):
                                index=int(bad[0]) if len(values) > 1 else None, value=float(values[bad[0]]))
 
 
-def _read_primvars(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
+def _read_primvars(sp: SubdivPrim, frames) -> None:
+    """The primvars the refined mesh needs (:attr:`SubdivPrim.primvars`), with their selected time samples;
+    those that cannot be refined are listed in :attr:`SubdivPrim.dropped`, with the reason."""
     api = UsdGeom.PrimvarsAPI(sp.prim)
     for pv in api.GetPrimvarsWithAuthoredValues():
         name = pv.GetAttr().GetName()
@@ -829,7 +723,7 @@ def _read_primvars(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
         indexed = pv.IsIndexed()
         if indexed:
             times |= set(pv.GetIndicesAttr().GetTimeSamples())
-        sel = _in_frames(times, frames)
+        sel = times_for_frames(times, frames)
         es = pv.GetElementSize() or 1
         p = Primvar(name, str(interp), type_name, int(es), bool(indexed), sel, pv)
         if interp not in ("vertex", "varying", "uniform", "faceVarying"):
@@ -842,12 +736,13 @@ def _read_primvars(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
 
 
 def _read_subsets(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
+    """The face and edge GeomSubsets, whose indices the refined mesh remaps (:attr:`SubdivPrim.subsets`)."""
     for subset in UsdGeom.Subset.GetAllGeomSubsets(geom):
         et = subset.GetElementTypeAttr().Get()
         attr = subset.GetIndicesAttr()
         path = str(subset.GetPath())
         if et in (UsdGeom.Tokens.face, "edge"):
-            times = _in_frames(attr.GetTimeSamples(), frames)
+            times = times_for_frames(attr.GetTimeSamples(), frames)
             sp.subsets.append(FaceSubset(path, attr, times, str(et)))
         elif et == "point":
             continue  # refined vertex i is the child of control vertex i: point ids keep their meaning
@@ -855,394 +750,6 @@ def _read_subsets(sp: SubdivPrim, geom: UsdGeom.Mesh, frames) -> None:
             sp.warnings.append(f"GeomSubset {path} with elementType {et!r} is left as is (not remapped)")
 
 
-# -- the scene: instances, variants, identical meshes --------------------------------------------------------
-
-#: Where a prototype's refined content is collected before it gets its name in the output layer.
-SITE = Sdf.Path("/__site__")
-#: Attributes that never change what a mesh refines to (transforms, visibility, purpose).
-_NOT_INPUTS = re.compile(r"^xformOp|^xformOpOrder$|^visibility$|^purpose$|^proxyPrim$")
-
-
-def check_roots(stage: Usd.Stage, prim_paths, where: str = "") -> list:
-    """The prims named by ``prim_paths`` (absolute paths of active, defined, concrete prims; inside instances
-    too), as Sdf paths; [] for none given. SubdivInputError naming the path otherwise."""
-    roots = []
-    for p in prim_paths or ():
-        if not Sdf.Path.IsValidPathString(p) or not Sdf.Path(p).IsAbsolutePath():
-            raise SubdivInputError(f"prims {p!r}: not an absolute prim path such as /World/Mesh", option="prims",
-                                   value=p)
-        prim = stage.GetPrimAtPath(p)
-        if not prim or not prim.IsValid():
-            raise SubdivInputError(f"{where}: {_missing(stage, p)}")
-        _check_traversable(prim, where)
-        roots.append(prim.GetPath())
-    return roots
-
-
-def _value_bytes(value) -> bytes:
-    if value is None:
-        return b"\x00none"
-    try:
-        arr = np.asarray(value)
-        if arr.dtype.kind in "fiub":
-            return str(arr.shape).encode() + np.ascontiguousarray(arr).tobytes()
-    except (TypeError, ValueError):
-        pass
-    return repr(value).encode()
-
-
-def input_fingerprint(prim: Usd.Prim) -> str:
-    """A digest of everything a mesh refines from, as composed: the values (default and every time sample)
-    and the interpolation / elementSize of every authored attribute of the mesh and of its children (face
-    subsets), by name relative to the mesh, except transforms, visibility and purpose. Meshes with equal
-    digests refine to the same data, wherever they sit and however they compose."""
-    h = hashlib.sha1()
-    root = prim.GetPath()
-    for p in Usd.PrimRange(prim, Usd.TraverseInstanceProxies(Usd.PrimAllPrimsPredicate)):
-        h.update(f"<{p.GetPath().MakeRelativePath(root)}:{p.GetTypeName()}>".encode())
-        for attr in p.GetAttributes():
-            name = attr.GetName()
-            if _NOT_INPUTS.match(name) or not attr.HasValue():
-                continue
-            h.update(f"{name}:{attr.GetTypeName()}:{attr.GetMetadata('interpolation')}:"
-                     f"{attr.GetMetadata('elementSize')}".encode())
-            h.update(_value_bytes(attr.Get(DEFAULT)))
-            for t in attr.GetTimeSamples():
-                h.update(f"@{t!r}".encode())
-                h.update(_value_bytes(attr.Get(t)))
-    return h.hexdigest()
-
-
-@dataclass
-class Occurrence:
-    """A place a refined mesh goes: its unit (input digest), its output path (absolute at the top level, under
-    :data:`SITE` in a prototype's content), and the composed prim it was read from, with the variant
-    selections of the configuration it was read in (for messages and checks)."""
-
-    key: str
-    dest: Sdf.Path
-    composed: str
-    config: object = None  # the _Config it was read in
-
-
-@dataclass
-class SiteRef:
-    """An internal reference to a prototype's refined content (site ``site``), authored at ``dest``."""
-
-    dest: Sdf.Path
-    site: str
-    composed: str
-    config: object = None
-
-
-@dataclass
-class Site:
-    """The refined content of a subtree: the meshes it holds and the nested instances that reference other
-    sites. The top level's paths are absolute; a prototype's are under :data:`SITE`."""
-
-    meshes: list = field(default_factory=list)
-    refs: list = field(default_factory=list)
-    instances: int = 0  # how many instance prims were found referencing it (for reports)
-
-    def __iadd__(self, other: "Site") -> "Site":
-        self.meshes += other.meshes
-        self.refs += other.refs
-        return self
-
-    def key(self) -> str:
-        h = hashlib.sha1()
-        for o in sorted(self.meshes, key=lambda o: str(o.dest)):
-            h.update(f"m {o.dest} {o.key}\n".encode())
-        for r in sorted(self.refs, key=lambda r: str(r.dest)):
-            h.update(f"r {r.dest} {r.site}\n".encode())
-        return h.hexdigest()
-
-
-@dataclass
-class Scene:
-    """The subdivision meshes of a stage and where their refined data goes (see :func:`read_scene`)."""
-
-    units: dict  # input digest -> SubdivPrim (None: left alone), in the order found
-    top: Site
-    sites: dict  # site key -> Site
-    left_alone: list  # (path, reason)
-    stages: list  # the composed stages the units read from (kept open while they are read)
-    instances: list = field(default_factory=list)  # (instance prim path, site key) at the top level
-
-    def uses(self) -> dict:
-        """How many composed meshes (instance proxies of every instance included) each unit refines for."""
-        memo: dict = {}
-
-        def count(site) -> dict:
-            out: dict = {}
-            for o in site.meshes:
-                out[o.key] = out.get(o.key, 0) + 1
-            for r in site.refs:
-                if r.site not in memo:
-                    memo[r.site] = count(self.sites[r.site])
-                for key, n in memo[r.site].items():
-                    out[key] = out.get(key, 0) + n
-            return out
-
-        return count(self.top)
-
-    def layout(self, container: Sdf.Path):
-        """(targets, references): the output paths of each unit (by key, top-level paths first) and the
-        internal references to author ((path, target)), with each prototype's content named
-        ``<container>/Prototype_<n>`` (in the order they are reached from the top level)."""
-        names, order = {}, []
-        todo = [r.site for r in self.top.refs]
-        while todo:
-            key = todo.pop(0)
-            if key in names:
-                continue
-            names[key] = container.AppendChild(f"Prototype_{len(names) + 1}")
-            order.append(key)
-            todo += [r.site for r in self.sites[key].refs]
-        targets, refs = {}, []
-        for o in self.top.meshes:
-            targets.setdefault(o.key, []).append(o.dest)
-        for r in self.top.refs:
-            refs.append((r.dest, names[r.site]))
-        for key in order:
-            site, path = self.sites[key], names[key]
-            for o in site.meshes:
-                targets.setdefault(o.key, []).append(o.dest.ReplacePrefix(SITE, path))
-            for r in site.refs:
-                refs.append((r.dest.ReplacePrefix(SITE, path), names[r.site]))
-        return targets, refs, names
-
-
-@dataclass(frozen=True)
-class _Config:
-    """A composition of the input: variant selections ((prim path, set, variant), ...) and instances made
-    non-instanceable (so that selections below them can be made), authored in a session layer."""
-
-    selections: tuple = ()
-    deinstanced: tuple = ()
-
-    def select(self, path, vset, variant, deinstance=()) -> "_Config":
-        return _Config(self.selections + ((str(path), vset, variant),),
-                       tuple(sorted(set(self.deinstanced) | {str(p) for p in deinstance})))
-
-    def open(self, root_layer: Sdf.Layer, resolver_context=None) -> Usd.Stage:
-        """The stage of ``root_layer`` composed in this configuration (a session layer authors it)."""
-        session = Sdf.Layer.CreateAnonymous(".usda")
-        for path in self.deinstanced:
-            Sdf.CreatePrimInLayer(session, path).SetInfo("instanceable", False)
-        for path, vset, variant in self.selections:
-            Sdf.CreatePrimInLayer(session, path).variantSelections[vset] = variant
-        if resolver_context is None:
-            return Usd.Stage.Open(root_layer, session, Usd.Stage.LoadAll)
-        return Usd.Stage.Open(root_layer, session, resolver_context, Usd.Stage.LoadAll)
-
-
-class _Explorer:
-    """Walks a stage for :func:`read_scene`."""
-
-    def __init__(self, stage, roots, read, all_variants):
-        self.base = stage
-        self.roots = roots
-        self.read = read
-        self.all_variants = all_variants
-        self.units: dict = {}
-        self.sites: dict = {}
-        self.left_alone: list = []
-        self._stages = {_Config(): stage}
-        self._site_of: dict = {}
-        self._digest: dict = {}
-
-    # -- configurations --------------------------------------------------------------------------------
-    def stage(self, cfg: _Config) -> Usd.Stage:
-        if cfg not in self._stages:
-            self._stages[cfg] = cfg.open(self.base.GetRootLayer(), self.base.GetPathResolverContext())
-        return self._stages[cfg]
-
-    # -- the --prim filter -----------------------------------------------------------------------------
-    def related(self, path: Sdf.Path) -> bool:
-        return not self.roots or any(path.HasPrefix(r) or r.HasPrefix(path) for r in self.roots)
-
-    def selected(self, path: Sdf.Path) -> bool:
-        return not self.roots or any(path.HasPrefix(r) for r in self.roots)
-
-    # -- walking ---------------------------------------------------------------------------------------
-    def walk(self, stage, root: Sdf.Path, excluded=frozenset()):
-        """(meshes, nested instances, variant-set owners) at or under ``root``, not inside nested instances;
-        the prototypes of PointInstancers that are not defined prims (overs, classes) are walked too."""
-        meshes, instances, owners, extra = [], [], [], []
-        top = stage.GetPrimAtPath(root)
-        if not top:
-            return meshes, instances, owners
-
-        def visit(start, predicate):
-            it = iter(Usd.PrimRange(start, Usd.TraverseInstanceProxies(predicate)))
-            for prim in it:
-                path = prim.GetPath()
-                if path in excluded or not self.related(path):
-                    it.PruneChildren()
-                    continue
-                if prim != top and prim.IsInstance():
-                    instances.append(prim)
-                    it.PruneChildren()
-                    continue
-                if self.all_variants and prim.HasVariantSets():
-                    owners.append(prim)
-                if prim.IsA(UsdGeom.PointInstancer):
-                    for target in UsdGeom.PointInstancer(prim).GetPrototypesRel().GetForwardedTargets():
-                        proto = stage.GetPrimAtPath(target)
-                        if proto and not proto.IsDefined() or proto and proto.IsAbstract():
-                            extra.append(proto)
-                if prim.IsA(UsdGeom.Mesh) and self.selected(path):
-                    meshes.append(prim)
-
-        visit(top, Usd.PrimDefaultPredicate)
-        seen = set()
-        for proto in extra:
-            if proto.GetPath() not in seen and not any(proto.GetPath().HasPrefix(p) for p in seen):
-                seen.add(proto.GetPath())
-                visit(proto, Usd.PrimIsActive & Usd.PrimIsLoaded)
-        return meshes, instances, owners
-
-    def unit(self, prim) -> str | None:
-        """The input digest of a mesh, read once per digest; None when it is left alone."""
-        key = input_fingerprint(prim)
-        if key not in self.units:
-            sp = self.read(prim)
-            self.units[key] = sp
-            if sp is None:
-                scheme = prim.GetAttribute("subdivisionScheme").Get()
-                self.left_alone.append((str(prim.GetPath()), "empty mesh" if scheme != "none"
-                                        else "subdivisionScheme none"))
-        return key if self.units[key] is not None else None
-
-    def subtree_digest(self, cfg, root: Sdf.Path) -> str:
-        """A digest of every selected mesh at or under ``root`` (through instances too) in ``cfg``."""
-        stage = self.stage(cfg)
-        h = hashlib.sha1()
-        top = stage.GetPrimAtPath(root)
-        if top:
-            for prim in Usd.PrimRange(top, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
-                if prim.IsA(UsdGeom.Mesh) and self.selected(prim.GetPath()):
-                    h.update(f"{prim.GetPath()} {input_fingerprint(prim)}\n".encode())
-        return h.hexdigest()
-
-    # -- exploring -------------------------------------------------------------------------------------
-    @staticmethod
-    def dest(path: Sdf.Path, site_root: Sdf.Path, dest_root: Sdf.Path, fixed) -> Sdf.Path:
-        """The output path of composed ``path`` in a site rooted at ``site_root`` (written at ``dest_root``),
-        inside the variants ``fixed`` ((owner path, set, variant), ...) selects."""
-        chosen: dict = {}
-        for owner, vset, variant in fixed:
-            chosen.setdefault(owner, []).append((vset, variant))
-        cur = dest_root
-        for vset, variant in chosen.get(str(site_root), ()):
-            cur = cur.AppendVariantSelection(vset, variant)
-        for prefix in path.GetPrefixes()[len(site_root.GetPrefixes()):]:
-            cur = cur.AppendChild(prefix.name)
-            for vset, variant in chosen.get(str(prefix), ()):
-                cur = cur.AppendVariantSelection(vset, variant)
-        return cur
-
-    def explore(self, cfg, site_root, dest_root, fixed, root, excluded=frozenset()) -> Site:
-        stage = self.stage(cfg)
-        meshes, instances, owners = self.walk(stage, root, excluded)
-        done = {(o, s) for o, s, _ in fixed}
-        for owner in owners:
-            opath = owner.GetPath()
-            for vset in owner.GetVariantSets().GetNames():
-                if (str(opath), vset) in done:
-                    continue
-                variants = owner.GetVariantSet(vset).GetVariantNames()
-                deinstance = [p.GetPath() for p in _instance_ancestors(owner)]
-                configs = [cfg.select(opath, vset, v, deinstance) for v in variants]
-                if len({self.subtree_digest(c, opath) for c in configs}) < 2:
-                    continue  # no variant of this set changes a mesh
-                site = Site()
-                for v, c in zip(variants, configs):
-                    site += self.explore(c, site_root, dest_root, fixed + ((str(opath), vset, v),), opath)
-                site += self.explore(cfg, site_root, dest_root, fixed, root, excluded | {opath})
-                return site
-        site = Site()
-        for prim in meshes:
-            key = self.unit(prim)
-            if key is not None:
-                site.meshes.append(Occurrence(key, self.dest(prim.GetPath(), site_root, dest_root, fixed),
-                                              str(prim.GetPath()), cfg))
-        for prim in instances:
-            key = self.instance_site(cfg, prim)
-            if key is not None:
-                site.refs.append(SiteRef(self.dest(prim.GetPath(), site_root, dest_root, fixed), key,
-                                         str(prim.GetPath()), cfg))
-        return site
-
-    def instance_site(self, cfg, inst) -> str | None:
-        """The site key of an instance's prototype (its refined content), explored once per prototype; None
-        when nothing in it is refined."""
-        path = inst.GetPath()
-        scope = () if self.selected(path) else tuple(str(r) for r in self.roots if r.HasPrefix(path))
-        cache = (cfg, str(inst.GetPrototype().GetPath()), scope)
-        if cache not in self._site_of:
-            site_cfg = cfg
-            if self.all_variants:  # selections below the instance need it (and its ancestors) composed in place
-                outer = [p.GetPath() for p in _instance_ancestors(inst)]
-                site_cfg = _Config(cfg.selections, tuple(sorted(set(cfg.deinstanced) | {str(p) for p in outer})))
-            site = self.explore(site_cfg, path, SITE, (), path)
-            key = site.key() if site.meshes or site.refs else None
-            if key is not None:
-                self.sites.setdefault(key, site)
-            self._site_of[cache] = key
-        key = self._site_of[cache]
-        if key is not None:
-            self.sites[key].instances += 1
-        return key
-
-
-def _instance_ancestors(prim: Usd.Prim) -> list:
-    """The instances whose prototypes hold ``prim`` (outermost first): the ancestors an instance proxy is
-    composed under."""
-    out = []
-    parent = prim.GetParent()
-    while parent and not parent.IsPseudoRoot():
-        if parent.IsInstance():
-            out.append(parent)
-        parent = parent.GetParent()
-    return out[::-1]
-
-
-def read_scene(stage: Usd.Stage, prim_paths=None, *, read, all_variants: bool = False, where: str = "") -> Scene:
-    """Every mesh at or under ``prim_paths`` (default: the whole stage), inside instances and PointInstancer
-    prototypes too, read with ``read(prim) -> SubdivPrim | None`` once per distinct input
-    (:func:`input_fingerprint`), and where its refined data goes:
-
-    * a mesh outside instances: at its own path;
-    * a mesh inside a scene-graph instance: in its prototype's refined content (a :class:`Site`, its paths
-      under :data:`SITE`), which the instance references; nested instances reference their own prototype's
-      content from inside it. Prototypes are explored once each; contents that are equal are one site;
-    * with ``all_variants``: every variant of every variant set that changes a mesh (nested sets too) is
-      composed and read, and its meshes go inside the same variant set and variant in the output paths.
-    """
-    roots = check_roots(stage, prim_paths, where)
-    explorer = _Explorer(stage, roots, read, all_variants)
-    top = explorer.explore(_Config(), Sdf.Path.absoluteRootPath, Sdf.Path.absoluteRootPath, (),
-                           Sdf.Path.absoluteRootPath)
-    scene = Scene(explorer.units, top, explorer.sites, explorer.left_alone, list(explorer._stages.values()))
-    scene.instances = [(r.composed, r.site) for r in top.refs]
-    return scene
-
-
-def summarize_tags(sp: SubdivPrim) -> str:
-    """One line: the tags a mesh carries (for `info`)."""
-    m = sp.mesh
-    parts = [f"{len(m.creases)} crease edges", f"{len(m.corners)} corners", f"{len(m.concave)} concave",
-             f"{len(m.holes)} holes", f"{len(m.normal_vertices)} normals"]
-    if sp.flatness is not None:
-        parts.append("flatness " + (f"{sp.flatness:g}" if isinstance(sp.flatness, float) else "per point"))
-    if sp.normal_strength is not None:
-        parts.append(f"normal strength {sp.normal_strength:g}")
-    return ", ".join(parts)
-
-
-__all__ = ["SubdivPrim", "Primvar", "FaceSubset", "Topology", "Scene", "Site", "read_mesh", "read_scene",
-           "input_fingerprint", "topology_key", "check_roots", "mesh_prims", "open_stage", "parse_frames",
-           "tf_message", "usd_error", "SUBDIV_ATTRIBUTES", "SUBDIVISION_ATTRIBUTES", "USD_SCHEMES", "USD_BOUNDARY",
-           "USD_FVAR_MODES"]
+__all__ = ["SubdivPrim", "Primvar", "FaceSubset", "Topology", "read_mesh", "topology_key", "usd_error",
+           "SUBDIV_ATTRIBUTES", "SUBDIVISION_ATTRIBUTES", "TOPOLOGY_ATTRIBUTES", "USD_SCHEMES", "USD_BOUNDARY",
+           "USD_FVAR_MODES", "USD_FVAR_DEFAULT"]

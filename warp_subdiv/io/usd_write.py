@@ -8,13 +8,15 @@ from __future__ import annotations
 
 import ctypes
 import os
+import re
 import tempfile
 
 import numpy as np
-from pxr import Sdf, Usd, Vt
+from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..runtime import phases as _phases
 from ..errors import SubdivInputError
+from .usd_stage import DEFAULT, times_for_frames
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc")
 #: Layer metadata that is the input's own business and is not copied to the output layer.
@@ -184,17 +186,13 @@ class OutputLayer:
         hint computed for the control mesh would then no longer contain it. ``mesh_times``: refined mesh path
         -> the time samples written for its points. The hint is written at the default time and at the union
         of the times of the meshes under it and its own selected samples. Returns the prim paths overridden."""
-        from pxr import UsdGeom
-
-        from .usd_read import _in_frames
-
         hinted: dict = {}
         for path, times in mesh_times.items():
             prim = input_stage.GetPrimAtPath(path)
             while prim and not prim.IsPseudoRoot():
                 attr = prim.GetAttribute("extentsHint")
                 if attr and attr.HasAuthoredValue():
-                    own = _in_frames(attr.GetTimeSamples(), frames)
+                    own = times_for_frames(attr.GetTimeSamples(), frames)
                     hinted.setdefault(str(prim.GetPath()), set()).update(times, own)
                 prim = prim.GetParent()
         if not hinted:
@@ -204,7 +202,7 @@ class OutputLayer:
         for path, times in sorted(hinted.items()):
             model = UsdGeom.ModelAPI(stage.GetPrimAtPath(path))
             spec = self.attr(self.prim(path), "extentsHint", Sdf.ValueTypeNames.Float3Array)
-            self.set(spec, model.ComputeExtentsHint(UsdGeom.BBoxCache(Usd.TimeCode.Default(), purposes)))
+            self.set(spec, model.ComputeExtentsHint(UsdGeom.BBoxCache(DEFAULT, purposes)))
             for t in sorted(times):
                 self.set(spec, samples=[(t, model.ComputeExtentsHint(UsdGeom.BBoxCache(t, purposes)))])
         del stage
@@ -328,10 +326,6 @@ def extent_of(points: np.ndarray) -> Vt.Vec3fArray:
 
 def write_mesh_layer(output: str, name: str, points, face_vertex_counts, face_vertex_indices) -> None:
     """A new layer with one refined mesh at /<name> (for OBJ input written as USD)."""
-    import re
-
-    from pxr import Sdf as _Sdf
-
     prim_name = re.sub(r"[^A-Za-z0-9_]", "_", name) or "Mesh"
     if prim_name[0].isdigit():
         prim_name = "_" + prim_name
@@ -339,17 +333,17 @@ def write_mesh_layer(output: str, name: str, points, face_vertex_counts, face_ve
     fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=os.path.splitext(output)[1], dir=folder)
     os.close(fd)
     try:
-        layer = _Sdf.Layer.CreateNew(tmp)
-        prim = _Sdf.CreatePrimInLayer(layer, "/" + prim_name)
-        prim.specifier = _Sdf.SpecifierDef
+        layer = Sdf.Layer.CreateNew(tmp)
+        prim = Sdf.CreatePrimInLayer(layer, "/" + prim_name)
+        prim.specifier = Sdf.SpecifierDef
         prim.typeName = "Mesh"
         layer.defaultPrim = prim_name
-        T = _Sdf.ValueTypeNames
-        _Sdf.AttributeSpec(prim, "subdivisionScheme", T.Token, _Sdf.VariabilityUniform).default = "none"
-        _Sdf.AttributeSpec(prim, "points", T.Point3fArray).default = vec3f_array(points)
-        _Sdf.AttributeSpec(prim, "extent", T.Float3Array).default = extent_of(points)
-        _Sdf.AttributeSpec(prim, "faceVertexCounts", T.IntArray).default = int_array(face_vertex_counts)
-        _Sdf.AttributeSpec(prim, "faceVertexIndices", T.IntArray).default = int_array(face_vertex_indices)
+        T = Sdf.ValueTypeNames
+        Sdf.AttributeSpec(prim, "subdivisionScheme", T.Token, Sdf.VariabilityUniform).default = "none"
+        Sdf.AttributeSpec(prim, "points", T.Point3fArray).default = vec3f_array(points)
+        Sdf.AttributeSpec(prim, "extent", T.Float3Array).default = extent_of(points)
+        Sdf.AttributeSpec(prim, "faceVertexCounts", T.IntArray).default = int_array(face_vertex_counts)
+        Sdf.AttributeSpec(prim, "faceVertexIndices", T.IntArray).default = int_array(face_vertex_indices)
         if not layer.Save():
             raise OSError(f"could not save {output}")
         del layer
@@ -358,6 +352,6 @@ def write_mesh_layer(output: str, name: str, points, face_vertex_counts, face_ve
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
-    existing = _Sdf.Layer.Find(output)
+    existing = Sdf.Layer.Find(output)
     if existing is not None:
         existing.Reload(force=True)

@@ -54,8 +54,9 @@ from ..options import Boundary, Options, Precision, RuleSet, Scheme
 from .order import OrderedRefiner, check_vertex_order
 from ..tables import FaceMap, corners_to_vertices, vertices_used
 from ..refiner import Refiner
-from ..io.usd_read import (DEFAULT, SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, open_stage, read_mesh,
-                       read_scene)
+from ..io.usd_read import SUBDIV_ATTRIBUTES, SUBDIVISION_ATTRIBUTES, SubdivPrim, read_mesh
+from ..io.usd_scene import read_scene
+from ..io.usd_stage import DEFAULT, open_stage
 from ..io.usd_write import OutputLayer, check_output_path, extent_of, int_array, vec3f_array, vt_array
 
 T = Sdf.ValueTypeNames

@@ -127,7 +127,9 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
 
     from ..version import __version__
     from .refine import Plan, layout
-    from ..io.usd_read import open_stage, parse_frames, read_mesh, read_scene
+    from ..io.usd_read import read_mesh
+    from ..io.usd_scene import read_scene
+    from ..io.usd_stage import open_stage, parse_frames
     from ..io.usd_write import OutputLayer, check_output_path
 
     if not os.path.exists(input_path):
@@ -183,7 +185,8 @@ def _tessellate_prim(sp, layer, warnings_, *, rate, edge_length, scheme, rules, 
     from pxr import Sdf, UsdGeom, Vt
 
     from .refine import options_for
-    from ..io.usd_read import DEFAULT, SUBDIVISION_ATTRIBUTES
+    from ..io.usd_read import SUBDIVISION_ATTRIBUTES
+    from ..io.usd_stage import DEFAULT
     from ..io.usd_write import extent_of
 
     T = Sdf.ValueTypeNames
