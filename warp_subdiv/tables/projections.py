@@ -22,7 +22,8 @@ from ..errors import SubdivInputError
 from ..runtime.estimate import check_int32
 from ..rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, SMOOTH
 from ..mesh import INFINITE_SHARPNESS, face_offsets_of
-from .stencils import StencilTable, crease_neighbours
+from .stencil_builder import crease_neighbours
+from .stencil_table import StencilTable
 from ..topology import Level
 
 
