@@ -91,7 +91,7 @@ class Hierarchy:
         self.mesh = mesh
         self.levels = levels
         self.options = options
-        estimate.check_indices([self._estimate(projecting=False)], levels)
+        estimate.check_index_range([self._estimate(projecting=False)], levels)
         level = self._analyse(analysed)
         self._guard(max_memory)
         self.steps: list = []  # per step: RegularTables (uniform levels) or a full StencilTable
