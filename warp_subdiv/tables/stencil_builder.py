@@ -302,7 +302,7 @@ def _put_smooth_vertices(level, out, rows, vs, pos, weight, loop_beta, slots: _S
     """The smooth (interior) vertex rule for the vertex rows ``rows`` (ascending; row i is vertex vs[i]) at row
     position ``pos``, times ``weight``.
 
-    Row layout: the vertex, then per slot (its corners in ring order) the edge neighbour that follows the
+    A row holds the vertex, then per slot (its corners in ring order) the edge neighbour that follows the
     corner and the corner face's other vertices (Catmull-Clark faces of four or more vertices)."""
     if len(rows) == 0:
         return

@@ -42,7 +42,7 @@ class StencilTable:
 
 
 def rows_of(offsets: np.ndarray) -> np.ndarray:
-    """Row id of every entry of a CSR layout with the given offsets."""
+    """Row id of every entry of CSR rows with the given offsets."""
     return np.repeat(np.arange(len(offsets) - 1, dtype=np.int64), np.diff(offsets))
 
 
