@@ -1041,7 +1041,7 @@ def test_explicit_rows_of_a_uniform_level_are_the_full_tables_rows(scheme, rules
     stencil table of the level, on every level of a mesh with boundaries, semi-sharp creases that decay over
     the steps, and (piecewise-smooth) crease-neighbour edges."""
     from warp_subdiv.options import Options
-    from warp_subdiv.tables.stencils import build_regular, build_stencils
+    from warp_subdiv.tables.stencil_builder import build_regular, build_stencils
     from warp_subdiv.topology import base_level, refine_level
 
     mesh = _semi_sharp_grid() if scheme == CC else load_mesh("tri_grid3x3")

@@ -16,7 +16,7 @@ from .errors import SubdivInputError
 from .runtime import estimate
 from .evaluator import interop
 from .evaluator import Evaluated, Evaluator, default_device, normal_control_for
-from .tables import FaceVaryingChannel, check_indices
+from .tables import FaceVaryingChannel, check_value_indices
 from .tables import Hierarchy
 from .mesh import DATA_BOUND, Mesh, check_rows
 from .options import FaceVaryingMode, Options
@@ -374,7 +374,7 @@ class Refiner:
         this type and these options (:class:`~warp_subdiv.tables.facevarying.FaceVaryingChannel`)."""
 
         mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
-        indices = check_indices(indices, len(self.mesh.face_vertex_indices))  # before the cache: 1-D int64
+        indices = check_value_indices(indices, len(self.mesh.face_vertex_indices))  # before the cache: 1-D int64
         key = (mode, indices.tobytes())
         if self._face_varying.get("key") != key:
             self._face_varying = {"key": key, "channel": FaceVaryingChannel(self, indices, mode)}

@@ -468,10 +468,10 @@ class LimitSurface:
 
     def _face_varying_channel(self, indices, mode) -> dict:
         """The value mesh of a channel as a limit surface (cached for the last indices and mode)."""
-        from ..tables import check_indices, value_mesh
+        from ..tables import check_value_indices, value_mesh
         from ..topology import triangulate
 
-        idx = check_indices(indices, len(self.mesh.face_vertex_indices))
+        idx = check_value_indices(indices, len(self.mesh.face_vertex_indices))
         key = (mode, idx.tobytes())
         cache = self._fv_cache
         if cache is not None and cache["key"] == key:

@@ -207,7 +207,7 @@ class MemoryGuardError(SubdivInputError):
     output would not fit 32-bit indices (``option`` "levels")."""
 
 
-def check_indices(estimates, levels: int) -> None:
+def check_index_range(estimates, levels: int) -> None:
     """Refuse outputs whose face corners would not fit the refiner's 32-bit index tables."""
     for e in estimates:
         if e.final.corners > MAX_CORNERS:
@@ -222,7 +222,7 @@ def check_memory(estimates, max_memory, levels: int) -> None:
     string, see :func:`memory_limit`), and outputs beyond 32-bit indices."""
     max_memory = memory_limit(max_memory)
     estimates = list(estimates)
-    check_indices(estimates, levels)
+    check_index_range(estimates, levels)
     need = total_bytes(estimates)
     if max_memory is not None and need > max_memory:
         biggest = max(estimates, key=lambda e: e.output_bytes + e.working_bytes)

@@ -5,10 +5,11 @@ hierarchy that builds them level by level, face-varying channels and the map fro
 Numpy only: no Warp array and no USD prim. The evaluator applies these tables without knowing what a crease is.
 """
 from .face_map import FaceMap, corners_to_vertices, vertices_used
-from .facevarying import FaceVaryingChannel, check_indices, value_mesh
+from .facevarying import FaceVaryingChannel, check_value_indices, value_mesh
 from .hierarchy import Hierarchy, _shipped_for, shipped
-from .stencils import RegularTables, StencilTable, build_stencils, rows_of
+from .stencil_builder import build_stencils
+from .stencil_table import RegularTables, StencilTable, rows_of
 
 __all__ = ["FaceMap", "FaceVaryingChannel", "Hierarchy", "RegularTables", "StencilTable", "_shipped_for",
-           "build_stencils", "check_indices", "corners_to_vertices", "rows_of", "shipped", "value_mesh",
+           "build_stencils", "check_value_indices", "corners_to_vertices", "rows_of", "shipped", "value_mesh",
            "vertices_used"]

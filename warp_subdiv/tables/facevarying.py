@@ -30,7 +30,7 @@ from ..options import FaceVaryingMode, Scheme
 from ..topology import base_level, triangulate
 
 
-def check_indices(indices, num_corners: int) -> np.ndarray:
+def check_value_indices(indices, num_corners: int) -> np.ndarray:
     """A channel's value indices as a read-only int64 array, one per face corner (``num_corners``), or
     :class:`SubdivInputError` (``option`` "indices"): not 1-D of that length, not integers, or negative."""
     idx = np.asarray(indices)
@@ -65,13 +65,21 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str, scheme
     """
     mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
     scheme = Scheme.parse(scheme, "scheme")
-    idx = check_indices(indices, len(mesh.face_vertex_indices))
+    idx = check_value_indices(indices, len(mesh.face_vertex_indices))
     if scheme == Scheme.LOOP and not mesh.is_all(3):
         mesh, idx = _fan_triangles(mesh, idx)
     # vertex-level analysis of the control mesh (edges, fans, sharpness) with the geometry's options
     level = base_level(mesh, "catmull-clark", boundary, "opensubdiv")
     cv = mesh.face_vertex_indices.astype(np.int64)
-    nv = mesh.num_vertices
+    pid, source, pair_vertex = _value_vertices(level, cv, idx)
+    nxt = mesh.edges.corner_next.astype(np.int64)
+    value_sharp = _sharp_values(level, mesh.num_vertices, cv, nxt, pid, pair_vertex, mode, boundary)
+    return _tagged_value_mesh(mesh, level, pid, nxt, pair_vertex, value_sharp, mode), source
+
+
+def _value_vertices(level, cv: np.ndarray, idx: np.ndarray):
+    """(pid, source, pair_vertex): the value-mesh vertex of every face corner (its (vertex, value) pair), and
+    per value-mesh vertex its source value index and its vertex."""
     base = int(idx.max()) + 1 if len(idx) else 1
     pairs, pid = np.unique(cv * base + idx, return_inverse=True)
     pid = pid.reshape(-1)
@@ -83,19 +91,30 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str, scheme
         pid[again] = len(pairs) + at.reshape(-1)
         source = np.concatenate([source, source[extra]])
         pair_vertex = np.concatenate([pair_vertex, pair_vertex[extra]])
-    npairs = len(source)
+    return pid, source, pair_vertex
 
-    nxt = mesh.edges.corner_next.astype(np.int64)
+
+def _seams(level, cv: np.ndarray, nxt: np.ndarray, pid: np.ndarray):
+    """(seam, at_a, at_b): per edge whether it is a seam (an interior edge whose two faces disagree on the
+    value at either end), and the value-mesh vertices at its two ends in its first face."""
     ecount = np.diff(level.edge_corner_offsets)
     h0, h1 = level.edge_corner_pair()
-    ev = level.edge_verts.astype(np.int64)
-    # seams: an interior edge whose two faces disagree on the value at either end
     two = ecount == 2
     same_dir = cv[h0] == cv[h1]
     at_a0, at_b0 = pid[h0], pid[nxt[h0]]
     at_a1 = np.where(same_dir, pid[h1], pid[nxt[h1]])
     at_b1 = np.where(same_dir, pid[nxt[h1]], pid[h1])
-    seam = two & ((at_a0 != at_a1) | (at_b0 != at_b1))
+    return two & ((at_a0 != at_a1) | (at_b0 != at_b1)), at_a0, at_b0
+
+
+def _sharp_values(level, nv: int, cv: np.ndarray, nxt: np.ndarray, pid: np.ndarray, pair_vertex: np.ndarray,
+                  mode: str, boundary: str) -> np.ndarray:
+    """(value-mesh vertices,) bool: the values made sharp (interpolated) besides the vertex mesh's corners, as
+    Vtr::FVarLevel chooses them for ``mode`` (the module's table). ``nv``: vertices of the mesh."""
+    ecount = np.diff(level.edge_corner_offsets)
+    ev = level.edge_verts.astype(np.int64)
+    seam, at_a0, at_b0 = _seams(level, cv, nxt, pid)
+    two = ecount == 2
     boundary_edge = ecount == 1
     vertex_boundary = np.zeros(nv, dtype=bool)
     vertex_boundary[ev[boundary_edge].reshape(-1)] = True
@@ -115,6 +134,7 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str, scheme
     mismatch |= vertex_boundary & linear_boundaries & (faces_at > 0)
     mismatch |= vertex_boundary & (faces_at == 1) & smooth_geometry_corners & corners_sharp
 
+    npairs = len(pair_vertex)
     span = np.bincount(pid, minlength=npairs)  # faces of each value at its vertex
     # A value is "disjoint" (Vtr::FVarLevel's ValueSpan) when its faces around its vertex are not one run
     # joined by unbroken edges: an edge joining two of its faces is broken when it is a seam (its values differ
@@ -137,27 +157,32 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str, scheme
             value_sharp |= (two_values & one_face)[pv]
     if mode == FaceVaryingMode.ALL:
         value_sharp[:] = True
+    return value_sharp
 
-    # the value mesh: the vertex mesh's creases on the corresponding value edges, its corners on all values
+
+def _tagged_value_mesh(mesh: Mesh, level, pid: np.ndarray, nxt: np.ndarray, pair_vertex: np.ndarray,
+                       value_sharp: np.ndarray, mode: str) -> Mesh:
+    """The value mesh: ``mesh``'s faces over the value-mesh vertices ``pid``, the vertex mesh's creases on the
+    corresponding value edges, its corners on all values, the sharp values as corners, its holes."""
+    npairs = len(pair_vertex)
     counts = mesh.face_vertex_counts
     edge_of_corner = mesh.edges.corner_edge.astype(np.int64)
     crease_pairs = np.stack([pid, pid[nxt]], axis=1)
     crease_sharp = level.edge_sharpness[edge_of_corner]
     keep = crease_sharp > 0
     corner_ids = np.arange(npairs)
-    corner_sharp = np.maximum(level.vert_sharpness[pv], np.where(value_sharp, INFINITE_SHARPNESS, 0.0))
+    corner_sharp = np.maximum(level.vert_sharpness[pair_vertex], np.where(value_sharp, INFINITE_SHARPNESS, 0.0))
     keep_c = corner_sharp > 0
     holes = np.flatnonzero(level.face_hole) if level.face_hole is not None else None
     if mode == FaceVaryingMode.ALL:
         crease_sharp = np.full(len(crease_pairs), INFINITE_SHARPNESS)
         keep = np.ones(len(crease_pairs), dtype=bool)
-    vm = Mesh(
+    return Mesh(
         np.zeros((npairs, 3)), counts, pid,
         creases=crease_pairs[keep], crease_sharpness=crease_sharp[keep],
         corners=corner_ids[keep_c], corner_sharpness=corner_sharp[keep_c],
         holes=holes if holes is not None and len(holes) else None,
     )
-    return vm, source
 
 
 def _repeated_sibling(level, cv: np.ndarray, idx: np.ndarray) -> np.ndarray:

@@ -56,7 +56,8 @@ from . import projections
 from ..mesh import Mesh
 from ..options import Options, Scheme
 from ..rules import edge_gamma_shift
-from .stencils import StencilTable, build_regular, build_stencils
+from .stencil_builder import build_regular, build_stencils
+from .stencil_table import StencilTable
 from ..runtime.threads import run as run_jobs
 from ..runtime.pages import small_pages
 from ..topology import Level, Refinement, base_faces, base_level, refine_level
@@ -90,7 +91,7 @@ class Hierarchy:
         self.mesh = mesh
         self.levels = levels
         self.options = options
-        estimate.check_indices([self._estimate(projecting=False)], levels)
+        estimate.check_index_range([self._estimate(projecting=False)], levels)
         level = self._analyse(analysed)
         self._guard(max_memory)
         self.steps: list = []  # per step: RegularTables (uniform levels) or a full StencilTable

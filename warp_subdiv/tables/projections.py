@@ -22,7 +22,8 @@ from ..errors import SubdivInputError
 from ..runtime.estimate import check_int32
 from ..rules import CATMULL_CLARK, CORNER, CREASE, DART, SECTOR_CONCAVE, SECTOR_CONVEX, SECTOR_CREASE, SMOOTH
 from ..mesh import INFINITE_SHARPNESS, face_offsets_of
-from .stencils import StencilTable, crease_neighbours
+from .stencil_builder import crease_neighbours
+from .stencil_table import StencilTable
 from ..topology import Level
 
 
@@ -248,41 +249,109 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
 
     With ``rule_set="opensubdiv"`` the tangent masks are OpenSubdiv's where they differ in direction from the
     paper's (a corner's second tangent runs along its first interior edge; Loop's cross-crease tangent of a
-    sector of four or more faces), so that normals equal OpenSubdiv's T1 x T2."""
-    V = level.num_vertices
-    pos_rows, pos_local, pos_w = [], [], []
-    tan_rows, tan_local, tan_u, tan_v = [], [], [], []
-    cls = level.vert_class
+    sector of four or more faces), so that normals equal OpenSubdiv's T1 x T2.
 
-    # interior and dart vertices (and corner-tagged vertices without sectors: tangents of their ring)
+    Each class of vertex adds its rows in turn (:class:`_LimitRows`): closed rings, pillows, sectors, boundary
+    fans without sectors, then the vertices left without tangents and without a position mask."""
+    V = level.num_vertices
+    cls = level.vert_class
     sectored = np.zeros(V, dtype=bool)
     sectored[level.sector_vertex] = True
     valence = np.diff(level.vert_corner_offsets)
     counts = np.diff(level.edge_corner_offsets)
     boundary_vertex = np.zeros(V, dtype=bool)
     boundary_vertex[level.edge_verts[counts != 2].reshape(-1)] = True
+    out = _LimitRows()
     closed = ~boundary_vertex & (valence >= 3)
-    ring_vertices = np.flatnonzero(~sectored & closed)
-    darts = exact_darts(level, rule_set)
+    _add_rings(out, level, np.flatnonzero(~sectored & closed), valence, beta_variant, exact_darts(level, rule_set))
+    _add_pillows(out, level, np.flatnonzero(~sectored & ~boundary_vertex & (valence == 2)
+                                            & np.isin(cls, [SMOOTH, DART])), beta_variant)
+    neighbours = crease_neighbours(level)
+    _add_sectors(out, level, flatness, rule_set, neighbours)
+    fan = np.flatnonzero(~sectored & boundary_vertex & np.isin(cls, [CREASE, CORNER]) & (valence >= 1))
+    _add_boundary_fans(out, level, fan, valence, counts)
+    _add_bare_vertices(out, level, valence)
+    _add_remaining_positions(out, level, neighbours)
+    return out.tables(V)
+
+
+class _LimitRows:
+    """The rows of a level's limit tables, gathered block by block: position rows (``position``: each vertex
+    from one block) and tangent pairs (``tangents``: one per (vertex, sector) contribution, in the order added).
+    A block is its rows' vertices (S,), their local vectors and weights (S, n)."""
+
+    def __init__(self):
+        self.pos_rows, self.pos_local, self.pos_w = [], [], []
+        self.tan_rows, self.tan_local, self.tan_u, self.tan_v = [], [], [], []
+
+    def position(self, rows, local, weights):
+        self.pos_rows.append(rows), self.pos_local.append(local), self.pos_w.append(weights)
+
+    def tangents(self, rows, local, tu, tv):
+        self.tan_rows.append(rows), self.tan_local.append(local), self.tan_u.append(tu), self.tan_v.append(tv)
+
+    def with_position(self, num_vertices: int) -> np.ndarray:
+        """(V,) bool: the vertices some position block covers."""
+        covered = np.zeros(num_vertices, dtype=bool)
+        for r in self.pos_rows:
+            covered[r] = True
+        return covered
+
+    def with_tangents(self, num_vertices: int) -> np.ndarray:
+        """(V,) bool: the vertices with a tangent pair."""
+        has_pair = np.zeros(num_vertices, dtype=bool)
+        for r in self.tan_rows:
+            has_pair[r] = True
+        return has_pair
+
+    def tables(self, num_vertices: int) -> LimitTables:
+        """The gathered rows as tables: one position row per vertex; the tangent pairs ordered by vertex (a
+        vertex's contributions contiguous, in the order added)."""
+        V = num_vertices
+        position = _merge_rows(self.pos_rows, self.pos_local, self.pos_w, V, V)
+        tan_rows = self.tan_rows
+        vertex_of = np.concatenate(tan_rows) if tan_rows else np.zeros(0, np.int64)
+        order = np.argsort(vertex_of, kind="stable")
+        rank = np.empty(len(order), dtype=np.int64)
+        rank[order] = np.arange(len(order))
+        bounds = face_offsets_of(np.array([len(r) for r in tan_rows], dtype=np.int64))
+        rank_parts = [rank[bounds[i]:bounds[i + 1]] for i in range(len(tan_rows))]
+        tu = _merge_rows(rank_parts, self.tan_local, self.tan_u, len(order), V)
+        tv = _merge_rows(rank_parts, self.tan_local, self.tan_v, len(order), V)
+        contribution_vertex = vertex_of[order]
+        vertex_offsets = face_offsets_of(np.bincount(contribution_vertex, minlength=V)).astype(np.int32)
+        return LimitTables(position, tu, tv, contribution_vertex.astype(np.int32), vertex_offsets)
+
+
+def _add_rings(out: _LimitRows, level: Level, ring_vertices: np.ndarray, valence: np.ndarray, beta_variant: str,
+               darts: np.ndarray):
+    """Closed rings of three faces or more without sectors: interior and dart vertices (position and tangents
+    of their ring masks), and corner-tagged vertices without sectors (tangents of their ring only)."""
+    cls = level.vert_class
     for k in np.unique(valence[ring_vertices]):
         for vs, local, m in ring_masks(level, ring_vertices[valence[ring_vertices] == k], int(k), beta_variant,
                                        darts):
             smooth = np.isin(cls[vs], [SMOOTH, DART])
-            pos_rows.append(vs[smooth]), pos_local.append(local[smooth]), pos_w.append(m.l0[smooth])
-            tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
+            out.position(vs[smooth], local[smooth], m.l0[smooth])
+            out.tangents(vs, local, m.tu, m.tv)
 
-    # closed rings of two faces (a "pillow" of two faces, which OpenSubdiv accepts): Loop's smooth limit mask
-    # of valence 2; Catmull-Clark's is its corner mask (the point itself), as OpenSubdiv's. Tangents as at the
-    # "bare" vertices below (the ring's own tangent masks degenerate at valence 2)
-    pillow = np.flatnonzero(~sectored & ~boundary_vertex & (valence == 2) & np.isin(cls, [SMOOTH, DART]))
+
+def _add_pillows(out: _LimitRows, level: Level, pillow: np.ndarray, beta_variant: str):
+    """Closed rings of two faces (a "pillow" of two faces, which OpenSubdiv accepts): Loop's smooth limit mask
+    of valence 2; Catmull-Clark's is its corner mask (the point itself, left to :func:`_add_remaining_positions`),
+    as OpenSubdiv's. Tangents as at the bare vertices (:func:`_add_bare_vertices`: the ring's own tangent masks
+    degenerate at valence 2)."""
     if len(pillow) and level.scheme != CATMULL_CLARK:
         ring = 8.0 * float(M.loop_beta(2, beta_variant)) / 3.0
         row = np.array([1.0, ring, ring]) / (1.0 + 2.0 * ring)
-        pos_rows.append(pillow), pos_w.append(np.broadcast_to(row, (len(pillow), 3)))
-        pos_local.append(ring_local_vectors(level, pillow, 2, start_at_sharp=False))
+        out.position(pillow, ring_local_vectors(level, pillow, 2, start_at_sharp=False),
+                     np.broadcast_to(row, (len(pillow), 3)))
 
-    # sectors: crease and corner vertices
-    neighbours = crease_neighbours(level)
+
+def _add_sectors(out: _LimitRows, level: Level, flatness: np.ndarray, rule_set: str, neighbours: np.ndarray):
+    """Crease and corner vertices: tangents of every sector, the position mask of each vertex's first sector.
+    ``neighbours``: the level's :func:`crease_neighbours`."""
+    cls = level.vert_class
     k_all = level.sector_k()
     first_sector = np.zeros(level.num_sectors, dtype=bool)
     if level.num_sectors:
@@ -292,7 +361,6 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
         sel = np.flatnonzero(k_all == k)
         local = sector_local_vectors(level, sel, int(k))
         m = M.sector_masks(level.scheme, level.sector_kind[sel], int(k), level.sector_theta[sel], flatness[sel])
-        tu, tv = m.tu, m.tv
         if rule_set == "opensubdiv":
             M.use_opensubdiv_tangents(m, level.scheme, level.sector_kind[sel], int(k))
             tu, tv = m.tu, m.tv
@@ -302,18 +370,20 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
         once = first_sector[sel]
         vs = level.sector_vertex[sel].astype(np.int64)
         # a non-manifold crease vertex (a fin) can have a sector whose ends are not its two crease neighbours:
-        # its position takes the crease limit mask below instead
+        # its position takes the crease limit mask (_add_remaining_positions) instead
         ends = np.sort(local[:, [1, k + 1]], axis=1)
         once &= (cls[vs] != CREASE) | np.all(ends == np.sort(neighbours[vs], axis=1), axis=1)
-        pos_rows.append(vs[once]), pos_local.append(local[once]), pos_w.append(m.l0[once])
-        tan_rows.append(vs), tan_local.append(local), tan_u.append(tu), tan_v.append(tv)
+        out.position(vs[once], local[once], m.l0[once])
+        out.tangents(vs, local, tu, tv)
 
-    # boundary crease/corner vertices without sectors (semi-sharp features, also a semi-sharp edge inside the
-    # fan): their one fan, from boundary to boundary, is their sector; tangents as OpenSubdiv's for that rule
-    # (the paper's tags are not involved)
-    fan = np.flatnonzero(~sectored & boundary_vertex & np.isin(cls, [CREASE, CORNER]) & (valence >= 1))
+
+def _add_boundary_fans(out: _LimitRows, level: Level, fan: np.ndarray, valence: np.ndarray, counts: np.ndarray):
+    """Boundary crease/corner vertices without sectors (semi-sharp features, also a semi-sharp edge inside the
+    fan): their one fan, from boundary to boundary, is their sector; tangents as OpenSubdiv's for that rule
+    (the paper's tags are not involved). ``counts``: faces per edge."""
     first = level.vert_corners[level.vert_corner_offsets[fan]].astype(np.int64) if len(fan) else fan
     fan = fan[counts[level.corner_edge[first]] == 1] if len(fan) else fan  # the ring starts at the boundary
+    cls = level.vert_class
     for k in np.unique(valence[fan]):
         vs = fan[valence[fan] == k]
         corners = level.vert_corners.astype(np.int64)[level.vert_corner_offsets[vs][:, None] + np.arange(k)]
@@ -322,53 +392,37 @@ def limit_tables(level: Level, flatness: np.ndarray, beta_variant: str,
         theta = np.where(kind == SECTOR_CREASE, np.pi / k, np.pi / (2 * k))
         m = M.sector_masks(level.scheme, kind, int(k), theta)
         M.use_opensubdiv_tangents(m, level.scheme, kind, int(k))
-        tan_rows.append(vs), tan_local.append(local), tan_u.append(m.tu), tan_v.append(m.tv)
+        out.tangents(vs, local, m.tu, m.tv)
 
-    # any other vertex with a face (non-manifold leftovers, rings of fewer than three faces): the normal of its
-    # first face at it, so that every vertex of the surface has a unit normal
-    has_pair = np.zeros(V, dtype=bool)
-    for r in tan_rows:
-        has_pair[r] = True
-    bare = np.flatnonzero(~has_pair & (valence >= 1))
+
+def _add_bare_vertices(out: _LimitRows, level: Level, valence: np.ndarray):
+    """Tangents of any other vertex with a face (non-manifold leftovers, rings of fewer than three faces): the
+    normal of its first face at it, so that every vertex of the surface has a unit normal."""
+    bare = np.flatnonzero(~out.with_tangents(level.num_vertices) & (valence >= 1))
     if len(bare):
         h = level.vert_corners[level.vert_corner_offsets[bare]].astype(np.int64)
         cv = level.corner_vert
         local = np.column_stack([bare, cv[level.corner_next(h)], cv[level.corner_prev(h)]])
         one = np.tile([-1.0, 1.0, 0.0], (len(bare), 1))
-        tan_rows.append(bare), tan_local.append(local), tan_u.append(one), tan_v.append(one[:, [0, 2, 1]])
+        out.tangents(bare, local, one, one[:, [0, 2, 1]])
 
-    # crease vertices without sectors (semi-sharp features): the crease limit mask of their rule on this
-    # level, as OpenSubdiv's PrimvarRefiner::Limit
-    covered = np.zeros(V, dtype=bool)
-    for r in pos_rows:
-        covered[r] = True
-    crease = np.flatnonzero(~covered & (cls == CREASE))
+
+def _add_remaining_positions(out: _LimitRows, level: Level, neighbours: np.ndarray):
+    """Positions of the vertices no block covers: crease vertices without sectors (semi-sharp features) take
+    the crease limit mask of their rule on this level, as OpenSubdiv's PrimvarRefiner::Limit; everything else
+    (corners without sectors, isolated vertices, non-manifold leftovers) keeps its position."""
+    covered = out.with_position(level.num_vertices)
+    crease = np.flatnonzero(~covered & (level.vert_class == CREASE))
     if len(crease):
         nb = neighbours[crease]
         ok = np.all(nb >= 0, axis=1)
         crease, nb = crease[ok], nb[ok]
-        pos_rows.append(crease)
-        pos_local.append(np.column_stack([crease, nb]))
         centre_w, neighbour_w = M.crease_limit_weights()
-        pos_w.append(np.tile([centre_w, neighbour_w, neighbour_w], (len(crease), 1)))
+        out.position(crease, np.column_stack([crease, nb]),
+                     np.tile([centre_w, neighbour_w, neighbour_w], (len(crease), 1)))
         covered[crease] = True
-    # everything else (corners without sectors, isolated vertices, non-manifold leftovers) keeps its position
     rest = np.flatnonzero(~covered)
-    pos_rows.append(rest), pos_local.append(rest[:, None]), pos_w.append(np.ones((len(rest), 1)))
-
-    position = _merge_rows(pos_rows, pos_local, pos_w, V, V)
-    # tangent pairs, one per (vertex, sector); contributions of one vertex contiguous
-    vertex_of = np.concatenate(tan_rows) if tan_rows else np.zeros(0, np.int64)
-    order = np.argsort(vertex_of, kind="stable")
-    rank = np.empty(len(order), dtype=np.int64)
-    rank[order] = np.arange(len(order))
-    bounds = face_offsets_of(np.array([len(r) for r in tan_rows], dtype=np.int64))
-    rank_parts = [rank[bounds[i]:bounds[i + 1]] for i in range(len(tan_rows))]
-    tu = _merge_rows(rank_parts, tan_local, tan_u, len(order), V)
-    tv = _merge_rows(rank_parts, tan_local, tan_v, len(order), V)
-    contribution_vertex = vertex_of[order]
-    vertex_offsets = face_offsets_of(np.bincount(contribution_vertex, minlength=V)).astype(np.int32)
-    return LimitTables(position, tu, tv, contribution_vertex.astype(np.int32), vertex_offsets)
+    out.position(rest, rest[:, None], np.ones((len(rest), 1)))
 
 
 def _merge_rows(rows_parts, local_parts, weight_parts, num_rows, num_sources) -> StencilTable:

@@ -243,7 +243,7 @@ def _fast_parts(refiner, values, indices, mode, cache: dict | None = None, rows=
     not apply. ``cache``: a dict that keeps the last :class:`_FastPlan` with its key (mode and indices);
     ``rows``: the rows of the vertex refinement to keep, in that order (None: all, in the refiner's order)."""
     from ..errors import SubdivInputError
-    from ..tables import check_indices
+    from ..tables import check_value_indices
     from ..mesh import check_rows
     from ..options import FaceVaryingMode
 
@@ -255,7 +255,7 @@ def _fast_parts(refiner, values, indices, mode, cache: dict | None = None, rows=
             or mode == FaceVaryingMode.ALL or h.parentage.control_face is not None
             or options.loop_beta.value != "loop"):
         return None
-    idx = check_indices(indices, len(mesh.face_vertex_indices))
+    idx = check_value_indices(indices, len(mesh.face_vertex_indices))
     if len(idx) == 0:
         return None
     squeeze = np.ndim(values) == 1

@@ -1,10 +1,11 @@
-"""Stencil tables: for each level, one CSR row per child vertex over the parent level's vertices.
+"""Builders of a step's tables: for each level, one CSR row per child vertex over the parent level's vertices.
 
 Rows follow the child vertex order of :mod:`warp_subdiv.topology` (vertex children, face children for
 Catmull-Clark, edge children). As OpenSubdiv's ``far/stencilTableFactory`` expands ``Sdc`` masks, this module
 only decides which class each row is (from the level's vertex classes and :mod:`warp_subdiv.rules.crease`'s
-sharpness decay), gathers the neighbourhood indices (by index arithmetic over the level's tables) and lays
-out the role masks that :mod:`warp_subdiv.rules` returns for that class. Weights are float64.
+sharpness decay), gathers the neighbourhood indices (by index arithmetic over the level's tables) and writes
+the role masks that :mod:`warp_subdiv.rules` returns for that class into the rows. Weights are float64. The
+tables themselves are :mod:`warp_subdiv.tables.stencil_table`'s.
 """
 from __future__ import annotations
 
@@ -18,38 +19,12 @@ from ..runtime.estimate import check_int32
 from ..mesh import expand_counts, face_offsets_of
 from ..rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
 from ..topology import Level, child_sharpness, has_semi_sharpness, level_child_rules, level_fractional_weight
+from .stencil_table import RegularTables, StencilTable
 
 
-@dataclass
-class StencilTable:
-    """Child vertex i = sum_j weights[j] * parent[indices[j]] for j in offsets[i]..offsets[i+1]."""
-
-    offsets: np.ndarray  # (rows+1,) int32
-    indices: np.ndarray  # (entries,) int32
-    weights: np.ndarray  # (entries,) float64
-    num_sources: int
-    rows: np.ndarray | None = None  # the child vertices the rows are for, when not all of them in order
-
-    @property
-    def num_rows(self) -> int:
-        return len(self.offsets) - 1
-
-    def nbytes(self, weight_bytes: int = 4) -> int:
-        """Bytes of the table on the device with weights of ``weight_bytes`` each."""
-        extra = 0 if self.rows is None else self.rows.nbytes
-        return self.offsets.nbytes + self.indices.nbytes + len(self.weights) * weight_bytes + extra
-
-    def row(self, i: int) -> dict:
-        """Row i as {parent vertex: total weight} (duplicates merged); for tests and debugging."""
-        out: dict = {}
-        for j in range(int(self.offsets[i]), int(self.offsets[i + 1])):
-            key = int(self.indices[j])
-            out[key] = out.get(key, 0.0) + float(self.weights[j])
-        return out
-
-
-class _Layout:
-    """Collects (row, position-in-row) -> (index, weight) entries for rows whose sizes are known up front."""
+class _StencilEntries:
+    """The entries of a stencil table's rows while they are filled: (row, position in row) -> (parent vertex,
+    weight), for rows whose sizes are known up front."""
 
     def __init__(self, sizes: np.ndarray, num_sources: int):
         self.offsets = face_offsets_of(sizes)
@@ -65,18 +40,13 @@ class _Layout:
         self.weights[at] = weight
 
     def table(self) -> StencilTable:
-        assert np.all(self.indices >= 0), "stencil layout left an entry unfilled"
+        assert np.all(self.indices >= 0), "a stencil row left an entry unfilled"
         return StencilTable(
             offsets=self.offsets.astype(np.int32),
             indices=self.indices.astype(np.int32),
             weights=self.weights,
             num_sources=self.num_sources,
         )
-
-
-def rows_of(offsets: np.ndarray) -> np.ndarray:
-    """Row id of every entry of a CSR layout with the given offsets."""
-    return np.repeat(np.arange(len(offsets) - 1, dtype=np.int64), np.diff(offsets))
 
 
 def crease_neighbours(level: Level, sharp_ends: np.ndarray | None = None,
@@ -168,20 +138,74 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
     ``smooth_triangles``: OpenSubdiv's TRI_SUB_SMOOTH edge weights next to triangles (Catmull-Clark).
     ``edge_corners``: the level's :meth:`~warp_subdiv.topology.Level.edge_corner_pair`, when the caller has it.
     """
-    scheme = level.scheme
     V, F, E = level.num_vertices, level.num_faces, level.num_edges
-    cc = scheme == CATMULL_CLARK
+    cc = level.scheme == CATMULL_CLARK
     if regular is None:  # every row, in child vertex order
         vs, es = np.arange(V, dtype=np.int64), np.arange(E, dtype=np.int64)
     else:
         vs, es = np.flatnonzero(~regular[0]), np.flatnonzero(~regular[1])
     with_faces = cc and regular is None
-    nv, ne = len(vs), len(es)
     face_sizes = level.face_sizes()
-    corner_vert = level.corner_vert
     h0, h1 = edge_corners if edge_corners is not None else level.edge_corner_pair()
+    row_rules = _row_rules(level, vs, es)
+    slots = _Slots.around(level, vs, face_sizes) if row_rules.needs_smooth else None
+    vertex_first, vertex_sizes = _vertex_row_sizes(row_rules, slots)
+    sides = _EdgeSides.of(level, es, h0, h1, face_sizes)
+    out = _StencilEntries(np.concatenate([vertex_sizes] + ([face_sizes] if with_faces else [])
+                                         + [_edge_row_sizes(row_rules, sides, cc)]), V)
+    _put_vertex_rows(level, out, vs, row_rules, vertex_first, slots, loop_beta, h0, h1)
+    if with_faces:
+        _put_face_rows(level, out, len(vs), face_sizes)
+    _put_edge_rows(level, out, len(vs) + (F if with_faces else 0), es, row_rules, sides, rule_set, h0,
+                   smooth_triangles)
+    table = out.table()
+    if regular is not None:  # the child vertices of the rows kept (none is empty; the check is cheap)
+        child = np.concatenate([vs, V + (F if cc else 0) + es])
+        keep = np.flatnonzero(np.diff(table.offsets) > 0)
+        table.rows = child[keep].astype(np.int32)
+        table.offsets = np.concatenate([[0], np.cumsum(np.diff(table.offsets)[keep])]).astype(np.int32)
+    return table
 
-    # ----- which rule each row follows before and after the step (sharpness decay: warp_subdiv.rules.crease)
+
+def _smooth_rule(rule: np.ndarray) -> np.ndarray:
+    """Whether rows of vertex class ``rule`` follow the smooth (interior) vertex rule."""
+    return (rule == SMOOTH) | (rule == DART)
+
+
+@dataclass
+class _RowRules:
+    """Which rule each row of a step follows before and after the step (sharpness decay:
+    :mod:`warp_subdiv.rules.crease`).
+
+    Vertex rows (row i is vertex ``vs[i]``): ``parent_rule`` and ``child_rule`` (vertex classes), ``transition``
+    where they differ; such a row lists the parent rule's mask times ``parent_weight``, then the child rule's
+    times ``child_weight`` (rows without a transition: the parent rule alone, weight 1). ``parent_pairs`` and
+    ``child_pairs``: the crease neighbours each rule weighs (``child_pairs`` None where no sharpness decays).
+    Edge rows (row j is edge ``es[j]``): ``sharp``, ``edge_blend`` (a semi-sharp edge whose children are not
+    both sharp blends the crease and smooth rules) and ``edge_sharpness`` (the edge's sharpness, the crease
+    rule's weight where it blends).
+    """
+
+    parent_rule: np.ndarray
+    child_rule: np.ndarray
+    transition: np.ndarray
+    parent_weight: np.ndarray
+    child_weight: np.ndarray
+    parent_pairs: np.ndarray
+    child_pairs: np.ndarray | None
+    sharp: np.ndarray
+    edge_blend: np.ndarray
+    edge_sharpness: np.ndarray
+
+    @property
+    def needs_smooth(self) -> bool:
+        """Whether some vertex row uses the smooth rule (only then are the rows' rings gathered)."""
+        return bool(np.any(_smooth_rule(self.parent_rule))
+                    or np.any(self.transition & _smooth_rule(self.child_rule)))
+
+
+def _row_rules(level: Level, vs: np.ndarray, es: np.ndarray) -> _RowRules:
+    """The rules of the vertex rows ``vs`` and edge rows ``es`` of a step over ``level``."""
     parent_rule = level.vert_class[vs]
     sharp = level.edge_sharp[es]
     if has_semi_sharpness(level):
@@ -191,117 +215,18 @@ def build_stencils(level: Level, rule_set: str = "piecewise-smooth", loop_beta: 
         transition = crease.vertex_transitions(parent_rule, child_rule)
         # rows without a transition follow their parent rule alone (fractional weight 1)
         fraction = (np.where(transition, level_fractional_weight(level, halves, child_vs)[vs], 1.0)
-                    if np.any(transition) else np.ones(nv))
+                    if np.any(transition) else np.ones(len(vs)))
         child_pairs = crease_neighbours(level, halves > 0, vs)
     else:  # no sharpness decays: every rule stays as it is
         child_rule = parent_rule
         edge_child_rule = np.where(sharp, CREASE, SMOOTH).astype(np.int8)
-        transition = np.zeros(nv, dtype=bool)
-        fraction = np.ones(nv)
+        transition = np.zeros(len(vs), dtype=bool)
+        fraction = np.ones(len(vs))
         child_pairs = None
     parent_weight, child_weight = rules.transition_weights(fraction)
-    parent_pairs = crease_neighbours(level, vertices=vs)
-
-    def smooth_rule(rule):
-        return (rule == SMOOTH) | (rule == DART)
-
-    # ----- row sizes (the smooth rule's only where some row uses it)
-    needs_smooth = bool(np.any(smooth_rule(parent_rule)) or np.any(transition & smooth_rule(child_rule)))
-    slots = None
-    if needs_smooth:  # every corner around the rows' vertices, vertex by vertex in ring order
-        voff = level.vert_corner_offsets
-        first_slot = voff[vs].astype(np.int64)
-        valence = voff[vs + 1] - first_slot
-        owner, rank = expand_counts(valence)
-        slot_corner = level.vert_corners[first_slot[owner] + rank].astype(np.int64)
-        slot_face = level.corner_face(slot_corner)
-        per_slot = (face_sizes[slot_face] - 2) if cc else np.ones(len(slot_corner), dtype=np.int64)
-        slots = _Slots(owner, valence, slot_corner, slot_face, per_slot)
-        smooth_size = 1 + np.bincount(owner, weights=per_slot, minlength=nv).astype(np.int64)
-    else:
-        smooth_size = np.zeros(nv, dtype=np.int64)
-
-    def rule_size(rule):
-        return np.where(smooth_rule(rule), smooth_size, np.where(rule == CREASE, 3, 1))
-
-    first_size = rule_size(parent_rule)
-    vertex_sizes = first_size + np.where(transition, rule_size(child_rule), 0)
-
-    g0, g1 = h0[es], h1[es]
-    m0, m1 = face_sizes[level.corner_face(g0)], face_sizes[level.corner_face(g1)]
-    smooth_edge_size = (m0 + m1 - 2) if cc else np.full(ne, 4)
-    # a semi-sharp edge whose children are not both sharp blends the crease and smooth rules
-    edge_blend = crease.edge_transitions(sharp, edge_child_rule)
-    edge_sizes = np.where(sharp, 2 + np.where(edge_blend, smooth_edge_size, 0), smooth_edge_size)
-    out = _Layout(np.concatenate([vertex_sizes] + ([face_sizes] if with_faces else []) + [edge_sizes]), V)
-    face_row0 = nv
-    edge_row0 = nv + (F if with_faces else 0)
-
-    # ----- vertex rows (row i is vertex vs[i]): the parent rule's mask, then (where the rule changes) the
-    # child rule's mask
-    row = np.arange(nv, dtype=np.int64)
-    for rule, pairs, rows, pos, weight in (
-        (parent_rule, parent_pairs, row, np.zeros(nv, np.int64), parent_weight),
-        (child_rule, child_pairs, row[transition], first_size, child_weight),
-    ):
-        corner = rows[rule[rows] == CORNER]
-        mask = rules.corner_vertex_mask(len(corner)).scaled(weight[corner])
-        out.put(corner, pos[corner], vs[corner], mask.centre)
-        creased = rows[rule[rows] == CREASE]
-        mask = rules.crease_vertex_mask(len(creased)).scaled(weight[creased])
-        nb = pairs[creased] if len(creased) else np.zeros((0, 2), np.int64)
-        out.put(creased, pos[creased], vs[creased], mask.centre)
-        out.put(creased, pos[creased] + 1, nb[:, 0], mask.edge)
-        out.put(creased, pos[creased] + 2, nb[:, 1], mask.edge)
-        if needs_smooth:
-            _put_smooth_vertices(level, out, rows[smooth_rule(rule[rows])], vs, pos, weight, loop_beta, slots,
-                                 h0, h1)
-
-    # ----- face rows (Catmull-Clark)
-    if with_faces:
-        c = np.arange(level.num_corners, dtype=np.int64)
-        f_of_c = level.corner_face(c)
-        face_starts = level.face_starts()
-        out.put(face_row0 + f_of_c, c - face_starts[f_of_c], corner_vert[c],
-                rules.face_point_weights(face_sizes[f_of_c]))
-
-    # ----- edge rows (row edge_row0 + j is edge es[j]): the crease rule's mask, then (semi-sharp edges whose
-    # rule changes) the smooth rule's; the crease rule weighs 1 on crease edges, 0 on smooth ones and the
-    # edge's sharpness where it blends
-    ev = level.edge_verts[es].astype(np.int64)
-    crease_weight, smooth_weight = rules.semi_sharp_edge_weights(
-        np.where(edge_blend, level.edge_sharpness[es], np.where(sharp, 1.0, 0.0)))
-    se = np.flatnonzero(sharp)
-    mask = rules.crease_edge_mask(len(se)).scaled(crease_weight[se])
-    out.put(edge_row0 + se, 0, ev[se, 0], mask.end_a)
-    out.put(edge_row0 + se, 1, ev[se, 1], mask.end_b)
-
-    me = np.flatnonzero(~sharp | edge_blend)
-    g0, g1, m0, m1 = g0[me], g1[me], m0[me], m1[me]
-    mask = _smooth_edge_mask(level, rule_set, es[me], h0, m0, m1, smooth_triangles)
-    if cc:  # the two face points, written out over their faces' vertices
-        mask = rules.expand_edge_face_points(mask, m0, m1)
-    mask = mask.scaled(smooth_weight[me])
-    pos0 = np.where(edge_blend[me], 2, 0)
-    rows = edge_row0 + me
-    out.put(rows, pos0, ev[me, 0], mask.end_a)
-    out.put(rows, pos0 + 1, ev[me, 1], mask.end_b)
-    # each side's face: its vertices after the edge (Loop: the one opposite vertex)
-    for g, m, wing, base_pos in ((g0, m0, mask.wing_0, pos0 + 2), (g1, m1, mask.wing_1, pos0 + m0)):
-        if level.face_size:  # one face size: the same number of vertices on every side
-            for t in range(level.face_size - 2):
-                out.put(rows, base_pos + t, corner_vert[_advance(level, g, t + 2)], wing)
-            continue
-        rep, t = expand_counts(m - 2)
-        walk = _advance(level, g[rep], t + 2)
-        out.put(rows[rep], base_pos[rep] + t, corner_vert[walk], wing[rep])
-    table = out.table()
-    if regular is not None:  # the child vertices of the rows kept (none is empty; the check is cheap)
-        child = np.concatenate([vs, V + (F if cc else 0) + es])
-        keep = np.flatnonzero(np.diff(table.offsets) > 0)
-        table.rows = child[keep].astype(np.int32)
-        table.offsets = np.concatenate([[0], np.cumsum(np.diff(table.offsets)[keep])]).astype(np.int32)
-    return table
+    return _RowRules(parent_rule, child_rule, transition, parent_weight, child_weight,
+                     crease_neighbours(level, vertices=vs), child_pairs, sharp,
+                     crease.edge_transitions(sharp, edge_child_rule), level.edge_sharpness[es])
 
 
 @dataclass
@@ -317,12 +242,67 @@ class _Slots:
     face: np.ndarray
     per_slot: np.ndarray
 
+    @classmethod
+    def around(cls, level: Level, vs: np.ndarray, face_sizes: np.ndarray) -> _Slots:
+        """Every corner around the vertices ``vs`` (the vertex rows), vertex by vertex in ring order."""
+        voff = level.vert_corner_offsets
+        first_slot = voff[vs].astype(np.int64)
+        valence = voff[vs + 1] - first_slot
+        owner, rank = expand_counts(valence)
+        slot_corner = level.vert_corners[first_slot[owner] + rank].astype(np.int64)
+        slot_face = level.corner_face(slot_corner)
+        per_slot = ((face_sizes[slot_face] - 2) if level.scheme == CATMULL_CLARK
+                    else np.ones(len(slot_corner), dtype=np.int64))
+        return cls(owner, valence, slot_corner, slot_face, per_slot)
+
+    def smooth_row_sizes(self, num_rows: int) -> np.ndarray:
+        """Entries of each of the ``num_rows`` vertex rows under the smooth rule: the vertex and its slots'."""
+        return 1 + np.bincount(self.owner, weights=self.per_slot, minlength=num_rows).astype(np.int64)
+
+
+def _vertex_row_sizes(row_rules: _RowRules, slots: _Slots | None) -> tuple[np.ndarray, np.ndarray]:
+    """(entries of the parent rule's mask, entries in all) of every vertex row: the parent rule's mask, then
+    (where the rule changes) the child rule's. ``slots``: the rows' rings (None where no row is smooth)."""
+    nv = len(row_rules.parent_rule)
+    smooth_size = slots.smooth_row_sizes(nv) if slots is not None else np.zeros(nv, dtype=np.int64)
+
+    def rule_size(rule):
+        return np.where(_smooth_rule(rule), smooth_size, np.where(rule == CREASE, 3, 1))
+
+    first_size = rule_size(row_rules.parent_rule)
+    return first_size, first_size + np.where(row_rules.transition, rule_size(row_rules.child_rule), 0)
+
+
+def _put_vertex_rows(level: Level, out: _StencilEntries, vs: np.ndarray, row_rules: _RowRules,
+                     first_size: np.ndarray, slots: _Slots | None, loop_beta: str, h0: np.ndarray, h1: np.ndarray):
+    """The vertex rows (row i is vertex vs[i]): the parent rule's mask, then (where the rule changes) the
+    child rule's mask from position ``first_size``."""
+    nv = len(vs)
+    row = np.arange(nv, dtype=np.int64)
+    r = row_rules
+    for rule, pairs, rows, pos, weight in (
+        (r.parent_rule, r.parent_pairs, row, np.zeros(nv, np.int64), r.parent_weight),
+        (r.child_rule, r.child_pairs, row[r.transition], first_size, r.child_weight),
+    ):
+        corner = rows[rule[rows] == CORNER]
+        mask = rules.corner_vertex_mask(len(corner)).scaled(weight[corner])
+        out.put(corner, pos[corner], vs[corner], mask.centre)
+        creased = rows[rule[rows] == CREASE]
+        mask = rules.crease_vertex_mask(len(creased)).scaled(weight[creased])
+        nb = pairs[creased] if len(creased) else np.zeros((0, 2), np.int64)
+        out.put(creased, pos[creased], vs[creased], mask.centre)
+        out.put(creased, pos[creased] + 1, nb[:, 0], mask.edge)
+        out.put(creased, pos[creased] + 2, nb[:, 1], mask.edge)
+        if slots is not None:
+            _put_smooth_vertices(level, out, rows[_smooth_rule(rule[rows])], vs, pos, weight, loop_beta, slots,
+                                 h0, h1)
+
 
 def _put_smooth_vertices(level, out, rows, vs, pos, weight, loop_beta, slots: _Slots, h0, h1):
     """The smooth (interior) vertex rule for the vertex rows ``rows`` (ascending; row i is vertex vs[i]) at row
     position ``pos``, times ``weight``.
 
-    Row layout: the vertex, then per slot (its corners in ring order) the edge neighbour that follows the
+    A row holds the vertex, then per slot (its corners in ring order) the edge neighbour that follows the
     corner and the corner face's other vertices (Catmull-Clark faces of four or more vertices)."""
     if len(rows) == 0:
         return
@@ -362,43 +342,73 @@ def _put_smooth_vertices(level, out, rows, vs, pos, weight, loop_beta, slots: _S
     out.put(sl_r[rep], sl_pos[rep] + 1 + t, corner_vert[walk], ring.face[rep])
 
 
+def _put_face_rows(level: Level, out: _StencilEntries, first_row: int, face_sizes: np.ndarray):
+    """The face point rows of Catmull-Clark (row ``first_row`` + f is face f): the face's vertices."""
+    c = np.arange(level.num_corners, dtype=np.int64)
+    f_of_c = level.corner_face(c)
+    face_starts = level.face_starts()
+    out.put(first_row + f_of_c, c - face_starts[f_of_c], level.corner_vert[c],
+            rules.face_point_weights(face_sizes[f_of_c]))
+
+
 @dataclass
-class RegularTables:
-    """What the regular kernels need to compute the smooth rows of one step from the level's index tables.
+class _EdgeSides:
+    """The two faces of some edge rows: the edge's corner in each (``g0``, ``g1``; the level's
+    ``edge_corner_pair``) and their face sizes (``m0``, ``m1``)."""
 
-    Uniform levels only (all quads or all triangles). Only what index arithmetic cannot give is stored
-    (issue 17): on a level of quads corner h belongs to face h // 4 and its next corner is
-    h - h % 4 + (h + 1) % 4, so an edge is its two corners (its endpoints, the corner vertex and the next
-    one, and its faces follow) and a vertex's ring is its corners (each one's next vertex and its face's face
-    point); triangles keep each edge's four vertices and each vertex's ring vertices. ``vertex_regular`` and
-    ``edge_regular`` (uint8) mark the rows the kernels compute, and are empty where every row is regular;
-    every other row is in ``explicit``. ``ring_weights`` are per-valence weights (centre, each ring term) from
-    :mod:`warp_subdiv.rules`; ``edge_weights`` are the smooth edge weights (each endpoint, each wing term).
-    """
+    g0: np.ndarray
+    g1: np.ndarray
+    m0: np.ndarray
+    m1: np.ndarray
 
-    face_size: int
-    num_vertices: int
-    num_faces: int
-    corner_vert: np.ndarray  # quads: the level's face corners (empty for triangles: their kernels never read it)
-    edge_neighbours: np.ndarray  # quads (E, 2): the edge's two corners; triangles (E, 4): a, b, opposite 0, 1
-    vert_corner_offsets: np.ndarray
-    ring: np.ndarray  # per vertex (CSR by vert_corner_offsets): quads its corners, triangles its ring vertices
-    vertex_regular: np.ndarray  # (V,) uint8, or (0,): every vertex row is regular
-    edge_regular: np.ndarray  # (E,) uint8, or (0,): every edge row is regular
-    ring_weights: np.ndarray  # (max valence + 1, 2)
-    edge_weights: np.ndarray  # (2,)
-    explicit: StencilTable
-    num_rows: int  # child vertices of the step
+    @classmethod
+    def of(cls, level: Level, es: np.ndarray, h0: np.ndarray, h1: np.ndarray, face_sizes: np.ndarray) -> _EdgeSides:
+        g0, g1 = h0[es], h1[es]
+        return cls(g0, g1, face_sizes[level.corner_face(g0)], face_sizes[level.corner_face(g1)])
 
-    @property
-    def num_edges(self) -> int:
-        return len(self.edge_neighbours)
 
-    def nbytes(self, weight_bytes: int = 4) -> int:
-        """Bytes of the tables the kernels read on the device (the weights per valence aside)."""
-        arrays = (self.corner_vert, self.edge_neighbours, self.vert_corner_offsets, self.ring,
-                  self.vertex_regular, self.edge_regular)
-        return sum(a.nbytes for a in arrays) + self.explicit.nbytes(weight_bytes)
+def _edge_row_sizes(row_rules: _RowRules, sides: _EdgeSides, cc: bool) -> np.ndarray:
+    """Entries of every edge row: the crease rule's two, the smooth rule's (endpoints and wings), or both
+    where a semi-sharp edge blends them."""
+    smooth_edge_size = (sides.m0 + sides.m1 - 2) if cc else np.full(len(sides.m0), 4)
+    sharp, blend = row_rules.sharp, row_rules.edge_blend
+    return np.where(sharp, 2 + np.where(blend, smooth_edge_size, 0), smooth_edge_size)
+
+
+def _put_edge_rows(level: Level, out: _StencilEntries, first_row: int, es: np.ndarray, row_rules: _RowRules,
+                   sides: _EdgeSides, rule_set: str, h0: np.ndarray, smooth_triangles: bool):
+    """The edge rows (row ``first_row`` + j is edge es[j]): the crease rule's mask, then (semi-sharp edges whose
+    rule changes) the smooth rule's; the crease rule weighs 1 on crease edges, 0 on smooth ones and the
+    edge's sharpness where it blends."""
+    corner_vert = level.corner_vert
+    sharp, edge_blend = row_rules.sharp, row_rules.edge_blend
+    ev = level.edge_verts[es].astype(np.int64)
+    crease_weight, smooth_weight = rules.semi_sharp_edge_weights(
+        np.where(edge_blend, row_rules.edge_sharpness, np.where(sharp, 1.0, 0.0)))
+    se = np.flatnonzero(sharp)
+    mask = rules.crease_edge_mask(len(se)).scaled(crease_weight[se])
+    out.put(first_row + se, 0, ev[se, 0], mask.end_a)
+    out.put(first_row + se, 1, ev[se, 1], mask.end_b)
+
+    me = np.flatnonzero(~sharp | edge_blend)
+    g0, g1, m0, m1 = sides.g0[me], sides.g1[me], sides.m0[me], sides.m1[me]
+    mask = _smooth_edge_mask(level, rule_set, es[me], h0, m0, m1, smooth_triangles)
+    if level.scheme == CATMULL_CLARK:  # the two face points, written out over their faces' vertices
+        mask = rules.expand_edge_face_points(mask, m0, m1)
+    mask = mask.scaled(smooth_weight[me])
+    pos0 = np.where(edge_blend[me], 2, 0)
+    rows = first_row + me
+    out.put(rows, pos0, ev[me, 0], mask.end_a)
+    out.put(rows, pos0 + 1, ev[me, 1], mask.end_b)
+    # each side's face: its vertices after the edge (Loop: the one opposite vertex)
+    for g, m, wing, base_pos in ((g0, m0, mask.wing_0, pos0 + 2), (g1, m1, mask.wing_1, pos0 + m0)):
+        if level.face_size:  # one face size: the same number of vertices on every side
+            for t in range(level.face_size - 2):
+                out.put(rows, base_pos + t, corner_vert[_advance(level, g, t + 2)], wing)
+            continue
+        rep, t = expand_counts(m - 2)
+        walk = _advance(level, g[rep], t + 2)
+        out.put(rows[rep], base_pos[rep] + t, corner_vert[walk], wing[rep])
 
 
 def _edge_neighbours(level: Level, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
