@@ -70,11 +70,19 @@ class Hierarchy:
     would not fit 32-bit indices are refused whatever the limit. ``threads``: CPU threads the build may use
     (the tables do not depend on it); ``concurrent_build``: build each step's tables and the next level on two
     of them at once (faster, but more peak memory than the memory guard predicts).
+
+    ``reuse``: a hierarchy built before (the tables a distributed bake ships to the tasks that refine a mesh's
+    frames, or the level-0 analysis a USD bake's plan made), taken where it :meth:`fits` the mesh and options:
+    with the same levels this hierarchy takes its tables as they are; with other levels it is built from the
+    control points ``reuse`` was built from, and from its analysis of the control mesh when ``reuse`` has level
+    0 only. A task that reads the mesh at its own frames may see other control points than those the tables
+    were built from (sector angles are measured on the control points): the reused tables are what keeps its
+    result equal to the single-process bake's. A hierarchy that does not fit is ignored.
     """
 
     def __init__(self, mesh: Mesh, levels: int, options: Options, *, max_memory: int | None = None,
-                 threads: int = 1, concurrent_build: bool = False):
-        source = _shipped_for(mesh, options)
+                 threads: int = 1, concurrent_build: bool = False, reuse: Hierarchy | None = None):
+        source = reuse if reuse is not None and reuse.fits(mesh, options) else _shipped_for(mesh, options)
         analysed = None
         if source is not None:
             if source.levels == levels:  # the same mesh, levels and options: take its tables as they are
@@ -117,6 +125,11 @@ class Hierarchy:
         self.final: Level = level
         self.penultimate: Level = penultimate
         self.num_vertices = level.num_vertices
+
+    def fits(self, mesh: Mesh, options: Options) -> bool:
+        """Whether this hierarchy can stand in for one of ``mesh`` with ``options`` (see ``reuse``): the same
+        options, and a control mesh with the same faces and tags (its points may differ)."""
+        return self.options == options and same_topology(self.mesh, mesh)
 
     # ------------------------------------------------------------------------------------------ phases
     def _analyse(self, source: Hierarchy | None = None) -> Level:
@@ -303,7 +316,7 @@ def same_topology(a: Mesh, b: Mesh) -> bool:
 def _shipped_for(mesh: Mesh, options: Options):
     """A shipped hierarchy (see :func:`shipped`) of ``mesh``'s topology and ``options``, or None."""
     for h in _SHIPPED.get():
-        if h.options == options and same_topology(h.mesh, mesh):
+        if h.fits(mesh, options):
             return h
     return None
 
