@@ -46,9 +46,6 @@ arrays of a refined level's size are materialised when asked for and not kept.
 """
 from __future__ import annotations
 
-import contextlib
-import contextvars
-
 import numpy as np
 
 from ..runtime import estimate
@@ -82,7 +79,7 @@ class Hierarchy:
 
     def __init__(self, mesh: Mesh, levels: int, options: Options, *, max_memory: int | None = None,
                  threads: int = 1, concurrent_build: bool = False, reuse: Hierarchy | None = None):
-        source = reuse if reuse is not None and reuse.fits(mesh, options) else _shipped_for(mesh, options)
+        source = reuse if reuse is not None and reuse.fits(mesh, options) else None
         analysed = None
         if source is not None:
             if source.levels == levels:  # the same mesh, levels and options: take its tables as they are
@@ -274,28 +271,7 @@ class Hierarchy:
         return projections.limit_tables(level, s, o.loop_beta, o.rules)
 
 
-# ------------------------------------------------------------------------------------------------ shipping
-_SHIPPED: contextvars.ContextVar = contextvars.ContextVar("warp_subdiv_shipped", default=())
-
-
-@contextlib.contextmanager
-def shipped(*hierarchies):
-    """Within the block, a :class:`Hierarchy` of a mesh with the topology and tags of one of ``hierarchies``
-    (None entries are ignored), with the same options, is not built again: with the same levels it takes the
-    shipped one's tables; with other levels it is built from the shipped one's control points.
-
-    A distributed bake computes each mesh's topology and tables once and ships them to the tasks that refine
-    its frames (:mod:`warp_subdiv.usd.distributed`): a task reads the mesh at its own frames, whose points may
-    differ from those the tables were built from (sector angles are measured on the control points), so the
-    shipped tables are also what keeps every task's result equal to the single-process bake's."""
-    extra = tuple(h for h in hierarchies if h is not None)
-    token = _SHIPPED.set(extra + _SHIPPED.get())
-    try:
-        yield
-    finally:
-        _SHIPPED.reset(token)
-
-
+# ------------------------------------------------------------------------------------------------ reuse
 _TOPOLOGY_FIELDS = ("face_vertex_counts", "face_vertex_indices", "creases", "crease_sharpness", "corners",
                     "corner_sharpness", "concave", "normal_vertices", "normal_vectors", "holes")
 
@@ -311,14 +287,6 @@ def same_topology(a: Mesh, b: Mesh) -> bool:
         if (x is None) != (y is None) or (x is not None and not np.array_equal(x, y)):
             return False
     return True
-
-
-def _shipped_for(mesh: Mesh, options: Options):
-    """A shipped hierarchy (see :func:`shipped`) of ``mesh``'s topology and ``options``, or None."""
-    for h in _SHIPPED.get():
-        if h.fits(mesh, options):
-            return h
-    return None
 
 
 class Parentage:
