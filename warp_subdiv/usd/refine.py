@@ -14,7 +14,7 @@ The output layer sublayers the input and holds an ``over`` of every refined mesh
 * vertex, varying, uniform and face-varying primvars are rewritten for the refined faces (constant ones are
   inherited as they are); primvars that cannot be refined are reported and blocked;
 * face GeomSubsets (material bindings) get their ``indices`` remapped to the refined faces, edge GeomSubsets
-  to the child edges of their edges (:class:`EdgeMap`);
+  to the child edges of their edges (:class:`~warp_subdiv.usd.subsets.EdgeMap`);
 * the ``extentsHint`` of refined meshes' ancestors is recomputed.
 
 Meshes inside scene-graph instances go into a refined prototype (``/__warpSubdiv/Prototype_<n>``, under a
@@ -33,7 +33,6 @@ each mesh's refinement (:mod:`~warp_subdiv.usd.refinement`) and writer (:mod:`~w
 :mod:`~warp_subdiv.usd.primvars`, :mod:`~warp_subdiv.usd.subsets`). What they share is held by one
 :class:`Bake`, which this module's :func:`refine_usd` creates, and passed to them.
 """
-
 from __future__ import annotations
 
 import os

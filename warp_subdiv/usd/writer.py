@@ -17,7 +17,7 @@ T = Sdf.ValueTypeNames
 
 class PrimWriter:
     """Refines prim ``i`` of a :class:`~warp_subdiv.usd.refine.Bake` and writes it at ``target``, its path in the
-    output layer (its own path, a prototype's content or a shared mesh; :class:`~warp_subdiv.usd.Layout`).
+    output layer (its own path, a prototype's content or a shared mesh; :class:`~warp_subdiv.usd.output_layout.Layout`).
 
     A mesh whose topology changes over time gets one refiner per distinct control mesh (built once, used for
     every time that has it), and time-sampled topology: each written time takes the refiner of its control
