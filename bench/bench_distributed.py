@@ -205,7 +205,7 @@ def main(argv=None) -> int:
 
     from warp_subdiv.tables.hierarchy import Hierarchy
     from warp_subdiv.options import Options
-    from warp_subdiv.usd.refine import plan
+    from warp_subdiv.usd import plan
 
     p = plan(scene, args.levels)
     h = Hierarchy(p.prims[0].mesh, args.levels, Options(scheme="catmull-clark"), threads=1)

@@ -120,7 +120,7 @@ def worker(name: str) -> dict:
                        [0, 1, 2, 0, 2, 3] if tri else [0, 1, 2, 3])
     tmp = tempfile.mkdtemp(prefix="wsbench_mem_")
     if usd:
-        from warp_subdiv.usd.refine import plan, refine_usd
+        from warp_subdiv.usd import plan, refine_usd
 
         src, warm = os.path.join(tmp, "in.usda"), os.path.join(tmp, "warm.usda")
         _write_usd(mesh, scheme, src, uv)

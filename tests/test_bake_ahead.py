@@ -1,4 +1,4 @@
-"""The USD bake's workers (warp_subdiv.usd._Ahead): meshes refined ahead of the writer on worker threads give
+"""The USD bake's workers (warp_subdiv.usd.ahead.Ahead): meshes refined ahead of the writer on worker threads give
 the very layer the one-thread bake writes (every value bitwise, the same text, warnings and errors), the workers
 are really used, stop with the bake, and fit the memory limit."""
 import threading
@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from test_batch import _props_scene, _same_layers
 
-import warp_subdiv.usd.refine as usd
+import warp_subdiv.usd as usd
+from warp_subdiv.usd import ahead
 from warp_subdiv.runtime import threads
 from warp_subdiv.errors import SubdivInputError
 from warp_subdiv.runtime.estimate import total_bytes
@@ -22,16 +23,16 @@ def props_scene(tmp_path_factory):
 def every_mesh_ahead(monkeypatch):
     """Every mesh big enough to go ahead; returns the list of (mesh index, worker thread name, context or None,
     results computed ahead) of the workers' jobs."""
-    monkeypatch.setattr(usd, "AHEAD_VERTICES", 1)
+    monkeypatch.setattr(ahead, "AHEAD_VERTICES", 1)
     taken = []
-    original = usd._Ahead._refine
+    original = ahead.Ahead._refine
 
     def spied(self, i):
         ctx = original(self, i)
         taken.append((i, threading.current_thread().name, ctx, 0 if ctx is None else len(ctx._ahead)))
         return ctx
 
-    monkeypatch.setattr(usd._Ahead, "_refine", spied)
+    monkeypatch.setattr(ahead.Ahead, "_refine", spied)
     return taken
 
 

@@ -277,7 +277,7 @@ def _evaluations(monkeypatch):
 
 def _counting(monkeypatch):
     """Count the MeshBatch unions the writer builds and their members."""
-    import warp_subdiv.usd.refine as usd
+    from warp_subdiv.usd import batching
 
     seen = []
 
@@ -286,7 +286,7 @@ def _counting(monkeypatch):
             seen.append(len(meshes))
             super().__init__(meshes, *args, **kwargs)
 
-    monkeypatch.setattr(usd, "MeshBatch", Counting)
+    monkeypatch.setattr(batching, "MeshBatch", Counting)
     return seen
 
 
@@ -321,13 +321,13 @@ def test_usd_batched_layer_is_identical(props_scene, tmp_path, monkeypatch, run)
 def test_usd_batch_memory_cap_splits_chunks(props_scene, tmp_path, monkeypatch):
     """With a small cap on rows x samples, batches are smaller and more numerous, and the layer is the same;
     batch=False builds no union."""
-    import warp_subdiv.usd.refine as usd
+    from warp_subdiv.usd import batching, refine_usd
 
     seen = _counting(monkeypatch)
-    usd.refine_usd(props_scene, str(tmp_path / "off.usda"), 2, device="cpu", batch=False)
+    refine_usd(props_scene, str(tmp_path / "off.usda"), 2, device="cpu", batch=False)
     assert seen == []
-    monkeypatch.setattr(usd, "BATCH_ROWS", 2000)
-    usd.refine_usd(props_scene, str(tmp_path / "on.usda"), 2, device="cpu")
+    monkeypatch.setattr(batching, "BATCH_ROWS", 2000)
+    refine_usd(props_scene, str(tmp_path / "on.usda"), 2, device="cpu")
     assert len(seen) >= 4 and max(seen) <= 5, seen
     _same_layers(str(tmp_path / "on.usda"), str(tmp_path / "off.usda"))
 
@@ -336,13 +336,13 @@ def test_usd_batch_bound_depends_on_what_is_written(props_scene, tmp_path, monke
     """A prim is batched up to BATCH_VERTICES refined vertices where limit points or normals are written, and only
     up to BATCH_VERTICES_POINTS where only points are (its own evaluation is then cheap): with the points-only
     bound below every prop, nothing is batched for points, and the same props are batched with normals."""
-    import warp_subdiv.usd.refine as usd
+    from warp_subdiv.usd import batching, refine_usd
 
     seen = _counting(monkeypatch)
-    monkeypatch.setattr(usd, "BATCH_VERTICES_POINTS", 1)
-    usd.refine_usd(props_scene, str(tmp_path / "points.usda"), 2, device="cpu")
+    monkeypatch.setattr(batching, "BATCH_VERTICES_POINTS", 1)
+    refine_usd(props_scene, str(tmp_path / "points.usda"), 2, device="cpu")
     assert seen == []
-    usd.refine_usd(props_scene, str(tmp_path / "normals.usda"), 2, device="cpu", normals=True)
+    refine_usd(props_scene, str(tmp_path / "normals.usda"), 2, device="cpu", normals=True)
     assert seen and sum(seen) >= 25, seen
 
 

@@ -245,8 +245,8 @@ def test_refinement_rules_of_a_single_step():
 @pytest.mark.parametrize("rules", ["opensubdiv", "piecewise-smooth"])
 @pytest.mark.parametrize("name,scheme", [("cube", "catmull-clark"), ("polygons", "catmull-clark"),
                                          ("icosahedron", "loop"), ("polygons", "loop")])
-def test_a_shipped_level_0_analysis_is_reused_and_changes_nothing(name, scheme, rules, monkeypatch):
-    """A hierarchy built while a level-0 hierarchy of the same mesh and options is shipped (what the USD bake
+def test_a_reused_level_0_analysis_changes_nothing(name, scheme, rules, monkeypatch):
+    """A hierarchy built from a level-0 hierarchy of the same mesh and options (``reuse``: what the USD bake
     does with the plan's analysis) does not analyse the control mesh again, and its tables, last level and
     refined points are bitwise those of a hierarchy built from scratch."""
     from warp_subdiv.tables import hierarchy as hmod
@@ -259,21 +259,21 @@ def test_a_shipped_level_0_analysis_is_reused_and_changes_nothing(name, scheme, 
     monkeypatch.setattr(hmod, "base_level", lambda *a, **k: calls.append(1) or real(*a, **k))
     control = Hierarchy(mesh, 0, options)
     assert len(calls) == 1
-    with hmod.shipped(control):
-        reused = Hierarchy(mesh, 2, options)
-    assert len(calls) == 1  # level 0 taken from the shipped analysis
+    reused = Hierarchy(mesh, 2, options, reuse=control)
+    assert len(calls) == 1  # level 0 taken from the reused analysis
     np.testing.assert_array_equal(reused.topology()[1], fresh.topology()[1])
     a = ws.Refiner(mesh, 2, options=options, device="cpu")
-    with hmod.shipped(control):
-        b = ws.Refiner(mesh, 2, options=options, device="cpu")
-    assert len(calls) == 2  # the Refiner built from scratch analysed; the one with the shipped analysis did not
+    b = ws.Refiner(mesh, 2, options=options, device="cpu", reuse=control)
+    assert len(calls) == 2  # the Refiner built from scratch analysed; the one reusing the analysis did not
     np.testing.assert_array_equal(a.evaluate(mesh.points), b.evaluate(mesh.points))
     np.testing.assert_array_equal(a.limit_normals(a.evaluate(mesh.points)), b.limit_normals(b.evaluate(mesh.points)))
     del calls[2:]  # (limits read one level deeper may build deeper refiners, which analyse anew)
     other = Options(scheme=scheme, rules="opensubdiv" if rules != "opensubdiv" else "piecewise-smooth")
-    with hmod.shipped(control):
-        Hierarchy(mesh, 2, other)
+    assert not control.fits(mesh, other)
+    Hierarchy(mesh, 2, other, reuse=control)
     assert len(calls) == 3  # other options: analysed anew
+    same = Hierarchy(mesh, 2, options, reuse=reused)
+    assert len(calls) == 3 and same.steps is reused.steps  # the same levels: its tables as they are
 
 
 def test_the_usd_bake_analyses_each_control_mesh_once(tmp_path, monkeypatch):
@@ -282,7 +282,7 @@ def test_the_usd_bake_analyses_each_control_mesh_once(tmp_path, monkeypatch):
     import os
 
     from warp_subdiv.tables import hierarchy as hmod
-    from warp_subdiv.usd.refine import refine_usd
+    from warp_subdiv.usd import refine_usd
 
     calls = []
     real = hmod.base_level

@@ -80,7 +80,7 @@ def test_usd_preview_refines_as_the_bake(tmp_path, monkeypatch):
 
 def test_the_options_each_make_a_difference(tmp_path):
     """The scene above is a real check: each option it asks for moves the refined points."""
-    from warp_subdiv.usd.refine import make_refiner, options_for
+    from warp_subdiv.usd import make_refiner, options_for
     from warp_subdiv.io.usd_read import read_mesh
     from warp_subdiv.io.usd_stage import open_stage
 

@@ -10,7 +10,7 @@ import warp_subdiv as ws
 from test_usd_support import SCENES_DIR, as_baked, digest, grid, scene_module, write_mesh
 from warp_subdiv.errors import SubdivInputError
 from warp_subdiv.usd.order import OrderedRefiner
-from warp_subdiv.usd.refine import MemoryGuardError, refine_usd
+from warp_subdiv.usd import MemoryGuardError, refine_usd
 from warp_subdiv.io.usd_read import read_mesh
 from warp_subdiv.io.usd_stage import open_stage
 
@@ -542,12 +542,12 @@ def test_memory_guard_refuses_before_any_work(tmp_path):
 
 
 def test_a_failure_while_writing_leaves_no_file(tmp_path, monkeypatch):
-    from warp_subdiv.usd import refine as usd
+    from warp_subdiv.usd import subsets
 
     def boom(*args, **kw):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(usd, "_write_subset", boom)
+    monkeypatch.setattr(subsets, "write_subset", boom)
     dst = tmp_path / "out.usda"
     (tmp_path / "keep.txt").write_text("x")
     with pytest.raises(OSError):

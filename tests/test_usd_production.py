@@ -577,7 +577,7 @@ def test_bundled_scenes_refine_to_valid_usd(name, tmp_path):
 def test_info_and_plan_say_where_one_refinement_goes(assets, tmp_path, capsys):
     """`info` lists a prototype's mesh once and says how many meshes it is refined for; Plan.one_place_each
     tells a mesh-by-mesh (distributed) bake whether each refined mesh goes to its own path only."""
-    from warp_subdiv.usd.refine import plan
+    from warp_subdiv.usd import plan
 
     src = instanced_scene(tmp_path, assets["cube"])
     assert cli.main(["info", str(src), "--levels", "1"]) == 0

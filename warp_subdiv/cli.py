@@ -377,7 +377,6 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     _quiet_warp()
     from .runtime.estimate import check_memory, estimate
     from .io.obj import read_obj, write_obj
-    from .tables import shipped
     from .usd import make_refiner, options_for
 
     if args.prim or args.frames:
@@ -397,8 +396,7 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
                    precision=options.precision.value, projecting=control.projects)
     check_memory([est], max_memory, args.levels)
     progress(0.0, f"{args.input}: {args.levels} levels")
-    with shipped(control.hierarchy):
-        refiner = make_refiner(data, args.levels, options=options, device=args.device)
+    refiner = make_refiner(data, args.levels, options=options, device=args.device, reuse=(control.hierarchy,))
     progress(0.7, f"{args.input}: points")
     refined = refiner.refine()
     progress(0.9, f"writing {args.output}")
@@ -475,7 +473,7 @@ def _info(args) -> int:
     print(f"{args.input}: {len(p.prims)} subdivision mesh{'es' if len(p.prims) != 1 else ''} (upAxis "
           f"{UsdGeom.GetStageUpAxis(stage)}, metersPerUnit {UsdGeom.GetStageMetersPerUnit(stage):g}{times})")
     uses = p.scene.uses()
-    for sp, options, key in zip(p.prims, p.options, p.keys):
+    for sp, options, key, analysis in zip(p.prims, p.options, p.keys, p.analyses):
         print(sp.path)
         if uses.get(key, 1) > 1:
             print(f"  refined once for {uses[key]} meshes (instances of one prototype, or identical inputs)")
@@ -496,7 +494,7 @@ def _info(args) -> int:
             print(f"  not refinable: {name} ({reason})")
         for w in sp.warnings:
             print(f"  note: {w}")
-        control = make_refiner(sp, 0, options=options)
+        control = make_refiner(sp, 0, options=options, reuse=(getattr(analysis, "hierarchy", None),))
         _print_levels(lambda lv, sp=sp, control=control: estimate_prim(sp, lv, control=control), args.levels)
     for path, reason in p.left_alone:
         print(f"{path}: left alone ({reason})")

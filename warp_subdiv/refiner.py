@@ -60,11 +60,13 @@ class Refiner:
     :meth:`evaluate` then refines any per-vertex data (positions of animation frames, vertex primvars) of
     shape (n, 3) or (n, d) with Warp kernels, with no topology work. Options as in :func:`refine`: either
     ``options=`` (an :class:`~warp_subdiv.options.Options`) or the option keywords. ``threads`` (as in
-    :func:`refine`) does not change results.
+    :func:`refine`) does not change results. ``reuse``: a hierarchy built before that the refiner's hierarchy
+    starts from where it fits (see :class:`~warp_subdiv.tables.Hierarchy`).
     """
 
     def __init__(self, mesh: Mesh, levels: int, *, options: Options | None = None, device=None,
-                 max_memory: int | None = None, threads: int | None = None, **option_keywords):
+                 max_memory: int | None = None, threads: int | None = None, reuse: Hierarchy | None = None,
+                 **option_keywords):
         if not isinstance(mesh, Mesh):
             raise TypeError(f"mesh must be a warp_subdiv.Mesh, got {type(mesh).__name__}")
         if isinstance(levels, bool) or not isinstance(levels, numbers.Integral) or levels < 0:
@@ -78,7 +80,8 @@ class Refiner:
         self.device = wp.get_device(device if device is not None else default_device())
         self.threads = resolve_threads(threads)
         self._device_guard()
-        self.hierarchy = Hierarchy(mesh, self.levels, options, max_memory=max_memory, threads=self.threads)
+        self.hierarchy = Hierarchy(mesh, self.levels, options, max_memory=max_memory, threads=self.threads,
+                                   reuse=reuse)
         self.evaluator = Evaluator(self.hierarchy, device=self.device, precision=options.precision,
                                    threads=self.threads)
         self.base_num_vertices = self.hierarchy.base_num_vertices
@@ -343,9 +346,10 @@ class Refiner:
         return res
 
     def _one_more_level(self) -> "Refiner":
-        """A refiner one level deeper, with the same options, for limit masks (see limit_reads_deeper)."""
+        """A refiner one level deeper, with the same options, for limit masks (see limit_reads_deeper): built
+        from the control points the tables were built from (a reused hierarchy's, see ``reuse``)."""
         if self._deeper is None:
-            self._deeper = Refiner(self.mesh, self.levels + 1, options=self.options, device=self.device,
+            self._deeper = Refiner(self.hierarchy.mesh, self.levels + 1, options=self.options, device=self.device,
                                    threads=self.threads)
         return self._deeper
 

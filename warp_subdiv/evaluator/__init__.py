@@ -6,5 +6,6 @@ The evaluator applies index and stencil tables and the projections' displacement
 or a rule.
 """
 from .evaluator import Evaluated, Evaluator, _load_kernels, default_device, normal_control_for
+from .evaluator import _load_kernels as load_kernels
 
-__all__ = ["Evaluated", "Evaluator", "_load_kernels", "default_device", "normal_control_for"]
+__all__ = ["Evaluated", "Evaluator", "_load_kernels", "default_device", "load_kernels", "normal_control_for"]

@@ -203,16 +203,8 @@ class SubdivPrim:
     topologies: list = field(default_factory=list)
     default_topology: int = 0
     topology_changes: list = field(default_factory=list)
-    target: str | None = None  # where the refined mesh is written in the output layer (None: at path)
-    # the level-0 refiner the plan analysed this mesh with: the bake's refiner of the same control mesh and
-    # options starts from its analysis instead of analysing again (warp_subdiv.usd.make_refiner)
-    analysed: object = field(default=None, repr=False, compare=False)
     _topology_keys: dict = field(default_factory=dict, repr=False)
     _build_topology: object = field(default=None, repr=False)
-
-    @property
-    def output_path(self) -> str:
-        return self.target or self.path
 
     def topology_index(self, time) -> int:
         """The control mesh (an index into :attr:`topologies`) at ``time``; 0 for a constant topology."""

@@ -4,15 +4,17 @@ A :class:`Phases` recorder collects exclusive time per named phase: entering a p
 outer one, so the phases of one thread add up to the time spent in them. Code deep in a pipeline marks its
 work with ``with phase("refine"):``, which costs nothing when no recorder is active (:func:`recording` makes
 one active for the current thread and what it calls). Work done on another thread (:class:`Phases` is
-thread-safe) is recorded under its own phase names, and its time overlaps the main thread's.
+thread-safe) is recorded under its own phase names, and its time overlaps the main thread's: a job handed to
+another thread records into the caller's recorder when it is wrapped with :func:`bound` (threads do not
+inherit the context of the thread that submits their jobs).
 
 The USD bake's phases (:func:`warp_subdiv.usd.refine_usd`, ``Result.phases``; ``warp-subdiv refine
 --verbose``): ``read`` (open the stage, read and check the meshes, predict sizes), ``analyse`` (control-mesh
 analysis, per-level topology and tables), ``refine`` (vertex data: points, velocities, vertex and varying
 primvars), ``face-varying`` (face-varying channels: their topology and values), ``write`` (converting to Vt
 arrays, authoring the layer and saving it), and ``waiting`` (the writer waiting for a mesh its workers refine
-ahead: ``warp_subdiv.usd._Ahead``; the workers' own time counts to analyse, refine and face-varying, so with
-workers the phases add up to more than the wall time).
+ahead: :class:`warp_subdiv.usd.ahead.Ahead`; the workers' own time counts to analyse, refine and face-varying,
+so with workers the phases add up to more than the wall time).
 """
 from __future__ import annotations
 
@@ -94,6 +96,22 @@ def phase(name: str):
         return
     with recorder.phase(name):
         yield
+
+
+def bound(func, *args, **kwargs):
+    """A callable that runs ``func(*args, **kwargs)`` with the recorder active here (None: none) as the active
+    one, for a job another thread runs: its phases count to the caller's run. It may be called on any thread,
+    several times, at once."""
+    recorder = _active.get()
+
+    def run():
+        token = _active.set(recorder)
+        try:
+            return func(*args, **kwargs)
+        finally:
+            _active.reset(token)
+
+    return run
 
 
 def timed(name: str):

@@ -6,10 +6,9 @@ Numpy only: no Warp array and no USD prim. The evaluator applies these tables wi
 """
 from .face_map import FaceMap, corners_to_vertices, vertices_used
 from .facevarying import FaceVaryingChannel, check_value_indices, value_mesh
-from .hierarchy import Hierarchy, _shipped_for, shipped
+from .hierarchy import Hierarchy
 from .stencil_builder import build_stencils
 from .stencil_table import RegularTables, StencilTable, rows_of
 
-__all__ = ["FaceMap", "FaceVaryingChannel", "Hierarchy", "RegularTables", "StencilTable", "_shipped_for",
-           "build_stencils", "check_value_indices", "corners_to_vertices", "rows_of", "shipped", "value_mesh",
-           "vertices_used"]
+__all__ = ["FaceMap", "FaceVaryingChannel", "Hierarchy", "RegularTables", "StencilTable", "build_stencils",
+           "check_value_indices", "corners_to_vertices", "rows_of", "value_mesh", "vertices_used"]

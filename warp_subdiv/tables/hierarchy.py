@@ -46,9 +46,6 @@ arrays of a refined level's size are materialised when asked for and not kept.
 """
 from __future__ import annotations
 
-import contextlib
-import contextvars
-
 import numpy as np
 
 from ..runtime import estimate
@@ -71,11 +68,19 @@ class Hierarchy:
     would not fit 32-bit indices are refused whatever the limit. ``threads``: CPU threads the build may use
     (the tables do not depend on it); ``concurrent_build``: build each step's tables and the next level on two
     of them at once (faster, but more peak memory than the memory guard predicts).
+
+    ``reuse``: a hierarchy built before (the tables a distributed bake ships to the tasks that refine a mesh's
+    frames, or the level-0 analysis a USD bake's plan made), taken where it :meth:`fits` the mesh and options:
+    with the same levels this hierarchy takes its tables as they are; with other levels it is built from the
+    control points ``reuse`` was built from, and from its analysis of the control mesh when ``reuse`` has level
+    0 only. A task that reads the mesh at its own frames may see other control points than those the tables
+    were built from (sector angles are measured on the control points): the reused tables are what keeps its
+    result equal to the single-process bake's. A hierarchy that does not fit is ignored.
     """
 
     def __init__(self, mesh: Mesh, levels: int, options: Options, *, max_memory: int | None = None,
-                 threads: int = 1, concurrent_build: bool = False):
-        source = _shipped_for(mesh, options)
+                 threads: int = 1, concurrent_build: bool = False, reuse: Hierarchy | None = None):
+        source = reuse if reuse is not None and reuse.fits(mesh, options) else None
         analysed = None
         if source is not None:
             if source.levels == levels:  # the same mesh, levels and options: take its tables as they are
@@ -118,6 +123,11 @@ class Hierarchy:
         self.final: Level = level
         self.penultimate: Level = penultimate
         self.num_vertices = level.num_vertices
+
+    def fits(self, mesh: Mesh, options: Options) -> bool:
+        """Whether this hierarchy can stand in for one of ``mesh`` with ``options`` (see ``reuse``): the same
+        options, and a control mesh with the same faces and tags (its points may differ)."""
+        return self.options == options and same_topology(self.mesh, mesh)
 
     # ------------------------------------------------------------------------------------------ phases
     def _analyse(self, source: Hierarchy | None = None) -> Level:
@@ -262,28 +272,7 @@ class Hierarchy:
         return projections.limit_tables(level, s, o.loop_beta, o.rules)
 
 
-# ------------------------------------------------------------------------------------------------ shipping
-_SHIPPED: contextvars.ContextVar = contextvars.ContextVar("warp_subdiv_shipped", default=())
-
-
-@contextlib.contextmanager
-def shipped(*hierarchies):
-    """Within the block, a :class:`Hierarchy` of a mesh with the topology and tags of one of ``hierarchies``
-    (None entries are ignored), with the same options, is not built again: with the same levels it takes the
-    shipped one's tables; with other levels it is built from the shipped one's control points.
-
-    A distributed bake computes each mesh's topology and tables once and ships them to the tasks that refine
-    its frames (:mod:`warp_subdiv.usd.distributed`): a task reads the mesh at its own frames, whose points may
-    differ from those the tables were built from (sector angles are measured on the control points), so the
-    shipped tables are also what keeps every task's result equal to the single-process bake's."""
-    extra = tuple(h for h in hierarchies if h is not None)
-    token = _SHIPPED.set(extra + _SHIPPED.get())
-    try:
-        yield
-    finally:
-        _SHIPPED.reset(token)
-
-
+# ------------------------------------------------------------------------------------------------ reuse
 _TOPOLOGY_FIELDS = ("face_vertex_counts", "face_vertex_indices", "creases", "crease_sharpness", "corners",
                     "corner_sharpness", "concave", "normal_vertices", "normal_vectors", "holes")
 
@@ -299,14 +288,6 @@ def same_topology(a: Mesh, b: Mesh) -> bool:
         if (x is None) != (y is None) or (x is not None and not np.array_equal(x, y)):
             return False
     return True
-
-
-def _shipped_for(mesh: Mesh, options: Options):
-    """A shipped hierarchy (see :func:`shipped`) of ``mesh``'s topology and ``options``, or None."""
-    for h in _SHIPPED.get():
-        if h.options == options and same_topology(h.mesh, mesh):
-            return h
-    return None
 
 
 class Parentage:

@@ -6,8 +6,10 @@ distributed bakes on Dask and stitching their chunks.
 """
 from ..io.usd_read import SUBDIV_ATTRIBUTES
 from ..runtime.estimate import MemoryGuardError, check_memory
-from .refine import (Plan, PrimReport, Result, estimate_prim, layout, linear_vertex_data, make_refiner, options_for,
-                     plan, refine_usd)
+from .output_layout import layout
+from .planning import Plan, PrimReport, estimate_prim, make_refiner, options_for, plan
+from .refine import Result, refine_usd
+from .refinement import linear_vertex_data
 from .distributed import bake, stitch
 
 __all__ = ["plan", "refine_usd", "options_for", "make_refiner", "estimate_prim", "layout", "linear_vertex_data",

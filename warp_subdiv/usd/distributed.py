@@ -11,10 +11,11 @@ meshes of a USD file on a Dask cluster: a local one of ``workers`` worker proces
   semantics, so values held or interpolated at the range's ends are written there) into its own chunk layer.
   Neighbouring ranges share their boundary sample, so values between two samples interpolate across chunks.
   The mesh's topology and tables are computed once by a topology task and shipped to its frame tasks
-  (:func:`warp_subdiv.tables.hierarchy.shipped`): the tasks read the mesh at their own frames but refine with the
-  tables of the single-process bake, so they produce its values. A mesh's chunks after its first hold only
-  time samples (``refine_usd(..., samples_only=True)``: no topology, no defaults), all that value clips read
-  from them; saving the refined ``faceVertexIndices`` was most of a short chunk's cost.
+  (``refine_usd(..., shipped=)``, a :class:`~warp_subdiv.tables.Hierarchy`'s ``reuse``): the tasks read the mesh
+  at their own frames but refine with the tables of the single-process bake, so they produce its values. A
+  mesh's chunks after its first hold only time samples (``refine_usd(..., samples_only=True)``: no topology, no
+  defaults), all that value clips read from them; saving the refined ``faceVertexIndices`` was most of a short
+  chunk's cost.
 
 Every task writes into a temporary folder next to the output. When all succeeded the driver stitches each
 animated mesh's chunks as USD value clips (:func:`stitch_clips`: ``UsdUtils.StitchClipsTopology`` and
@@ -43,9 +44,14 @@ from dataclasses import asdict, dataclass
 
 from pxr import Sdf, Usd, UsdUtils, Vt
 
-from ..version import __version__
 from ..errors import SubdivInputError
-from ..io.usd_write import USD_EXTENSIONS, check_output_path, make_folders, relative_asset_path, remove_folders
+from ..io.usd_write import (USD_EXTENSIONS, OutputLayer, check_output_path, make_folders, relative_asset_path,
+                            remove_folders)
+from ..runtime import threads as th
+from ..runtime.estimate import MemoryGuardError
+from ..version import __version__
+from .planning import PrimReport, make_refiner, plan
+from .refine import Result, refine_usd
 
 #: Fewest time samples a frame chunk holds (an animated mesh with fewer than twice this is one unit).
 MIN_CHUNK_SAMPLES = 4
@@ -112,8 +118,6 @@ def _worker_setup(threads):
     """Per task on a worker: the thread count evaluation uses, and the worker's memory limit (bytes or None)."""
     import warp as wp
 
-    from ..runtime import threads as th
-
     wp.config.log_level = 30  # no start-up banner or module-load lines in the workers' logs
     th.set_default_threads(threads)
     limit = None
@@ -153,14 +157,12 @@ def _error_record(exc: SubdivInputError) -> dict:
 def topology_task(input_path, path, levels, run, threads=None):
     """(hierarchy, seconds): the topology and tables of the mesh at ``path``, built as the single-process bake
     builds them (``run``: refine_usd's keywords), for the mesh's frame tasks."""
-    from .refine import make_refiner, plan
-
     start = _time.perf_counter()
     limit = _worker_setup(threads)
     p = plan(input_path, levels, prims=[path], **_plan_keywords(run))
     i = [sp.path for sp in p.prims].index(path)
     refiner = make_refiner(p.prims[i], levels, options=p.options[i], device=run.get("device"),
-                           max_memory=_memory(run.get("max_memory"), limit))
+                           max_memory=_memory(run.get("max_memory"), limit), reuse=(p.analyses[i].hierarchy,))
     return refiner.hierarchy, _time.perf_counter() - start
 
 
@@ -172,9 +174,6 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
     """Refine one unit into ``folder/unit.layer`` (written under a private name, then renamed); ``topology``:
     the mesh's (hierarchy, seconds) from :func:`topology_task`, or None. Returns its reports and warnings, or
     {"error": ...} for input errors (the driver raises them)."""
-    from ..tables import shipped
-    from .refine import refine_usd
-
     start = _time.perf_counter()
     hierarchy = topology[0] if topology is not None else None
     limit = _worker_setup(threads)
@@ -183,10 +182,9 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
         _fault(unit.number)
         keywords = {k: v for k, v in run.items() if k != "prims"}
         keywords.update(max_memory=_memory(run.get("max_memory"), limit), frames=unit.frames, flatten=False,
-                        samples_only=unit.samples_only)
-        with shipped(hierarchy):
-            prims = [unit.path] if unit.path is not None else run.get("prims")
-            result = refine_usd(input_path, tmp, levels, prims=prims, **keywords)
+                        samples_only=unit.samples_only, shipped=(hierarchy,) if hierarchy is not None else ())
+        prims = [unit.path] if unit.path is not None else run.get("prims")
+        result = refine_usd(input_path, tmp, levels, prims=prims, **keywords)
         layer = Sdf.Layer.FindOrOpen(tmp)
         times = layer.ListAllTimeSamples()
         if unit.kind != "frames":
@@ -365,10 +363,6 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     cluster's scheduler instead; ``client``: an existing ``distributed.Client``. ``threads``: evaluation
     threads per task (default: the local cluster's share of the cores, a remote worker's own cores).
     Returns a :class:`warp_subdiv.usd.Result`."""
-    from ..runtime import threads as th
-    from .refine import PrimReport, Result, plan
-    from ..io.usd_write import OutputLayer
-
     start = _time.perf_counter()
     if isinstance(levels, bool) or not isinstance(levels, int) or levels < 0:
         raise SubdivInputError(f"levels must be an integer >= 0, got {levels!r}", option="levels", value=levels)
@@ -400,7 +394,7 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
         if threads is None and cluster is not None:
             threads = max(1, th.available_cores() // n_workers)
         ext = ".usdc"
-        if getattr(p, "one_place_each", True):
+        if p.one_place_each:
             units = plan_units(p.prims, run.get("frames"), n_workers, chunk_frames, ext)
         else:  # instances, shared or variant refinements: one task bakes the plan as the single process does
             units = [Unit(0, "scene", -1, None, run.get("frames"), "scene" + ext)]
@@ -409,11 +403,10 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
             results = _run_units(client, input_path, folder.path, units, p, levels, run, threads, progress,
                                  timings)
             timings["tasks_s"] = _time.perf_counter() - t
-            reports, warnings = _merge(p, units, results, PrimReport)
+            reports, warnings = _merge(p, units, results)
             names = {u.layer for u in units}
             folder.keep_only(names)
-            out = _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, OutputLayer,
-                                timings)
+            out = _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, timings)
     finally:
         if own:
             client.close()
@@ -480,14 +473,12 @@ def _wait_idle(client, keys, timeout: float = 60.0) -> None:
 
 
 def _reraise(record: dict) -> SubdivInputError:
-    from ..runtime.estimate import MemoryGuardError
-
     cls = MemoryGuardError if record["type"] == "MemoryGuardError" else SubdivInputError
     return cls(record["message"], option=record["option"], element=record["element"], index=record["index"],
                value=record["value"])
 
 
-def _merge(p, units, results, PrimReport):
+def _merge(p, units, results):
     """One report per mesh (samples counted once where chunks share a boundary) and the tasks' warnings."""
     reports, warnings = [], []
     if units[0].kind == "scene":
@@ -505,7 +496,7 @@ def _merge(p, units, results, PrimReport):
     return reports, warnings
 
 
-def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, OutputLayer, timings) -> str:
+def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, timings) -> str:
     """Stitch the chunks, move the folder into place and write the output layer (last)."""
     frames = run.get("frames")
     custom = {"warpSubdiv": {
@@ -545,9 +536,7 @@ def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_wo
         for k, s in enumerate(subs):
             layer.layer.subLayerPaths.insert(k, relative_asset_path(s, anchor))
         folder.publish()
-        hints = getattr(layer, "override_extents_hints", None)
-        if hints is not None:
-            hints(p.stage, {sp.path: sp.point_times for sp in p.prims}, frames)
+        layer.override_extents_hints(p.stage, {sp.path: sp.point_times for sp in p.prims}, frames)
         layer.commit(flatten=flatten)
         timings["commit_s"] = _time.perf_counter() - t
     except BaseException:
@@ -594,9 +583,6 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
     Chunks stay where they are and are referenced by relative paths. Ranges that share their ends (1:25,
     25:50) interpolate across chunk boundaries; with 1:25, 26:50 values between 25 and 26 hold at 25.
     Returns a :class:`warp_subdiv.usd.Result` (no reports)."""
-    from .refine import Result
-    from ..io.usd_write import OutputLayer
-
     start = _time.perf_counter()
     if not chunk_paths:
         raise SubdivInputError("stitch needs at least one chunk layer")

@@ -86,7 +86,7 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
     import time
 
     from ..io.obj import read_obj, write_obj
-    from .refine import options_for
+    from .planning import options_for
 
     t0 = time.perf_counter()
     data = read_obj(input_path)
@@ -126,7 +126,8 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     import os
 
     from ..version import __version__
-    from .refine import Plan, layout
+    from .output_layout import layout
+    from .planning import Plan
     from ..io.usd_read import read_mesh
     from ..io.usd_scene import read_scene
     from ..io.usd_stage import open_stage, parse_frames
@@ -161,9 +162,10 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     try:
         out_layout = layout(p)
         for sp, key in zip(p.prims, p.keys):
-            sp.target = str(out_layout.homes[key])  # its own path, a prototype's content or a shared mesh
-            reports.append(_tessellate_prim(sp, layer, warnings_, rate=rate, edge_length=edge_length, scheme=scheme,
-                                            rules=rules, boundary=boundary, depth=depth, quads=quads, device=device))
+            target = str(out_layout.homes[key])  # its own path, a prototype's content or a shared mesh
+            reports.append(_tessellate_prim(sp, target, layer, warnings_, rate=rate, edge_length=edge_length,
+                                            scheme=scheme, rules=rules, boundary=boundary, depth=depth, quads=quads,
+                                            device=device))
             for dst in out_layout.copies[key]:
                 layer.copy(out_layout.homes[key], dst)
         out_layout.write(layer)
@@ -176,15 +178,14 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     return reports, warnings_
 
 
-def _tessellate_prim(sp, layer, warnings_, *, rate, edge_length, scheme, rules, boundary, depth, quads,
+def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme, rules, boundary, depth, quads,
                      device) -> MeshReport:
-    """Tessellate one mesh (as read) and write it at :attr:`~warp_subdiv.io.usd_read.SubdivPrim.output_path` of
-    ``layer``."""
+    """Tessellate one mesh (as read) and write it at ``target``, its path in ``layer``."""
     import time
 
     from pxr import Sdf, UsdGeom, Vt
 
-    from .refine import options_for
+    from .planning import options_for
     from ..io.usd_read import SUBDIVISION_ATTRIBUTES
     from ..io.usd_stage import DEFAULT
     from ..io.usd_write import extent_of
@@ -203,7 +204,7 @@ def _tessellate_prim(sp, layer, warnings_, *, rate, edge_length, scheme, rules, 
         t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
     except SubdivInputError as exc:
         raise sp.error(exc) from None
-    prim = layer.prim(sp.output_path)
+    prim = layer.prim(target)
     layer.set(layer.attr(prim, "subdivisionScheme", T.Token, uniform=True), "none")
     layer.set(layer.attr(prim, "points", T.Point3fArray), Vt.Vec3fArray.FromNumpy(t.points.astype(np.float32)))
     layer.set(layer.attr(prim, "faceVertexCounts", T.IntArray), Vt.IntArray.FromNumpy(t.face_vertex_counts))
@@ -244,7 +245,7 @@ def _tessellate_prim(sp, layer, warnings_, *, rate, edge_length, scheme, rules, 
             continue
         layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
     _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
-    _write_subsets(sp, layer, t)
+    _write_subsets(sp, target, layer, t)
     base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
     base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
     layer.set(base, Vt.IntArray.FromNumpy(t.face_base_face))
@@ -364,8 +365,9 @@ def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=No
             layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)
 
 
-def _write_subsets(sp, layer, t) -> None:
-    """Face subsets: the output faces whose control face is in the subset."""
+def _write_subsets(sp, target, layer, t) -> None:
+    """Face subsets: the output faces whose control face is in the subset (under ``target``, the mesh's path in
+    the output layer)."""
     from pxr import Sdf, Vt
 
     for subset in sp.subsets:
@@ -373,6 +375,6 @@ def _write_subsets(sp, layer, t) -> None:
             continue
         ids = np.asarray(subset.attr.Get() or [], dtype=np.int64)
         keep = np.flatnonzero(np.isin(t.face_base_face, ids)).astype(np.int32)
-        spec = layer.attr(layer.prim(sp.output_path + subset.path[len(sp.path):]), "indices",
+        spec = layer.attr(layer.prim(target + subset.path[len(sp.path):]), "indices",
                           Sdf.ValueTypeNames.IntArray)
         layer.set(spec, Vt.IntArray.FromNumpy(keep))
