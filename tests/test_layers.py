@@ -245,3 +245,13 @@ def test_the_checker_sees_a_planted_circle():
     sources["warp_subdiv.limit.planted_a"] = ("from . import planted_b\n", False)
     sources["warp_subdiv.limit.planted_b"] = ("def f():\n    from . import planted_a\n", False)
     assert any("circle" in p and "planted_a" in p for p in violations(sources))
+
+
+def test_every_package_is_installed():
+    """pyproject.toml lists the packages setuptools installs: a subpackage missing there is missing from the
+    wheel (the checkout imports it, an installed copy does not)."""
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    packages = {m for m, (_, init) in module_files().items() if init}
+    assert packages == listed, f"missing from pyproject: {sorted(packages - listed)}; extra: {sorted(listed - packages)}"
