@@ -1,4 +1,4 @@
-"""The USD bake of many small animated props with and without batching (issue 17: one launch per step for many
+"""The USD bake of many small animated props with and without batching (one launch per step for many
 small meshes, :mod:`warp_subdiv.batch`).
 
     python bench/bench_batch.py                    # 1,000 cubes x 24 frames and 200 props of 96 quads x 24 frames, L2

@@ -1,4 +1,4 @@
-"""Benchmark of evaluation on the device (issue 17): evaluate_device time, bytes moved, copy bandwidth.
+"""Benchmark of evaluation on the device: evaluate_device time, bytes moved, copy bandwidth.
 
     python bench/bench_gpu.py                     # both bench meshes, levels 4-6, on CUDA where present
     python bench/bench_gpu.py --device cpu --levels 2-4 --frames 10
@@ -222,7 +222,7 @@ def main(argv=None) -> int:
     p.add_argument("--tables", default="auto", choices=["auto", "compact", "expanded"],
                    help="quad tables the kernels read (auto: expanded on the CPU, compact on CUDA)")
     p.add_argument("--commit", metavar="REV", help="measure warp_subdiv/ and kernels/ of this git commit (exported "
-                   "to a temporary folder); libraries before issue 17 take host data only: use --overhead-only")
+                   "to a temporary folder); libraries without device input take host data only: use --overhead-only")
     p.add_argument("--lib-root", default=ROOT, help=argparse.SUPPRESS)
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--mesh", help=argparse.SUPPRESS)

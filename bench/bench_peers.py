@@ -1,4 +1,4 @@
-"""warp-subdiv side by side with the libraries a user would pick instead (issue 6), in one run, with ratios.
+"""warp-subdiv side by side with the libraries a user would pick instead, in one run, with ratios.
 
     python bench/bench_peers.py --commit HEAD --peers-python /tmp/peers/bin/python --json out/bench_peers.json
     python bench/bench_peers.py --quick            # levels 1-2, seconds: CI smoke test (missing peers skipped)
@@ -636,7 +636,7 @@ def eval_table(rows, results, bandwidth) -> str:
 
 
 def targets_table(cfg, results, bandwidth) -> str:
-    """Issue 6's targets, checked on this run's numbers."""
+    """The targets (BENCHMARKS.md, "Peers"), checked on this run's numbers."""
     lines = ["| target | mesh, level | measured | met? |", "|---|---|---|---|"]
 
     def row(target, where, text, ok):
@@ -896,7 +896,7 @@ def render(data: dict) -> None:
     results = {tuple(r["key"]): r for r in data["results"]}
     cfg = [(m, list(lv)) for m, lv in data["cfg"]]
     stress, stress_res, bw_runs = data["stress_level"], data["stress"], data["bandwidth"]
-    print(f"# warp-subdiv against its peers (issue 6)\n\ncommand: `{data['command']}`\n")
+    print(f"# warp-subdiv against its peers\n\ncommand: `{data['command']}`\n")
     ram = f"{info['ram_bytes'] / 2**30:.1f} GiB" if info["ram_bytes"] else "?"
     print(f"* machine: {info['cpu']}, {info['cores']} cores, {ram} RAM; {info['os']}")
     print(f"* warp-subdiv: {data['library']}; Python {o.get('python')}, numpy {o.get('numpy')}, warp "
@@ -938,7 +938,7 @@ def render(data: dict) -> None:
                   f"imports)")
         else:
             print(f"did not complete: {stress_res['failed'] if stress_res else 'not run'}")
-    print("\n## Issue 6 targets on this run\n")
+    print("\n## Targets on this run\n")
     print(targets_table(cfg, results, bandwidth))
     print("\nColumns: e2e = numpy arrays in, refined numpy points + faces out (best of the repetitions; "
           "OpenSubdiv: sum of its phases' best times, face list not read back); first = the first repetition "

@@ -1,4 +1,4 @@
-"""The adaptive tessellation scene (issue 13): control meshes, their limit surfaces tessellated by edge length.
+"""The adaptive tessellation scene: control meshes, their limit surfaces tessellated by edge length.
 
     python scenes/make_tessellation_scene.py [--preview]
 

@@ -1,4 +1,4 @@
-"""Issue 15: API defects (face-varying data under Loop on polygons, option and input checks, duplicate tags).
+"""API defects found by users, each pinned (face-varying data under Loop on polygons, option and input checks, duplicate tags).
 
 Each test names its item of the issue. Comparisons with OpenSubdiv run through the C++ peer
 (``peers/osd_peer.py``) and are skipped where it is not available.

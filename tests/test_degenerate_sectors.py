@@ -1,4 +1,4 @@
-"""Degenerate sectors and limit normals (issue 15): straight sectors, darts, multi-sector normals.
+"""Degenerate sectors and limit normals: straight sectors, darts, multi-sector normals.
 
 * Item 1: a corner sector whose two crease edges are (nearly) collinear (a T-junction of creases, a corner tag on
   a straight crease or boundary) is a straight sector (docs/rules.md sections 2.1 and 8.7); flatness no longer

@@ -1,4 +1,4 @@
-"""Issue 17: data that stays on the device, recorded launches, limits without round trips, 32-bit and device
+"""Data that stays on the device, recorded launches, limits without round trips, 32-bit and device
 memory guards, smaller tables. Every test runs on the CPU (and on CUDA where present, through ``device``)."""
 import types
 

@@ -208,7 +208,7 @@ def defined_normals(peer):
 
 def assert_limit(refined, peer, what=""):
     """Limit points everywhere; T1 x T2 normals at one-sector vertices (PeerLevel.single_sector; see
-    MULTI_SECTOR_NORMAL), semi-sharp boundary vertices included (issue 15 item 3), but where OpenSubdiv's
+    MULTI_SECTOR_NORMAL), semi-sharp boundary vertices included, but where OpenSubdiv's
     normal is zero (defined_normals)."""
     __tracebackhide__ = True
     assert_points(refined.limit_points(), peer.limit_points, what + " limit points")

@@ -1,4 +1,4 @@
-"""Regression tests of issue 15 (items 10-20): time-sampled primvar indices, elementSize of indexed uniform
+"""Regressions of the USD bake found by users: time-sampled primvar indices, elementSize of indexed uniform
 primvars, what --frames evaluates, empty or wrongly sized defaults, symlinked output folders, stale
 extentsHint, render times, --prim on inactive or abstract prims, --limit and vertex primvars, edge subsets,
 the flattened layer's doc and the frames parser. Each test builds its own small USD file."""

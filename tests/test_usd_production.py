@@ -1,4 +1,4 @@
-"""Production USD structures (issue 11): scene-graph instances (nested too), PointInstancer prototypes,
+"""Production USD structures: scene-graph instances (nested too), PointInstancer prototypes,
 payloads, an asset referenced twice, variant sets (nested too, every variant with --all-variants), polygonal
 meshes refined on request and time-varying topology. Every scene is written here from plain data; each test
 checks face counts, points equal to ``warp_subdiv.refine`` on the composed control mesh, that instancing is

@@ -1,7 +1,7 @@
 """warp-subdiv: Loop and Catmull-Clark subdivision with the piecewise-smooth rules of Biermann, Levin and
 Zorin (SIGGRAPH 2000) and an OpenSubdiv-compatible rule set.
 
-Pipeline (see the README's "How it works"): mesh -> options -> hierarchy (topology, rules, tables) ->
+Pipeline (docs/architecture.md): mesh -> options -> hierarchy (topology, rules, tables) ->
 evaluator (Warp kernels) -> USD.
 """
 from .version import __version__
