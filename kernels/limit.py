@@ -4,7 +4,7 @@ One thread per query point: map the base face's (u, v) onto a root of the patch 
 Catmull-Clark n-gon's sub-face tile; a Loop polygon's fan triangle), descend the tree (quadrants, or a
 triangle's corner and middle children) to a leaf, and evaluate its Bezier patch: bicubic (16 control points,
 index a + 4 b for the Bernstein polynomials B_a(s) B_b(t)) or quartic triangular (exponents of (1 - s - t, s, t) in
-the order of ``warp_subdiv.limit.patches.TRI_BEZIER_INDEX``). Derivatives are returned
+the order of ``warp_subdiv.limit.bezier.TRI_BEZIER_INDEX``). Derivatives are returned
 with respect to the base face's (u, v): the descent's scale (2 per level; -2 in a triangle's middle child,
 whose frame is turned by 180 degrees) is applied on the way out. Kernels know nothing about subdivision rules.
 Each step is a function of its own (``_face_root``, ``_clamp_to_domain``, ``_descend``, then the patch's basis:
@@ -153,7 +153,7 @@ def _bern4_hessian(w0: wp.float64, w1: wp.float64, w2: wp.float64, i: int, j: in
 @wp.func
 def _box12(b: vec15d) -> vec12d:
     """The 12 quartic box-spline basis values (TRI_RING order) from Bernstein values: LOOP_BEZIER^T b
-    (generated from warp_subdiv.limit.patches.LOOP_BEZIER, entries in 24ths)."""
+    (generated from warp_subdiv.limit.bezier.LOOP_BEZIER, entries in 24ths)."""
     s = wp.float64(1.0) / wp.float64(24.0)
     return vec12d(
         s * (wp.float64(12.0) * b[0] + wp.float64(12.0) * b[1] + wp.float64(12.0) * b[2] + wp.float64(8.0) * b[3]
