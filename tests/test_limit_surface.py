@@ -29,7 +29,8 @@ import warp_subdiv as ws
 from conftest import DATA, load_mesh
 from warp_subdiv import SubdivInputError
 from warp_subdiv.tables.hierarchy import Hierarchy
-from warp_subdiv.limit.patches import END_CAP, LOOP_BEZIER, TRI_BEZIER_INDEX, TRI_RING
+from warp_subdiv.limit.bezier import LOOP_BEZIER, TRI_BEZIER_INDEX, TRI_RING
+from warp_subdiv.limit.patches import END_CAP
 from warp_subdiv.io.obj import read_obj
 from warp_subdiv.topology import base_level, refine_level
 

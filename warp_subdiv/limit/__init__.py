@@ -3,7 +3,8 @@ regions, exact eigen-masks at extraordinary vertices), and watertight tessellati
 or per-edge rates.
 """
 from .parameterisation import DIRECT, FAN, SUBFACES, corner_weights
-from .surface import DEFAULT_DEPTH, DataEvaluation, LimitEvaluation, LimitSurface
+from .results import DataEvaluation, LimitEvaluation
+from .surface import DEFAULT_DEPTH, LimitSurface
 from .tessellation import Tessellation, tessellate
 
 __all__ = ["LimitSurface", "LimitEvaluation", "DataEvaluation", "Tessellation", "tessellate", "corner_weights",

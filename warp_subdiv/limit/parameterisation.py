@@ -1,15 +1,131 @@
 """How a control face is parameterised by the limit surface: directly (a quad, a Loop triangle), by its quad
-sub-faces (a Catmull-Clark n-gon, as Bfr's QUAD_SUBFACES) or by its fan triangles (a Loop polygon), and linear
-interpolation of face-corner data inside it in those coordinates (varying primvars, bilinear meshes).
+sub-faces (a Catmull-Clark n-gon, as Bfr's QUAD_SUBFACES) or by its fan triangles (a Loop polygon)
+(:class:`FaceParameterisation`, which also checks queries against it), and linear interpolation of face-corner
+data inside it in those coordinates (varying primvars, bilinear meshes, linear surfaces).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from ..mesh import face_offsets_of
+from ..errors import SubdivInputError
+from ..mesh import Mesh, face_offsets_of
+from ..options import Options, Scheme
+from .patches import HOLE, PatchTree
+from .results import DataEvaluation, LimitEvaluation
 
 #: How a control face is parameterised (``LimitSurface.face_kind``).
 DIRECT, SUBFACES, FAN = 0, 1, 2
+
+
+@dataclass
+class FaceParameterisation:
+    """Per control face: ``kind`` (DIRECT, SUBFACES or FAN), ``root`` (its first root node in the patch tree; 0
+    without a tree), ``size`` (its number of corners), ``tiles`` (W = ceil(sqrt(size)): tiles per row of its
+    sub-faces) and ``holes`` (whether it has no limit surface), int32 / bool arrays."""
+
+    kind: np.ndarray
+    root: np.ndarray
+    size: np.ndarray
+    tiles: np.ndarray
+    holes: np.ndarray
+
+    @classmethod
+    def of(cls, mesh: Mesh, options: Options, tree: PatchTree | None) -> FaceParameterisation:
+        """The faces of ``mesh`` under ``options``, rooted in ``tree`` (None for a linear surface: holes as the
+        mesh says)."""
+        counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
+        F = len(counts)
+        loop = options.scheme == Scheme.LOOP
+        size = counts.astype(np.int32)
+        tiles = np.ceil(np.sqrt(counts)).astype(np.int32)
+        if tree is None:  # linear: faces as the parameterisation says, holes as the mesh says
+            kind = np.where(counts == (3 if loop else 4), DIRECT, FAN if loop else SUBFACES).astype(np.int32)
+            holes = np.zeros(F, bool)
+            holes[np.asarray(mesh.holes, dtype=np.int64)] = True
+            return cls(kind, np.zeros(F, np.int32), size, tiles, holes)
+        roots = tree.root_offsets
+        if loop:
+            tris = counts - 2
+            first = np.concatenate([[0], np.cumsum(tris)[:-1]]).astype(np.int64)
+            kind = np.where(counts == 3, DIRECT, FAN)
+            root = roots[first]
+        else:
+            kind = np.where(counts == 4, DIRECT, SUBFACES)
+            root = roots[:F]
+        # a control face is a hole when its (first) root is, or all its roots are
+        holes = tree.node_patch[root] == HOLE
+        holes |= _all_roots_holes(tree, kind, root, counts)
+        return cls(kind.astype(np.int32), root.astype(np.int32), size, tiles, holes)
+
+    def vertex_uv(self, faces, corners) -> np.ndarray:
+        """(n, 2) parametric coordinates of corner ``corners[i]`` of face ``faces[i]`` (Bfr's GetVertexCoord)."""
+        faces = np.asarray(faces, dtype=np.int64).reshape(-1)
+        corners = np.asarray(corners, dtype=np.int64).reshape(-1)
+        kind = self.kind[faces]
+        out = np.zeros((len(faces), 2))
+        quad = (kind == DIRECT) & (self.size[faces] == 4)
+        tri = (kind == DIRECT) & (self.size[faces] == 3)
+        out[quad] = np.array([(0, 0), (1, 0), (1, 1), (0, 1)], float)[corners[quad]]
+        out[tri] = np.array([(0, 0), (1, 0), (0, 1)], float)[corners[tri]]
+        sub = kind == SUBFACES
+        w = self.tiles[faces]
+        out[sub, 0] = (corners % w)[sub]
+        out[sub, 1] = (corners // w)[sub]
+        fan = kind == FAN  # corner 0 at (0, 0); corner i < n - 1: triangle i - 1's second corner; the last corner:
+        last = corners == self.size[faces] - 1  # triangle n - 3's third
+        out[fan, 0] = np.where(last, corners - 2, np.where(corners == 0, 0.0, corners - 0.5))[fan]
+        out[fan, 1] = np.where(last, 0.5, 0.0)[fan]
+        return out
+
+    def check_queries(self, faces, u, v) -> tuple:
+        """(faces int64, u, v float64) flat, broadcast together, checked: integer faces inside the mesh, not
+        holes, finite (u, v)."""
+        try:
+            faces_a = np.asarray(faces)
+            u_a = np.asarray(u, dtype=np.float64)
+            v_a = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise SubdivInputError("u and v must be numbers", option="uv") from None
+        if faces_a.size and faces_a.dtype.kind not in "iu":
+            if faces_a.dtype.kind == "f" and np.all(faces_a == np.round(faces_a)):
+                faces_a = faces_a.astype(np.int64)
+            else:
+                raise SubdivInputError(f"faces must be integer face ids, got dtype {faces_a.dtype}", option="faces")
+        try:
+            faces_a, u_a, v_a = np.broadcast_arrays(faces_a, u_a, v_a)
+        except ValueError:
+            raise SubdivInputError(f"faces, u and v have incompatible shapes {np.shape(faces)}, {np.shape(u)}, "
+                                   f"{np.shape(v)}", option="faces") from None
+        faces_a = faces_a.reshape(-1).astype(np.int64)
+        u_a = u_a.reshape(-1)
+        v_a = v_a.reshape(-1)
+        num_faces = len(self.kind)
+        bad = np.flatnonzero((faces_a < 0) | (faces_a >= num_faces))
+        if len(bad):
+            raise SubdivInputError(f"face {faces_a[bad[0]]} (query {bad[0]}) is outside [0, {num_faces})",
+                                   option="faces", element="face", index=int(bad[0]), value=int(faces_a[bad[0]]))
+        bad = np.flatnonzero(~(np.isfinite(u_a) & np.isfinite(v_a)))
+        if len(bad):
+            raise SubdivInputError(f"(u, v) of query {bad[0]} is not finite", option="uv", index=int(bad[0]))
+        hole = np.flatnonzero(self.holes[faces_a])
+        if len(hole):
+            f = int(faces_a[hole[0]])
+            raise SubdivInputError(f"face {f} (query {hole[0]}) is a hole: it has no limit surface", option="faces",
+                                   element="face", index=f)
+        return faces_a, u_a, v_a
+
+
+def _all_roots_holes(tree: PatchTree, kind, root, counts) -> np.ndarray:
+    """Whether every root of each sub-face or fan face is a hole."""
+    out = np.zeros(len(kind), bool)
+    multi = np.flatnonzero(kind != DIRECT)
+    patch = tree.node_patch
+    for f in multi:
+        n = counts[f] if kind[f] == SUBFACES else counts[f] - 2
+        out[f] = bool(np.all(patch[root[f]:root[f] + n] == HOLE))
+    return out
 
 
 def corner_weights(surface, faces, uv, *, derivatives: bool = False) -> tuple:
@@ -72,3 +188,39 @@ def corner_weights(surface, faces, uv, *, derivatives: bool = False) -> tuple:
     if derivatives:
         return corners, W[0], W[1], W[2], W[3]
     return corners, W[0]
+
+
+def _linear_weights(surface, faces_a, u_a, v_a):
+    """corner_weights and its derivatives, padded corners at 0 with zero weights."""
+    corners, w, wu, wv, wuv = corner_weights(surface, faces_a, np.stack([u_a, v_a], 1), derivatives=True)
+    valid = corners >= 0
+    return np.maximum(corners, 0), [x * valid for x in (w, wu, wv, wuv)]
+
+
+def linear_evaluation(surface, faces_a, u_a, v_a, second: bool) -> LimitEvaluation:
+    """A linear surface at checked queries: weighted sums of the face's corner points (numpy; derivatives of the
+    weights)."""
+    corners, (w, wu, wv, wuv) = _linear_weights(surface, faces_a, u_a, v_a)
+    P = np.asarray(surface.mesh.points, dtype=np.float64)[np.asarray(surface.mesh.face_vertex_indices,
+                                                                      dtype=np.int64)[corners]]
+
+    def mix(weights):
+        return np.einsum("nm,nmk->nk", weights, P)
+
+    p, du, dv = mix(w), mix(wu), mix(wv)
+    nrm = np.cross(du, dv)
+    length = np.linalg.norm(nrm, axis=1, keepdims=True)
+    nrm = np.divide(nrm, length, out=np.zeros_like(nrm), where=length > 0)
+    zero = np.zeros_like(p)
+    return LimitEvaluation(p, du, dv, nrm, zero if second else None, mix(wuv) if second else None,
+                           zero.copy() if second else None, np.full(len(p), -1, np.int32))
+
+
+def linear_data(surface, corner_values, faces_a, u_a, v_a, derivatives: int, one_d: bool) -> DataEvaluation:
+    """Per-face-corner values (C, k) interpolated linearly inside the faces at checked queries (and their
+    derivatives with ``derivatives``); ``one_d``: 1-D results."""
+    corners, (w, wu, wv, _) = _linear_weights(surface, faces_a, u_a, v_a)
+    per = corner_values[corners]
+    res = [np.einsum("nm,nmk->nk", x, per) for x in (w, wu, wv)]
+    res = [x[:, 0] if one_d else x for x in res]
+    return DataEvaluation(res[0], res[1] if derivatives else None, res[2] if derivatives else None)

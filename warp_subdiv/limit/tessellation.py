@@ -10,7 +10,7 @@ so the output has no T-junctions whatever the rates of neighbouring faces:
   ``quads=False``);
 * otherwise an inner grid (rates: the larger of opposite sides; a triangle: the largest side) is joined to the
   sides by a ring of triangles (each side zipped to the inner grid's boundary row in parameter order); a cell
-  too coarse for an inner grid is a fan around its centre.
+  too coarse for an inner grid is a fan around its centre (:mod:`warp_subdiv.limit.cell_patterns`).
 
 Rates: ``rate`` an integer (every line), one integer per control face (an edge gets the larger rate of its
 faces), or one per control edge (``LimitSurface.edges`` order; a face's inner rate is its largest edge rate);
@@ -30,12 +30,13 @@ from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
 from ..errors import SubdivInputError
 from ..mesh import face_offsets_of
+from .cell_patterns import QUAD, TRI, cell_pattern
+from .parameterisation import FAN, SUBFACES
 
 
 #: Refuse tessellations with more vertices than this (before any allocation of their size).
@@ -43,7 +44,6 @@ MAX_VERTICES = 50_000_000
 #: Largest rate of one line.
 MAX_RATE = 4096
 
-QUAD, TRI = 4, 3
 
 
 @dataclass
@@ -67,151 +67,6 @@ class Tessellation:
     @property
     def num_faces(self) -> int:
         return len(self.face_vertex_counts)
-
-
-# ----------------------------------------------------------------------------------------- cell patterns
-@dataclass(frozen=True)
-class _Pattern:
-    """A cell's tessellation in its own (s, t): local vertices are the boundary points (side k, index i;
-    i = 0 is corner k), then interior points; faces index them (-1 pads triangles)."""
-
-    boundary: np.ndarray  # (B, 2) int: (side, index)
-    interior_st: np.ndarray  # (I, 2)
-    boundary_st: np.ndarray  # (B, 2)
-    faces: np.ndarray  # (m, 4) int, -1 padded
-
-    @property
-    def num_local(self) -> int:
-        return len(self.boundary) + len(self.interior_st)
-
-
-def _side_st(kind: int, k: int, x: float) -> tuple:
-    """(s, t) of the point at fraction x along side k of a cell (counter-clockwise sides from corner k)."""
-    if kind == QUAD:
-        return [(x, 0.0), (1.0, x), (1.0 - x, 1.0), (0.0, 1.0 - x)][k]
-    return [(x, 0.0), (1.0 - x, x), (0.0, 1.0 - x)][k]
-
-
-def _zip(outer: list, inner: list, t_outer: list, t_inner: list) -> list:
-    """Triangles joining a side (outer points, parameters along it) to the inner grid's row beside it, both in
-    the side's direction; counter-clockwise when the inner row lies to the left."""
-    tris = []
-    i = j = 0
-    while i < len(outer) - 1 or j < len(inner) - 1:
-        take_outer = j == len(inner) - 1 or (
-            i < len(outer) - 1 and 0.5 * (t_outer[i] + t_outer[i + 1]) <= 0.5 * (t_inner[j] + t_inner[j + 1]))
-        if take_outer:
-            tris.append((outer[i], outer[i + 1], inner[j]))
-            i += 1
-        else:
-            tris.append((outer[i], inner[j + 1], inner[j]))
-            j += 1
-    return tris
-
-
-@lru_cache(maxsize=4096)
-def _pattern(kind: int, rates: tuple, quads: bool) -> _Pattern:
-    n = kind
-    boundary = [(k, i) for k in range(n) for i in range(rates[k])]
-    index = {key: m for m, key in enumerate(boundary)}
-    boundary_st = [_side_st(kind, k, i / rates[k]) for k, i in boundary]
-    interior: dict = {}
-    interior_st: list = []
-
-    def inner(key, st):
-        if key not in interior:
-            interior[key] = len(boundary) + len(interior_st)
-            interior_st.append(st)
-        return interior[key]
-
-    def side_point(k, i):  # i may equal rates[k]: the next corner
-        return index[((k + 1) % n, 0)] if i == rates[k] else index[(k, i)]
-
-    faces = []
-    if kind == QUAD:
-        r0, r1, r2, r3 = rates
-        ru, rv = max(r0, r2), max(r1, r3)
-
-        def grid(a, b, R_u, R_v):  # a point of the uniform (R_u, R_v) grid
-            if b == 0:
-                return side_point(0, a)
-            if a == R_u:
-                return side_point(1, b)
-            if b == R_v:
-                return side_point(2, R_u - a)
-            if a == 0:
-                return side_point(3, R_v - b)
-            return inner((a, b), (a / R_u, b / R_v))
-
-        if r0 == r2 and r1 == r3:
-            for b in range(rv):
-                for a in range(ru):
-                    faces.append((grid(a, b, ru, rv), grid(a + 1, b, ru, rv), grid(a + 1, b + 1, ru, rv),
-                                  grid(a, b + 1, ru, rv)))
-        elif ru >= 2 and rv >= 2:
-            for b in range(1, rv - 1):
-                for a in range(1, ru - 1):
-                    faces.append((grid(a, b, ru, rv), grid(a + 1, b, ru, rv), grid(a + 1, b + 1, ru, rv),
-                                  grid(a, b + 1, ru, rv)))
-            rows = [[(a, 1) for a in range(1, ru)], [(ru - 1, b) for b in range(1, rv)],
-                    [(a, rv - 1) for a in range(ru - 1, 0, -1)], [(1, b) for b in range(rv - 1, 0, -1)]]
-            along = [lambda a, b: a / ru, lambda a, b: b / rv, lambda a, b: 1 - a / ru, lambda a, b: 1 - b / rv]
-            for k in range(4):
-                outer = [side_point(k, i) for i in range(rates[k] + 1)]
-                t_outer = [i / rates[k] for i in range(rates[k] + 1)]
-                row = [grid(a, b, ru, rv) for a, b in rows[k]]
-                t_row = [along[k](a, b) for a, b in rows[k]]
-                faces.extend(_zip(outer, row, t_outer, t_row))
-        else:
-            centre = inner("centre", (0.5, 0.5))
-            ring = [side_point(k, i) for k in range(4) for i in range(rates[k])]
-            faces.extend((ring[m], ring[(m + 1) % len(ring)], centre) for m in range(len(ring)))
-    else:
-        R = max(rates)
-
-        def tri(a, b):  # a point of the uniform rate-R triangle grid, a along s, b along t
-            if b == 0:
-                return side_point(0, a)
-            if a + b == R:
-                return side_point(1, b)
-            if a == 0:
-                return side_point(2, R - b)
-            return inner((a, b), (a / R, b / R))
-
-        if rates[0] == rates[1] == rates[2]:
-            for b in range(R):
-                for a in range(R - b):
-                    faces.append((tri(a, b), tri(a + 1, b), tri(a, b + 1)))
-                    if a + b <= R - 2:
-                        faces.append((tri(a + 1, b), tri(a + 1, b + 1), tri(a, b + 1)))
-        elif R >= 3:
-            for b in range(1, R):
-                for a in range(1, R - b):
-                    if a + b <= R - 2:
-                        faces.append((tri(a, b), tri(a + 1, b), tri(a, b + 1)))
-                    if a + b <= R - 3:
-                        faces.append((tri(a + 1, b), tri(a + 1, b + 1), tri(a, b + 1)))
-            rows = [[(a, 1) for a in range(1, R - 1)], [(R - 1 - b, b) for b in range(1, R - 1)],
-                    [(1, b) for b in range(R - 2, 0, -1)]]
-            along = [lambda a, b: a / R, lambda a, b: b / R, lambda a, b: 1 - b / R]
-            for k in range(3):
-                outer = [side_point(k, i) for i in range(rates[k] + 1)]
-                t_outer = [i / rates[k] for i in range(rates[k] + 1)]
-                row = [tri(a, b) for a, b in rows[k]]
-                t_row = [along[k](a, b) for a, b in rows[k]]
-                faces.extend(_zip(outer, row, t_outer, t_row))
-        else:
-            centre = inner("centre", (1.0 / 3.0, 1.0 / 3.0))
-            ring = [side_point(k, i) for k in range(3) for i in range(rates[k])]
-            faces.extend((ring[m], ring[(m + 1) % len(ring)], centre) for m in range(len(ring)))
-    if not quads:  # quads split along their diagonal (0, 2)
-        faces = [t for f in faces for t in ([(f[0], f[1], f[2]), (f[0], f[2], f[3])] if len(f) == 4 else [f])]
-    out = np.full((len(faces), 4), -1, dtype=np.int64)
-    for m, f in enumerate(faces):
-        out[m, :len(f)] = f
-    return _Pattern(np.array(boundary, dtype=np.int64).reshape(-1, 2),
-                    np.array(interior_st, dtype=np.float64).reshape(-1, 2),
-                    np.array(boundary_st, dtype=np.float64).reshape(-1, 2), out)
 
 
 # ----------------------------------------------------------------------------------------- cells and lines
@@ -293,7 +148,7 @@ def _edge_points(surface, faces, corners, t) -> tuple:
     b = surface.vertex_uv(faces, (j + 1) % n)
     uv = a + (b - a) * t[:, None]
     kind = surface.face_kind[faces]
-    sub = kind == 1
+    sub = kind == SUBFACES
     if sub.any():  # n-gon: first half in sub-face j (side a), second half in sub-face j + 1 (side d)
         w = surface.face_tiles[faces]
         jn = (j + 1) % n
@@ -303,7 +158,7 @@ def _edge_points(surface, faces, corners, t) -> tuple:
         uv_sub = np.where(first[:, None], tile_j + np.stack([t, 0 * t], 1),
                           tile_n + np.stack([0 * t, 1.0 - t], 1))
         uv[sub] = uv_sub[sub]
-    fan = kind == 2
+    fan = kind == FAN
     if fan.any():  # Loop polygon: edge 0 in triangle 0, edge j in triangle j - 1, the last in triangle n - 3
         k = np.clip(j - 1, 0, n - 3).astype(np.float64)
         st = np.where((j == 0)[:, None], np.stack([t, 0 * t], 1),
@@ -336,133 +191,164 @@ def _edge_lengths(surface) -> np.ndarray:
     return lengths
 
 
+class _Lines:
+    """The lines the cells' sides lie on (control edges, then n-gon spokes and fan diagonals) and the ids of their
+    inner points: line l runs from vertex ``start[l]`` to ``end[l]`` in ``rate[l]`` segments, its inner points
+    numbered ``base[l]`` .. ``base[l] + rate[l] - 2``. New vertices (inner points, n-gon centres) are numbered
+    from ``next_id`` on, in the order they are added."""
+
+    def __init__(self, next_id: int):
+        self.start, self.end, self.rate, self.base = [], [], [], []
+        self.count = 0
+        self.next_id = next_id
+
+    def add(self, start, end, rate) -> tuple:
+        """Append lines; returns (their line ids, the id of each one's first inner point)."""
+        base = self.next_id + np.concatenate([[0], np.cumsum(rate - 1)[:-1]]).astype(np.int64)
+        self.start.append(start)
+        self.end.append(end)
+        self.rate.append(rate)
+        self.base.append(base)
+        self.next_id += int(np.sum(rate - 1))
+        ids = self.count + np.arange(len(rate))
+        self.count += len(rate)
+        return ids, base
+
+    def new_vertices(self, n: int) -> np.ndarray:
+        """Ids of ``n`` new vertices that lie on no line (n-gon centres)."""
+        ids = self.next_id + np.arange(n)
+        self.next_id += n
+        return ids
+
+    def arrays(self) -> tuple:
+        """(start vertex, end vertex, rate, first inner point id) of every line."""
+        return (np.concatenate(self.start), np.concatenate(self.end), np.concatenate(self.rate),
+                np.concatenate(self.base))
+
+
+@dataclass
+class _Corners:
+    """The control mesh's face corners: face sizes, each corner's vertex and edge, each face's first corner, and
+    the edges' vertices."""
+
+    counts: np.ndarray
+    indices: np.ndarray
+    offsets: np.ndarray
+    corner_edge: np.ndarray
+    edge_verts: np.ndarray
+
+    @classmethod
+    def of(cls, mesh) -> _Corners:
+        counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
+        return cls(counts, np.asarray(mesh.face_vertex_indices, dtype=np.int64), face_offsets_of(counts),
+                   np.asarray(mesh.edges.corner_edge, dtype=np.int64), np.asarray(mesh.edges.edge_verts,
+                                                                                 dtype=np.int64))
+
+    def forward(self, h):
+        """Whether corner h's edge runs from its vertex to the next corner's (the edge's own direction)."""
+        return self.edge_verts[self.corner_edge[h], 0] == self.indices[h]
+
+    def side(self, h, edge_rate) -> tuple:
+        """(line, start, step, rate) of the cell side along corner h's edge, from corner h on."""
+        e = self.corner_edge[h]
+        fwd = self.forward(h)
+        r = edge_rate[e]
+        return e, np.where(fwd, 0, r), np.where(fwd, 1, -1), r
+
+
 def _cells(surface, edge_rate, face_rate) -> tuple:
     """The cells of every non-hole face, and the lines (start vertex, end vertex, rate, first interior id)."""
-    mesh = surface.mesh
-    counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
-    indices = np.asarray(mesh.face_vertex_indices, dtype=np.int64)
-    offsets = face_offsets_of(counts)
-    corner_edge = np.asarray(mesh.edges.corner_edge, dtype=np.int64)
-    edge_verts = np.asarray(mesh.edges.edge_verts, dtype=np.int64)
-    E = len(edge_verts)
-    V = mesh.num_vertices
+    corners = _Corners.of(surface.mesh)
     loop = surface.triangles
     keep = ~surface.holes
-    # lines: control edges first
-    line_start = [edge_verts[:, 0]]
-    line_end = [edge_verts[:, 1]]
-    line_rate = [edge_rate.copy()]
-    # n-gons (Catmull-Clark): even rates on their edges
-    polygon = keep & (counts != (3 if loop else 4))
-    if not loop and polygon.any():
-        pc = np.repeat(polygon, counts)
-        line_rate[0][corner_edge[pc]] += line_rate[0][corner_edge[pc]] % 2
-    edge_rate = line_rate[0]
-    next_id = V
-    edge_base = next_id + np.concatenate([[0], np.cumsum(edge_rate - 1)[:-1]]).astype(np.int64)
-    next_id += int(np.sum(edge_rate - 1))
-    line_base = [edge_base]
+    polygon = keep & (corners.counts != (3 if loop else 4))
+    edge_rate = edge_rate.copy()
+    if not loop and polygon.any():  # n-gons (Catmull-Clark): even rates on their edges
+        pc = np.repeat(polygon, corners.counts)
+        edge_rate[corners.corner_edge[pc]] += edge_rate[corners.corner_edge[pc]] % 2
+    lines = _Lines(surface.mesh.num_vertices)
+    _, edge_base = lines.add(corners.edge_verts[:, 0], corners.edge_verts[:, 1], edge_rate)  # control edges first
     rows = []  # per cell: kind, face, offset (2), scale, then per side line, start, step, rate
-    n_lines = E
-
-    def forward(h):
-        """Whether corner h's edge runs from its vertex to the next corner's (the edge's own direction)."""
-        return edge_verts[corner_edge[h], 0] == indices[h]
-
-    # plain cells: quads (Catmull-Clark) or triangles (Loop)
     plain = np.flatnonzero(keep & ~polygon)
-    n = 3 if loop else 4
-    if len(plain):
-        h = offsets[plain][:, None] + np.arange(n)
-        e = corner_edge[h]
-        fwd = forward(h)
-        r = edge_rate[e]
-        start = np.where(fwd, 0, r)
-        step = np.where(fwd, 1, -1)
+    if len(plain):  # quads (Catmull-Clark) or triangles (Loop)
+        n = TRI if loop else QUAD
+        e, start, step, r = corners.side(corners.offsets[plain][:, None] + np.arange(n), edge_rate)
         rows.append((np.full(len(plain), n), plain, np.zeros((len(plain), 2)), np.ones(len(plain)),
                      _pad(e), _pad(start), _pad(step), _pad(r)))
     polys = np.flatnonzero(polygon)
     if len(polys) and not loop:
-        # sub-face j: side a = first half of edge j, b = spoke j (middle -> centre), c = spoke j - 1 reversed,
-        # d = second half of edge j - 1
-        centre = next_id + np.arange(len(polys))
-        next_id += len(polys)
-        cnt = counts[polys]
-        face = np.repeat(polys, cnt)
-        j = np.arange(int(cnt.sum())) - np.repeat(np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
-        h = offsets[face] + j
-        e = corner_edge[h]
-        fwd = forward(h)
-        R = edge_rate[e]
-        middle = edge_base[e] + R // 2 - 1  # the edge's point R/2
-        spoke_rate = np.maximum(1, -(-face_rate[face] // 2))
-        spoke = n_lines + np.arange(len(face))
-        line_start.append(middle)
-        line_end.append(np.repeat(centre, cnt))
-        line_rate.append(spoke_rate)
-        line_base.append(next_id + np.concatenate([[0], np.cumsum(spoke_rate - 1)[:-1]]).astype(np.int64))
-        next_id += int(np.sum(spoke_rate - 1))
-        n_lines += len(face)
-        first = np.repeat(np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
-        prev = first + (j - 1) % np.repeat(cnt, cnt)  # row of sub-face j - 1
-        half = R // 2
-        a_start = np.where(fwd, 0, R)
-        a_step = np.where(fwd, 1, -1)
-        e_prev, R_prev, fwd_prev = e[prev], R[prev], fwd[prev]
-        d_start = np.where(fwd_prev, R_prev // 2, R_prev // 2)
-        d_step = np.where(fwd_prev, 1, -1)
-        w = surface.face_tiles[face].astype(np.int64)
-        offset = np.stack([j % w, j // w], 1).astype(np.float64)
-        rows.append((np.full(len(face), 4), face, offset, np.full(len(face), 0.5),
-                     np.stack([e, spoke, spoke[prev], e_prev], 1),
-                     np.stack([a_start, np.zeros_like(j), spoke_rate[prev], d_start], 1),
-                     np.stack([a_step, np.ones_like(j), -np.ones_like(j), d_step], 1),
-                     np.stack([half, spoke_rate, spoke_rate[prev], R_prev // 2], 1)))
+        rows.append(_subface_cells(surface, corners, polys, edge_rate, edge_base, face_rate, lines))
     if len(polys) and loop:
-        # fan triangle k = (v0, v_k+1, v_k+2): sides edge 0 or diagonal k - 1, edge k + 1, diagonal k or the
-        # last edge; diagonals run from v0 to v_k+2 with the face's inner rate
-        cnt = counts[polys]
-        ntri = cnt - 2
-        face = np.repeat(polys, ntri)
-        k = np.arange(int(ntri.sum())) - np.repeat(np.concatenate([[0], np.cumsum(ntri)[:-1]]), ntri)
-        nf = counts[face]
-        ndiag = cnt - 3
-        dface = np.repeat(polys, ndiag)
-        dk = np.arange(int(ndiag.sum())) - np.repeat(np.concatenate([[0], np.cumsum(ndiag)[:-1]]), ndiag)
-        diag_first = n_lines + np.concatenate([[0], np.cumsum(ndiag)[:-1]])
-        dbase = dict(zip(polys.tolist(), diag_first.tolist()))
-        drate = np.maximum(face_rate[dface], 1)
-        line_start.append(indices[offsets[dface]])
-        line_end.append(indices[offsets[dface] + dk + 2])
-        line_rate.append(drate)
-        line_base.append(next_id + np.concatenate([[0], np.cumsum(drate - 1)[:-1]]).astype(np.int64))
-        next_id += int(np.sum(drate - 1))
-        n_lines += len(dface)
-        diag0 = np.array([dbase[f] for f in face.tolist()], dtype=np.int64)
-
-        def edge_side(corner):
-            hh = offsets[face] + corner
-            ee = corner_edge[hh]
-            ff = forward(hh)
-            rr = edge_rate[ee]
-            return ee, np.where(ff, 0, rr), np.where(ff, 1, -1), rr
-
-        e0, s0, t0, r0 = edge_side(np.zeros_like(k))
-        d_prev = diag0 + k - 1
-        side0 = (np.where(k == 0, e0, d_prev), np.where(k == 0, s0, 0), np.where(k == 0, t0, 1),
-                 np.where(k == 0, r0, face_rate[face]))
-        side1 = edge_side(k + 1)
-        el, sl, tl, rl = edge_side(nf - 1)
-        last = k == nf - 3
-        d_here = diag0 + k
-        side2 = (np.where(last, el, d_here), np.where(last, sl, face_rate[face]), np.where(last, tl, -1),
-                 np.where(last, rl, face_rate[face]))
-        rows.append((np.full(len(face), 3), face, np.stack([k, 0 * k], 1).astype(np.float64), np.full(len(face), 0.5),
-                     *(_pad(np.stack([s[i] for s in (side0, side1, side2)], 1)) for i in range(4))))
+        rows.append(_fan_cells(corners, polys, edge_rate, face_rate, lines))
     cells = _Cells(*(np.concatenate([r[i] for r in rows]) if rows else None for i in range(8)))
-    lines = (np.concatenate(line_start), np.concatenate(line_end), np.concatenate(line_rate),
-             np.concatenate(line_base))
-    return cells, lines, next_id, edge_rate
+    return cells, lines.arrays(), lines.next_id, edge_rate
+
+
+def _subface_cells(surface, corners: _Corners, polys, edge_rate, edge_base, face_rate, lines: _Lines) -> tuple:
+    """The cells of Catmull-Clark n-gons ``polys``: sub-face j is a quad on the half-unit tile j, its sides
+    a = the first half of edge j, b = spoke j (the edge's middle to the face's centre), c = spoke j - 1 reversed,
+    d = the second half of edge j - 1; spokes get half the face's inner rate."""
+    centre = lines.new_vertices(len(polys))
+    cnt = corners.counts[polys]
+    face = np.repeat(polys, cnt)
+    j = np.arange(int(cnt.sum())) - np.repeat(np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
+    h = corners.offsets[face] + j
+    e = corners.corner_edge[h]
+    fwd = corners.forward(h)
+    R = edge_rate[e]
+    middle = edge_base[e] + R // 2 - 1  # the edge's point R/2
+    spoke_rate = np.maximum(1, -(-face_rate[face] // 2))
+    spoke, _ = lines.add(middle, np.repeat(centre, cnt), spoke_rate)
+    first = np.repeat(np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
+    prev = first + (j - 1) % np.repeat(cnt, cnt)  # row of sub-face j - 1
+    half = R // 2
+    a_start = np.where(fwd, 0, R)
+    a_step = np.where(fwd, 1, -1)
+    e_prev, R_prev, fwd_prev = e[prev], R[prev], fwd[prev]
+    d_start = np.where(fwd_prev, R_prev // 2, R_prev // 2)
+    d_step = np.where(fwd_prev, 1, -1)
+    w = surface.face_tiles[face].astype(np.int64)
+    offset = np.stack([j % w, j // w], 1).astype(np.float64)
+    return (np.full(len(face), QUAD), face, offset, np.full(len(face), 0.5),
+            np.stack([e, spoke, spoke[prev], e_prev], 1),
+            np.stack([a_start, np.zeros_like(j), spoke_rate[prev], d_start], 1),
+            np.stack([a_step, np.ones_like(j), -np.ones_like(j), d_step], 1),
+            np.stack([half, spoke_rate, spoke_rate[prev], R_prev // 2], 1))
+
+
+def _fan_cells(corners: _Corners, polys, edge_rate, face_rate, lines: _Lines) -> tuple:
+    """The cells of Loop polygons ``polys``: fan triangle k = (v0, v_k+1, v_k+2) on the half-unit tile k, its
+    sides edge 0 or diagonal k - 1, edge k + 1, diagonal k or the last edge; diagonals run from v0 to v_k+2 with
+    the face's inner rate."""
+    cnt = corners.counts[polys]
+    ntri = cnt - 2
+    face = np.repeat(polys, ntri)
+    k = np.arange(int(ntri.sum())) - np.repeat(np.concatenate([[0], np.cumsum(ntri)[:-1]]), ntri)
+    nf = corners.counts[face]
+    ndiag = cnt - 3
+    dface = np.repeat(polys, ndiag)
+    dk = np.arange(int(ndiag.sum())) - np.repeat(np.concatenate([[0], np.cumsum(ndiag)[:-1]]), ndiag)
+    diag_first = lines.count + np.concatenate([[0], np.cumsum(ndiag)[:-1]])
+    dbase = dict(zip(polys.tolist(), diag_first.tolist()))
+    drate = np.maximum(face_rate[dface], 1)
+    lines.add(corners.indices[corners.offsets[dface]], corners.indices[corners.offsets[dface] + dk + 2], drate)
+    diag0 = np.array([dbase[f] for f in face.tolist()], dtype=np.int64)
+
+    def edge_side(corner):
+        return corners.side(corners.offsets[face] + corner, edge_rate)
+
+    e0, s0, t0, r0 = edge_side(np.zeros_like(k))
+    d_prev = diag0 + k - 1
+    side0 = (np.where(k == 0, e0, d_prev), np.where(k == 0, s0, 0), np.where(k == 0, t0, 1),
+             np.where(k == 0, r0, face_rate[face]))
+    side1 = edge_side(k + 1)
+    el, sl, tl, rl = edge_side(nf - 1)
+    last = k == nf - 3
+    d_here = diag0 + k
+    side2 = (np.where(last, el, d_here), np.where(last, sl, face_rate[face]), np.where(last, tl, -1),
+             np.where(last, rl, face_rate[face]))
+    return (np.full(len(face), TRI), face, np.stack([k, 0 * k], 1).astype(np.float64), np.full(len(face), 0.5),
+            *(_pad(np.stack([s[i] for s in (side0, side1, side2)], 1)) for i in range(4)))
 
 
 def _pad(a):
@@ -484,12 +370,12 @@ def tessellate(surface, *, rate=None, edge_length=None, quads: bool = True) -> T
         return Tessellation(empty, empty.copy(), np.zeros(0, np.int32), np.zeros(0, np.int32),
                             np.zeros(0, np.int32), np.zeros((0, 2)), np.zeros(0, np.int32), np.zeros((0, 2)),
                             edge_rate)
-    estimate = int(np.sum(np.where(cells.kind == 4, 1, 0.5) * np.max(cells.rate, axis=1) ** 2)) + next_id
+    estimate = int(np.sum(np.where(cells.kind == QUAD, 1, 0.5) * np.max(cells.rate, axis=1) ** 2)) + next_id
     if estimate > MAX_VERTICES:
         raise SubdivInputError(f"the tessellation would have about {estimate} vertices (more than {MAX_VERTICES}); "
                                "use a lower rate or a longer edge_length", option="rate", value=estimate)
     quad_cells = bool(quads) and not surface.triangles
-    n_sides = np.where(cells.kind == 4, 4, 3)
+    n_sides = np.where(cells.kind == QUAD, QUAD, TRI)
     key = np.concatenate([cells.kind[:, None], cells.rate * (np.arange(4) < n_sides[:, None])], 1)
     keys, group = np.unique(key, axis=0, return_inverse=True)
     group = group.reshape(-1)
@@ -499,7 +385,7 @@ def tessellate(surface, *, rate=None, edge_length=None, quads: bool = True) -> T
     for g, k in enumerate(keys):
         kind = int(k[0])
         rates = tuple(int(x) for x in k[1:1 + kind])
-        pat = _pattern(kind, rates, quad_cells)
+        pat = cell_pattern(kind, rates, quad_cells)
         sel = np.flatnonzero(group == g)
         G = len(sel)
         side = pat.boundary[:, 0]

@@ -1,0 +1,127 @@
+"""The patch tree of a :class:`~warp_subdiv.limit.LimitSurface` on a Warp device, and the launches of the
+evaluation kernel (:mod:`warp_subdiv.kernels.limit`) over it: points and derivatives of the surface, or columns of
+data carried through the same tree, three at a time.
+"""
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .parameterisation import DIRECT, FaceParameterisation
+from .patches import PatchTree
+from .results import DataEvaluation, LimitEvaluation
+
+
+class DeviceEvaluator:
+    """Evaluates ``tree`` (rooted per control face as ``faces`` says) on ``device``; the tree's arrays are
+    uploaded on the first evaluation and kept."""
+
+    def __init__(self, tree: PatchTree, faces: FaceParameterisation, device):
+        self.tree = tree
+        self.faces = faces
+        self.device = device
+        self._arrays = None
+
+    def arrays(self) -> dict:
+        """The tree's arrays on the device, and one record per face: kind, root node, size * 256 + tiles, and
+        the patch of a face that is one patch (2 patch + 1 for a Bezier patch; -1 otherwise)."""
+        if self._arrays is None:
+            t, dev, faces = self.tree, self.device, self.faces
+
+            def up(a, dtype):
+                a = np.ascontiguousarray(a)
+                return wp.array(a, dtype=dtype, device=dev, copy=not dev.is_cpu)
+
+            index = t.patch_index if len(t.patch_index) else np.zeros((1, 16), np.int32)
+            basis = t.patch_basis if len(t.patch_basis) else np.zeros(1, np.int32)
+            root_patch = t.node_patch[faces.root]
+            leaf = np.where((faces.kind == DIRECT) & (root_patch >= 0),
+                            2 * root_patch + (t.patch_basis[np.maximum(root_patch, 0)] if len(t.patch_basis) else 0),
+                            -1)
+            info = np.stack([faces.kind, faces.root, faces.size.astype(np.int64) * 256 +
+                             np.minimum(faces.tiles, 255), leaf], axis=1).astype(np.int32)
+            self._arrays = dict(
+                face_info=wp.array(info, dtype=wp.vec4i, device=dev),
+                node_child=up(t.node_child.astype(np.int32), wp.int32),
+                node_patch=up(t.node_patch.astype(np.int32), wp.int32),
+                patch_index=up(index.astype(np.int32), wp.int32), patch_basis=up(basis.astype(np.int32), wp.int32),
+                points=wp.array(np.ascontiguousarray(t.points, dtype=np.float64), dtype=wp.vec3d, device=dev))
+        return self._arrays
+
+    def queries(self, faces_a, u_a, v_a) -> tuple:
+        """Checked queries (face, u, v) as device arrays."""
+        dev = self.device
+
+        def query(x, dtype):
+            x = np.ascontiguousarray(x, dtype=dtype)
+            return wp.array(x, device=dev, copy=not dev.is_cpu)
+
+        return query(faces_a, np.int32), query(u_a, np.float64), query(v_a, np.float64)
+
+    def launch(self, queries, n: int, second: bool, points):
+        """One run of the evaluation kernel over the tree's nodes and patches with control ``points`` (a Warp
+        vec3d array: the tree's points, or three columns of data carried through the same tree)."""
+        from .. import kernels
+
+        dev = self.device
+        a = self.arrays()
+
+        def empty(rows, dtype):
+            if dev.is_cpu:  # numpy's memory, wrapped: large blocks come on huge pages (a few page faults where
+                # Warp's host allocation faults every 4 KiB page of fresh output, 10-20% of a large evaluation)
+                host = np.empty((rows, 3) if dtype is wp.vec3d else rows, dtype=np.float64 if dtype is wp.vec3d
+                                else np.int32)
+                return wp.array(host, dtype=dtype, device=dev, copy=False)
+            return wp.empty(rows, dtype=dtype, device=dev)
+
+        p, du, dv, nrm = (empty(n, wp.vec3d) for _ in range(4))
+        duu, duv, dvv = (empty(n, wp.vec3d) for _ in range(3)) if second else (empty(1, wp.vec3d),) * 3
+        patch = empty(n, wp.int32)
+        wp.launch(kernels.limit_evaluate, dim=n,
+                  inputs=[a["face_info"], *queries,
+                          a["node_child"], a["node_patch"], a["patch_index"], a["patch_basis"], points,
+                          int(self.tree.triangles),
+                          int(second), p, du, dv, duu, duv, dvv, nrm, patch], device=dev)
+        return p, du, dv, nrm, duu, duv, dvv, patch
+
+    def evaluate(self, faces_a, u_a, v_a, second: bool) -> LimitEvaluation:
+        """Points, derivatives and normals of the surface at checked queries (second derivatives with
+        ``second``)."""
+        n = len(faces_a)
+        if n == 0:
+            empty = np.zeros((0, 3))
+            return LimitEvaluation(empty, empty.copy(), empty.copy(), empty.copy(),
+                                   *((empty.copy(),) * 3 if second else (None,) * 3), np.zeros(0, np.int32))
+        p, du, dv, nrm, duu, duv, dvv, patch = self.launch(self.queries(faces_a, u_a, v_a), n, second,
+                                                           self.arrays()["points"])
+
+        def host(x):
+            return x.numpy().reshape(n, 3)
+
+        return LimitEvaluation(host(p), host(du), host(dv), host(nrm),
+                               host(duu) if second else None, host(duv) if second else None,
+                               host(dvv) if second else None, patch.numpy())
+
+    def evaluate_columns(self, columns, faces_a, u_a, v_a, derivatives, one_d) -> DataEvaluation:
+        """Evaluate tree control values ``columns`` (num points, k), three columns per kernel run."""
+        n, k = len(faces_a), columns.shape[1]
+        values = np.zeros((n, k))
+        du = np.zeros((n, k)) if derivatives else None
+        dv = np.zeros((n, k)) if derivatives else None
+        if n:
+            queries = self.queries(faces_a, u_a, v_a)
+            for c in range(0, k, 3):
+                w = min(3, k - c)
+                block = np.zeros((len(columns), 3))
+                block[:, :w] = columns[:, c:c + w]
+                pts = wp.array(block, dtype=wp.vec3d, device=self.device)
+                p, pu, pv = self.launch(queries, n, False, pts)[:3]
+                values[:, c:c + w] = p.numpy().reshape(n, 3)[:, :w]
+                if derivatives:
+                    du[:, c:c + w] = pu.numpy().reshape(n, 3)[:, :w]
+                    dv[:, c:c + w] = pv.numpy().reshape(n, 3)[:, :w]
+
+        def shape(x):
+            return x[:, 0] if one_d and x is not None else x
+
+        return DataEvaluation(shape(values), shape(du), shape(dv))
