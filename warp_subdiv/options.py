@@ -166,6 +166,11 @@ class Options:
         if not paper and self.flatness is not None:
             raise SubdivInputError("flatness is a piecewise-smooth rule; rules='opensubdiv' has none",
                                    option="flatness", value=self.flatness)
+        default_strength = _OPTION_FIELDS["normal_strength"].default
+        if not paper and self.normal_strength != default_strength:
+            raise SubdivInputError(f"normal_strength={self.normal_strength:g} is a piecewise-smooth rule (normal "
+                                   "control); rules='opensubdiv' has none (leave normal_strength at its default "
+                                   f"{default_strength:g})", option="normal_strength", value=self.normal_strength)
         if not paper and self.loop_beta != LoopBeta.LOOP:
             raise SubdivInputError(f"loop_beta={self.loop_beta.value!r} is a piecewise-smooth rule; "
                                    "rules='opensubdiv' uses Loop's original beta only",
@@ -221,6 +226,9 @@ class Options:
 
     def __hash__(self) -> int:
         return hash(repr(sorted(self.as_dict().items())))
+
+
+_OPTION_FIELDS = {f.name: f for f in dataclasses.fields(Options)}
 
 
 def _unit_number(value, option: str) -> float:
