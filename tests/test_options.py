@@ -39,3 +39,89 @@ def test_default_normal_strength_accepted_under_opensubdiv_rules(strength):
     """The default strength (1) asks for nothing: it stays accepted with rules='opensubdiv'."""
     assert Options(rules="opensubdiv", normal_strength=strength) == Options(rules="opensubdiv")
     ws.Refiner(grid(), 1, device="cpu", rules="opensubdiv", normal_strength=strength)
+
+
+# --------------------------------------------------------------------------------------------------------
+# numeric options are numbers, not bools or strings (which numpy would quietly turn into 1.0 or parse)
+
+NOT_NUMBERS = [True, False, np.bool_(True), "0.5", np.str_("0.5"), b"0.5"]
+
+
+@pytest.mark.parametrize("value", NOT_NUMBERS + [[0.5, True], [True, False], np.array([True, False]), ["0.5", "0.1"],
+                                                 np.array(["0.5"]), np.array(True), [0.5, "0.1"]],
+                         ids=repr)
+def test_flatness_refuses_bools_and_strings(value):
+    """A bool or a string is not a flatness, alone or inside a per-vertex array: SubdivInputError names
+    flatness and shows the value."""
+    with pytest.raises(SubdivInputError, match=r"flatness must (be|hold) .*got .*(True|False|0\.5|0\.1)") as info:
+        Options(flatness=value)
+    assert info.value.option == "flatness"
+    with pytest.raises(SubdivInputError):
+        ws.Refiner(grid(), 1, device="cpu", flatness=value)
+
+
+def test_flatness_refuses_complex_arrays():
+    """A complex array is not real: numpy would drop the imaginary parts with only a warning."""
+    with pytest.raises(SubdivInputError, match="flatness must hold numbers .*complex") as info:
+        Options(flatness=np.full(6, 0.5 + 0.5j))
+    assert info.value.option == "flatness"
+
+
+@pytest.mark.parametrize("value,expected", [
+    (0.5, 0.5), (1, 1.0), (0, 0.0), (np.float32(0.5), 0.5), (np.float64(0.25), 0.25), (np.int64(1), 1.0),
+    (np.array(0.5), 0.5),
+])
+def test_flatness_accepts_real_numbers(value, expected):
+    flatness = Options(flatness=value).flatness
+    assert type(flatness) is float and flatness == expected
+
+
+@pytest.mark.parametrize("value", [[0.5, 0.25, float("nan"), 1, 0, 0.5], np.linspace(0, 1, 6, dtype=np.float32),
+                                   np.array([0, 1, 1, 0, 1, 0], dtype=np.int32), (0.5,) * 6, [0.5, None] * 3])
+def test_flatness_accepts_per_vertex_numbers(value):
+    """Per-vertex numbers (NaN or None: the optimal s*) as before: a read-only float64 array."""
+    flatness = Options(flatness=value).flatness
+    assert flatness.dtype == np.float64 and not flatness.flags.writeable
+    np.testing.assert_array_equal(flatness, np.array(value, dtype=np.float64))
+    ws.Refiner(grid(), 1, device="cpu", flatness=value)
+
+
+@pytest.mark.parametrize("value", NOT_NUMBERS, ids=repr)
+def test_normal_strength_refuses_bools_and_strings(value):
+    with pytest.raises(SubdivInputError, match="normal_strength must be a number") as info:
+        Options(normal_strength=value)
+    assert info.value.option == "normal_strength"
+
+
+@pytest.mark.parametrize("value", [0.5, np.float32(0.5), np.int64(0), 1])
+def test_normal_strength_accepts_real_numbers(value):
+    strength = Options(normal_strength=value).normal_strength
+    assert type(strength) is float and strength == float(value)
+
+
+@pytest.mark.parametrize("name", ["triangulate", "linear"])
+@pytest.mark.parametrize("value", [1, 0, "True", "yes", None, np.int64(1)], ids=repr)
+def test_switches_refuse_numbers_and_strings(name, value):
+    """triangulate and linear are True or False (numpy bools included), not 1/0 or a string."""
+    with pytest.raises(SubdivInputError, match=f"{name} must be True or False") as info:
+        Options(**{name: value})
+    assert info.value.option == name
+    assert getattr(Options(**{name: np.bool_(True)}), name) is True
+
+
+@pytest.mark.parametrize("make", [lambda v: ws.Refiner(grid(), v, device="cpu"),
+                                  lambda v: ws.refine(grid(), v, device="cpu")], ids=["Refiner", "refine"])
+@pytest.mark.parametrize("levels", [True, np.bool_(True), "1", 1.0], ids=repr)
+def test_levels_refuse_bools_strings_and_floats(make, levels):
+    with pytest.raises(SubdivInputError, match="levels must be an integer") as info:
+        make(levels)
+    assert info.value.option == "levels"
+
+
+@pytest.mark.parametrize("levels", [True, np.bool_(True), "1", 1.0], ids=repr)
+def test_batch_levels_refuse_bools_strings_and_floats(levels):
+    from warp_subdiv.batch import MeshBatch
+
+    with pytest.raises(SubdivInputError, match="levels must be an integer") as info:
+        MeshBatch([grid(), grid()], levels, device="cpu")
+    assert info.value.option == "levels"
