@@ -125,3 +125,71 @@ def test_batch_levels_refuse_bools_strings_and_floats(levels):
     with pytest.raises(SubdivInputError, match="levels must be an integer") as info:
         MeshBatch([grid(), grid()], levels, device="cpu")
     assert info.value.option == "levels"
+
+
+# --------------------------------------------------------------------------------------------------------
+# options= and option keywords: Options.given turns them into one Options for Refiner, MeshBatch, LimitSurface
+
+def make_refiner(**kw):
+    return ws.Refiner(grid(), 1, device="cpu", **kw)
+
+
+def make_refined(**kw):
+    return ws.refine(grid(), 1, device="cpu", **kw)
+
+
+def make_batch(**kw):
+    from warp_subdiv.batch import MeshBatch
+
+    return MeshBatch([grid(), grid()], 1, device="cpu", **kw)
+
+
+def make_surface(**kw):
+    return ws.LimitSurface(grid(), device="cpu", **kw)
+
+
+MAKERS = {"Refiner": make_refiner, "refine": make_refined, "MeshBatch": make_batch, "LimitSurface": make_surface}
+
+
+@pytest.mark.parametrize("maker", MAKERS)
+@pytest.mark.parametrize("options", [{"scheme": "loop"}, "loop", ws.Options], ids=["dict", "str", "class"])
+def test_options_must_be_an_options_object(maker, options):
+    """A dict (or anything else) as options= used to fail deep inside with an AttributeError; it is refused
+    up front, saying what to pass instead."""
+    with pytest.raises(TypeError, match=r"options must be a warp_subdiv\.Options.*Options\(\*\*"):
+        MAKERS[maker](options=options)
+
+
+@pytest.mark.parametrize("maker", MAKERS)
+def test_options_object_and_keywords_still_work(maker):
+    MAKERS[maker](options=Options(boundary="edge-only"))
+    MAKERS[maker](boundary="edge-only")
+    with pytest.raises(TypeError, match="either options= or option keywords"):
+        MAKERS[maker](options=Options(), boundary="edge-only")
+
+
+@pytest.mark.parametrize("maker,callable_name", [("Refiner", "Refiner"), ("refine", "Refiner"),
+                                                 ("MeshBatch", "MeshBatch"), ("LimitSurface", "LimitSurface")])
+def test_unknown_option_keyword_names_the_keyword_and_the_callable(maker, callable_name):
+    """A keyword that is no option used to raise Options.__init__'s TypeError, naming neither the call that
+    took it nor the options there are."""
+    with pytest.raises(TypeError, match=rf"{callable_name} does not take 'flatnes'.*did you mean 'flatness'.*"
+                                        r"options are: scheme, rules"):
+        MAKERS[maker](flatnes=0.5)
+
+
+def test_limit_surface_does_not_take_threads():
+    """The limit surface is built without the refiner's thread pool: threads= is refused by name (it
+    used to raise Options.__init__'s 'unexpected keyword argument'), while Refiner and MeshBatch take it."""
+    with pytest.raises(TypeError, match=r"LimitSurface does not take 'threads'"):
+        make_surface(threads=2)
+    make_refiner(threads=2)
+    make_batch(threads=2)
+
+
+def test_options_given_without_a_callable_name():
+    with pytest.raises(TypeError, match=r"'bogus' is not an option"):
+        Options.given(None, {"bogus": 1})
+    assert Options.given(None, {"scheme": "loop"}) == Options(scheme="loop")
+    options = Options(scheme="loop")
+    assert Options.given(options, {}) is options

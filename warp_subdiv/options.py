@@ -9,6 +9,7 @@ letter case (and the USD / OpenSubdiv spellings of the scheme), so ``scheme="LOO
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import enum
 import math
 import numbers
@@ -191,9 +192,19 @@ class Options:
         return dataclasses.replace(self, **changes)
 
     @classmethod
-    def given(cls, options: "Options | None", option_keywords: dict) -> "Options":
+    def given(cls, options: "Options | None", option_keywords: dict, caller: str | None = None) -> "Options":
         """The options of a call that takes either ``options=`` or option keywords (Refiner, LimitSurface,
-        MeshBatch): ``options`` as given, else ``Options(**option_keywords)``; both at once is a TypeError."""
+        MeshBatch): ``options`` as given, else ``Options(**option_keywords)``; both at once is a TypeError.
+
+        ``caller`` names that call in the errors: a keyword that is no option arrives here among the option
+        keywords, so the TypeError says which call does not take it (and lists the options); an ``options``
+        that is not an :class:`Options` (a dict, a string) is a TypeError too, before it fails deep inside."""
+        if options is not None and not isinstance(options, cls):
+            raise TypeError(f"options must be a warp_subdiv.Options, got {type(options).__name__} {options!r}: "
+                            "build one (for a dict d, Options(**d)) or pass the options as keywords")
+        unknown = [name for name in option_keywords if name not in _OPTION_FIELDS]
+        if unknown:
+            raise TypeError(_unknown_keywords_message(unknown, caller))
         if options is None:
             return cls(**option_keywords)
         if option_keywords:
@@ -229,6 +240,22 @@ class Options:
 
 
 _OPTION_FIELDS = {f.name: f for f in dataclasses.fields(Options)}
+
+
+def _unknown_keywords_message(unknown: list, caller: str | None) -> str:
+    """Which keywords are no option, the option each was probably meant to be, and the options there are."""
+    names = ", ".join(repr(name) for name in unknown)
+    if caller:
+        said = f"{caller} does not take {names}"
+    else:
+        said = f"{names} {'is' if len(unknown) == 1 else 'are'} not an option"
+    guesses = []
+    for name in unknown:
+        close = difflib.get_close_matches(name, list(_OPTION_FIELDS), n=1)
+        if close:
+            guesses.append(f"did you mean {close[0]!r}" + (f" for {name!r}" if len(unknown) > 1 else ""))
+    guess = f" ({'; '.join(guesses)})" if guesses else ""
+    return f"{said}{guess}; the options are: {', '.join(_OPTION_FIELDS)}"
 
 
 def _unit_number(value, option: str) -> float:
