@@ -122,7 +122,7 @@ class MeshBatch:
     def __init__(self, meshes, levels: int, *, options: Options | None = None, device=None,
                  max_memory: int | None = None, threads: int | None = None, check: bool = True, **option_keywords):
         meshes = list(meshes)
-        options = Options.given(options, option_keywords)
+        options = Options.given(options, option_keywords, caller=type(self).__name__)
         if isinstance(options.flatness, np.ndarray):
             raise SubdivInputError("a per-vertex flatness belongs to one mesh; a batch takes None or one number",
                                    option="flatness")

@@ -9,6 +9,7 @@ letter case (and the USD / OpenSubdiv spellings of the scheme), so ``scheme="LOO
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import enum
 import math
 import numbers
@@ -166,6 +167,11 @@ class Options:
         if not paper and self.flatness is not None:
             raise SubdivInputError("flatness is a piecewise-smooth rule; rules='opensubdiv' has none",
                                    option="flatness", value=self.flatness)
+        default_strength = _OPTION_FIELDS["normal_strength"].default
+        if not paper and self.normal_strength != default_strength:
+            raise SubdivInputError(f"normal_strength={self.normal_strength:g} is a piecewise-smooth rule (normal "
+                                   "control); rules='opensubdiv' has none (leave normal_strength at its default "
+                                   f"{default_strength:g})", option="normal_strength", value=self.normal_strength)
         if not paper and self.loop_beta != LoopBeta.LOOP:
             raise SubdivInputError(f"loop_beta={self.loop_beta.value!r} is a piecewise-smooth rule; "
                                    "rules='opensubdiv' uses Loop's original beta only",
@@ -186,9 +192,19 @@ class Options:
         return dataclasses.replace(self, **changes)
 
     @classmethod
-    def given(cls, options: "Options | None", option_keywords: dict) -> "Options":
+    def given(cls, options: "Options | None", option_keywords: dict, caller: str | None = None) -> "Options":
         """The options of a call that takes either ``options=`` or option keywords (Refiner, LimitSurface,
-        MeshBatch): ``options`` as given, else ``Options(**option_keywords)``; both at once is a TypeError."""
+        MeshBatch): ``options`` as given, else ``Options(**option_keywords)``; both at once is a TypeError.
+
+        ``caller`` names that call in the errors: a keyword that is no option arrives here among the option
+        keywords, so the TypeError says which call does not take it (and lists the options); an ``options``
+        that is not an :class:`Options` (a dict, a string) is a TypeError too, before it fails deep inside."""
+        if options is not None and not isinstance(options, cls):
+            raise TypeError(f"options must be a warp_subdiv.Options, got {type(options).__name__} {options!r}: "
+                            "build one (for a dict d, Options(**d)) or pass the options as keywords")
+        unknown = [name for name in option_keywords if name not in _OPTION_FIELDS]
+        if unknown:
+            raise TypeError(_unknown_keywords_message(unknown, caller))
         if options is None:
             return cls(**option_keywords)
         if option_keywords:
@@ -223,6 +239,25 @@ class Options:
         return hash(repr(sorted(self.as_dict().items())))
 
 
+_OPTION_FIELDS = {f.name: f for f in dataclasses.fields(Options)}
+
+
+def _unknown_keywords_message(unknown: list, caller: str | None) -> str:
+    """Which keywords are no option, the option each was probably meant to be, and the options there are."""
+    names = ", ".join(repr(name) for name in unknown)
+    if caller:
+        said = f"{caller} does not take {names}"
+    else:
+        said = f"{names} {'is' if len(unknown) == 1 else 'are'} not an option"
+    guesses = []
+    for name in unknown:
+        close = difflib.get_close_matches(name, list(_OPTION_FIELDS), n=1)
+        if close:
+            guesses.append(f"did you mean {close[0]!r}" + (f" for {name!r}" if len(unknown) > 1 else ""))
+    guess = f" ({'; '.join(guesses)})" if guesses else ""
+    return f"{said}{guess}; the options are: {', '.join(_OPTION_FIELDS)}"
+
+
 def _unit_number(value, option: str) -> float:
     """A finite number in [0, 1]."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
@@ -233,12 +268,41 @@ def _unit_number(value, option: str) -> float:
     return number
 
 
+# numpy turns a bool into 1.0 or 0.0 and parses a numeric string, so these would pass as a flatness unless refused
+# (numpy's str_ and bytes_ are subclasses of str and bytes)
+_NOT_NUMBERS = (bool, np.bool_, str, bytes)
+
+
+def _refuse_flatness_items_that_are_not_numbers(value) -> None:
+    """Refuse a per-vertex flatness holding a bool or a string (a numpy array of bools, strings or complex
+    numbers, or a list with one among numbers), which numpy would convert to floats without a word."""
+    if isinstance(value, np.ndarray) and value.dtype.kind in "fiu":
+        return
+    if isinstance(value, np.ndarray) and value.dtype.kind in "bUSc":
+        raise SubdivInputError(f"flatness must hold numbers (one per control vertex), got an array of "
+                               f"{value.dtype} {value!r}", option="flatness", value=value)
+    try:
+        items = np.asarray(value, dtype=object).ravel().tolist()
+    except (TypeError, ValueError):
+        return  # not array-like: the conversion to float64 refuses it
+    if not any(issubclass(kind, _NOT_NUMBERS) for kind in set(map(type, items))):  # the types present, not a loop
+        return
+    index, item = next((i, x) for i, x in enumerate(items) if isinstance(x, _NOT_NUMBERS))
+    raise SubdivInputError(f"flatness must hold numbers (one per control vertex), got {item!r} at vertex {index} "
+                           "(a bool or a string is not a flatness)", option="flatness", element="vertex",
+                           index=index, value=item)
+
+
 def _flatness(value):
     """None, a number in [0, 1], or a read-only float64 array of per-vertex values in [0, 1] or NaN (optimal)."""
     if value is None:
         return None
-    if isinstance(value, numbers.Real) and not isinstance(value, bool):
+    if isinstance(value, _NOT_NUMBERS):
+        raise SubdivInputError(f"flatness must be None, a number in [0, 1] or one number per control vertex, got "
+                               f"{value!r} (a bool or a string is not a flatness)", option="flatness", value=value)
+    if isinstance(value, numbers.Real):
         return _unit_number(value, "flatness")
+    _refuse_flatness_items_that_are_not_numbers(value)
     try:
         array = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):

@@ -72,7 +72,7 @@ class Refiner:
         if isinstance(levels, bool) or not isinstance(levels, numbers.Integral) or levels < 0:
             raise SubdivInputError(f"levels must be an integer >= 0, got {levels!r}", option="levels",
                                    value=levels)
-        options = Options.given(options, option_keywords)
+        options = Options.given(options, option_keywords, caller=type(self).__name__)
         options.check_prescribed_normals(len(mesh.normal_vertices))
         self.mesh = mesh
         self.levels = int(levels)

@@ -75,7 +75,7 @@ class LimitSurface:
         if isinstance(depth, bool) or not isinstance(depth, numbers.Integral) or not 1 <= depth <= 30:
             raise SubdivInputError(f"depth must be an integer in [1, 30], got {depth!r}", option="depth",
                                    value=depth)
-        options = Options.given(options, option_keywords)
+        options = Options.given(options, option_keywords, caller=type(self).__name__)
         options.check_prescribed_normals(len(mesh.normal_vertices))
         self.mesh = mesh
         self.options = options
