@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import warp as wp
 
-from .evaluator import evaluator as ev
+from .evaluator import kernel_view
 from . import gradients as G
 
 __all__ = ["evaluate", "limit_normals", "limit_points", "function"]
@@ -95,7 +95,7 @@ def _make(refiner, kind: str, normal_control):
         return not isinstance(x, jax.core.Tracer) and _warp_device(x) == str(refiner.device)
 
     def to_warp(x):
-        return ev.layout(wp.from_jax(x))
+        return kernel_view(wp.from_jax(x))
 
     # ----- forward
     def host_forward(x):

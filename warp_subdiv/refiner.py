@@ -14,11 +14,10 @@ import warp as wp
 
 from .errors import SubdivInputError
 from .runtime import estimate
-from .evaluator import interop
-from .evaluator import Evaluated, Evaluator, default_device, normal_control_for
+from .evaluator import Evaluated, Evaluator, default_device, device_rows, normal_control_for, vertex_rows
 from .tables import FaceVaryingChannel, check_indices
 from .tables import Hierarchy
-from .mesh import DATA_BOUND, Mesh, check_rows
+from .mesh import Mesh
 from .options import FaceVaryingMode, Options
 from .tables import StencilTable
 from .runtime.threads import resolve as resolve_threads
@@ -131,9 +130,6 @@ class Refiner:
         """Bytes of everything a step keeps on the device (index tables, masks, explicit stencils)."""
         return self.evaluator.table_bytes()
 
-    def _check_data(self, data) -> np.ndarray:
-        return check_rows(data, self.base_num_vertices, "vertex data", bound=DATA_BOUND[self.precision.value])
-
     def _device_guard(self) -> None:
         """On CUDA, refuse before any work when the step tables and the level buffers of positions would not
         fit the device's free memory (:func:`warp_subdiv.runtime.estimate.check_device_memory`; nothing on the CPU)."""
@@ -147,7 +143,7 @@ class Refiner:
     def _limit_guard(self) -> None:
         """Refuse limit masks whose 32-bit table offsets would wrap, or (CUDA) that would not fit the device's
         free memory, before they are built."""
-        if self.evaluator._limit is not None:
+        if self.evaluator.has_limit_masks:
             return
         level = self.hierarchy.final
         scheme = "loop" if self.options.scheme.value == "loop" else "catmull-clark"
@@ -159,21 +155,9 @@ class Refiner:
                                      f"limit masks of level {self.levels}")
 
     def _rows_data(self, data, rows: int, what: str):
-        """(data, one_d): a device array as a checked (rows, d) Warp view (:mod:`warp_subdiv.evaluator.interop`; values
-        are not read back to be checked), or host data checked by :func:`~warp_subdiv.mesh.check_rows`
-        (finite, within the precision's bound); one_d: the data was (rows,)."""
-        view = interop.device_rows(data, rows, what, self.device)
-        if view is not None:
-            return view, getattr(data, "ndim", 2) == 1 and view.shape[1] == 1
-        if (isinstance(data, np.ndarray) and data.ndim == 2 and data.dtype.kind == "f" and data.shape[0] == rows
-                and data.shape[1] >= 1 and data.size):
-            bound = DATA_BOUND[self.precision.value]
-            lo, hi = float(data.min()), float(data.max())  # NaN fails the comparisons, infinity the bound
-            if -bound <= lo and hi <= bound and -np.inf < lo and hi < np.inf:
-                return data, False
-        if rows == self.base_num_vertices and what == "vertex data":
-            return self._check_data(data), np.ndim(data) == 1
-        return check_rows(data, rows, what, bound=DATA_BOUND[self.precision.value]), np.ndim(data) == 1
+        """(data, one_d): host data or a device array checked as (rows, d)
+        (:func:`warp_subdiv.evaluator.vertex_rows`)."""
+        return vertex_rows(data, rows, what, self.device, self.precision.value)
 
     def _vertex_data(self, points):
         return self._rows_data(points, self.base_num_vertices, "vertex data")
@@ -204,7 +188,7 @@ class Refiner:
                                    value=tuple(arr.shape))
         if out is None:
             return self.evaluator.evaluate_device(arr, normal_control)
-        view = interop.device_rows(out, self.num_vertices, "out", self.device)
+        view = device_rows(out, self.num_vertices, "out", self.device)
         if view is None or view.device != self.device or view.shape[1] != 3:
             raise SubdivInputError(f"out must be a device array ({self.num_vertices}, 3) on {self.device}",
                                    element="data", value=type(out).__name__)

@@ -29,9 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ..evaluator import evaluator as ev
+from .. import evaluator as ev
 from ..errors import SubdivInputError
-from ..mesh import DATA_BOUND, check_rows, expand_counts
+from ..mesh import expand_counts
 from ..tables import RegularTables, StencilTable, rows_of
 
 __all__ = ["Adjoint", "CSRMatrix", "adjoint", "evaluate", "evaluate_vjp", "limit_normals", "limit_normals_vjp",
@@ -557,7 +557,6 @@ class AdjointLimit:
 
 
 _adjoint_lock = threading.Lock()
-_kernels_loaded: set = set()
 
 
 def adjoint(refiner) -> "Adjoint":
@@ -573,23 +572,15 @@ def adjoint(refiner) -> "Adjoint":
 
 def _load(device) -> None:
     """Load the forward and adjoint kernel modules on ``device`` once (before threads launch them)."""
-    key = str(device)
-    if key in _kernels_loaded:
-        return
-    with _adjoint_lock:
-        if key not in _kernels_loaded:
-            from .. import kernels
-
-            for module in (kernels.regular, kernels.stencil, kernels.projection, kernels.adjoint):
-                wp.load_module(module, device=device)
-            _kernels_loaded.add(key)
+    k = _kernels()
+    ev.load_kernels(device, (k.regular, k.stencil, k.projection, k.adjoint))
 
 
 class Adjoint:
     """Forward and backward passes of one refiner on Warp arrays, with the transposed tables of its steps and
     limit masks (built on first use, then kept).
 
-    Arrays are in the kernels' layout (:func:`warp_subdiv.evaluator.layout`): vec3 rows for width 3, (rows, d)
+    Arrays are in the kernels' layout (:func:`warp_subdiv.evaluator.kernel_view`): vec3 rows for width 3, (rows, d)
     otherwise, of the refiner's precision, on its device. Every call returns fresh arrays (none is shared with
     the evaluator), so the results can be held by a tape or an autograd graph. Thread safe (a lock around the
     shared backward buffers)."""
@@ -628,7 +619,7 @@ class Adjoint:
             if self._steps or not self.refiner.levels:
                 return
             h = self.hierarchy
-            up = ev._Uploader(self.device, self.precision)
+            up = ev.Uploader(self.device, self.precision)
             for k, level in enumerate(_levels(self.refiner)):
                 t = h.steps[k]
                 if isinstance(t, RegularTables):
@@ -664,7 +655,7 @@ class Adjoint:
                     parts.append((r[keep] + shift, c[keep], w[keep]))
                 r, c, w = (np.concatenate(p) for p in zip(*parts))
                 tan = _grouped(r, c, w, n_src, 2 * T, pad=True)
-                up = ev._Uploader(self.device, self.precision)
+                up = ev.Uploader(self.device, self.precision)
                 rec = AdjointLimit(up.stencil(pos), up.stencil(tan), up(t.vertex_offsets[: rows + 1], np.int32),
                                    rows=rows, num_tangents=T)
                 self._limit[rows] = rec
@@ -685,7 +676,7 @@ class Adjoint:
     def to_device(self, data: np.ndarray) -> wp.array:
         """Host (rows, d) data as a fresh device array in the kernels' layout."""
         host = np.ascontiguousarray(data, dtype=self.scalar_np)
-        return ev.layout(wp.array(host, dtype=self.scalar, device=self.device))
+        return ev.kernel_view(wp.array(host, dtype=self.scalar, device=self.device))
 
     def to_host(self, arr: wp.array) -> np.ndarray:
         out = arr.numpy()
@@ -703,7 +694,7 @@ class Adjoint:
         if self._buffers is None:
             rows = [self.level_rows(k) for k in range(self.refiner.levels + 1)]
             moved = [self.step(k).num_moved for k in range(self.refiner.levels)]
-            self._buffers = ev._LevelBuffers(rows, moved, self.device, self.scalar)
+            self._buffers = ev.LevelBuffers(rows, moved, self.device, self.scalar)
         return self._buffers.views(width)
 
     def _faces(self, k: int, width: int):
@@ -733,13 +724,7 @@ class Adjoint:
         if not records:
             wp.copy(out, x)
             return out
-        with self.evaluator._lock:  # the evaluator's level buffers hold the intermediate levels
-            levels, scratch = self.evaluator._level_views(width)
-            src = x
-            for k, step in enumerate(records):
-                dst = out if k == len(records) - 1 else levels[k + 1]
-                ev.refine_step(step, src, dst, scratch[k], normal_control, run)
-                src = dst
+        self.evaluator.run_steps(x, out, normal_control, run)  # the levels between in the evaluator's buffers
         return out
 
     def backward(self, grad: wp.array, normal_control: bool, out: wp.array | None = None,
@@ -934,8 +919,8 @@ def _check_positions(x: wp.array) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ numpy entry points
-def _grad_rows(refiner, grad, rows: int, what: str) -> np.ndarray:
-    return check_rows(grad, rows, what, bound=DATA_BOUND[refiner.options.precision.value])
+def _host_rows(refiner, data, rows: int, what: str) -> np.ndarray:
+    return ev.host_rows(data, rows, what, refiner.options.precision.value)
 
 
 def _shaped(out: np.ndarray, like) -> np.ndarray:
@@ -947,7 +932,7 @@ def evaluate_vjp(refiner, grad, normal_control=None) -> np.ndarray:
     ``refiner.evaluate(data, normal_control)``: the transposed map applied to it (the map is linear, so the
     control data itself is not needed). ``normal_control`` as in :meth:`Refiner.evaluate` (None: on for width
     3). Returns (n, d) in the evaluation precision."""
-    g = _grad_rows(refiner, grad, refiner.num_vertices, "gradient")
+    g = _host_rows(refiner, grad, refiner.num_vertices, "gradient")
     if normal_control is None:
         normal_control = g.shape[1] == 3
     adj = adjoint(refiner)
@@ -957,7 +942,7 @@ def evaluate_vjp(refiner, grad, normal_control=None) -> np.ndarray:
 def limit_points_vjp(refiner, grad) -> np.ndarray:
     """The gradient with respect to the refined data of ``grad``, a gradient of ``refiner.limit_points(data)``
     (same shape as the data; width-3 data is treated as positions, as there)."""
-    g = _grad_rows(refiner, grad, refiner.num_vertices, "gradient")
+    g = _host_rows(refiner, grad, refiner.num_vertices, "gradient")
     adj = adjoint(refiner)
     return _shaped(adj.to_host(adj.limit_points_backward(adj.to_device(g))), grad)
 
@@ -966,9 +951,8 @@ def limit_normals_vjp(refiner, refined_points, grad) -> np.ndarray:
     """The gradient with respect to the refined positions (N, 3) of ``grad`` (N, 3), a gradient of
     ``refiner.limit_normals(refined_points)``: the true derivative of the normalised normals (rows of vertices
     with a prescribed normal pass none)."""
-    bound = DATA_BOUND[refiner.options.precision.value]
-    x = check_rows(refined_points, refiner.num_vertices, "refined points", bound=bound)
-    g = _grad_rows(refiner, grad, refiner.num_vertices, "gradient")
+    x = _host_rows(refiner, refined_points, refiner.num_vertices, "refined points")
+    g = _host_rows(refiner, grad, refiner.num_vertices, "gradient")
     for name, a in (("refined points", x), ("gradient", g)):
         if a.shape[1] != 3:
             raise SubdivInputError(f"limit normals take (N, 3) {name}, got {a.shape}", element="data",
@@ -1000,28 +984,21 @@ class _NoTape:
 
 
 def _user_array(refiner, arr, rows: int, what: str) -> wp.array:
-    """A caller's Warp array as the kernels' layout (a view: vec3 for width 3), checked."""
+    """A caller's Warp array as the kernel view (vec3 for width 3), checked: (rows,), (rows, d) or vec3 (rows,),
+    on the refiner's device, of its precision, contiguous (the tape writes its gradient in place)."""
     if not isinstance(arr, wp.array):
         raise TypeError(f"{what} must be a warp array, got {type(arr).__name__}")
-    scalar_np, scalar, vec = ev.PRECISIONS[refiner.options.precision.value]
+    precision = refiner.options.precision.value
+    _, scalar, vec = ev.PRECISIONS[precision]
     if arr.device != refiner.device:
         raise SubdivInputError(f"{what} is on {arr.device}, the refiner on {refiner.device}", element="data")
-    if arr.shape[0] != rows:
-        raise SubdivInputError(f"{what} must have {rows} rows, got shape {tuple(arr.shape)}", element="data",
-                               value=tuple(arr.shape))
-    if arr.ndim == 1 and arr.dtype == vec:
-        return arr
-    if arr.dtype != scalar:
-        raise SubdivInputError(f"{what} must hold {refiner.options.precision.value} (the refiner's precision) or "
-                               f"its vec3, got {arr.dtype.__name__}", element="data")
-    if arr.ndim == 1:
-        arr = arr.reshape((rows, 1))
-    if arr.ndim != 2 or arr.shape[1] < 1:
-        raise SubdivInputError(f"{what} must be (rows,), (rows, d) or vec3 (rows,), got {tuple(arr.shape)}",
-                               element="data", value=tuple(arr.shape))
+    view = ev.device_rows(arr, rows, what, refiner.device)
+    if arr.dtype not in (scalar, vec):
+        raise SubdivInputError(f"{what} must hold {precision} (the refiner's precision) or its vec3, got "
+                               f"{arr.dtype.__name__}", element="data")
     if not arr.is_contiguous:
         raise SubdivInputError(f"{what} must be contiguous", element="data")
-    return ev.layout(arr)
+    return arr if arr.dtype == vec else ev.kernel_view(view)
 
 
 def _result_like(adj: Adjoint, x_user: wp.array, rows: int, width: int, requires_grad: bool):
@@ -1034,7 +1011,7 @@ def _result_like(adj: Adjoint, x_user: wp.array, rows: int, width: int, requires
         shape, dtype = (rows, width), adj.scalar
     out = wp.empty(shape, dtype=dtype, device=adj.device, requires_grad=requires_grad)
     if out.ndim == 2:
-        return out, ev.layout(out)
+        return out, ev.kernel_view(out)
     return out, (out if dtype == adj.vec else out.reshape((rows, 1)))
 
 
@@ -1042,7 +1019,7 @@ def _grad_view(arr: wp.array, rows: int) -> wp.array:
     g = arr.grad
     if g.ndim == 1 and g.dtype in (wp.vec3f, wp.vec3d):
         return g
-    return ev.layout(g.reshape((rows, 1)) if g.ndim == 1 else g)
+    return ev.kernel_view(g.reshape((rows, 1)) if g.ndim == 1 else g)
 
 
 def _record(inputs, output, backward) -> None:
