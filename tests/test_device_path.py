@@ -236,7 +236,7 @@ def test_cpu_graph_capture_replays_the_plan():
 def reference_limits(refiner, points):
     """Limit points and normals as before the device path: masks applied by direct launches to fresh device
     arrays of the given host points (through the deeper refiner's last step where masks are read deeper)."""
-    src_refiner = refiner._one_more_level() if refiner.limit_reads_deeper() else refiner
+    src_refiner = refiner.limit_source()[0]
     e = src_refiner.evaluator
     run = ev.Launcher(refiner.device, 1)
     pts = wp.array(np.ascontiguousarray(points, e._scalar_np), dtype=e._vec, device=refiner.device)

@@ -146,15 +146,6 @@ def step_entries(t: StencilTable):
     return r, t.indices.astype(np.int64), np.asarray(t.weights, np.float64)
 
 
-def full_tables(refiner, cache: bool = True) -> list:
-    """The full per-step stencil tables of ``refiner`` (:attr:`Refiner.tables`: every row over the parent level,
-    the rows the index kernels compute included). ``cache=False`` leaves them off the refiner unless they are
-    already there (the adjoint keeps only their transposes)."""
-    if cache or refiner._full_tables is not None:
-        return refiner.tables
-    return refiner.hierarchy.full_stencils()
-
-
 def _num_rows(t) -> int:
     return int(t.num_rows)
 
@@ -413,17 +404,10 @@ def _levels(refiner):
 
 
 # ------------------------------------------------------------------------------------------------ operator
-def _limit_source(refiner):
-    """(the refiner whose limit masks apply, whether it is one level deeper than ``refiner``)."""
-    if refiner.limit_reads_deeper():
-        return refiner._one_more_level(), True
-    return refiner, False
-
-
 def _step_operator(refiner, k: int, b: int, normal_control: bool) -> _Csr:
     """Step k (0-based) as a matrix: N F S, on ``b`` interleaved columns (b = 3: positions, with normal control)."""
     hierarchy = refiner.hierarchy
-    t = full_tables(refiner)[k]
+    t = refiner.tables[k]
     rows, cols, vals = step_entries(t)
     nr, ns = t.num_rows, t.num_sources
     op = _blocks(rows, cols, vals, (nr, ns), b)
@@ -473,7 +457,7 @@ def matrix(refiner, level=None, *, normal_control: bool = False, with_offset: bo
     for k in range(refiner.levels if limit else level):
         op = _spmm(_step_operator(refiner, k, b, normal_control), op)
     if limit:
-        source, deeper = _limit_source(refiner)
+        source, deeper = refiner.limit_source()
         if deeper:
             op = _spmm(_step_operator(source, refiner.levels, b, normal_control), op)
         pos = adjoint(source).limit_tables().position
@@ -556,18 +540,9 @@ class AdjointLimit:
     num_tangents: int
 
 
-_adjoint_lock = threading.Lock()
-
-
 def adjoint(refiner) -> "Adjoint":
-    """The refiner's :class:`Adjoint` (made on first use, then kept on the refiner)."""
-    adj = refiner.__dict__.get("_adjoint")
-    if adj is None:
-        with _adjoint_lock:
-            adj = refiner.__dict__.get("_adjoint")
-            if adj is None:
-                adj = refiner.__dict__["_adjoint"] = Adjoint(refiner)
-    return adj
+    """The refiner's :class:`Adjoint` (made on first use, then kept by the refiner: ``refiner.adjoint``)."""
+    return refiner.adjoint
 
 
 def _load(device) -> None:
@@ -794,7 +769,7 @@ class Adjoint:
     def limit_points_forward(self, x: wp.array) -> wp.array:
         """Limit values of the last level's data ``x`` (layout); width-3 data takes normal control in the extra
         step where the masks are read one level deeper (as :meth:`Refiner.limit_points`)."""
-        source, deeper = _limit_source(self.refiner)
+        source, deeper = self.refiner.limit_source()
         sa = adjoint(source)
         run = self._run()
         width = self.width(x)
@@ -809,7 +784,7 @@ class Adjoint:
 
     def limit_points_backward(self, grad: wp.array) -> wp.array:
         """The gradient with respect to the last level's data of a gradient of :meth:`limit_points_forward`."""
-        source, deeper = _limit_source(self.refiner)
+        source, deeper = self.refiner.limit_source()
         sa = adjoint(source)
         rec = sa.limit(self.refiner.num_vertices)
         width = self.width(grad)
@@ -827,7 +802,7 @@ class Adjoint:
     def limit_normals_forward(self, x: wp.array) -> wp.array:
         """Unit limit normals of the last level's positions ``x`` (vec3), as :meth:`Refiner.limit_normals`."""
         _check_positions(x)
-        source, deeper = _limit_source(self.refiner)
+        source, deeper = self.refiner.limit_source()
         sa = adjoint(source)
         run = self._run()
         if deeper:
@@ -852,7 +827,7 @@ class Adjoint:
         normals (vec3 arrays); recomputes the tangents from ``x``."""
         _check_positions(x)
         _check_positions(grad)
-        source, deeper = _limit_source(self.refiner)
+        source, deeper = self.refiner.limit_source()
         sa = adjoint(source)
         run = self._run()
         k = _kernels()
