@@ -92,7 +92,7 @@ def bytes_moved(refiner) -> tuple[int, int]:
     import dataclasses
 
     import warp as wp
-    from warp_subdiv.evaluator import evaluator as ev
+    from warp_subdiv import evaluator as ev
 
     e = refiner.evaluator
     real = 8 if refiner.precision.value == "float64" else 4

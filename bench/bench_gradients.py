@@ -33,7 +33,7 @@ def measure(name: str, level: int, repeats: int, threads: int, wall: bool, devic
 
     wp = quiet_warp()
     import warp_subdiv as ws
-    from warp_subdiv.gradients import operators as gradients
+    from warp_subdiv import gradients
     from warp_subdiv.io.obj import read_obj
 
     wp.init()
@@ -43,7 +43,7 @@ def measure(name: str, level: int, repeats: int, threads: int, wall: bool, devic
     t = time.perf_counter()
     r = ws.Refiner(mesh, level, scheme=scheme, device=device, threads=threads)
     build = time.perf_counter() - t
-    adj = gradients.operators(r)
+    adj = gradients.adjoint(r)
     t = time.perf_counter()
     adj.prepare()
     prepare = time.perf_counter() - t

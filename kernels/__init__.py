@@ -1,7 +1,7 @@
 """Warp kernels of warp-subdiv (installed as ``warp_subdiv.kernels``).
 
 Kernels know nothing about creases or schemes: they apply tables that :mod:`warp_subdiv.tables` and
-:mod:`warp_subdiv.projections` built, to vertex data held as 2-D arrays (rows, width) of float32 or float64
+:mod:`warp_subdiv.tables.projections` built, to vertex data held as 2-D arrays (rows, width) of float32 or float64
 (one compiled overload per precision serves every width).
 """
 from .projection import (  # noqa: F401

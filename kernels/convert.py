@@ -1,5 +1,4 @@
-"""Copy of vertex data between device arrays of any strides and precisions (issue 17: data that stays on the
-device).
+"""Copy of vertex data between device arrays of any strides and precisions (for data that stays on the device).
 
 :func:`cast_rows` copies a (rows, width) array into another of the same shape, converting the scalar type:
 control points that arrive as a device array (a Warp array, a torch or JAX tensor, any DLPack or

@@ -9,7 +9,7 @@ import warp as wp
 import warp_subdiv as ws
 from warp_subdiv.runtime import estimate
 from warp_subdiv.evaluator import interop
-from warp_subdiv.evaluator import evaluator as ev
+from warp_subdiv import evaluator as ev
 from warp_subdiv.runtime import threads as wthreads
 
 from conftest import load_mesh
@@ -30,7 +30,7 @@ def direct(refiner, data, normal_control):
     """The evaluation as it was before plans: every step launched directly (one thread), fresh numpy out."""
     e = refiner.evaluator
     records = e.records()
-    levels, scratch = e._level_views(data.shape[1])
+    levels, scratch = e.level_views(data.shape[1])
     levels[0].numpy()[...] = data if levels[0].ndim == 2 else data.reshape(-1, 3)
     for step, src, dst, tmp in zip(records, levels[:-1], levels[1:], scratch):
         ev.refine_step(step, src, dst, tmp, normal_control, ev.Launcher(refiner.device, 1))
@@ -236,7 +236,7 @@ def test_cpu_graph_capture_replays_the_plan():
 def reference_limits(refiner, points):
     """Limit points and normals as before the device path: masks applied by direct launches to fresh device
     arrays of the given host points (through the deeper refiner's last step where masks are read deeper)."""
-    src_refiner = refiner._one_more_level() if refiner.limit_reads_deeper() else refiner
+    src_refiner = refiner.limit_source()[0]
     e = src_refiner.evaluator
     run = ev.Launcher(refiner.device, 1)
     pts = wp.array(np.ascontiguousarray(points, e._scalar_np), dtype=e._vec, device=refiner.device)
@@ -405,13 +405,13 @@ def test_cpu_tables_expanded_from_the_third_evaluation(monkeypatch):
     them would cost more than it saves for a mesh evaluated once or twice) and the third and later the expanded
     ones of steps with EXPAND_MIN_ROWS rows or more (smaller steps keep the compact ones: they evaluate as fast);
     every result is bitwise the same, and explicit True or False keeps its tables throughout."""
-    from warp_subdiv.evaluator import evaluator
+    from warp_subdiv.evaluator import records
 
     mesh = load_mesh("cube")
     expected = ws.Refiner(mesh, 3, device="cpu", threads=1).evaluate(mesh.points)
 
     def expansions(min_rows):
-        monkeypatch.setattr(evaluator, "EXPAND_MIN_ROWS", min_rows)
+        monkeypatch.setattr(records, "EXPAND_MIN_ROWS", min_rows)
         r = ws.Refiner(mesh, 3, device="cpu", threads=1)
         seen = []
         for _ in range(4):

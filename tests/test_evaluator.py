@@ -6,7 +6,7 @@ import pytest
 import warp as wp
 
 import warp_subdiv as ws
-from warp_subdiv.evaluator import evaluator as ev
+from warp_subdiv import evaluator as ev
 from warp_subdiv import kernels
 
 from conftest import load_mesh

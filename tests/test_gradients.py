@@ -6,7 +6,10 @@ import pytest
 import warp as wp
 
 import warp_subdiv as ws
-from warp_subdiv.gradients import operators as G
+from warp_subdiv import gradients as G
+from warp_subdiv.gradients import transposed
+from warp_subdiv.gradients.records import RegularRecord
+from warp_subdiv.tables import rows_of
 from warp_subdiv.runtime import threads as th
 
 from conftest import load_mesh
@@ -234,15 +237,15 @@ def test_two_pass_transposed_steps():
     as one pass, up to rounding, and the near part covers every parent row; so does the two-pass Loop step."""
     r = refiner("cc-boundary-flatness-normals")
     for t in r.tables:
-        split = G.transposed_step(t, split=True)
+        split = transposed.transposed_step(t, split=True)
         assert split.near.num_rows == t.num_sources and split.far.num_rows > 0
         dense = np.zeros((t.num_sources, t.num_rows))
         for part in (split.near, split.far):
-            rows = G.rows_of(part.offsets)
+            rows = rows_of(part.offsets)
             rows = rows if part.rows is None else part.rows[rows]
             np.add.at(dense, (rows, part.indices), part.weights)
         expected = np.zeros_like(dense)
-        np.add.at(expected, (t.indices, G.rows_of(t.offsets)), t.weights)
+        np.add.at(expected, (t.indices, rows_of(t.offsets)), t.weights)
         np.testing.assert_allclose(dense, expected, atol=1e-15)
     import unittest.mock as mock
 
@@ -251,21 +254,21 @@ def test_two_pass_transposed_steps():
         g = np.random.default_rng(9).standard_normal((r.num_vertices, 3))
         one = r.evaluate_vjp(g)
         two = ws.Refiner(r.mesh, r.levels, options=r.options, device="cpu")
-        with mock.patch.object(G, "SPLIT_ROWS", 1):  # every step in two passes (Loop: ring, then edges)
+        with mock.patch.object(transposed, "SPLIT_ROWS", 1):  # every step in two passes (Loop: ring, then edges)
             np.testing.assert_allclose(two.evaluate_vjp(g), one, atol=1e-12)
         if r.scheme.value == "loop":
-            assert any(s.rows.far is not None for s in G.adjoint(two)._steps.values()
-                       if isinstance(s.rows, G.RegularRecord))
+            assert any(s.rows.far is not None for s in G.adjoint(two).tables.steps.values()
+                       if isinstance(s.rows, RegularRecord))
 
 
-@pytest.mark.parametrize("case,split_rows", [("cc-boundary-flatness-normals", G.SPLIT_ROWS),
+@pytest.mark.parametrize("case,split_rows", [("cc-boundary-flatness-normals", transposed.SPLIT_ROWS),
                                              ("loop-boundary-normal", 1)])
 def test_backward_is_bitwise_deterministic(monkeypatch, case, split_rows):
     """Two backward passes give the same bits, and so do 1, 2 and 3 CPU threads (launches split into row
     ranges of a few rows), for evaluate, limit_points and limit_normals, in float32 and float64: Catmull-Clark
     and Loop (with the two-pass steps of large levels)."""
     monkeypatch.setattr(th, "MIN_ROWS", 3)
-    monkeypatch.setattr(G, "SPLIT_ROWS", split_rows)
+    monkeypatch.setattr(transposed, "SPLIT_ROWS", split_rows)
     for precision in ("float32", "float64"):
         results = []
         for threads in (1, 2, 3):

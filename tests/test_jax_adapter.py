@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import warp_subdiv as ws
-from warp_subdiv.gradients import operators as G
+from warp_subdiv.evaluator import kernel_view
 
 from conftest import load_mesh
 
@@ -88,7 +88,7 @@ def test_jit_matches_eager(x64):
     p = jnp.asarray(_points(r))
     eager = jax.value_and_grad(loss)(p)
     assert calls == []
-    assert G.ev.layout(jax_to_warp(p)).ptr == p.unsafe_buffer_pointer()  # DLPack: the same memory
+    assert kernel_view(jax_to_warp(p)).ptr == p.unsafe_buffer_pointer()  # DLPack: the same memory
     jitted = jax.jit(jax.value_and_grad(loss))(p)
     assert set(calls) == {"evaluate", "limit_normals", "evaluate_vjp", "limit_normals_vjp"}
     np.testing.assert_allclose(float(jitted[0]), float(eager[0]), rtol=1e-13)

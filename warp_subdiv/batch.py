@@ -175,10 +175,6 @@ class MeshBatch:
         self._contiguous = bool(np.all(order == np.arange(len(order))))
         self._starts = self._local = None  # made by the first topology() call
 
-    @property
-    def num_members(self) -> int:
-        return len(self.meshes)
-
     def rows(self, i: int) -> np.ndarray:
         """(refined vertices of member ``i``,) int64: the union's refined rows of member ``i``'s refined
         vertices, in the order of the member's own refiner."""

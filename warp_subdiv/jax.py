@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import warp as wp
 
-from .evaluator import evaluator as ev
+from .evaluator import kernel_view
 from . import gradients as G
 
 __all__ = ["evaluate", "limit_normals", "limit_points", "function"]
@@ -57,11 +57,11 @@ def function(refiner, kind: str = "evaluate", normal_control=None):
     "limit_normals"), made once per refiner, kind and ``normal_control`` (usable under ``jax.jit``)."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
-    key = (kind, None if normal_control is None else bool(normal_control))
+    key = ("jax", kind, None if normal_control is None else bool(normal_control))
+    cache = G.adjoint(refiner).adapter_functions  # kept with the refiner's gradient state
     with _lock:
-        cache = refiner.__dict__.setdefault("_jax_functions", {})
         if key not in cache:
-            cache[key] = _make(refiner, kind, key[1])
+            cache[key] = _make(refiner, kind, key[2])
         return cache[key]
 
 
@@ -95,7 +95,7 @@ def _make(refiner, kind: str, normal_control):
         return not isinstance(x, jax.core.Tracer) and _warp_device(x) == str(refiner.device)
 
     def to_warp(x):
-        return ev.layout(wp.from_jax(x))
+        return kernel_view(wp.from_jax(x))
 
     # ----- forward
     def host_forward(x):

@@ -1,12 +1,14 @@
 """The public entry points: :class:`Refiner` (topology and tables once, evaluate many times) and :func:`refine`.
 
 A :class:`Refiner` is a thin facade: a :class:`~warp_subdiv.tables.hierarchy.Hierarchy` (numpy: levels, step tables,
-parent maps) evaluated by an :class:`~warp_subdiv.evaluator.Evaluator` (Warp kernels), plus the face-varying
-channels it owns.
+parent maps) evaluated by an :class:`~warp_subdiv.evaluator.Evaluator` (Warp kernels), plus what it owns for other
+units: its face-varying channels and the gradients' state (:attr:`Refiner.adjoint`), and, where limit masks are read
+one level deeper, the refiner of that level (:meth:`Refiner.limit_source`).
 """
 from __future__ import annotations
 
 import numbers
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -14,14 +16,13 @@ import warp as wp
 
 from .errors import SubdivInputError
 from .runtime import estimate
-from .evaluator import interop
-from .evaluator import Evaluated, Evaluator, default_device, normal_control_for
-from .tables import FaceVaryingChannel, check_value_indices
-from .tables import Hierarchy
-from .mesh import DATA_BOUND, Mesh, check_rows
+from .evaluator import Evaluated, Evaluator, default_device, device_rows, normal_control_for, vertex_rows
+from .tables import FaceVaryingChannel, Hierarchy, StencilTable, check_value_indices
+from .mesh import Mesh
 from .options import FaceVaryingMode, Options
-from .tables import StencilTable
 from .runtime.threads import resolve as resolve_threads
+
+_adjoint_lock = threading.Lock()  # one refiner's adjoint is made once, whichever thread asks first
 
 
 @dataclass
@@ -54,7 +55,89 @@ class Refined:
         return len(self.face_vertex_counts)
 
 
-class Refiner:
+class _GradientMethods:
+    """The gradient entry points of a :class:`Refiner` (one of its bases): each hands the refiner to
+    :mod:`warp_subdiv.gradients`, whose state for the refiner (:attr:`adjoint`) the refiner keeps."""
+
+    @property
+    def adjoint(self):
+        """The forward and backward passes of this refiner's gradients with their transposed tables
+        (:class:`warp_subdiv.gradients.Adjoint`), made on first use and kept with the refiner."""
+        if self._adjoint is None:
+            from . import gradients
+
+            with _adjoint_lock:
+                if self._adjoint is None:
+                    self._adjoint = gradients.Adjoint(self)
+        return self._adjoint
+
+    def matrix(self, level=None, *, normal_control: bool = False, with_offset: bool = False):
+        """The sparse map from control data to ``level``'s data (None: the last level; ``"limit"``: limit
+        positions): a ``scipy.sparse.csr_matrix`` (a :class:`~warp_subdiv.gradients.CSRMatrix` of the same CSR
+        arrays without scipy), ``evaluate(data, normal_control=False) == M @ data``; with ``normal_control`` the
+        (3N, 3n) map of positions flattened row by row; ``with_offset``: (M, affine offset). See
+        :func:`warp_subdiv.gradients.matrix`."""
+        from . import gradients
+
+        return gradients.matrix(self, level, normal_control=normal_control, with_offset=with_offset)
+
+    def evaluate_vjp(self, grad, normal_control=None) -> np.ndarray:
+        """Gradient with respect to the control data of ``grad``, a gradient of :meth:`evaluate`'s result (the
+        transposed tables applied; deterministic). See :func:`warp_subdiv.gradients.evaluate_vjp`."""
+        from . import gradients
+
+        return gradients.evaluate_vjp(self, grad, normal_control)
+
+    def limit_points_vjp(self, grad) -> np.ndarray:
+        """Gradient with respect to the refined data of ``grad``, a gradient of :meth:`limit_points`' result."""
+        from . import gradients
+
+        return gradients.limit_points_vjp(self, grad)
+
+    def limit_normals_vjp(self, refined_points, grad) -> np.ndarray:
+        """Gradient with respect to ``refined_points`` of ``grad``, a gradient of :meth:`limit_normals`' result
+        (the true derivative of the unit normals)."""
+        from . import gradients
+
+        return gradients.limit_normals_vjp(self, refined_points, grad)
+
+
+class _FaceVaryingMethods:
+    """The face-varying channels of a :class:`Refiner` (one of its bases): the refiner owns its latest channel
+    and passes itself in."""
+
+    def evaluate_face_varying(self, values, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
+        """Refine a face-varying channel (UVs): ``values`` (m,) or (m, d), ``indices`` one per face corner.
+
+        Returns (refined values, refined indices int32, one per corner of the refined faces as in
+        :meth:`topology`). ``mode``: OpenSubdiv's FVarLinearInterpolation, a
+        :class:`~warp_subdiv.options.FaceVaryingMode` or its value ("none", "corners-only", "corners-plus1"
+        (USD's default), "corners-plus2", "boundaries", "all"); see :mod:`warp_subdiv.tables.facevarying`. The
+        channel's topology is built on the first call for given indices and mode and reused, so later frames
+        cost one evaluation.
+        """
+        return self.face_varying_channel(indices, mode).evaluate(values)
+
+    def limit_face_varying(self, values, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
+        """Limit values of a face-varying channel at the refined face corners (OpenSubdiv's
+        LimitFaceVarying); same arguments and results as :meth:`evaluate_face_varying`."""
+        return self.face_varying_channel(indices, mode).limit(values)
+
+    def face_varying_channel(self, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
+        """The refiner's face-varying channel for ``indices`` and ``mode`` (built once, then reused).
+
+        The refiner owns its channel and passes itself in: the channel refines its value mesh with a refiner of
+        this type and these options (:class:`~warp_subdiv.tables.facevarying.FaceVaryingChannel`)."""
+
+        mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
+        indices = check_value_indices(indices, len(self.mesh.face_vertex_indices))  # before the cache: 1-D int64
+        key = (mode, indices.tobytes())
+        if self._face_varying.get("key") != key:
+            self._face_varying = {"key": key, "channel": FaceVaryingChannel(self, indices, mode)}
+        return self._face_varying["channel"]
+
+
+class Refiner(_GradientMethods, _FaceVaryingMethods):
     """Builds the topology and stencil tables of ``levels`` refinement steps once.
 
     :meth:`evaluate` then refines any per-vertex data (positions of animation frames, vertex primvars) of
@@ -79,7 +162,7 @@ class Refiner:
         self.options = options
         self.device = wp.get_device(device if device is not None else default_device())
         self.threads = resolve_threads(threads)
-        self._device_guard()
+        _device_guard(mesh, self.levels, options, self.device)
         self.hierarchy = Hierarchy(mesh, self.levels, options, max_memory=max_memory, threads=self.threads,
                                    reuse=reuse)
         self.evaluator = Evaluator(self.hierarchy, device=self.device, precision=options.precision,
@@ -88,6 +171,7 @@ class Refiner:
         self.num_vertices = self.hierarchy.num_vertices
         self._full_tables = None
         self._deeper = None
+        self._adjoint = None
         self._face_varying: dict = {}
 
     # option values, as plain attributes (read-only views of self.options)
@@ -134,49 +218,10 @@ class Refiner:
         """Bytes of everything a step keeps on the device (index tables, masks, explicit stencils)."""
         return self.evaluator.table_bytes()
 
-    def _check_data(self, data) -> np.ndarray:
-        return check_rows(data, self.base_num_vertices, "vertex data", bound=DATA_BOUND[self.precision.value])
-
-    def _device_guard(self) -> None:
-        """On CUDA, refuse before any work when the step tables and the level buffers of positions would not
-        fit the device's free memory (:func:`warp_subdiv.runtime.estimate.check_device_memory`; nothing on the CPU)."""
-        mesh, o = self.mesh, self.options
-        counts = estimate.level_counts(mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, self.levels,
-                                       "loop" if o.scheme.value == "loop" else "catmull-clark")
-        tagged = 0 if mesh.creases is None else len(mesh.creases)
-        need = sum(estimate.device_bytes(counts, o.scheme.value, o.precision.value, tagged_edges=tagged).values())
-        estimate.check_device_memory(need, self.device, f"refining to level {self.levels}")
-
-    def _limit_guard(self) -> None:
-        """Refuse limit masks whose 32-bit table offsets would wrap, or (CUDA) that would not fit the device's
-        free memory, before they are built."""
-        if self.evaluator._limit is not None:
-            return
-        level = self.hierarchy.final
-        scheme = "loop" if self.options.scheme.value == "loop" else "catmull-clark"
-        estimate.check_limit_tables(level.num_vertices, level.num_corners, scheme, self.levels)
-        # (the last level may be built faces-only, without edges: the limit items read vertices and corners)
-        counts = [estimate.LevelCounts(self.levels, level.num_vertices, level.num_faces, 0, level.num_corners)]
-        items = estimate.device_bytes(counts, scheme, self.precision.value, limit=True)
-        estimate.check_device_memory(items["limit masks"] + items["limit outputs"], self.device,
-                                     f"limit masks of level {self.levels}")
-
     def _rows_data(self, data, rows: int, what: str):
-        """(data, one_d): a device array as a checked (rows, d) Warp view (:mod:`warp_subdiv.evaluator.interop`; values
-        are not read back to be checked), or host data checked by :func:`~warp_subdiv.mesh.check_rows`
-        (finite, within the precision's bound); one_d: the data was (rows,)."""
-        view = interop.device_rows(data, rows, what, self.device)
-        if view is not None:
-            return view, getattr(data, "ndim", 2) == 1 and view.shape[1] == 1
-        if (isinstance(data, np.ndarray) and data.ndim == 2 and data.dtype.kind == "f" and data.shape[0] == rows
-                and data.shape[1] >= 1 and data.size):
-            bound = DATA_BOUND[self.precision.value]
-            lo, hi = float(data.min()), float(data.max())  # NaN fails the comparisons, infinity the bound
-            if -bound <= lo and hi <= bound and -np.inf < lo and hi < np.inf:
-                return data, False
-        if rows == self.base_num_vertices and what == "vertex data":
-            return self._check_data(data), np.ndim(data) == 1
-        return check_rows(data, rows, what, bound=DATA_BOUND[self.precision.value]), np.ndim(data) == 1
+        """(data, one_d): host data or a device array checked as (rows, d)
+        (:func:`warp_subdiv.evaluator.vertex_rows`)."""
+        return vertex_rows(data, rows, what, self.device, self.precision.value)
 
     def _vertex_data(self, points):
         return self._rows_data(points, self.base_num_vertices, "vertex data")
@@ -207,7 +252,7 @@ class Refiner:
                                    value=tuple(arr.shape))
         if out is None:
             return self.evaluator.evaluate_device(arr, normal_control)
-        view = interop.device_rows(out, self.num_vertices, "out", self.device)
+        view = device_rows(out, self.num_vertices, "out", self.device)
         if view is None or view.device != self.device or view.shape[1] != 3:
             raise SubdivInputError(f"out must be a device array ({self.num_vertices}, 3) on {self.device}",
                                    element="data", value=type(out).__name__)
@@ -233,37 +278,6 @@ class Refiner:
         out = self.evaluator.evaluate(arr, normal_control, rows)
         return out[:, 0] if one_d else out
 
-    # --------------------------------------------------------------------------------------------- gradients
-    def matrix(self, level=None, *, normal_control: bool = False, with_offset: bool = False):
-        """The sparse map from control data to ``level``'s data (None: the last level; ``"limit"``: limit
-        positions): a ``scipy.sparse.csr_matrix`` (a :class:`~warp_subdiv.gradients.CSRMatrix` of the same CSR
-        arrays without scipy), ``evaluate(data, normal_control=False) == M @ data``; with ``normal_control`` the
-        (3N, 3n) map of positions flattened row by row; ``with_offset``: (M, affine offset). See
-        :func:`warp_subdiv.gradients.matrix`."""
-        from . import gradients
-
-        return gradients.matrix(self, level, normal_control=normal_control, with_offset=with_offset)
-
-    def evaluate_vjp(self, grad, normal_control=None) -> np.ndarray:
-        """Gradient with respect to the control data of ``grad``, a gradient of :meth:`evaluate`'s result (the
-        transposed tables applied; deterministic). See :func:`warp_subdiv.gradients.evaluate_vjp`."""
-        from . import gradients
-
-        return gradients.evaluate_vjp(self, grad, normal_control)
-
-    def limit_points_vjp(self, grad) -> np.ndarray:
-        """Gradient with respect to the refined data of ``grad``, a gradient of :meth:`limit_points`' result."""
-        from . import gradients
-
-        return gradients.limit_points_vjp(self, grad)
-
-    def limit_normals_vjp(self, refined_points, grad) -> np.ndarray:
-        """Gradient with respect to ``refined_points`` of ``grad``, a gradient of :meth:`limit_normals`' result
-        (the true derivative of the unit normals)."""
-        from . import gradients
-
-        return gradients.limit_normals_vjp(self, refined_points, grad)
-
     # ---------------------------------------------------------------------------------------------
     def limit_points(self, refined_points, *, on_device: bool = False):
         """Limit positions of the refined vertices (docs/rules.md section 9): l^0 applied to each vertex's ring.
@@ -274,13 +288,9 @@ class Refiner:
         :meth:`evaluate_device` takes; its own result is read where it lies, with no copy); ``on_device``: return
         a device array (a view of a shared buffer, valid until the next call) instead of numpy."""
         points, one_d = self._rows_data(refined_points, self.num_vertices, "refined points")
-        if self.limit_reads_deeper():
-            deeper = self._one_more_level()
-            deeper._limit_guard()
-            out = deeper.evaluator.limit_points(points, last_step=True, rows=self.num_vertices, on_device=on_device)
-        else:
-            self._limit_guard()
-            out = self.evaluator.limit_points(points, on_device=on_device)
+        source, deeper = self._guarded_limit_source()
+        out = source.evaluator.limit_points(points, last_step=deeper, rows=self.num_vertices if deeper else None,
+                                            on_device=on_device)
         return out[:, 0] if one_d and not on_device else out
 
     def limit_normals(self, refined_points, *, on_device: bool = False):
@@ -295,13 +305,9 @@ class Refiner:
         if points.shape[1] != 3:
             raise SubdivInputError(f"limit normals take (N, 3) positions, got {tuple(np.shape(points))}",
                                    element="data", value=tuple(np.shape(points)))
-        if self.limit_reads_deeper():
-            deeper = self._one_more_level()
-            deeper._limit_guard()
-            return deeper.evaluator.limit_normals(points, deeper._prescribed(), last_step=True,
-                                                  rows=self.num_vertices, on_device=on_device)
-        self._limit_guard()
-        return self.evaluator.limit_normals(points, self._prescribed(), on_device=on_device)
+        source, deeper = self._guarded_limit_source()
+        return source.evaluator.limit_normals(points, source._prescribed(), last_step=deeper,
+                                              rows=self.num_vertices if deeper else None, on_device=on_device)
 
     def _prescribed(self):
         """(ids, normals) of the prescribed normals that replace computed limit normals (none where normal
@@ -328,61 +334,33 @@ class Refiner:
         if limit_normals and width != 3:
             raise SubdivInputError(f"limit normals take (n, 3) positions, got width {width}", element="data",
                                    value=width)
-        if self.limit_reads_deeper():
-            deeper = self._one_more_level()
-            deeper._limit_guard()
-            controls = (bool(normal_control),) * self.levels + (width == 3,)  # the deeper step: as limit_points
-            res = deeper.evaluator.evaluate_with_limits(
-                data, controls, limit_points=limit_points, limit_normals=limit_normals,
-                prescribed=deeper._prescribed(), level=-2, rows=self.num_vertices, on_device=on_device)
-        else:
-            self._limit_guard()
-            res = self.evaluator.evaluate_with_limits(
-                data, bool(normal_control), limit_points=limit_points, limit_normals=limit_normals,
-                prescribed=self._prescribed(), on_device=on_device)
+        source, deeper = self._guarded_limit_source()
+        controls = (bool(normal_control),) * self.levels + (width == 3,) if deeper else bool(normal_control)
+        res = source.evaluator.evaluate_with_limits(  # (the deeper step takes normal control as limit_points)
+            data, controls, limit_points=limit_points, limit_normals=limit_normals, prescribed=source._prescribed(),
+            level=-2 if deeper else -1, rows=self.num_vertices if deeper else None, on_device=on_device)
         if one_d and not on_device:
             res.points = res.points[:, 0]
             res.limit_points = None if res.limit_points is None else res.limit_points[:, 0]
         return res
 
-    def _one_more_level(self) -> "Refiner":
-        """A refiner one level deeper, with the same options, for limit masks (see limit_reads_deeper): built
-        from the control points the tables were built from (a reused hierarchy's, see ``reuse``)."""
+    def limit_source(self) -> tuple["Refiner", bool]:
+        """(the refiner whose limit masks serve this level's vertices, whether it is one level deeper): this
+        refiner, or where this level's masks are not exact (:meth:`limit_reads_deeper`) a refiner one level
+        deeper with the same options (made once), whose first vertices are this level's."""
+        if not self.limit_reads_deeper():
+            return self, False
         if self._deeper is None:
             self._deeper = Refiner(self.hierarchy.mesh, self.levels + 1, options=self.options, device=self.device,
                                    threads=self.threads)
-        return self._deeper
+        return self._deeper, True
 
-    # ---------------------------------------------------------------------------------------------
-    def evaluate_face_varying(self, values, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
-        """Refine a face-varying channel (UVs): ``values`` (m,) or (m, d), ``indices`` one per face corner.
-
-        Returns (refined values, refined indices int32, one per corner of the refined faces as in
-        :meth:`topology`). ``mode``: OpenSubdiv's FVarLinearInterpolation, a
-        :class:`~warp_subdiv.options.FaceVaryingMode` or its value ("none", "corners-only", "corners-plus1"
-        (USD's default), "corners-plus2", "boundaries", "all"); see :mod:`warp_subdiv.tables.facevarying`. The
-        channel's topology is built on the first call for given indices and mode and reused, so later frames
-        cost one evaluation.
-        """
-        return self.face_varying_channel(indices, mode).evaluate(values)
-
-    def limit_face_varying(self, values, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
-        """Limit values of a face-varying channel at the refined face corners (OpenSubdiv's
-        LimitFaceVarying); same arguments and results as :meth:`evaluate_face_varying`."""
-        return self.face_varying_channel(indices, mode).limit(values)
-
-    def face_varying_channel(self, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
-        """The refiner's face-varying channel for ``indices`` and ``mode`` (built once, then reused).
-
-        The refiner owns its channel and passes itself in: the channel refines its value mesh with a refiner of
-        this type and these options (:class:`~warp_subdiv.tables.facevarying.FaceVaryingChannel`)."""
-
-        mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
-        indices = check_value_indices(indices, len(self.mesh.face_vertex_indices))  # before the cache: 1-D int64
-        key = (mode, indices.tobytes())
-        if self._face_varying.get("key") != key:
-            self._face_varying = {"key": key, "channel": FaceVaryingChannel(self, indices, mode)}
-        return self._face_varying["channel"]
+    def _guarded_limit_source(self) -> tuple["Refiner", bool]:
+        """:meth:`limit_source`, its limit masks refused before they are built where they would not fit."""
+        source, deeper = self.limit_source()
+        if not source.evaluator.has_limit_masks:
+            _limit_guard(source)
+        return source, deeper
 
     def refine(self, points=None) -> Refined:
         """The refined mesh of ``points`` (default: the mesh's own points)."""
@@ -401,6 +379,29 @@ class Refiner:
                      "triangle_subdivision": o.triangle_subdivision.value},
             refiner=self,
         )
+
+
+def _device_guard(mesh: Mesh, levels: int, o: Options, device) -> None:
+    """On CUDA, refuse before any work when the step tables and the level buffers of positions would not fit the
+    device's free memory (:func:`warp_subdiv.runtime.estimate.check_device_memory`; nothing on the CPU)."""
+    counts = estimate.level_counts(mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, levels,
+                                   "loop" if o.scheme.value == "loop" else "catmull-clark")
+    tagged = 0 if mesh.creases is None else len(mesh.creases)
+    need = sum(estimate.device_bytes(counts, o.scheme.value, o.precision.value, tagged_edges=tagged).values())
+    estimate.check_device_memory(need, device, f"refining to level {levels}")
+
+
+def _limit_guard(refiner: Refiner) -> None:
+    """Refuse the limit masks of ``refiner`` whose 32-bit table offsets would wrap, or (CUDA) that would not fit
+    the device's free memory, before they are built."""
+    level = refiner.hierarchy.final
+    scheme = "loop" if refiner.options.scheme.value == "loop" else "catmull-clark"
+    estimate.check_limit_tables(level.num_vertices, level.num_corners, scheme, refiner.levels)
+    # (the last level may be built faces-only, without edges: the limit items read vertices and corners)
+    counts = [estimate.LevelCounts(refiner.levels, level.num_vertices, level.num_faces, 0, level.num_corners)]
+    items = estimate.device_bytes(counts, scheme, refiner.precision.value, limit=True)
+    estimate.check_device_memory(items["limit masks"] + items["limit outputs"], refiner.device,
+                                 f"limit masks of level {refiner.levels}")
 
 
 def refine(mesh: Mesh, levels: int, *, options: Options | None = None, device=None,

@@ -22,7 +22,7 @@ from __future__ import annotations
 import torch
 import warp as wp
 
-from .evaluator import evaluator as ev
+from .evaluator import kernel_view
 from . import gradients as G
 
 __all__ = ["evaluate", "limit_normals", "limit_points"]
@@ -63,8 +63,8 @@ def _apply(refiner, kind, normal_control, x: torch.Tensor) -> torch.Tensor:
 
 
 def _to_warp(t: torch.Tensor) -> wp.array:
-    """A contiguous tensor (rows, d) as a Warp array in the kernels' layout, sharing its memory."""
-    return ev.layout(wp.from_torch(t.detach().contiguous()))
+    """A contiguous tensor (rows, d) as a Warp array in the kernels' view, sharing its memory."""
+    return kernel_view(wp.from_torch(t.detach().contiguous()))
 
 
 def _to_torch(a: wp.array, rows: int, width: int) -> torch.Tensor:

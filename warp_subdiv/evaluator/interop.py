@@ -1,5 +1,5 @@
 """Vertex data that is already a device array: Warp arrays, DLPack producers (torch, JAX, CuPy, ...) and
-``__cuda_array_interface__`` producers, wrapped without a copy (issue 17).
+``__cuda_array_interface__`` producers, wrapped without a copy.
 
 :func:`device_rows` tells host data (numpy arrays, lists: None) from a device array and returns the latter as
 a Warp view of its memory, shaped (rows, width) of float32 or float64 with the producer's strides; the

@@ -1,0 +1,188 @@
+"""The gradients' entry points: :func:`evaluate`, :func:`limit_points` and :func:`limit_normals` take and return
+Warp arrays and record their backward pass (the refiner's :class:`~warp_subdiv.gradients.passes.Adjoint`) on an
+active ``wp.Tape`` (``Tape.record_func``); :func:`evaluate_vjp`, :func:`limit_points_vjp` and
+:func:`limit_normals_vjp` take and return numpy arrays. Host data is checked by
+:func:`~warp_subdiv.evaluator.host_rows`, Warp arrays by :func:`~warp_subdiv.evaluator.device_rows` (as the
+refiner checks its inputs).
+"""
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..errors import SubdivInputError
+from ..evaluator import PRECISIONS, device_rows, host_rows, kernel_view, normal_control_for
+from .passes import Adjoint, adjoint, check_positions
+from .records import _kernels
+
+
+def _host_rows(refiner, grad, rows: int, what: str) -> np.ndarray:
+    return host_rows(grad, rows, what, refiner.options.precision.value)
+
+
+def _shaped(out: np.ndarray, like) -> np.ndarray:
+    return out[:, 0] if np.ndim(like) == 1 else out
+
+
+def evaluate_vjp(refiner, grad, normal_control=None) -> np.ndarray:
+    """The gradient with respect to the control data of ``grad`` (N, d) (or (N,)), a gradient of
+    ``refiner.evaluate(data, normal_control)``: the transposed map applied to it (the map is linear, so the
+    control data itself is not needed). ``normal_control`` as in :meth:`Refiner.evaluate` (None: on for width
+    3). Returns (n, d) in the evaluation precision."""
+    g = _host_rows(refiner, grad, refiner.num_vertices, "gradient")
+    if normal_control is None:
+        normal_control = g.shape[1] == 3
+    adj = adjoint(refiner)
+    return _shaped(adj.to_host(adj.backward(adj.to_device(g), bool(normal_control))), grad)
+
+
+def limit_points_vjp(refiner, grad) -> np.ndarray:
+    """The gradient with respect to the refined data of ``grad``, a gradient of ``refiner.limit_points(data)``
+    (same shape as the data; width-3 data is treated as positions, as there)."""
+    g = _host_rows(refiner, grad, refiner.num_vertices, "gradient")
+    adj = adjoint(refiner)
+    return _shaped(adj.to_host(adj.limit_points_backward(adj.to_device(g))), grad)
+
+
+def limit_normals_vjp(refiner, refined_points, grad) -> np.ndarray:
+    """The gradient with respect to the refined positions (N, 3) of ``grad`` (N, 3), a gradient of
+    ``refiner.limit_normals(refined_points)``: the true derivative of the normalised normals (rows of vertices
+    with a prescribed normal pass none)."""
+    x = _host_rows(refiner, refined_points, refiner.num_vertices, "refined points")
+    g = _host_rows(refiner, grad, refiner.num_vertices, "gradient")
+    for name, a in (("refined points", x), ("gradient", g)):
+        if a.shape[1] != 3:
+            raise SubdivInputError(f"limit normals take (N, 3) {name}, got {a.shape}", element="data",
+                                   value=a.shape)
+    adj = adjoint(refiner)
+    return adj.to_host(adj.limit_normals_backward(adj.to_device(x), adj.to_device(g)))
+
+
+def _active_tape():
+    ctx = getattr(getattr(wp, "_src", None), "context", None) or wp.context
+    return ctx.runtime.tape if ctx.runtime is not None else None
+
+
+class _NoTape:
+    """Within the block no Warp tape records (our kernels have no adjoints; the backward is recorded whole)."""
+
+    def __enter__(self):
+        ctx = getattr(getattr(wp, "_src", None), "context", None) or wp.context
+        self.ctx = ctx
+        self.tape = ctx.runtime.tape if ctx.runtime is not None else None
+        if self.tape is not None:
+            ctx.runtime.tape = None
+        return self.tape
+
+    def __exit__(self, *exc):
+        if self.tape is not None:
+            self.ctx.runtime.tape = self.tape
+
+
+def _user_array(refiner, arr, rows: int, what: str) -> wp.array:
+    """A caller's Warp array as the kernel view (vec3 for width 3), checked: (rows,), (rows, d) or vec3 (rows,),
+    on the refiner's device, of its precision, contiguous (the tape writes its gradient in place)."""
+    if not isinstance(arr, wp.array):
+        raise TypeError(f"{what} must be a warp array, got {type(arr).__name__}")
+    precision = refiner.options.precision.value
+    _, scalar, vec = PRECISIONS[precision]
+    if arr.device != refiner.device:
+        raise SubdivInputError(f"{what} is on {arr.device}, the refiner on {refiner.device}", element="data")
+    view = device_rows(arr, rows, what, refiner.device)
+    if arr.dtype not in (scalar, vec):
+        raise SubdivInputError(f"{what} must hold {precision} (the refiner's precision) or its vec3, got "
+                               f"{arr.dtype.__name__}", element="data")
+    if not arr.is_contiguous:
+        raise SubdivInputError(f"{what} must be contiguous", element="data")
+    return arr if arr.dtype == vec else kernel_view(view)
+
+
+def _result_like(adj: Adjoint, x_user: wp.array, rows: int, width: int, requires_grad: bool):
+    """(the array handed back, in the caller's shape convention, and its view in the kernels' layout)."""
+    if x_user.ndim == 1 and x_user.dtype == adj.vec:
+        shape, dtype = rows, adj.vec
+    elif x_user.ndim == 1:
+        shape, dtype = rows, adj.scalar
+    else:
+        shape, dtype = (rows, width), adj.scalar
+    out = wp.empty(shape, dtype=dtype, device=adj.device, requires_grad=requires_grad)
+    if out.ndim == 2:
+        return out, kernel_view(out)
+    return out, (out if dtype == adj.vec else out.reshape((rows, 1)))
+
+
+def _grad_view(arr: wp.array, rows: int) -> wp.array:
+    g = arr.grad
+    if g.ndim == 1 and g.dtype in (wp.vec3f, wp.vec3d):
+        return g
+    return kernel_view(g.reshape((rows, 1)) if g.ndim == 1 else g)
+
+
+def _record(inputs, output, backward) -> None:
+    tape = _active_tape()
+    if tape is None or not any(a.requires_grad for a in inputs):
+        return
+    tape.record_func(backward, [a for a in list(inputs) + [output] if a.requires_grad])
+
+
+def evaluate(refiner, points: wp.array, normal_control=None, requires_grad=None) -> wp.array:
+    """Refine a Warp array of control data (vec3 (n,), (n, d) or (n,) of the refiner's precision, on its device);
+    returns a fresh array of the last level in the same convention. ``normal_control`` as in
+    :meth:`Refiner.evaluate` (None: on for width 3). ``requires_grad`` (default: the input's): the result has a
+    gradient array, and under an active ``wp.Tape`` the backward pass (the transposed tables) is recorded; it
+    adds to ``points.grad``."""
+    adj = adjoint(refiner)
+    x = _user_array(refiner, points, refiner.base_num_vertices, "points")
+    width = adj.width(x)
+    nc = bool(normal_control_for(normal_control, width))
+    rg = points.requires_grad if requires_grad is None else bool(requires_grad)
+    out, view = _result_like(adj, points, refiner.num_vertices, width, rg)
+    with _NoTape():
+        wp.copy(view, adj.forward(x, nc))
+    n = refiner.base_num_vertices
+
+    def backward():
+        adj.backward(_grad_view(out, refiner.num_vertices), nc, out=_grad_view(points, n), accumulate=True)
+
+    _record([points], out, backward)
+    return out
+
+
+def limit_points(refiner, refined: wp.array, requires_grad=None) -> wp.array:
+    """Limit values of a Warp array of the last level's data (as :func:`evaluate` takes data), recorded on an
+    active tape; see :meth:`Refiner.limit_points`."""
+    adj = adjoint(refiner)
+    N = refiner.num_vertices
+    x = _user_array(refiner, refined, N, "refined points")
+    rg = refined.requires_grad if requires_grad is None else bool(requires_grad)
+    out, view = _result_like(adj, refined, N, adj.width(x), rg)
+    with _NoTape():
+        wp.copy(view, adj.limit_points_forward(x))
+
+    def backward():
+        g = adj.limit_points_backward(_grad_view(out, N))
+        adj.launcher.rows(_kernels().add_rows, N, [g, _grad_view(refined, N)])
+
+    _record([refined], out, backward)
+    return out
+
+
+def limit_normals(refiner, refined: wp.array, requires_grad=None) -> wp.array:
+    """Unit limit normals of a Warp array of the last level's positions (vec3 (N,) or (N, 3)), recorded on an
+    active tape (the backward recomputes the tangents from ``refined`` as it is then); see
+    :meth:`Refiner.limit_normals`."""
+    adj = adjoint(refiner)
+    N = refiner.num_vertices
+    x = _user_array(refiner, refined, N, "refined points")
+    check_positions(x)
+    rg = refined.requires_grad if requires_grad is None else bool(requires_grad)
+    out, view = _result_like(adj, refined, N, 3, rg)
+    with _NoTape():
+        wp.copy(view, adj.limit_normals_forward(x))
+
+    def backward():
+        g = adj.limit_normals_backward(x, _grad_view(out, N))
+        adj.launcher.rows(_kernels().add_rows, N, [g, _grad_view(refined, N)])
+
+    _record([refined], out, backward)
+    return out
