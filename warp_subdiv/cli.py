@@ -38,8 +38,22 @@ class UsageError(SubdivInputError):
     """A bad command line (exit 2)."""
 
 
+#: A command-line word that begins with a minus sign and a digit or a point is a value, never an option: frame
+#: ranges (``-10:-5``, ``-24:``), time codes (``-1e3``) and angles are negative. argparse before Python 3.13
+#: takes only plain negative numbers (``-5``, ``-2.5``) for values and any other such word for an unknown
+#: option, so ``--frames -10:-5`` failed with "expected one argument"; 3.13 reads them with this same pattern.
+#: No option of this command line looks like that, so reading them as values is never ambiguous.
+NEGATIVE_VALUE = re.compile(r"-\.?\d")
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error in one line (and exits 2), as every other user error."""
+    """argparse that reports a usage error in one line (and exits 2), as every other user error, and takes
+    words such as ``-10:-5`` for the values they are (:data:`NEGATIVE_VALUE`)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # argparse asks this pattern whether a word beginning with '-' is a value; it has no public setting
+        self._negative_number_matcher = NEGATIVE_VALUE
 
     def error(self, message):  # argparse API
         raise UsageError(f"{message} (see {self.prog} --help)")
