@@ -271,7 +271,8 @@ def _check_device(device) -> None:
         raise UsageError(f"--device {device}: {_one_line(exc)}") from None
 
 
-def _kind(path: str) -> str:
+def _kind(path: str) -> str | None:
+    """"obj" or "usd", the kind of file ``path`` names by its extension; None for any other."""
     from .io.usd_write import USD_EXTENSIONS
 
     ext = os.path.splitext(path)[1].lower()
@@ -279,16 +280,39 @@ def _kind(path: str) -> str:
         return "obj"
     if ext in USD_EXTENSIONS:
         return "usd"
-    raise SubdivInputError(f"{path}: only .obj, .usd, .usda and .usdc input is supported")
+    return None
+
+
+def _either(names) -> str:
+    """``(".a", ".b", ".c")`` -> ``".a, .b or .c"``."""
+    return ", ".join(names[:-1]) + " or " + names[-1] if len(names) > 1 else names[0]
 
 
 def _check_input(path: str) -> str:
+    """The kind of the input file ``path`` ("obj" or "usd"); an error when it is of another type or missing."""
     kind = _kind(path)
+    if kind is None:
+        raise SubdivInputError(f"{path}: only .obj, .usd, .usda and .usdc input is supported")
     if not os.path.exists(path):
         raise SubdivInputError(f"{path}: no such file")
     if os.path.isdir(path):
         raise SubdivInputError(f"{path}: is a folder, not a file")
     return kind
+
+
+def _check_output(path: str, input_kind: str) -> str:
+    """The kind of the output file ``path`` ("obj" or "usd"); a usage error, naming the types an input of
+    ``input_kind`` is written as, when its extension is missing or another (OBJ input is written as OBJ or USD,
+    USD input as USD only)."""
+    from .io.usd_write import USD_EXTENSIONS
+
+    written_as = ((".obj",) if input_kind == "obj" else ()) + tuple(USD_EXTENSIONS)
+    ext = os.path.splitext(path)[1].lower()
+    if not ext:
+        raise UsageError(f"{path}: give the output an extension ({_either(written_as)})")
+    if ext not in written_as:
+        raise UsageError(f"{path}: cannot write {ext}: {input_kind.upper()} input is written as {_either(written_as)}")
+    return _kind(path)
 
 
 # -- refine --------------------------------------------------------------------------------------------
@@ -324,9 +348,7 @@ def _refine(args) -> int:
     if args.levels < 0:
         raise UsageError(f"--levels must be >= 0, got {args.levels}")
     kind = _check_input(args.input)
-    out_kind = _kind(args.output) if os.path.splitext(args.output)[1] else None
-    if out_kind is None:
-        raise UsageError(f"{args.output}: give the output an extension (.obj, .usd, .usda or .usdc)")
+    out_kind = _check_output(args.output, kind)
     max_memory = _max_memory(args.max_memory)
     _check_device(args.device)
     counts = (("--threads", args.threads), ("--workers", args.workers), ("--chunk-frames", args.chunk_frames))
@@ -343,8 +365,6 @@ def _refine(args) -> int:
     try:
         if kind == "obj":
             return _refine_obj(args, out_kind, max_memory, progress)
-        if out_kind != "usd":
-            raise UsageError(f"{args.output}: USD input is written as .usd, .usda or .usdc")
         return _refine_usd(args, max_memory, progress)
     finally:
         progress.clear()
@@ -563,6 +583,7 @@ def _tessellate(args) -> int:
     _quiet_warp()
     from .usd.tessellate import tessellate_file
 
+    _check_output(args.output, _check_input(args.input))
     if args.rate is not None and args.rate < 1:
         raise UsageError(f"--rate must be at least 1, got {args.rate}")
     if args.edge_length is not None and not args.edge_length > 0:
