@@ -209,3 +209,23 @@ def test_unsupported_file_types_say_whether_input_or_output(tmp_path, capsys, ar
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warp-subdiv")]
     assert lines == ["warp-subdiv: error: " + needle.format(**values)]
     assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027, 0o002])
+def test_written_obj_files_get_the_permissions_of_a_new_file(tmp_path, capsys, umask):
+    """An OBJ output is readable as any new file is (0666 less the umask), as the USD outputs are: it is written
+    to a temporary file, which only its owner may read, and renamed; a file it replaces keeps its mode."""
+    from warp_subdiv import cli
+
+    out = tmp_path / "cube.obj"
+    old = os.umask(umask)
+    try:
+        assert cli.main(["refine", mesh_path("cube"), "-o", str(out), "--levels", "1", "--device", "cpu",
+                         "--quiet"]) == 0, capsys.readouterr().err
+        assert out.stat().st_mode & 0o7777 == 0o666 & ~umask
+        out.chmod(0o604)
+        assert cli.main(["refine", mesh_path("cube"), "-o", str(out), "--levels", "1", "--device", "cpu",
+                         "--quiet"]) == 0, capsys.readouterr().err
+        assert out.stat().st_mode & 0o7777 == 0o604
+    finally:
+        os.umask(old)

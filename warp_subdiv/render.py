@@ -25,7 +25,8 @@ import numpy as np
 
 from .errors import SubdivInputError
 from .mesh import face_offsets_of, next_corner_of
-from .io.usd_write import make_folders, publish, remove_folders
+from .io.files import publish
+from .io.usd_write import make_folders, remove_folders
 
 BACKGROUND_TOP = np.array([0.93, 0.94, 0.96])
 BACKGROUND_BOTTOM = np.array([0.78, 0.80, 0.84])
