@@ -31,7 +31,8 @@ FLAGS = {"levels": "--levels", "prims": "--prim", "scheme": "--scheme", "rules":
          "device": "--device", "precision": "--precision", "frames": "--frames", "max_memory": "--max-memory",
          "threads": "--threads", "workers": "--workers", "scheduler": "--scheduler", "chunk_frames": "--chunk-frames",
          "camera": "--camera", "view": "--view", "size": "--size", "time": "--time", "samples": "--samples",
-         "rate": "--rate", "edge_length": "--edge-length", "depth": "--depth", "flatten": "--flatten"}
+         "rate": "--rate", "edge_length": "--edge-length", "depth": "--depth", "flatten": "--flatten",
+         "purpose": "--purpose"}
 
 
 class UsageError(SubdivInputError):
@@ -173,6 +174,10 @@ def _add_render(sub) -> None:
     cmd.add_argument("--cage", default=None, metavar="FILE",
                      help="draw the control meshes of this USD file (e.g. the input of a refinement) as lines")
     cmd.add_argument("--samples", type=int, default=2, help="samples per pixel along each axis (default 2)")
+    cmd.add_argument("--purpose", default=None, choices=["render", "proxy"],
+                     help="USD: draw the meshes of this purpose with those of the default purpose, as a renderer "
+                          "does: render (default; what a final frame shows) or proxy (the stand-ins of "
+                          "interactive views); guides are never drawn")
     cmd.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
 
 
@@ -623,9 +628,12 @@ def _render(args) -> int:
         raise UsageError(f"--levels must be >= 0, got {args.levels}")
     if args.cage is not None:
         _check_input(args.cage)
+    if kind == "obj" and args.purpose is not None:
+        raise UsageError("--purpose applies to USD input only")
     _check_device(args.device)
     render_file(args.input, args.output, kind=kind, prims=args.prim, camera=args.camera, view=view, size=size,
-                time=args.time, levels=args.levels, cage=args.cage, samples=args.samples, device=args.device)
+                time=args.time, levels=args.levels, cage=args.cage, samples=args.samples, device=args.device,
+                purpose=args.purpose or "render")
     return 0
 
 
