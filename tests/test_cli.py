@@ -178,3 +178,54 @@ def test_semi_sharp_flag_help_says_what_it_does(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert "make semi-sharp creases and corners (0 < sharpness < 10) infinitely sharp, with a warning" in text
     assert "refusing" not in text
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["refine", "{cube}", "-o", "{out}.usdz", "--levels", "1"],
+     "{out}.usdz: cannot write .usdz: OBJ input is written as .obj, .usd, .usda or .usdc"),
+    (["refine", "{scene}", "-o", "{out}.usdz", "--levels", "1"],
+     "{out}.usdz: cannot write .usdz: USD input is written as .usd, .usda or .usdc"),
+    (["refine", "{scene}", "-o", "{out}.obj", "--levels", "1"],
+     "{out}.obj: cannot write .obj: USD input is written as .usd, .usda or .usdc"),
+    (["tessellate", "{cube}", "-o", "{out}.ply", "--rate", "2"],
+     "{out}.ply: cannot write .ply: OBJ input is written as .obj, .usd, .usda or .usdc"),
+    (["tessellate", "{scene}", "-o", "{out}.usdz", "--rate", "2"],
+     "{out}.usdz: cannot write .usdz: USD input is written as .usd, .usda or .usdc"),
+    (["refine", "{cube}", "-o", "{out}", "--levels", "1"],
+     "{out}: give the output an extension (.obj, .usd, .usda or .usdc)"),
+    (["refine", "{out}.usdz", "-o", "{out}.usda", "--levels", "1"],
+     "{out}.usdz: only .obj, .usd, .usda and .usdc input is supported"),
+    (["tessellate", "{out}.usdz", "-o", "{out}.usda", "--rate", "2"],
+     "{out}.usdz: only .obj, .usd, .usda and .usdc input is supported"),
+])
+def test_unsupported_file_types_say_whether_input_or_output(tmp_path, capsys, args, needle):
+    """An output path of a type the command cannot write is refused as an output, with the types it can
+    write for that input (not with the message about inputs, which named the wrong file's role)."""
+    from warp_subdiv import cli
+
+    values = dict(cube=mesh_path("cube"), scene=os.path.join(ROOT, "scenes", "animated.usda"),
+                  out=str(tmp_path / "out"))
+    assert cli.main([a.format(**values) for a in args]) == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warp-subdiv")]
+    assert lines == ["warp-subdiv: error: " + needle.format(**values)]
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027, 0o002])
+def test_written_obj_files_get_the_permissions_of_a_new_file(tmp_path, capsys, umask):
+    """An OBJ output is readable as any new file is (0666 less the umask), as the USD outputs are: it is written
+    to a temporary file, which only its owner may read, and renamed; a file it replaces keeps its mode."""
+    from warp_subdiv import cli
+
+    out = tmp_path / "cube.obj"
+    old = os.umask(umask)
+    try:
+        assert cli.main(["refine", mesh_path("cube"), "-o", str(out), "--levels", "1", "--device", "cpu",
+                         "--quiet"]) == 0, capsys.readouterr().err
+        assert out.stat().st_mode & 0o7777 == 0o666 & ~umask
+        out.chmod(0o604)
+        assert cli.main(["refine", mesh_path("cube"), "-o", str(out), "--levels", "1", "--device", "cpu",
+                         "--quiet"]) == 0, capsys.readouterr().err
+        assert out.stat().st_mode & 0o7777 == 0o604
+    finally:
+        os.umask(old)

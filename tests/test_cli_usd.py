@@ -184,3 +184,40 @@ def test_obj_input_can_be_written_as_usd(work, capsys):
                                             mesh.GetFaceVertexCountsAttr().Get(), len(mesh.GetPointsAttr().Get()))
     assert ok, why
     assert mesh.GetSubdivisionSchemeAttr().Get() == "none" and len(mesh.GetFaceVertexCountsAttr().Get()) == 8 * 16
+
+
+def _negative_time_stage(path):
+    """A grid whose points are sampled at negative time codes only (-12, -8, -4)."""
+    pts, counts, idx = grid(2, 2)
+    return write_mesh(path, pts, counts, idx, time_points={t: pts + [0.0, 0.0, 0.1 * t] for t in (-12, -8, -4)})
+
+
+@pytest.mark.parametrize("spelling", ["separate", "joined"])
+def test_negative_frame_ranges_parse_as_values(work, capsys, spelling):
+    """A frame range that starts with a minus sign is the value of --frames, given as `--frames -10:-5` as
+    well as `--frames=-10:-5`: argparse alone takes a word that begins with '-' and is not a plain number
+    for an option, and the user was told --frames expected one argument."""
+    from warp_subdiv import cli
+
+    src = _negative_time_stage(work / f"negative_{spelling}.usda")
+    for frames, times in (("-10:-5", [-10.0, -8.0, -5.0]), ("-9:", [-9.0, -8.0, -4.0])):
+        out = work / f"negative_{spelling}_{frames.replace(':', '_')}.usda"
+        flag = ["--frames", frames] if spelling == "separate" else [f"--frames={frames}"]
+        code = cli.main(["refine", str(src), "-o", str(out), "--levels", "1", "--device", "cpu", "--quiet", *flag])
+        assert code == 0, capsys.readouterr().err
+        stage = Usd.Stage.Open(str(out))
+        assert stage.GetPrimAtPath("/World/Mesh").GetAttribute("points").GetTimeSamples() == times
+
+
+@pytest.mark.parametrize("args,name,value", [
+    (["refine", "in.usda", "-o", "out.usda", "--levels", "1", "--frames", "-24:"], "frames", "-24:"),
+    (["refine", "in.usda", "-o", "out.usda", "--levels", "1", "--frames", "-10:-5"], "frames", "-10:-5"),
+    (["tessellate", "in.usda", "-o", "out.usda", "--rate", "2", "--frames", "-10:-5"], "frames", "-10:-5"),
+    (["render", "in.usda", "-o", "out.png", "--time", "-1e3"], "time", "-1e3"),
+    (["render", "in.usda", "-o", "out.png", "--view", "-60", "-1e1"], "view", [-60.0, -10.0]),
+])
+def test_options_take_values_that_begin_with_a_minus(args, name, value):
+    """Every option whose value may be negative (frame ranges, time codes, angles) takes it after a space."""
+    from warp_subdiv import cli
+
+    assert getattr(cli._parser().parse_args(args), name) == value

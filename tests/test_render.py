@@ -140,3 +140,94 @@ def test_render_through_a_usd_camera(tmp_path):
     stage.GetRootLayer().Save()
     img = render_file(str(path), str(tmp_path / "away.png"), camera="/Cam", size=(64, 36), samples=1, device="cpu")
     assert is_background(img).all()
+
+
+def _cube(size):
+    pts = np.array([(x, y, z) for z in (-1, 1) for y in (-1, 1) for x in (-1, 1)], dtype=np.float64) * size / 2
+    faces = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    return pts, [4] * 6, [i for f in faces for i in f]
+
+
+RED, GREEN, BLUE, YELLOW = (0.9, 0.1, 0.1), (0.1, 0.8, 0.1), (0.1, 0.1, 0.9), (0.9, 0.9, 0.1)
+
+
+def purpose_stage(path):
+    """An asset as pipelines publish it: a subdivision cube of render purpose and, under the same Xform, a
+    larger proxy cage around it (purpose authored on its parent Xform, so the cage inherits it; the render
+    mesh's proxyPrim names the cage); a ground plane of default purpose and a guide mesh beside them."""
+    from pxr import Gf, Usd, UsdGeom, Vt
+
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.Xform.Define(stage, "/World")
+    UsdGeom.Xform.Define(stage, "/World/Asset")
+
+    def mesh(where, pts, counts, idx, color, scheme="catmullClark"):
+        m = UsdGeom.Mesh.Define(stage, where)
+        m.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(*p) for p in pts]))
+        m.CreateFaceVertexCountsAttr(Vt.IntArray(counts))
+        m.CreateFaceVertexIndicesAttr(Vt.IntArray(idx))
+        m.CreateSubdivisionSchemeAttr(scheme)
+        m.CreateDisplayColorAttr(Vt.Vec3fArray([Gf.Vec3f(*color)]))
+        return m
+
+    render = mesh("/World/Asset/Render", *_cube(1.0), RED)
+    render.CreatePurposeAttr(UsdGeom.Tokens.render)
+    UsdGeom.Xform.Define(stage, "/World/Asset/Proxy").CreatePurposeAttr(UsdGeom.Tokens.proxy)
+    mesh("/World/Asset/Proxy/Cage", *_cube(1.6), BLUE)
+    render.CreateProxyPrimRel().SetTargets(["/World/Asset/Proxy/Cage"])
+    ground = [(-3, -3, -1), (3, -3, -1), (3, 3, -1), (-3, 3, -1)]
+    mesh("/World/Ground", ground, [4], [0, 1, 2, 3], GREEN, scheme="none")
+    guide = mesh("/World/Guide", [(p[0] + 8, p[1], p[2]) for p in _cube(1.0)[0]], *_cube(1.0)[1:], YELLOW)
+    guide.CreatePurposeAttr(UsdGeom.Tokens.guide)
+    stage.GetRootLayer().Save()
+    return stage
+
+
+def test_meshes_are_drawn_by_their_purpose_as_a_renderer_draws_them(tmp_path):
+    """A renderer draws default-purpose geometry and one of render or proxy (render by default), never guides:
+    drawing the proxy cage with the render mesh hid the refined mesh inside it."""
+    from warp_subdiv.errors import SubdivInputError
+    from warp_subdiv.render import cage_edges, stage_soup
+
+    stage = purpose_stage(tmp_path / "asset.usda")
+    colors = {purpose: {tuple(np.round(c, 1)) for c in stage_soup(stage, purpose=purpose).colors}
+              for purpose in ("render", "proxy")}
+    assert colors["render"] == {RED, GREEN}
+    assert colors["proxy"] == {BLUE, GREEN}
+    assert np.abs(cage_edges(stage)).max() == pytest.approx(0.5)  # the render mesh's control cage only
+    assert np.abs(cage_edges(stage, purpose="proxy")).max() == pytest.approx(0.8)
+    with pytest.raises(SubdivInputError, match="^purpose 'guide': ") as info:
+        stage_soup(stage, purpose="guide")
+    assert info.value.option == "purpose"
+
+
+def test_render_command_draws_the_render_purpose_or_the_one_asked(tmp_path, capsys):
+    from warp_subdiv import cli
+
+    src = tmp_path / "asset.usda"
+    purpose_stage(src)
+    args = ["render", str(src), "--size", "40x30", "--samples", "1", "--device", "cpu", "--prim", "/World/Asset"]
+
+    def hues(img):
+        img = img.astype(int)
+        return (img[..., 0] > img[..., 2] + 60).sum(), (img[..., 2] > img[..., 0] + 60).sum()
+
+    assert cli.main(args + ["-o", str(tmp_path / "render.png"), "--levels", "1"]) == 0, capsys.readouterr().err
+    red, blue = hues(decode_png((tmp_path / "render.png").read_bytes()))
+    assert red > 100 and blue == 0
+    assert cli.main(args + ["-o", str(tmp_path / "proxy.png"), "--purpose", "proxy"]) == 0, capsys.readouterr().err
+    red, blue = hues(decode_png((tmp_path / "proxy.png").read_bytes()))
+    assert blue > 100 and red == 0
+    # a prim of the other purpose only: nothing drawn, and the message says why and what draws it
+    assert cli.main(["render", str(src), "-o", str(tmp_path / "none.png"), "--prim", "/World/Asset/Proxy"]) == 2
+    err = capsys.readouterr().err
+    assert "1 proxy-purpose mesh is left out (the --purpose option chooses proxy)" in err, err
+    assert cli.main(["render", str(src), "-o", str(tmp_path / "none.png"), "--prim", "/World/Guide"]) == 2
+    assert "1 guide-purpose mesh is left out (no renderer draws guides)" in capsys.readouterr().err
+    assert cli.main(["render", str(src), "-o", str(tmp_path / "guide.png"), "--purpose", "guide"]) == 2
+    assert "invalid choice: 'guide'" in capsys.readouterr().err
+    cube = os.path.join(SCENES_DIR, "cube_creased.obj")
+    assert cli.main(["render", cube, "-o", str(tmp_path / "obj.png"), "--purpose", "proxy"]) == 2
+    assert "--purpose applies to USD input only" in capsys.readouterr().err
+    assert sorted(os.listdir(tmp_path)) == ["asset.usda", "proxy.png", "render.png"]

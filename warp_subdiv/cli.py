@@ -31,15 +31,30 @@ FLAGS = {"levels": "--levels", "prims": "--prim", "scheme": "--scheme", "rules":
          "device": "--device", "precision": "--precision", "frames": "--frames", "max_memory": "--max-memory",
          "threads": "--threads", "workers": "--workers", "scheduler": "--scheduler", "chunk_frames": "--chunk-frames",
          "camera": "--camera", "view": "--view", "size": "--size", "time": "--time", "samples": "--samples",
-         "rate": "--rate", "edge_length": "--edge-length", "depth": "--depth", "flatten": "--flatten"}
+         "rate": "--rate", "edge_length": "--edge-length", "depth": "--depth", "flatten": "--flatten",
+         "purpose": "--purpose"}
 
 
 class UsageError(SubdivInputError):
     """A bad command line (exit 2)."""
 
 
+#: A command-line word that begins with a minus sign and a digit or a point is a value, never an option: frame
+#: ranges (``-10:-5``, ``-24:``), time codes (``-1e3``) and angles are negative. argparse before Python 3.13
+#: takes only plain negative numbers (``-5``, ``-2.5``) for values and any other such word for an unknown
+#: option, so ``--frames -10:-5`` failed with "expected one argument"; 3.13 reads them with this same pattern.
+#: No option of this command line looks like that, so reading them as values is never ambiguous.
+NEGATIVE_VALUE = re.compile(r"-\.?\d")
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error in one line (and exits 2), as every other user error."""
+    """argparse that reports a usage error in one line (and exits 2), as every other user error, and takes
+    words such as ``-10:-5`` for the values they are (:data:`NEGATIVE_VALUE`)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # argparse asks this pattern whether a word beginning with '-' is a value; it has no public setting
+        self._negative_number_matcher = NEGATIVE_VALUE
 
     def error(self, message):  # argparse API
         raise UsageError(f"{message} (see {self.prog} --help)")
@@ -159,6 +174,10 @@ def _add_render(sub) -> None:
     cmd.add_argument("--cage", default=None, metavar="FILE",
                      help="draw the control meshes of this USD file (e.g. the input of a refinement) as lines")
     cmd.add_argument("--samples", type=int, default=2, help="samples per pixel along each axis (default 2)")
+    cmd.add_argument("--purpose", default=None, choices=["render", "proxy"],
+                     help="USD: draw the meshes of this purpose with those of the default purpose, as a renderer "
+                          "does: render (default; what a final frame shows) or proxy (the stand-ins of "
+                          "interactive views); guides are never drawn")
     cmd.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
 
 
@@ -257,7 +276,8 @@ def _check_device(device) -> None:
         raise UsageError(f"--device {device}: {_one_line(exc)}") from None
 
 
-def _kind(path: str) -> str:
+def _kind(path: str) -> str | None:
+    """"obj" or "usd", the kind of file ``path`` names by its extension; None for any other."""
     from .io.usd_write import USD_EXTENSIONS
 
     ext = os.path.splitext(path)[1].lower()
@@ -265,16 +285,39 @@ def _kind(path: str) -> str:
         return "obj"
     if ext in USD_EXTENSIONS:
         return "usd"
-    raise SubdivInputError(f"{path}: only .obj, .usd, .usda and .usdc input is supported")
+    return None
+
+
+def _either(names) -> str:
+    """``(".a", ".b", ".c")`` -> ``".a, .b or .c"``."""
+    return ", ".join(names[:-1]) + " or " + names[-1] if len(names) > 1 else names[0]
 
 
 def _check_input(path: str) -> str:
+    """The kind of the input file ``path`` ("obj" or "usd"); an error when it is of another type or missing."""
     kind = _kind(path)
+    if kind is None:
+        raise SubdivInputError(f"{path}: only .obj, .usd, .usda and .usdc input is supported")
     if not os.path.exists(path):
         raise SubdivInputError(f"{path}: no such file")
     if os.path.isdir(path):
         raise SubdivInputError(f"{path}: is a folder, not a file")
     return kind
+
+
+def _check_output(path: str, input_kind: str) -> str:
+    """The kind of the output file ``path`` ("obj" or "usd"); a usage error, naming the types an input of
+    ``input_kind`` is written as, when its extension is missing or another (OBJ input is written as OBJ or USD,
+    USD input as USD only)."""
+    from .io.usd_write import USD_EXTENSIONS
+
+    written_as = ((".obj",) if input_kind == "obj" else ()) + tuple(USD_EXTENSIONS)
+    ext = os.path.splitext(path)[1].lower()
+    if not ext:
+        raise UsageError(f"{path}: give the output an extension ({_either(written_as)})")
+    if ext not in written_as:
+        raise UsageError(f"{path}: cannot write {ext}: {input_kind.upper()} input is written as {_either(written_as)}")
+    return _kind(path)
 
 
 # -- refine --------------------------------------------------------------------------------------------
@@ -310,9 +353,7 @@ def _refine(args) -> int:
     if args.levels < 0:
         raise UsageError(f"--levels must be >= 0, got {args.levels}")
     kind = _check_input(args.input)
-    out_kind = _kind(args.output) if os.path.splitext(args.output)[1] else None
-    if out_kind is None:
-        raise UsageError(f"{args.output}: give the output an extension (.obj, .usd, .usda or .usdc)")
+    out_kind = _check_output(args.output, kind)
     max_memory = _max_memory(args.max_memory)
     _check_device(args.device)
     counts = (("--threads", args.threads), ("--workers", args.workers), ("--chunk-frames", args.chunk_frames))
@@ -329,8 +370,6 @@ def _refine(args) -> int:
     try:
         if kind == "obj":
             return _refine_obj(args, out_kind, max_memory, progress)
-        if out_kind != "usd":
-            raise UsageError(f"{args.output}: USD input is written as .usd, .usda or .usdc")
         return _refine_usd(args, max_memory, progress)
     finally:
         progress.clear()
@@ -547,6 +586,7 @@ def _tessellate(args) -> int:
     _quiet_warp()
     from .usd.tessellate import tessellate_file
 
+    _check_output(args.output, _check_input(args.input))
     if args.rate is not None and args.rate < 1:
         raise UsageError(f"--rate must be at least 1, got {args.rate}")
     if args.edge_length is not None and not args.edge_length > 0:
@@ -586,9 +626,12 @@ def _render(args) -> int:
         raise UsageError(f"--levels must be >= 0, got {args.levels}")
     if args.cage is not None:
         _check_input(args.cage)
+    if kind == "obj" and args.purpose is not None:
+        raise UsageError("--purpose applies to USD input only")
     _check_device(args.device)
     render_file(args.input, args.output, kind=kind, prims=args.prim, camera=args.camera, view=view, size=size,
-                time=args.time, levels=args.levels, cage=args.cage, samples=args.samples, device=args.device)
+                time=args.time, levels=args.levels, cage=args.cage, samples=args.samples, device=args.device,
+                purpose=args.purpose or "render")
     return 0
 
 

@@ -1,9 +1,10 @@
 """Shaded previews of USD (or OBJ) meshes: Warp ray casting (``wp.Mesh`` + ``mesh_query_ray``) on the CPU or
 CUDA, written as PNG with the standard library. No OpenGL.
 
-Every visible ``UsdGeom.Mesh`` is fan-triangulated into one triangle soup in world space, with per-corner
-colours (a bound UsdPreviewSurface ``diffuseColor``, per face subset too, else ``displayColor``, else grey) and
-per-corner normals (authored ``normals``, else face normals averaged over the faces around a vertex that turn
+Every visible ``UsdGeom.Mesh`` a renderer draws (of the default purpose, and of the render purpose or, when
+asked, the proxy purpose: :data:`PURPOSES`) is fan-triangulated into one triangle soup in world space, with
+per-corner colours (a bound UsdPreviewSurface ``diffuseColor``, per face subset too, else ``displayColor``, else
+grey) and per-corner normals (authored ``normals``, else face normals averaged over the faces around a vertex that turn
 less than 40 degrees, so creases stay sharp). The camera is a ``UsdGeom.Camera`` or frames the meshes from
 an azimuth and elevation around the stage's up axis. Optionally the control meshes of another file (the
 input of a refinement) are drawn on top as lines, dark where visible and faint where hidden.
@@ -25,12 +26,18 @@ import numpy as np
 
 from .errors import SubdivInputError
 from .mesh import face_offsets_of, next_corner_of
-from .io.usd_write import make_folders, publish, remove_folders
+from .io.files import publish
+from .io.usd_write import make_folders, remove_folders
 
 BACKGROUND_TOP = np.array([0.93, 0.94, 0.96])
 BACKGROUND_BOTTOM = np.array([0.78, 0.80, 0.84])
 DEFAULT_COLOR = (0.7, 0.7, 0.7)
 SMOOTH_ANGLE = 40.0  # degrees
+#: The purposes a preview chooses between, as a renderer does (UsdGeom): geometry of the "default" purpose is
+#: always drawn, with that of "render" purpose (final frames: what a bake refines) or of "proxy" purpose (the
+#: light stand-ins of interactive views), never both, since a proxy stands in the place of its render geometry
+#: and would hide it; "guide" geometry (rigs, helpers) is drawn by no renderer.
+PURPOSES = ("render", "proxy")
 
 
 class OptionWarning(UserWarning):
@@ -230,15 +237,34 @@ def _soup(points, counts, indices, normals_per_corner, colors_per_corner) -> Sou
                 colors_per_corner[corners])
 
 
-def mesh_placements(stage, prims=None, time=None, where: str = "render"):
+def drawn_purposes(purpose: str = "render") -> tuple:
+    """The computed purposes (``UsdGeom.Imageable.ComputePurpose``) of the geometry a renderer draws when it
+    draws ``purpose`` (one of :data:`PURPOSES`): "default" and ``purpose``."""
+    if purpose not in PURPOSES:
+        raise SubdivInputError(f"purpose {purpose!r}: give {' or '.join(map(repr, PURPOSES))}", option="purpose",
+                               value=purpose)
+    return "default", purpose
+
+
+def mesh_placements(stage, prims=None, time=None, where: str = "render", purpose: str = "render"):
     """(mesh prim, local-to-world matrix) of every mesh at or under ``prims`` as a renderer draws it: meshes in
     place (inside scene-graph instances too, through their instance proxies), except the prototypes of
     PointInstancers, which are drawn once per instance instead: at the instance's position, orientation and
     scale (``ComputeInstanceTransformsAtTime``, the prototype root's own transform included) in the
-    instancer's space, without the instances its ``invisibleIds`` / ``inactiveIds`` mask."""
+    instancer's space, without the instances its ``invisibleIds`` / ``inactiveIds`` mask. Only meshes (and
+    instancers) whose computed purpose, inherited as UsdGeom defines it, is among :func:`drawn_purposes` of
+    ``purpose``."""
+    return _placements(stage, prims, time, where, drawn_purposes(purpose))
+
+
+def _placements(stage, prims, time, where: str, purposes) -> list:
+    """:func:`mesh_placements` of the meshes whose computed purpose is among ``purposes``."""
     from pxr import Gf, Usd, UsdGeom
 
     from .io.usd_stage import check_roots
+
+    def drawn(prim) -> bool:
+        return UsdGeom.Imageable(prim).ComputePurpose() in purposes
 
     t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     roots = check_roots(stage, prims, where) or [stage.GetPseudoRoot().GetPath()]
@@ -255,10 +281,12 @@ def mesh_placements(stage, prims=None, time=None, where: str = "render"):
             elif prim.IsA(UsdGeom.Mesh):
                 placed.append(prim)
     out = [(prim, cache.GetLocalToWorldTransform(prim)) for prim in placed
-           if not any(prim.GetPath().HasPrefix(p) for p in proto_roots)]
+           if not any(prim.GetPath().HasPrefix(p) for p in proto_roots) and drawn(prim)]
     for prim in instancers:
         if any(prim.GetPath().HasPrefix(p) for p in proto_roots):
             continue  # a PointInstancer inside another's prototype: not drawn on its own
+        if not drawn(prim):
+            continue
         pi = UsdGeom.PointInstancer(prim)
         protos = pi.GetPrototypesRel().GetForwardedTargets()
         ids = pi.GetProtoIndicesAttr().Get(t)
@@ -274,7 +302,7 @@ def mesh_placements(stage, prims=None, time=None, where: str = "render"):
                 continue
             members = []  # the prototype's meshes, relative to the prototype root (its own transform excluded)
             for mesh in Usd.PrimRange(proto, Usd.TraverseInstanceProxies(Usd.PrimIsActive & Usd.PrimIsLoaded)):
-                if mesh.IsA(UsdGeom.Mesh):
+                if mesh.IsA(UsdGeom.Mesh) and drawn(mesh):
                     rel = (Gf.Matrix4d(1.0) if mesh == proto
                            else cache.ComputeRelativeTransform(mesh, proto)[0])
                     members.append((mesh, rel))
@@ -286,18 +314,17 @@ def mesh_placements(stage, prims=None, time=None, where: str = "render"):
     return out
 
 
-def stage_soup(stage, prims=None, time=None, levels: int = 0, device=None) -> Soup:
-    """Every visible mesh at or under ``prims`` as a world-space triangle soup (subdivision meshes refined
-    ``levels`` times first, each distinct mesh once: instances of one prototype share it), PointInstancer
-    prototypes once per instance (:func:`mesh_placements`)."""
+def stage_soup(stage, prims=None, time=None, levels: int = 0, device=None, purpose: str = "render") -> Soup:
+    """Every visible mesh at or under ``prims`` of the default purpose or ``purpose`` as a world-space triangle
+    soup (subdivision meshes refined ``levels`` times first, each distinct mesh once: instances of one
+    prototype share it), PointInstancer prototypes once per instance (:func:`mesh_placements`)."""
     from pxr import Usd, UsdGeom
 
     t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     parts = []
     made: dict = {}  # a mesh's local-space soup pieces, by prim (instance proxies: by their prototype's prim)
-    for prim, matrix in mesh_placements(stage, prims, time, where="render"):
-        img = UsdGeom.Imageable(prim)
-        if img.ComputeVisibility(t) == UsdGeom.Tokens.invisible or img.ComputePurpose() == UsdGeom.Tokens.guide:
+    for prim, matrix in mesh_placements(stage, prims, time, where="render", purpose=purpose):
+        if UsdGeom.Imageable(prim).ComputeVisibility(t) == UsdGeom.Tokens.invisible:
             continue
         key = str(prim.GetPrimInPrototype().GetPath() if prim.IsInstanceProxy() else prim.GetPath())
         if key not in made:
@@ -384,26 +411,28 @@ def _refined(prim, t, levels, device):
     return refined.astype(np.float64), counts.astype(np.int64), indices.astype(np.int64), fmap.parent
 
 
-def first_points_sample(stage, prims=None):
-    """The earliest first time sample of the meshes (at or under ``prims``) whose points have no default
-    value (only time samples), or None: what to render when the stage has no start time and none is asked."""
+def first_points_sample(stage, prims=None, purpose: str = "render"):
+    """The earliest first time sample of the meshes drawn (at or under ``prims``, of the default purpose or
+    ``purpose``) whose points have no default value (only time samples), or None: what to render when the
+    stage has no start time and none is asked."""
     from pxr import Usd, UsdGeom
 
     first = []
-    for prim, _ in mesh_placements(stage, prims, where="render"):
+    for prim, _ in mesh_placements(stage, prims, where="render", purpose=purpose):
         attr = UsdGeom.Mesh(prim).GetPointsAttr()
         if attr.GetNumTimeSamples() and attr.Get(Usd.TimeCode.Default()) is None:
             first.append(attr.GetTimeSamples()[0])
     return min(first) if first else None
 
 
-def cage_edges(stage, time=None, prims=None) -> np.ndarray:
-    """World-space control-mesh edges of the subdivision meshes of ``stage``: (E, 2, 3)."""
+def cage_edges(stage, time=None, prims=None, purpose: str = "render") -> np.ndarray:
+    """World-space control-mesh edges of the subdivision meshes of ``stage`` drawn for ``purpose`` (those of
+    the default purpose or ``purpose``, as :func:`stage_soup` draws them): (E, 2, 3)."""
     from pxr import Usd, UsdGeom
 
     t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     out = []
-    for prim, matrix in mesh_placements(stage, prims, time, where="cage"):
+    for prim, matrix in mesh_placements(stage, prims, time, where="cage", purpose=purpose):
         mesh = UsdGeom.Mesh(prim)
         if mesh.GetSubdivisionSchemeAttr().Get() == "none":
             continue
@@ -630,16 +659,42 @@ def read_png_size(path: str):
 
 # -- entry point ---------------------------------------------------------------------------------------
 
+def _nothing_to_render(path, stage, prims, time, purpose) -> SubdivInputError:
+    """The error for a file with nothing to draw; where meshes of the other purpose were left out, it says how
+    many and that the purpose option draws them."""
+    from pxr import UsdGeom
+
+    under = " under " + ", ".join(prims) if prims else ""
+    message = f"{path}: nothing to render (no visible meshes{under})"
+    if stage is None:
+        return SubdivInputError(message)
+    others = [p for p in (*PURPOSES, "guide") if p != purpose]
+    left_out = {other: set() for other in others}
+    for prim, _ in _placements(stage, prims, time, "render", others):
+        left_out[UsdGeom.Imageable(prim).ComputePurpose()].add(prim.GetPath())
+    why = {other: "the purpose option chooses " + other for other in PURPOSES}
+    notes = [f"{len(paths)} {other}-purpose mesh{'es are' if len(paths) != 1 else ' is'} left out "
+             f"({why.get(other, 'no renderer draws guides')})" for other, paths in left_out.items() if paths]
+    if not notes:
+        return SubdivInputError(message)
+    return SubdivInputError("; ".join([message, *notes]), option="purpose", value=purpose)
+
+
 def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera=None, view=(-60.0, 30.0),
-                size=(800, 600), time=None, levels: int = 0, cage=None, samples: int = 2, device=None) -> np.ndarray:
-    """Render ``path`` to the PNG ``output``; returns the image."""
+                size=(800, 600), time=None, levels: int = 0, cage=None, samples: int = 2, device=None,
+                purpose: str = "render") -> np.ndarray:
+    """Render ``path`` to the PNG ``output``; returns the image. Of a USD stage, the meshes of the default
+    purpose are drawn with those of ``purpose``, "render" (as a final frame) or "proxy" (:data:`PURPOSES`)."""
     width, height = size
     aspect = width / height
+    drawn_purposes(purpose)
     if kind == "obj":
         from .io.obj import read_obj
 
         if camera:
             raise SubdivInputError("camera needs a USD file", option="camera", value=camera)
+        if purpose != "render":
+            raise SubdivInputError(f"purpose {purpose!r} needs a USD file", option="purpose", value=purpose)
         data = read_obj(path)
         mesh = data.mesh
         pts, counts, idx = mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices
@@ -660,7 +715,7 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
         if time is None and stage.HasAuthoredTimeCodeRange():
             time = stage.GetStartTimeCode()
         elif time is None:
-            time = first_points_sample(stage, prims)
+            time = first_points_sample(stage, prims, purpose)
             if time is not None:
                 warnings.warn(OptionWarning(
                     f"{path}: the stage has no startTimeCode and some meshes have sampled points only: rendered "
@@ -671,16 +726,15 @@ def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera
                 time = float(time)
             except ValueError:
                 raise SubdivInputError(f"time {time!r} is not a number", option="time", value=time) from None
-        soup = stage_soup(stage, prims, time, levels, device)
+        soup = stage_soup(stage, prims, time, levels, device, purpose)
         up_axis = UsdGeom.GetStageUpAxis(stage)
     edges = None
     if cage:
         from .io.usd_stage import open_stage
 
-        edges = cage_edges(open_stage(cage), time, prims)
+        edges = cage_edges(open_stage(cage), time, prims, purpose)
     if not len(soup.corners):
-        under = " under " + ", ".join(prims) if prims else ""
-        raise SubdivInputError(f"{path}: nothing to render (no visible meshes{under})")
+        raise _nothing_to_render(path, stage, prims, time, purpose)
     if camera:
         cam = usd_camera(stage, camera, time, aspect)
     else:

@@ -16,6 +16,7 @@ import numpy as np
 from ..errors import SubdivInputError
 from ..mesh import Mesh
 from ..options import CreaseMethod
+from .files import publish
 
 BOUNDARY_FROM_TAG = {0: "none", 1: "edge-and-corner", 2: "edge-only"}
 
@@ -125,7 +126,8 @@ def read_obj(path: str) -> ObjData:
 
 
 def write_obj(path: str, points: np.ndarray, face_vertex_counts: np.ndarray, face_vertex_indices: np.ndarray) -> None:
-    """Write a polygon mesh as OBJ, through a temporary file and a rename (no partial file on failure)."""
+    """Write a polygon mesh as OBJ, through a temporary file and a rename (no partial file on failure), with the
+    permissions ``open()`` would give the file (:func:`~warp_subdiv.io.files.publish`)."""
     folder = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=".obj", dir=folder)
     try:
@@ -142,7 +144,7 @@ def write_obj(path: str, points: np.ndarray, face_vertex_counts: np.ndarray, fac
                 for c in counts:
                     fh.write("f " + " ".join(map(str, idx[start:start + c])) + "\n")
                     start += c
-        os.replace(tmp, path)
+        publish(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

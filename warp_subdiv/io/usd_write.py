@@ -16,25 +16,13 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..runtime import phases as _phases
 from ..errors import SubdivInputError
+from .files import publish
 from .usd_stage import DEFAULT, times_for_frames
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc")
 #: Layer metadata that is the input's own business and is not copied to the output layer.
 _NOT_COPIED = {"subLayers", "subLayerOffsets", "primChildren", "comment", "documentation", "customLayerData",
                "owner", "sessionOwner", "hasOwnedSubLayers"}
-
-
-def publish(tmp: str, output: str) -> None:
-    """Rename the finished temporary file over ``output``, with the permissions a new file would get (mkstemp
-    makes files only their owner can read) or those of the file it replaces."""
-    try:
-        mode = os.stat(output).st_mode & 0o7777
-    except OSError:
-        umask = os.umask(0)
-        os.umask(umask)
-        mode = 0o666 & ~umask
-    os.chmod(tmp, mode)
-    os.replace(tmp, output)
 
 
 def make_folders(folder: str) -> list:
