@@ -186,13 +186,11 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
     from pxr import Sdf, UsdGeom, Vt
 
     from .planning import options_for
-    from ..io.usd_read import SUBDIVISION_ATTRIBUTES
     from ..io.usd_stage import DEFAULT
     from ..io.usd_write import extent_of
 
     T = Sdf.ValueTypeNames
     t0 = time.perf_counter()
-    usd_prim = sp.prim
     if sp.topologies:
         raise SubdivInputError(f"{sp.path}: its topology changes over time; tessellate takes one topology")
     options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
@@ -233,6 +231,30 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
         layer.set(layer.attr(prim, "normals", T.Normal3fArray), None,
                   [(when, Vt.Vec3fArray.FromNumpy(nt.astype(np.float32)))])
         layer.set(layer.attr(prim, "extent", T.Float3Array), None, [(when, extent_of(ev.points))])
+    _block_control_attributes(sp, layer, prim, warnings_)
+    _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
+    _write_subsets(sp, target, layer, t)
+    base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
+    base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
+    layer.set(base, Vt.IntArray.FromNumpy(t.face_base_face))
+    uv = layer.attr(prim, "primvars:tessellation:uv", T.TexCoord2fArray, custom=False)
+    uv.SetInfo("interpolation", UsdGeom.Tokens.faceVarying)
+    layer.set(uv, Vt.Vec2fArray.FromNumpy(t.face_uv.astype(np.float32)))
+    return MeshReport(sp.path, options.scheme.value, options.rules.value, len(sp.mesh.face_vertex_counts),
+                      t.num_faces, t.num_vertices, time.perf_counter() - t0)
+
+
+def _block_control_attributes(sp, layer, prim, warnings_) -> None:
+    """Block what belongs to the control mesh and is not rewritten for the tessellation: the subdivision
+    attributes, every subdiv: tag, authored normals other than the written ``normals``, velocities and
+    accelerations, and the attributes the reader found cannot be refined (values that cannot be interpolated,
+    such as int or string vertex primvars), these with a warning, as refine blocks them."""
+    from pxr import Sdf
+
+    from ..io.usd_read import SUBDIVISION_ATTRIBUTES
+    from .primvars import drop_attribute
+
+    usd_prim = sp.prim
     for name in SUBDIVISION_ATTRIBUTES:
         attr = usd_prim.GetAttribute(name)
         layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
@@ -244,16 +266,8 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
         if name == "normals" or not usd_prim.GetAttribute(name).HasAuthoredValue():
             continue
         layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
-    _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
-    _write_subsets(sp, target, layer, t)
-    base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
-    base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
-    layer.set(base, Vt.IntArray.FromNumpy(t.face_base_face))
-    uv = layer.attr(prim, "primvars:tessellation:uv", T.TexCoord2fArray, custom=False)
-    uv.SetInfo("interpolation", UsdGeom.Tokens.faceVarying)
-    layer.set(uv, Vt.Vec2fArray.FromNumpy(t.face_uv.astype(np.float32)))
-    return MeshReport(sp.path, options.scheme.value, options.rules.value, len(sp.mesh.face_vertex_counts),
-                      t.num_faces, t.num_vertices, time.perf_counter() - t0)
+    for name, reason in sp.dropped:
+        drop_attribute(sp, layer, prim, name, reason, warnings_)
 
 
 def _with_points(mesh, points):
@@ -284,8 +298,9 @@ def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=No
     (subdivided with the points' weights, as refine refines them), varying ones linearly inside the control
     face at each vertex's (u, v), face-varying ones on the limit surface of their value mesh under the mesh's
     faceVaryingLinearInterpolation (as refine and OpenSubdiv's Bfr; "all" is linear inside the control face) at
-    each output corner's (u, v) (written unindexed); constant ones are left as they are; others (not floating
-    point, time-sampled) are blocked."""
+    each output corner's (u, v) (written unindexed); constant ones are left as they are; time-sampled ones are
+    blocked, with a warning. (Values that cannot be interpolated are not among ``sp.primvars``: the reader lists
+    them in ``sp.dropped``, blocked by :func:`_block_control_attributes`.)"""
     from pxr import Sdf
 
     from ..io.usd_write import vt_array
@@ -314,9 +329,7 @@ def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=No
                 continue
         why = "not tessellated"
         if pv.interpolation in ("vertex", "varying", "faceVarying") and surface is not None:
-            if not pv.linear:
-                why = "not floating point"
-            elif pv.times:
+            if pv.times:
                 why = "time-sampled primvars are not tessellated"
             else:
                 fv_index = None

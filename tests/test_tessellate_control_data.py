@@ -1,0 +1,58 @@
+"""tessellate on USD leaves nothing sized for the control mesh: every primvar, subset and point array of a
+tessellated mesh is rewritten for the tessellation (as refine rewrites them for the refined mesh) or blocked
+with a warning, so no attribute keeps control-sized data that a renderer would misread."""
+import numpy as np
+import pytest
+
+pxr = pytest.importorskip("pxr")
+from pxr import Gf, Sdf, Usd, UsdGeom, Vt  # noqa: E402
+
+from warp_subdiv.usd.tessellate import tessellate_file  # noqa: E402
+
+from test_usd_production import new_stage  # noqa: E402
+
+GRID = np.array([[x, y, 0.0] for y in range(3) for x in range(3)])  # 2 x 2 quads, 9 points
+GRID_FACES = [[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6], [4, 5, 8, 7]]
+
+
+def _mesh(stage, path, points, faces, scheme="catmullClark"):
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreateSubdivisionSchemeAttr(scheme)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.asarray(points, np.float32)))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray([len(f) for f in faces]))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray([i for f in faces for i in f]))
+    return mesh
+
+
+def _tessellate(tmp_path, build, **kw):
+    """Write a stage (``build(stage)`` adds to it), tessellate it; (result, the composed output stage)."""
+    stage = new_stage(tmp_path / "in.usda")
+    build(stage)
+    stage.Save()
+    result = tessellate_file(str(tmp_path / "in.usda"), str(tmp_path / "out.usda"), **kw)
+    return result, Usd.Stage.Open(str(tmp_path / "out.usda"))
+
+
+def test_values_that_cannot_be_interpolated_are_blocked_with_a_warning(tmp_path):
+    """Vertex, varying and face-varying primvars of ints, bools, strings and matrices have no value between
+    control vertices: they are blocked with a warning (as refine does), not left at the control mesh's size."""
+    def build(stage):
+        mesh = _mesh(stage, "/World/Grid", GRID, GRID_FACES)
+        api = UsdGeom.PrimvarsAPI(mesh)
+        T = Sdf.ValueTypeNames
+        api.CreatePrimvar("objectId", T.IntArray, UsdGeom.Tokens.vertex).Set(Vt.IntArray(list(range(9))))
+        api.CreatePrimvar("label", T.StringArray, UsdGeom.Tokens.vertex).Set(Vt.StringArray(["a"] * 9))
+        api.CreatePrimvar("frame", T.Matrix4dArray, UsdGeom.Tokens.varying).Set(
+            Vt.Matrix4dArray([Gf.Matrix4d(1.0)] * 9))
+        api.CreatePrimvar("seam", T.BoolArray, UsdGeom.Tokens.faceVarying).Set(Vt.BoolArray([True] * 16))
+        api.CreatePrimvar("part", T.IntArray, UsdGeom.Tokens.uniform).Set(Vt.IntArray([1, 2, 3, 4]))
+
+    result, out = _tessellate(tmp_path, build, rate=2)
+    prim = out.GetPrimAtPath("/World/Grid")
+    assert len(prim.GetAttribute("points").Get()) == 25
+    for name in ("objectId", "label", "frame", "seam"):
+        assert prim.GetAttribute("primvars:" + name).Get() is None, name
+        assert [w for w in result.warnings if f"primvars:{name} dropped" in w], (name, result.warnings)
+    part = np.asarray(prim.GetAttribute("primvars:part").Get())  # uniform: follows the control faces
+    base = np.asarray(prim.GetAttribute("primvars:tessellation:baseFace").Get())
+    np.testing.assert_array_equal(part, np.array([1, 2, 3, 4])[base])
