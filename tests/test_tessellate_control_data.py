@@ -56,3 +56,21 @@ def test_values_that_cannot_be_interpolated_are_blocked_with_a_warning(tmp_path)
     part = np.asarray(prim.GetAttribute("primvars:part").Get())  # uniform: follows the control faces
     base = np.asarray(prim.GetAttribute("primvars:tessellation:baseFace").Get())
     np.testing.assert_array_equal(part, np.array([1, 2, 3, 4])[base])
+
+
+def test_time_sampled_face_subsets_follow_their_control_faces(tmp_path):
+    """A face subset whose indices are time-sampled (a material moving between faces) holds, at every sample
+    and at the default time, the output faces of its control faces, not control face ids."""
+    def build(stage):
+        mesh = _mesh(stage, "/World/Grid", GRID, GRID_FACES)
+        subset = UsdGeom.Subset.CreateGeomSubset(mesh, "left", UsdGeom.Tokens.face, Vt.IntArray([3]),
+                                                 "materialBind")
+        subset.GetIndicesAttr().Set(Vt.IntArray([0, 2]), 1.0)
+        subset.GetIndicesAttr().Set(Vt.IntArray([1, 3]), 2.0)
+
+    result, out = _tessellate(tmp_path, build, rate=3)
+    base = np.asarray(out.GetPrimAtPath("/World/Grid").GetAttribute("primvars:tessellation:baseFace").Get())
+    indices = out.GetPrimAtPath("/World/Grid/left").GetAttribute("indices")
+    assert indices.GetTimeSamples() == [1.0, 2.0]
+    for time, faces in ((1.0, [0, 2]), (2.0, [1, 3]), (Usd.TimeCode.Default(), [3])):
+        np.testing.assert_array_equal(np.asarray(indices.Get(time)), np.flatnonzero(np.isin(base, faces)))

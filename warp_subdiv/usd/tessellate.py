@@ -10,6 +10,7 @@ import numpy as np
 from ..errors import SubdivInputError
 from ..limit import DEFAULT_DEPTH, LimitSurface, corner_weights
 
+
 @dataclass
 class MeshReport:
     """One tessellated mesh, for the command's summary."""
@@ -233,7 +234,7 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
         layer.set(layer.attr(prim, "extent", T.Float3Array), None, [(when, extent_of(ev.points))])
     _block_control_attributes(sp, layer, prim, warnings_)
     _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
-    _write_subsets(sp, target, layer, t)
+    _write_subsets(sp, target, layer, t, warnings_)
     base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
     base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
     layer.set(base, Vt.IntArray.FromNumpy(t.face_base_face))
@@ -378,16 +379,30 @@ def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=No
             layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)
 
 
-def _write_subsets(sp, target, layer, t) -> None:
-    """Face subsets: the output faces whose control face is in the subset (under ``target``, the mesh's path in
-    the output layer)."""
-    from pxr import Sdf, Vt
+@dataclass
+class FaceParents:
+    """The control face of every output face (``Tessellation.face_base_face``), as the subset writer reads a
+    refinement's face map (``FaceMap.parent``)."""
 
+    parent: np.ndarray
+
+
+class TessellationMaps:
+    """A tessellation as refine's subset writer (:func:`~warp_subdiv.usd.subsets.write_subset`) reads a
+    refinement: ``fmap.parent``, the control face of every output face, so that face subsets are remapped by
+    the same code as refine's."""
+
+    def __init__(self, t):
+        self.fmap = FaceParents(np.asarray(t.face_base_face, dtype=np.int64))
+
+
+def _write_subsets(sp, target, layer, t, warnings_) -> None:
+    """Face subsets: the output faces whose control face is in the subset, at the default time and every
+    selected time sample (under ``target``, the mesh's path in the output layer); a subset naming a face the
+    mesh does not have is blocked, with a warning (:func:`~warp_subdiv.usd.subsets.write_subset`)."""
+    from .subsets import write_subset
+
+    maps = TessellationMaps(t)
     for subset in sp.subsets:
-        if subset.element != "face" or subset.times:
-            continue
-        ids = np.asarray(subset.attr.Get() or [], dtype=np.int64)
-        keep = np.flatnonzero(np.isin(t.face_base_face, ids)).astype(np.int32)
-        spec = layer.attr(layer.prim(target + subset.path[len(sp.path):]), "indices",
-                          Sdf.ValueTypeNames.IntArray)
-        layer.set(spec, Vt.IntArray.FromNumpy(keep))
+        if subset.element == "face":
+            write_subset(sp, target, subset, layer, maps.fmap, warnings_)
