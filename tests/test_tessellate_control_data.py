@@ -74,3 +74,54 @@ def test_time_sampled_face_subsets_follow_their_control_faces(tmp_path):
     assert indices.GetTimeSamples() == [1.0, 2.0]
     for time, faces in ((1.0, [0, 2]), (2.0, [1, 3]), (Usd.TimeCode.Default(), [3])):
         np.testing.assert_array_equal(np.asarray(indices.Get(time)), np.flatnonzero(np.isin(base, faces)))
+
+
+PENTAGON_AND_QUAD = (np.array([[0, 0, 0], [2, 0, 0], [2, 1, 0], [1, 2, 0], [0, 1, 0], [3, 0, 0], [3, 1, 0]], float),
+                     [[0, 1, 2, 3, 4], [1, 5, 6, 2]])
+
+
+@pytest.mark.parametrize("scheme,points,faces,edges", [
+    ("catmullClark", GRID, GRID_FACES, [[1, 4], [4, 7], [0, 3]]),  # the middle line and a boundary edge
+    ("catmullClark", *PENTAGON_AND_QUAD, [[2, 1], [3, 4]]),  # an n-gon's edges (in quad sub-faces)
+    ("loop", *PENTAGON_AND_QUAD, [[1, 2], [4, 3], [5, 6]]),  # a Loop polygon's edges (in fan triangles)
+    ("bilinear", *PENTAGON_AND_QUAD, [[1, 2], [0, 4]]),
+])
+def test_edge_subsets_hold_the_output_edges_on_their_control_edges(tmp_path, scheme, points, faces, edges):
+    """An edge subset (pairs of point indices) holds the output edges that lie on its control edges, as many
+    on each as its rate: a valid subset of the tessellated mesh (usd-core's validators), not the control
+    mesh's point pairs."""
+    import warp_subdiv as ws
+    from test_usd_production import validation_errors
+
+    def build(stage):
+        mesh = _mesh(stage, "/World/M", points, faces, scheme)
+        UsdGeom.Subset.CreateGeomSubset(mesh, "seam", "edge", Vt.IntArray(np.ravel(edges).tolist()), "seams")
+
+    result, out = _tessellate(tmp_path, build, rate=3)
+    assert not validation_errors(tmp_path / "in.usda")
+    assert not validation_errors(tmp_path / "out.usda")
+    got = np.asarray(out.GetPrimAtPath("/World/M/seam").GetAttribute("indices").Get()).reshape(-1, 2)
+    counts = np.asarray(out.GetPrimAtPath("/World/M").GetAttribute("faceVertexCounts").Get())
+    fvi = np.asarray(out.GetPrimAtPath("/World/M").GetAttribute("faceVertexIndices").Get())
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    nxt = np.arange(1, len(fvi) + 1)
+    nxt[offsets[1:] - 1] = offsets[:-1]
+    output_edges = {tuple(sorted(e)) for e in zip(fvi.tolist(), fvi[nxt].tolist())}
+    assert {tuple(sorted(e)) for e in got.tolist()} <= output_edges
+    control = ws.Mesh(points, [len(f) for f in faces], [i for f in faces for i in f])
+    rates = ws.LimitSurface(control, scheme={"catmullClark": "catmull-clark", "loop": "loop",
+                                             "bilinear": "catmull-clark"}[scheme]).tessellate(rate=3).edge_rates
+    assert len(got) == int(rates[control.edges.find(np.asarray(edges), len(points))].sum())
+    if faces is GRID_FACES:  # the grid is flat and symmetric: its control lines' limit curves are straight
+        x = np.asarray(out.GetPrimAtPath("/World/M").GetAttribute("points").Get())[got][:, :, 0]  # (k, 2)
+        assert np.sum(np.all(np.isclose(x, 1.0), axis=1)) == 2 * 3 and np.sum(np.all(np.isclose(x, 0.0), axis=1)) == 3
+
+
+def test_an_edge_subset_naming_no_edge_is_blocked_with_a_warning(tmp_path):
+    def build(stage):
+        mesh = _mesh(stage, "/World/Grid", GRID, GRID_FACES)
+        UsdGeom.Subset.CreateGeomSubset(mesh, "seam", "edge", Vt.IntArray([1, 4, 0, 4]))  # (0, 4): a diagonal
+
+    result, out = _tessellate(tmp_path, build, rate=2)
+    assert out.GetPrimAtPath("/World/Grid/seam").GetAttribute("indices").Get() is None
+    assert [w for w in result.warnings if "seam" in w and "(0, 4) is not an edge" in w], result.warnings

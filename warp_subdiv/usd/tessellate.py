@@ -234,7 +234,7 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
         layer.set(layer.attr(prim, "extent", T.Float3Array), None, [(when, extent_of(ev.points))])
     _block_control_attributes(sp, layer, prim, warnings_)
     _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
-    _write_subsets(sp, target, layer, t, warnings_)
+    _write_subsets(sp, target, layer, t, surface, warnings_)
     base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
     base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
     layer.set(base, Vt.IntArray.FromNumpy(t.face_base_face))
@@ -388,21 +388,77 @@ class FaceParents:
 
 
 class TessellationMaps:
-    """A tessellation as refine's subset writer (:func:`~warp_subdiv.usd.subsets.write_subset`) reads a
-    refinement: ``fmap.parent``, the control face of every output face, so that face subsets are remapped by
-    the same code as refine's."""
+    """A tessellation as refine's subset writer (:func:`~warp_subdiv.usd.subsets.write_subsets`) reads a
+    refinement: ``fmap.parent``, the control face of every output face, and ``edges``, the output edges on
+    the control edges (:func:`tessellation_edges`, built on first use), so that face and edge subsets are
+    remapped by the same code as refine's."""
 
-    def __init__(self, t):
+    def __init__(self, surface, t):
+        self.surface, self.t = surface, t
         self.fmap = FaceParents(np.asarray(t.face_base_face, dtype=np.int64))
+        self._edges = None
+
+    @property
+    def edges(self):
+        if self._edges is None:
+            self._edges = tessellation_edges(self.surface, self.t)
+        return self._edges
 
 
-def _write_subsets(sp, target, layer, t, warnings_) -> None:
-    """Face subsets: the output faces whose control face is in the subset, at the default time and every
-    selected time sample (under ``target``, the mesh's path in the output layer); a subset naming a face the
-    mesh does not have is blocked, with a warning (:func:`~warp_subdiv.usd.subsets.write_subset`)."""
-    from .subsets import write_subset
+def tessellation_edges(surface, t):
+    """The output edges of tessellation ``t`` of ``surface`` that lie on control edges, as a
+    :class:`~warp_subdiv.usd.subsets.ControlEdgeMap` (each output edge once, as a (low, high) vertex pair, with
+    the control edge it lies on; :func:`_control_side` finds it)."""
+    from ..mesh import face_offsets_of, next_corner_of
+    from .subsets import ControlEdgeMap
 
-    maps = TessellationMaps(t)
-    for subset in sp.subsets:
-        if subset.element == "face":
-            write_subset(sp, target, subset, layer, maps.fmap, warnings_)
+    mesh = surface.mesh
+    counts = np.asarray(t.face_vertex_counts, dtype=np.int64)
+    ends_a = np.asarray(t.face_vertex_indices, dtype=np.int64)
+    nxt = next_corner_of(counts, face_offsets_of(counts))
+    ends_b = ends_a[nxt]
+    corner_face = np.repeat(np.asarray(t.face_base_face, dtype=np.int64), counts)
+    side = np.empty(len(corner_face), dtype=np.int64)
+    for lo in range(0, len(side), _EDGE_CHUNK):  # the weights of a chunk of corners at a time (memory)
+        hi = min(lo + _EDGE_CHUNK, len(side))
+        side[lo:hi] = _control_side(surface, corner_face[lo:hi], t.face_uv[lo:hi], t.face_uv[nxt[lo:hi]])
+    offsets = face_offsets_of(np.asarray(mesh.face_vertex_counts, dtype=np.int64))
+    corner_edge = np.asarray(mesh.edges.corner_edge, dtype=np.int64)
+    on = side >= 0
+    edge = corner_edge[offsets[corner_face[on]] + side[on]]
+    pairs = np.stack([np.minimum(ends_a[on], ends_b[on]), np.maximum(ends_a[on], ends_b[on])], axis=1)
+    pairs, first = np.unique(pairs, axis=0, return_index=True)
+    return ControlEdgeMap(mesh, mesh.edges, pairs, edge[first])
+
+
+#: Output corners whose weights :func:`tessellation_edges` computes at once.
+_EDGE_CHUNK = 1 << 18
+
+
+def _control_side(surface, faces, uv_a, uv_b) -> np.ndarray:
+    """For output edges from ``uv_a`` to ``uv_b`` inside control ``faces``: the corner j of the face whose edge
+    (corner j to corner j + 1) the output edge lies on, or -1. Both ends are on that side of the face's
+    parameter domain where the linear weights of the face's corners (:func:`corner_weights`) are zero at both
+    but on corners j and j + 1; every cell of a tessellation is a convex piece of the domain with straight
+    sides (a quad, a polygon's quad sub-face, a Loop fan triangle), so the edge between them lies on it too."""
+    # the corners either end depends on (exact zeros on a side; both ends' weights have the same columns)
+    on = (np.abs(corner_weights(surface, faces, uv_a)[1]) > 1e-12) | (np.abs(corner_weights(surface, faces, uv_b)[1])
+                                                                      > 1e-12)
+    size = np.asarray(surface.mesh.face_vertex_counts, dtype=np.int64)[faces]
+    first = np.argmax(on, axis=1)
+    last = on.shape[1] - 1 - np.argmax(on[:, ::-1], axis=1)
+    side = np.where(last == first + 1, first, np.where((first == 0) & (last == size - 1), last, -1))
+    side[on.sum(axis=1) != 2] = -1
+    return side
+
+
+def _write_subsets(sp, target, layer, t, surface, warnings_) -> None:
+    """Face subsets: the output faces whose control face is in the subset; edge subsets: the output edges on
+    their control edges; at the default time and every selected time sample (under ``target``, the mesh's path
+    in the output layer). A subset naming a face or edge the mesh does not have is blocked, with a warning
+    (:func:`~warp_subdiv.usd.subsets.write_subsets`)."""
+    from ..io.usd_stage import DEFAULT
+    from .subsets import write_subsets
+
+    write_subsets(sp, target, layer, TessellationMaps(surface, t), warnings_, lambda own: [DEFAULT] + list(own),
+                  set())
