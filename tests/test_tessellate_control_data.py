@@ -125,3 +125,33 @@ def test_an_edge_subset_naming_no_edge_is_blocked_with_a_warning(tmp_path):
     result, out = _tessellate(tmp_path, build, rate=2)
     assert out.GetPrimAtPath("/World/Grid/seam").GetAttribute("indices").Get() is None
     assert [w for w in result.warnings if "seam" in w and "(0, 4) is not an edge" in w], result.warnings
+
+
+@pytest.mark.parametrize("scheme,moving", [("catmullClark", False), ("catmullClark", True), ("bilinear", True)])
+def test_velocities_and_accelerations_are_tessellated_like_the_points(tmp_path, scheme, moving):
+    """Velocities and accelerations are the derivatives of the points: evaluated on the tessellation with the
+    points' weights at the default time and every sample (as refine refines them), not blocked. Affine
+    functions of the points stay the same functions of the tessellated points."""
+    def affine(p, k):
+        return np.stack([p[:, 1], 2 * p[:, 0], np.ones(len(p))], axis=1) * k
+
+    def build(stage):
+        mesh = _mesh(stage, "/World/Grid", GRID, GRID_FACES, scheme)
+        if moving:  # points sampled where the velocities are: each sample's own surface
+            for time in (1.0, 2.0):
+                mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy((GRID * time ** 2).astype(np.float32)), time)
+        vel = mesh.CreateVelocitiesAttr(Vt.Vec3fArray.FromNumpy(affine(GRID, 1).astype(np.float32)))
+        vel.Set(Vt.Vec3fArray.FromNumpy(affine(GRID, 2).astype(np.float32)), 1.0)
+        vel.Set(Vt.Vec3fArray.FromNumpy(affine(GRID, 3).astype(np.float32)), 2.0)
+        mesh.CreateAccelerationsAttr(Vt.Vec3fArray.FromNumpy(np.tile([[0, 0, -9.8]], (9, 1)).astype(np.float32)))
+
+    result, out = _tessellate(tmp_path, build, rate=3)
+    assert not result.warnings
+    prim = out.GetPrimAtPath("/World/Grid")
+    points = np.asarray(prim.GetAttribute("points").Get(), dtype=np.float64)  # where the grid's values land
+    vel = prim.GetAttribute("velocities")
+    assert vel.GetTimeSamples() == [1.0, 2.0]
+    for time, k in ((Usd.TimeCode.Default(), 1), (1.0, 2), (2.0, 3)):
+        np.testing.assert_allclose(np.asarray(vel.Get(time)), affine(points, k), atol=1e-5)
+    acc = np.asarray(prim.GetAttribute("accelerations").Get())
+    np.testing.assert_allclose(acc, np.tile([[0, 0, -9.8]], (len(points), 1)), atol=1e-5)

@@ -218,20 +218,11 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
     spec.SetInfo("interpolation", "faceVarying" if linear else "vertex")
     layer.set(spec, Vt.Vec3fArray.FromNumpy(normals.astype(np.float32)))
     layer.set(layer.attr(prim, "extent", T.Float3Array), extent_of(t.points))
-    for when in sp.point_times:  # the same tessellation (edge rates) of the points at every sample
-        try:
-            moved = _surface(_with_points(sp.mesh, sp.points_at(when)), options, depth, device)
-            ev = moved.evaluate(t.base_face, t.uv[:, 0], t.uv[:, 1])
-            nt = moved.evaluate(corner_face, t.face_uv[:, 0], t.face_uv[:, 1]).normals if linear \
-                else ev.normals
-        except SubdivInputError as exc:
-            raise sp.error(exc) from None
-        layer.set(layer.attr(prim, "points", T.Point3fArray), None,
-                  [(when, Vt.Vec3fArray.FromNumpy(ev.points.astype(np.float32)))])
-        nt = -nt if sp.orientation == "leftHanded" else nt
-        layer.set(layer.attr(prim, "normals", T.Normal3fArray), None,
-                  [(when, Vt.Vec3fArray.FromNumpy(nt.astype(np.float32)))])
-        layer.set(layer.attr(prim, "extent", T.Float3Array), None, [(when, extent_of(ev.points))])
+
+    def surface_at(points):  # the surface of other points: the same options, depth and device
+        return _surface(_with_points(sp.mesh, points), options, depth, device)
+
+    _write_samples(sp, layer, prim, t, surface, surface_at, linear)
     _block_control_attributes(sp, layer, prim, warnings_)
     _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
     _write_subsets(sp, target, layer, t, surface, warnings_)
@@ -245,11 +236,58 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
                       t.num_faces, t.num_vertices, time.perf_counter() - t0)
 
 
+def _write_samples(sp, layer, prim, t, surface, surface_at, linear: bool) -> None:
+    """What moves over time: at every selected sample of the points, the same tessellation (edge rates) of the
+    points there (``surface_at(points)``): points, normals, extent; velocities and accelerations, the points'
+    derivatives, evaluated with the points' weights (:func:`vertex_data`, as refine refines them like the
+    points) at the default time and each of their samples, on the surface of the points at that time where
+    the points have a sample there (piecewise-smooth rules weigh by the points), else on ``surface``."""
+    from pxr import Sdf, Vt
+
+    from ..io.usd_stage import DEFAULT
+    from ..io.usd_write import extent_of, vec3f_array
+    from .primvars import default_or_sample
+
+    T = Sdf.ValueTypeNames
+    corner_face = np.repeat(t.face_base_face.astype(np.int64), t.face_vertex_counts)
+    vectors = {name: layer.attr(prim, name, sp.prim.GetAttribute(name).GetTypeName()) for name in sp.point_arrays}
+
+    def write_vectors(when, moving_surface):
+        for name, spec in vectors.items():
+            if when == DEFAULT or when in sp.point_arrays[name]:
+                data = sp.vector_array_at(name, when)
+                try:
+                    values = vertex_data(moving_surface, data, t.base_face, t.uv)
+                except SubdivInputError as exc:
+                    raise sp.error(exc) from None
+                layer.set(spec, *default_or_sample(when, vec3f_array(values)))
+
+    write_vectors(DEFAULT, surface)
+    for when in sp.point_times:
+        points = sp.points_at(when)
+        try:
+            moved = surface_at(points)
+            ev = moved.evaluate(t.base_face, t.uv[:, 0], t.uv[:, 1])
+            nt = moved.evaluate(corner_face, t.face_uv[:, 0], t.face_uv[:, 1]).normals if linear \
+                else ev.normals
+        except SubdivInputError as exc:
+            raise sp.error(exc) from None
+        layer.set(layer.attr(prim, "points", T.Point3fArray), None,
+                  [(when, Vt.Vec3fArray.FromNumpy(ev.points.astype(np.float32)))])
+        nt = -nt if sp.orientation == "leftHanded" else nt
+        layer.set(layer.attr(prim, "normals", T.Normal3fArray), None,
+                  [(when, Vt.Vec3fArray.FromNumpy(nt.astype(np.float32)))])
+        layer.set(layer.attr(prim, "extent", T.Float3Array), None, [(when, extent_of(ev.points))])
+        write_vectors(when, moved)
+    for when in sorted({x for times in sp.point_arrays.values() for x in times} - set(sp.point_times)):
+        write_vectors(when, surface)
+
+
 def _block_control_attributes(sp, layer, prim, warnings_) -> None:
     """Block what belongs to the control mesh and is not rewritten for the tessellation: the subdivision
-    attributes, every subdiv: tag, authored normals other than the written ``normals``, velocities and
-    accelerations, and the attributes the reader found cannot be refined (values that cannot be interpolated,
-    such as int or string vertex primvars), these with a warning, as refine blocks them."""
+    attributes, every subdiv: tag, authored normals other than the written ``normals``, and the attributes the
+    reader found cannot be refined (values that cannot be interpolated, such as int or string vertex
+    primvars), these with a warning, as refine blocks them."""
     from pxr import Sdf
 
     from ..io.usd_read import SUBDIVISION_ATTRIBUTES
@@ -263,10 +301,9 @@ def _block_control_attributes(sp, layer, prim, warnings_) -> None:
         attr = usd_prim.GetAttribute(name)
         layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform,
                     custom=True)
-    for name in list(sp.authored_normals) + ["velocities", "accelerations"]:
-        if name == "normals" or not usd_prim.GetAttribute(name).HasAuthoredValue():
-            continue
-        layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
+    for name in sp.authored_normals:
+        if name != "normals":
+            layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
     for name, reason in sp.dropped:
         drop_attribute(sp, layer, prim, name, reason, warnings_)
 
