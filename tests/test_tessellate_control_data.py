@@ -155,3 +155,20 @@ def test_velocities_and_accelerations_are_tessellated_like_the_points(tmp_path, 
         np.testing.assert_allclose(np.asarray(vel.Get(time)), affine(points, k), atol=1e-5)
     acc = np.asarray(prim.GetAttribute("accelerations").Get())
     np.testing.assert_allclose(acc, np.tile([[0, 0, -9.8]], (len(points), 1)), atol=1e-5)
+
+
+def test_indexed_authored_normals_are_blocked_with_their_indices(tmp_path):
+    """Authored primvars:normals belong to the control mesh (the limit normals are written as ``normals``): an
+    indexed one is blocked with its indices, which would otherwise index the control points."""
+    def build(stage):
+        mesh = _mesh(stage, "/World/Grid", GRID, GRID_FACES)
+        pv = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("normals", Sdf.ValueTypeNames.Normal3fArray,
+                                                     UsdGeom.Tokens.vertex)
+        pv.Set(Vt.Vec3fArray([(0, 0, 1)]))
+        pv.SetIndices(Vt.IntArray([0] * 9))
+
+    _, out = _tessellate(tmp_path, build, rate=2)
+    prim = out.GetPrimAtPath("/World/Grid")
+    assert prim.GetAttribute("primvars:normals").Get() is None
+    assert prim.GetAttribute("primvars:normals:indices").Get() is None
+    assert len(prim.GetAttribute("normals").Get()) == 25

@@ -285,9 +285,9 @@ def _write_samples(sp, layer, prim, t, surface, surface_at, linear: bool) -> Non
 
 def _block_control_attributes(sp, layer, prim, warnings_) -> None:
     """Block what belongs to the control mesh and is not rewritten for the tessellation: the subdivision
-    attributes, every subdiv: tag, authored normals other than the written ``normals``, and the attributes the
-    reader found cannot be refined (values that cannot be interpolated, such as int or string vertex
-    primvars), these with a warning, as refine blocks them."""
+    attributes, every subdiv: tag, authored normals other than the written ``normals`` (with their indices), and
+    the attributes the reader found cannot be refined (values that cannot be interpolated, such as int or
+    string vertex primvars), these with a warning, as refine blocks them."""
     from pxr import Sdf
 
     from ..io.usd_read import SUBDIVISION_ATTRIBUTES
@@ -304,6 +304,8 @@ def _block_control_attributes(sp, layer, prim, warnings_) -> None:
     for name in sp.authored_normals:
         if name != "normals":
             layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
+            if name == "primvars:normals" and usd_prim.GetAttribute(name + ":indices"):
+                layer.block(prim, name + ":indices", Sdf.ValueTypeNames.IntArray)
     for name, reason in sp.dropped:
         drop_attribute(sp, layer, prim, name, reason, warnings_)
 
