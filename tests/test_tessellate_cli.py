@@ -1,5 +1,5 @@
 """tessellate on USD: primvars evaluated on the tessellation, time samples, instances, PointInstancer prototypes,
-shared meshes and variants written as refine writes them (issue 13)."""
+shared meshes and variants written as refine writes them."""
 import numpy as np
 import pytest
 

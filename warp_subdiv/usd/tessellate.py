@@ -112,10 +112,13 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     refine (:func:`warp_subdiv.usd.refine_usd`): an ``over`` at each mesh's path with ``subdivisionScheme =
     "none"``, its points, faces, normals and extent (at the default time and every selected time sample of the
     points), the subdivision attributes and ``subdiv:`` tags blocked, the ``extentsHint`` of its ancestors
-    recomputed. Uniform primvars and face subsets follow their control faces, vertex and face-varying primvars
-    are evaluated on the limit surface, varying ones linearly (:func:`_write_primvars`); the tessellation's
-    control face and face-varying (u, v) are written as ``primvars:tessellation:baseFace`` (uniform) and
-    ``primvars:tessellation:uv`` (faceVarying).
+    recomputed; velocities and accelerations evaluated with the points' weights (:func:`_write_samples`).
+    Uniform primvars and face subsets follow their control faces, edge subsets hold the output edges on their
+    control edges (:class:`TessellationMaps`), vertex and face-varying primvars are evaluated on the limit
+    surface, varying ones linearly (:func:`_write_primvars`), those that cannot be interpolated are blocked
+    with a warning (:func:`_block_control_attributes`); the tessellation's control face and face-varying
+    (u, v) are written as ``primvars:tessellation:baseFace`` (uniform) and ``primvars:tessellation:uv``
+    (faceVarying).
 
     Where the data goes is refine's layout (:func:`warp_subdiv.io.usd_read.read_scene`,
     :func:`warp_subdiv.usd.layout`): meshes inside scene-graph instances (and instanceable PointInstancer
