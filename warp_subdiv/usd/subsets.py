@@ -1,5 +1,6 @@
 """GeomSubsets of a refined mesh: face subsets (material bindings) get their ``indices`` remapped to the
-refined faces, edge subsets to the child edges of their edges (:class:`EdgeMap`).
+refined faces, edge subsets to the child edges of their edges (:class:`EdgeMap`). A tessellated mesh's subsets
+are remapped by the same code, from its own face map and :class:`ControlEdgeMap`.
 """
 from __future__ import annotations
 
@@ -14,7 +15,37 @@ from .primvars import default_or_sample
 T = Sdf.ValueTypeNames
 
 
-class EdgeMap:
+class ControlEdgeMap:
+    """The edges of a mesh made from a control mesh (refined, or tessellated) that lie on the control mesh's
+    edges, for edge subsets: ``pairs`` (k, 2), the edges of the made mesh as (low, high) vertex pairs, once
+    each; ``edge_of_pair`` (k,), the edge of ``base_edges`` (the control mesh's edges, or those of the faces it
+    is refined as: a Loop mesh's triangulation adds edges inside polygons) each lies on, or -1."""
+
+    def __init__(self, mesh, base_edges, pairs, edge_of_pair):
+        self.mesh, self.base_edges = mesh, base_edges
+        self.pairs, self.edge_of_pair = pairs, edge_of_pair
+
+    def children(self, pairs) -> tuple:
+        """(made edges (k, 2) on the control edges ``pairs`` (m, 2), index of the first pair that is not an
+        edge of the control mesh or None)."""
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        nv = self.mesh.num_vertices
+        bad = np.flatnonzero((pairs < 0).any(axis=1) | (pairs >= nv).any(axis=1))
+        if len(bad):
+            return None, int(bad[0])
+        own = self.mesh.edges.find(pairs, nv)  # the control polygons' edges (not a triangulation's)
+        bad = np.flatnonzero(own < 0)
+        if len(bad):
+            return None, int(bad[0])
+        chosen = np.zeros(len(self.base_edges.edge_verts), dtype=bool)
+        chosen[self.base_edges.find(pairs, nv)] = True
+        on = self.edge_of_pair >= 0
+        keep = np.zeros(len(self.pairs), dtype=bool)
+        keep[on] = chosen[self.edge_of_pair[on]]
+        return self.pairs[keep], None
+
+
+class EdgeMap(ControlEdgeMap):
     """The edges of the refined mesh (``refiner.topology()``: ``indices``, ``counts``) that lie on each edge of
     the control mesh, from the refiner's parentage (:meth:`Hierarchy.vertex_parent`,
     :meth:`Hierarchy.edge_parent`): a refined vertex lies inside a level-0 edge when it is the edge child of
@@ -26,10 +57,9 @@ class EdgeMap:
         from ..topology import EDGE, VERTEX, base_faces
 
         options = refiner.options
-        self.mesh = mesh
         base = base_faces(mesh, options.scheme.value, options.boundary.value)
-        self.base_edges = base.edges  # level 0 (a Loop mesh's triangulation adds edges inside polygons)
-        ends = self.base_edges.edge_verts.astype(np.int64)
+        base_edges = base.edges  # level 0 (a Loop mesh's triangulation adds edges inside polygons)
+        ends = base_edges.edge_verts.astype(np.int64)
         nv = mesh.num_vertices
         ctrl = np.arange(nv, dtype=np.int64)  # the control vertex a vertex is the child of, or -1
         inside = np.full(nv, -1, dtype=np.int64)  # the level-0 edge a vertex lies inside, or -1
@@ -71,28 +101,8 @@ class EdgeMap:
         other = (ew >= 0) & (eu < 0) & at_end(ew, cu)
         edge[other] = ew[other]
         corners = (cu >= 0) & (cw >= 0)  # level 0 only: the control edge itself
-        edge[corners] = self.base_edges.find(np.stack([cu[corners], cw[corners]], axis=1), nv)
-        self.pairs, self.edge_of_pair = pairs, edge
-
-    def children(self, pairs) -> tuple:
-        """(refined edges (k, 2) on the control edges ``pairs`` (m, 2), index of the first pair that is not an
-        edge of the control mesh or None)."""
-        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-        nv = self.mesh.num_vertices
-        bad = np.flatnonzero((pairs < 0).any(axis=1) | (pairs >= nv).any(axis=1))
-        if len(bad):
-            return None, int(bad[0])
-        own = self.mesh.edges.find(pairs, nv)  # the control polygons' edges (not a triangulation's)
-        bad = np.flatnonzero(own < 0)
-        if len(bad):
-            return None, int(bad[0])
-        chosen = np.zeros(len(self.base_edges.edge_verts), dtype=bool)
-        chosen[self.base_edges.find(pairs, nv)] = True
-        on = self.edge_of_pair >= 0
-        keep = np.zeros(len(self.pairs), dtype=bool)
-        keep[on] = chosen[self.edge_of_pair[on]]
-        return self.pairs[keep], None
-
+        edge[corners] = base_edges.find(np.stack([cu[corners], cw[corners]], axis=1), nv)
+        super().__init__(mesh, base_edges, pairs, edge)
 
 
 def write_subsets(sp, target, layer, refinement, warnings, times_of, dropped: set) -> None:
@@ -111,8 +121,8 @@ def write_subsets(sp, target, layer, refinement, warnings, times_of, dropped: se
 def write_subset(sp, target, subset, layer, fmap, warnings, refinement=None, times=None) -> bool:
     """Remap the indices of a face or edge subset at ``times`` (default: the default time and its samples),
     written under ``target`` (the mesh's path in the output layer); False (the subset blocked, with a warning)
-    when they do not fit. ``refinement``: the mesh's refinement, whose :class:`EdgeMap` (``edges``, built on first
-    use) edge subsets take."""
+    when they do not fit. ``refinement``: the mesh's refinement, whose :class:`ControlEdgeMap` (``edges``, built on
+    first use) edge subsets take."""
     prim = layer.prim(target + subset.path[len(sp.path):])
     spec = layer.attr(prim, "indices", T.IntArray)
     n = sp.mesh.num_faces

@@ -10,6 +10,7 @@ import numpy as np
 from ..errors import SubdivInputError
 from ..limit import DEFAULT_DEPTH, LimitSurface, corner_weights
 
+
 @dataclass
 class MeshReport:
     """One tessellated mesh, for the command's summary."""
@@ -111,10 +112,13 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     refine (:func:`warp_subdiv.usd.refine_usd`): an ``over`` at each mesh's path with ``subdivisionScheme =
     "none"``, its points, faces, normals and extent (at the default time and every selected time sample of the
     points), the subdivision attributes and ``subdiv:`` tags blocked, the ``extentsHint`` of its ancestors
-    recomputed. Uniform primvars and face subsets follow their control faces, vertex and face-varying primvars
-    are evaluated on the limit surface, varying ones linearly (:func:`_write_primvars`); the tessellation's
-    control face and face-varying (u, v) are written as ``primvars:tessellation:baseFace`` (uniform) and
-    ``primvars:tessellation:uv`` (faceVarying).
+    recomputed; velocities and accelerations evaluated with the points' weights (:func:`_write_samples`).
+    Uniform primvars and face subsets follow their control faces, edge subsets hold the output edges on their
+    control edges (:class:`TessellationMaps`), vertex and face-varying primvars are evaluated on the limit
+    surface, varying ones linearly (:func:`_write_primvars`), those that cannot be interpolated are blocked
+    with a warning (:func:`_block_control_attributes`); the tessellation's control face and face-varying
+    (u, v) are written as ``primvars:tessellation:baseFace`` (uniform) and ``primvars:tessellation:uv``
+    (faceVarying).
 
     Where the data goes is refine's layout (:func:`warp_subdiv.io.usd_read.read_scene`,
     :func:`warp_subdiv.usd.layout`): meshes inside scene-graph instances (and instanceable PointInstancer
@@ -186,13 +190,11 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
     from pxr import Sdf, UsdGeom, Vt
 
     from .planning import options_for
-    from ..io.usd_read import SUBDIVISION_ATTRIBUTES
     from ..io.usd_stage import DEFAULT
     from ..io.usd_write import extent_of
 
     T = Sdf.ValueTypeNames
     t0 = time.perf_counter()
-    usd_prim = sp.prim
     if sp.topologies:
         raise SubdivInputError(f"{sp.path}: its topology changes over time; tessellate takes one topology")
     options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
@@ -219,9 +221,55 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
     spec.SetInfo("interpolation", "faceVarying" if linear else "vertex")
     layer.set(spec, Vt.Vec3fArray.FromNumpy(normals.astype(np.float32)))
     layer.set(layer.attr(prim, "extent", T.Float3Array), extent_of(t.points))
-    for when in sp.point_times:  # the same tessellation (edge rates) of the points at every sample
+
+    def surface_at(points):  # the surface of other points: the same options, depth and device
+        return _surface(_with_points(sp.mesh, points), options, depth, device)
+
+    _write_samples(sp, layer, prim, t, surface, surface_at, linear)
+    _block_control_attributes(sp, layer, prim, warnings_)
+    _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
+    _write_subsets(sp, target, layer, t, surface, warnings_)
+    base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
+    base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
+    layer.set(base, Vt.IntArray.FromNumpy(t.face_base_face))
+    uv = layer.attr(prim, "primvars:tessellation:uv", T.TexCoord2fArray, custom=False)
+    uv.SetInfo("interpolation", UsdGeom.Tokens.faceVarying)
+    layer.set(uv, Vt.Vec2fArray.FromNumpy(t.face_uv.astype(np.float32)))
+    return MeshReport(sp.path, options.scheme.value, options.rules.value, len(sp.mesh.face_vertex_counts),
+                      t.num_faces, t.num_vertices, time.perf_counter() - t0)
+
+
+def _write_samples(sp, layer, prim, t, surface, surface_at, linear: bool) -> None:
+    """What moves over time: at every selected sample of the points, the same tessellation (edge rates) of the
+    points there (``surface_at(points)``): points, normals, extent; velocities and accelerations, the points'
+    derivatives, evaluated with the points' weights (:func:`vertex_data`, as refine refines them like the
+    points) at the default time and each of their samples, on the surface of the points at that time where
+    the points have a sample there (piecewise-smooth rules weigh by the points), else on ``surface``."""
+    from pxr import Sdf, Vt
+
+    from ..io.usd_stage import DEFAULT
+    from ..io.usd_write import extent_of, vec3f_array
+    from .primvars import default_or_sample
+
+    T = Sdf.ValueTypeNames
+    corner_face = np.repeat(t.face_base_face.astype(np.int64), t.face_vertex_counts)
+    vectors = {name: layer.attr(prim, name, sp.prim.GetAttribute(name).GetTypeName()) for name in sp.point_arrays}
+
+    def write_vectors(when, moving_surface):
+        for name, spec in vectors.items():
+            if when == DEFAULT or when in sp.point_arrays[name]:
+                data = sp.vector_array_at(name, when)
+                try:
+                    values = vertex_data(moving_surface, data, t.base_face, t.uv)
+                except SubdivInputError as exc:
+                    raise sp.error(exc) from None
+                layer.set(spec, *default_or_sample(when, vec3f_array(values)))
+
+    write_vectors(DEFAULT, surface)
+    for when in sp.point_times:
+        points = sp.points_at(when)
         try:
-            moved = _surface(_with_points(sp.mesh, sp.points_at(when)), options, depth, device)
+            moved = surface_at(points)
             ev = moved.evaluate(t.base_face, t.uv[:, 0], t.uv[:, 1])
             nt = moved.evaluate(corner_face, t.face_uv[:, 0], t.face_uv[:, 1]).normals if linear \
                 else ev.normals
@@ -233,6 +281,22 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
         layer.set(layer.attr(prim, "normals", T.Normal3fArray), None,
                   [(when, Vt.Vec3fArray.FromNumpy(nt.astype(np.float32)))])
         layer.set(layer.attr(prim, "extent", T.Float3Array), None, [(when, extent_of(ev.points))])
+        write_vectors(when, moved)
+    for when in sorted({x for times in sp.point_arrays.values() for x in times} - set(sp.point_times)):
+        write_vectors(when, surface)
+
+
+def _block_control_attributes(sp, layer, prim, warnings_) -> None:
+    """Block what belongs to the control mesh and is not rewritten for the tessellation: the subdivision
+    attributes, every subdiv: tag, authored normals other than the written ``normals`` (with their indices), and
+    the attributes the reader found cannot be refined (values that cannot be interpolated, such as int or
+    string vertex primvars), these with a warning, as refine blocks them."""
+    from pxr import Sdf
+
+    from ..io.usd_read import SUBDIVISION_ATTRIBUTES
+    from .primvars import drop_attribute
+
+    usd_prim = sp.prim
     for name in SUBDIVISION_ATTRIBUTES:
         attr = usd_prim.GetAttribute(name)
         layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
@@ -240,20 +304,13 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
         attr = usd_prim.GetAttribute(name)
         layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform,
                     custom=True)
-    for name in list(sp.authored_normals) + ["velocities", "accelerations"]:
-        if name == "normals" or not usd_prim.GetAttribute(name).HasAuthoredValue():
-            continue
-        layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
-    _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
-    _write_subsets(sp, target, layer, t)
-    base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)
-    base.SetInfo("interpolation", UsdGeom.Tokens.uniform)
-    layer.set(base, Vt.IntArray.FromNumpy(t.face_base_face))
-    uv = layer.attr(prim, "primvars:tessellation:uv", T.TexCoord2fArray, custom=False)
-    uv.SetInfo("interpolation", UsdGeom.Tokens.faceVarying)
-    layer.set(uv, Vt.Vec2fArray.FromNumpy(t.face_uv.astype(np.float32)))
-    return MeshReport(sp.path, options.scheme.value, options.rules.value, len(sp.mesh.face_vertex_counts),
-                      t.num_faces, t.num_vertices, time.perf_counter() - t0)
+    for name in sp.authored_normals:
+        if name != "normals":
+            layer.block(prim, name, usd_prim.GetAttribute(name).GetTypeName())
+            if name == "primvars:normals" and usd_prim.GetAttribute(name + ":indices"):
+                layer.block(prim, name + ":indices", Sdf.ValueTypeNames.IntArray)
+    for name, reason in sp.dropped:
+        drop_attribute(sp, layer, prim, name, reason, warnings_)
 
 
 def _with_points(mesh, points):
@@ -284,8 +341,9 @@ def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=No
     (subdivided with the points' weights, as refine refines them), varying ones linearly inside the control
     face at each vertex's (u, v), face-varying ones on the limit surface of their value mesh under the mesh's
     faceVaryingLinearInterpolation (as refine and OpenSubdiv's Bfr; "all" is linear inside the control face) at
-    each output corner's (u, v) (written unindexed); constant ones are left as they are; others (not floating
-    point, time-sampled) are blocked."""
+    each output corner's (u, v) (written unindexed); constant ones are left as they are; time-sampled ones are
+    blocked, with a warning. (Values that cannot be interpolated are not among ``sp.primvars``: the reader lists
+    them in ``sp.dropped``, blocked by :func:`_block_control_attributes`.)"""
     from pxr import Sdf
 
     from ..io.usd_write import vt_array
@@ -314,9 +372,7 @@ def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=No
                 continue
         why = "not tessellated"
         if pv.interpolation in ("vertex", "varying", "faceVarying") and surface is not None:
-            if not pv.linear:
-                why = "not floating point"
-            elif pv.times:
+            if pv.times:
                 why = "time-sampled primvars are not tessellated"
             else:
                 fv_index = None
@@ -365,16 +421,86 @@ def _write_primvars(sp, layer, prim, t, warnings_, surface=None, default_time=No
             layer.block(prim, pv.name + ":indices", Sdf.ValueTypeNames.IntArray)
 
 
-def _write_subsets(sp, target, layer, t) -> None:
-    """Face subsets: the output faces whose control face is in the subset (under ``target``, the mesh's path in
-    the output layer)."""
-    from pxr import Sdf, Vt
+@dataclass
+class FaceParents:
+    """The control face of every output face (``Tessellation.face_base_face``), as the subset writer reads a
+    refinement's face map (``FaceMap.parent``)."""
 
-    for subset in sp.subsets:
-        if subset.element != "face" or subset.times:
-            continue
-        ids = np.asarray(subset.attr.Get() or [], dtype=np.int64)
-        keep = np.flatnonzero(np.isin(t.face_base_face, ids)).astype(np.int32)
-        spec = layer.attr(layer.prim(target + subset.path[len(sp.path):]), "indices",
-                          Sdf.ValueTypeNames.IntArray)
-        layer.set(spec, Vt.IntArray.FromNumpy(keep))
+    parent: np.ndarray
+
+
+class TessellationMaps:
+    """A tessellation as refine's subset writer (:func:`~warp_subdiv.usd.subsets.write_subsets`) reads a
+    refinement: ``fmap.parent``, the control face of every output face, and ``edges``, the output edges on
+    the control edges (:func:`tessellation_edges`, built on first use), so that face and edge subsets are
+    remapped by the same code as refine's."""
+
+    def __init__(self, surface, t):
+        self.surface, self.t = surface, t
+        self.fmap = FaceParents(np.asarray(t.face_base_face, dtype=np.int64))
+        self._edges = None
+
+    @property
+    def edges(self):
+        if self._edges is None:
+            self._edges = tessellation_edges(self.surface, self.t)
+        return self._edges
+
+
+def tessellation_edges(surface, t):
+    """The output edges of tessellation ``t`` of ``surface`` that lie on control edges, as a
+    :class:`~warp_subdiv.usd.subsets.ControlEdgeMap` (each output edge once, as a (low, high) vertex pair, with
+    the control edge it lies on; :func:`_control_side` finds it)."""
+    from ..mesh import face_offsets_of, next_corner_of
+    from .subsets import ControlEdgeMap
+
+    mesh = surface.mesh
+    counts = np.asarray(t.face_vertex_counts, dtype=np.int64)
+    ends_a = np.asarray(t.face_vertex_indices, dtype=np.int64)
+    nxt = next_corner_of(counts, face_offsets_of(counts))
+    ends_b = ends_a[nxt]
+    corner_face = np.repeat(np.asarray(t.face_base_face, dtype=np.int64), counts)
+    side = np.empty(len(corner_face), dtype=np.int64)
+    for lo in range(0, len(side), _EDGE_CHUNK):  # the weights of a chunk of corners at a time (memory)
+        hi = min(lo + _EDGE_CHUNK, len(side))
+        side[lo:hi] = _control_side(surface, corner_face[lo:hi], t.face_uv[lo:hi], t.face_uv[nxt[lo:hi]])
+    offsets = face_offsets_of(np.asarray(mesh.face_vertex_counts, dtype=np.int64))
+    corner_edge = np.asarray(mesh.edges.corner_edge, dtype=np.int64)
+    on = side >= 0
+    edge = corner_edge[offsets[corner_face[on]] + side[on]]
+    pairs = np.stack([np.minimum(ends_a[on], ends_b[on]), np.maximum(ends_a[on], ends_b[on])], axis=1)
+    pairs, first = np.unique(pairs, axis=0, return_index=True)
+    return ControlEdgeMap(mesh, mesh.edges, pairs, edge[first])
+
+
+#: Output corners whose weights :func:`tessellation_edges` computes at once.
+_EDGE_CHUNK = 1 << 18
+
+
+def _control_side(surface, faces, uv_a, uv_b) -> np.ndarray:
+    """For output edges from ``uv_a`` to ``uv_b`` inside control ``faces``: the corner j of the face whose edge
+    (corner j to corner j + 1) the output edge lies on, or -1. Both ends are on that side of the face's
+    parameter domain where the linear weights of the face's corners (:func:`corner_weights`) are zero at both
+    but on corners j and j + 1; every cell of a tessellation is a convex piece of the domain with straight
+    sides (a quad, a polygon's quad sub-face, a Loop fan triangle), so the edge between them lies on it too."""
+    # the corners either end depends on (exact zeros on a side; both ends' weights have the same columns)
+    on = (np.abs(corner_weights(surface, faces, uv_a)[1]) > 1e-12) | (np.abs(corner_weights(surface, faces, uv_b)[1])
+                                                                      > 1e-12)
+    size = np.asarray(surface.mesh.face_vertex_counts, dtype=np.int64)[faces]
+    first = np.argmax(on, axis=1)
+    last = on.shape[1] - 1 - np.argmax(on[:, ::-1], axis=1)
+    side = np.where(last == first + 1, first, np.where((first == 0) & (last == size - 1), last, -1))
+    side[on.sum(axis=1) != 2] = -1
+    return side
+
+
+def _write_subsets(sp, target, layer, t, surface, warnings_) -> None:
+    """Face subsets: the output faces whose control face is in the subset; edge subsets: the output edges on
+    their control edges; at the default time and every selected time sample (under ``target``, the mesh's path
+    in the output layer). A subset naming a face or edge the mesh does not have is blocked, with a warning
+    (:func:`~warp_subdiv.usd.subsets.write_subsets`)."""
+    from ..io.usd_stage import DEFAULT
+    from .subsets import write_subsets
+
+    write_subsets(sp, target, layer, TessellationMaps(surface, t), warnings_, lambda own: [DEFAULT] + list(own),
+                  set())
