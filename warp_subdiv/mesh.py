@@ -440,10 +440,12 @@ class Mesh:
 
     @property
     def num_vertices(self) -> int:
+        """The number of control vertices."""
         return len(self.points)
 
     @property
     def num_faces(self) -> int:
+        """The number of faces."""
         return len(self.face_vertex_counts)
 
     @property
@@ -457,6 +459,7 @@ class Mesh:
 
     @property
     def num_edges(self) -> int:
+        """The number of edges (found on first use)."""
         return len(self.edges.edge_verts)
 
     def is_all(self, size: int) -> bool:

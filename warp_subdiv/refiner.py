@@ -48,10 +48,12 @@ class Refined:
 
     @property
     def num_vertices(self) -> int:
+        """The number of refined vertices."""
         return len(self.points)
 
     @property
     def num_faces(self) -> int:
+        """The number of refined faces."""
         return len(self.face_vertex_counts)
 
 
@@ -175,18 +177,21 @@ class Refiner(_GradientMethods, _FaceVaryingMethods):
         self._face_varying: dict = {}
 
     # option values, as plain attributes (read-only views of self.options)
-    scheme = property(lambda self: self.options.scheme)
-    rules = property(lambda self: self.options.rules)
-    boundary = property(lambda self: self.options.boundary)
-    precision = property(lambda self: self.options.precision)
-    loop_beta = property(lambda self: self.options.loop_beta)
-    normal_strength = property(lambda self: self.options.normal_strength)
-    crease_method = property(lambda self: self.options.crease_method)
-    triangle_subdivision = property(lambda self: self.options.triangle_subdivision)
+    scheme = property(lambda self: self.options.scheme, doc="The options' subdivision scheme.")
+    rules = property(lambda self: self.options.rules, doc="The options' rule set.")
+    boundary = property(lambda self: self.options.boundary, doc="The options' boundary interpolation.")
+    precision = property(lambda self: self.options.precision, doc="The options' evaluation precision.")
+    loop_beta = property(lambda self: self.options.loop_beta, doc="The options' Loop vertex weight variant.")
+    normal_strength = property(lambda self: self.options.normal_strength, doc="The options' normal control strength.")
+    crease_method = property(lambda self: self.options.crease_method, doc="The options' semi-sharp crease decay.")
+    triangle_subdivision = property(lambda self: self.options.triangle_subdivision,
+                                    doc="The options' Catmull-Clark rule for triangles.")
     # the hierarchy's step records, for inspection
-    steps = property(lambda self: self.hierarchy.steps)
-    flatness_tables = property(lambda self: self.hierarchy.flatness_tables)
-    normal_tables = property(lambda self: self.hierarchy.normal_tables)
+    steps = property(lambda self: self.hierarchy.steps, doc="The stencil tables of each refinement step.")
+    flatness_tables = property(lambda self: self.hierarchy.flatness_tables,
+                               doc="The flatness displacement tables of each level (None where none).")
+    normal_tables = property(lambda self: self.hierarchy.normal_tables,
+                             doc="The normal-control displacement tables of each level (None where none).")
 
     @property
     def projects(self) -> bool:

@@ -79,11 +79,14 @@ class Adjoint:
         return kernel_view(wp.array(host, dtype=self.scalar, device=self.device))
 
     def to_host(self, arr: wp.array) -> np.ndarray:
+
+        """A device array as a (rows, width) numpy array (a copy)."""
         out = arr.numpy()
         return np.array(out.reshape(len(out), -1), copy=True)
 
     @staticmethod
     def width(arr: wp.array) -> int:
+        """The number of columns of a kernel-view array (vec3 rows: 3)."""
         return 3 if arr.ndim == 1 else int(arr.shape[1])
 
     def level_rows(self, level: int) -> int:

@@ -32,6 +32,7 @@ class CSRMatrix:
 
     @property
     def nnz(self) -> int:
+        """The number of stored entries."""
         return len(self.data)
 
     def __repr__(self):
@@ -39,6 +40,7 @@ class CSRMatrix:
 
     @property
     def T(self) -> "CSRMatrix":
+        """The transposed matrix."""
         c = _from_coo(self.indices, rows_of(self.indptr), self.data, (self.shape[1], self.shape[0]))
         return CSRMatrix(c.data, c.indices, c.indptr, c.shape)
 
@@ -51,9 +53,13 @@ class CSRMatrix:
         np.add.at(out, rows_of(self.indptr), w * x[self.indices])
         return out
 
-    dot = __matmul__
+    def dot(self, x):
+        """The product with a dense array ``x`` (as ``self @ x``), as scipy.sparse matrices offer it."""
+        return self @ x
 
     def toarray(self) -> np.ndarray:
+
+        """The matrix as a dense numpy array."""
         out = np.zeros(self.shape)
         np.add.at(out, (rows_of(self.indptr), self.indices), self.data)
         return out

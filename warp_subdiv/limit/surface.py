@@ -87,15 +87,23 @@ class LimitSurface:
         self._evaluator = None if self.tree is None else DeviceEvaluator(self.tree, self._parameterisation, self.device)
         self._face_varying = None  # the last face-varying channel evaluated
 
-    scheme = property(lambda self: self.options.scheme)
-    rules = property(lambda self: self.options.rules)
+    scheme = property(lambda self: self.options.scheme,
+                      doc="The subdivision scheme (:class:`~warp_subdiv.Scheme`) of the options.")
+    rules = property(lambda self: self.options.rules,
+                     doc="The rule set (:class:`~warp_subdiv.RuleSet`) of the options.")
     #: Per control face (see :class:`~warp_subdiv.limit.parameterisation.FaceParameterisation`): how it is
     #: parameterised, its first root node, its number of corners, its tiles per row, whether it is a hole.
-    face_kind = property(lambda self: self._parameterisation.kind)
-    face_root = property(lambda self: self._parameterisation.root)
-    face_size = property(lambda self: self._parameterisation.size)
-    face_tiles = property(lambda self: self._parameterisation.tiles)
-    holes = property(lambda self: self._parameterisation.holes)
+    face_kind = property(lambda self: self._parameterisation.kind,
+                         doc="How each control face is parameterised: DIRECT, SUBFACES (a Catmull-Clark n-gon) or "
+                             "FAN (a Loop polygon).")
+    face_root = property(lambda self: self._parameterisation.root,
+                         doc="The root patch of each control face in the patch tree (-1 for a hole).")
+    face_size = property(lambda self: self._parameterisation.size, doc="The number of corners of each control face.")
+    face_tiles = property(lambda self: self._parameterisation.tiles,
+                          doc="The width of the (u, v) domain of each control face: its sub-faces or fan triangles "
+                              "side by side.")
+    holes = property(lambda self: self._parameterisation.holes,
+                     doc="Whether each control face is a hole (not evaluated).")
 
     @property
     def linear(self) -> bool:
@@ -111,6 +119,7 @@ class LimitSurface:
 
     @property
     def num_faces(self) -> int:
+        """The number of control faces."""
         return len(self.face_kind)
 
     @property

@@ -62,10 +62,12 @@ class Tessellation:
 
     @property
     def num_vertices(self) -> int:
+        """The number of output vertices."""
         return len(self.points)
 
     @property
     def num_faces(self) -> int:
+        """The number of output faces."""
         return len(self.face_vertex_counts)
 
 

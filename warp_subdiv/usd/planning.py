@@ -57,6 +57,7 @@ class Plan:
 
     @property
     def predicted_bytes(self) -> int:
+        """The memory the whole bake is predicted to need (the memory guard's estimate)."""
         return total_bytes(self.estimates)
 
     @property
