@@ -603,6 +603,34 @@ def test_parameterisation_of_polygons():
     np.testing.assert_allclose(centre, face_point, atol=1e-10)
 
 
+@pytest.mark.parametrize("name", ["octahedron", "icosahedron"])
+@pytest.mark.parametrize("rules", ["piecewise-smooth", "opensubdiv"])
+def test_catmull_clark_on_all_triangle_meshes(name, rules):
+    """Catmull-Clark on a mesh of triangles only (every face a 3-gon of three quad sub-faces, as OpenSubdiv
+    accepts it): the tree builds without quad faces at level 0, every control vertex's (u, v) evaluates to its
+    limit position, the surface agrees with limit_points / limit_normals at level-3 vertices, and the points of
+    a deeper refinement converge onto it (their distance shrinks about fourfold per level)."""
+    mesh = load_mesh(name)
+    o = ws.Options(scheme="catmull-clark", rules=rules, precision="float64")
+    surface = ws.LimitSurface(mesh, options=o, depth=5)
+    assert (surface.face_kind == ws.limit.SUBFACES).all()
+    counts = mesh.face_vertex_counts
+    faces = np.repeat(np.arange(len(counts)), counts)
+    corners = np.tile(np.arange(3), len(counts))
+    uv = surface.vertex_uv(faces, corners)
+    want = ws.Refiner(mesh, 1, options=o).refine().limit_points()[mesh.face_vertex_indices]
+    np.testing.assert_allclose(surface.evaluate(faces, uv[:, 0], uv[:, 1]).points, want, atol=1e-12)
+    check_consistency(mesh, "catmull-clark", rules, {}, level=3, depth=5)
+    distance = []
+    for level in (3, 4, 5):
+        refiner = ws.Refiner(mesh, level, options=o)
+        f, u, v, verts = refined_vertex_params(surface, refiner, level)
+        got = surface.evaluate(f, u, v).points
+        distance.append(np.linalg.norm(got - refiner.refine().points[verts], axis=1).max())
+    assert distance[-1] < 1e-2 * np.abs(mesh.points).max()
+    assert distance[1] < distance[0] / 3 and distance[2] < distance[1] / 3, distance
+
+
 def corner_samples(surface, depth, per_corner, rng):
     """Random (face, u, v) in the 2^-depth squares (sub-face squares of n-gons) at every corner of every
     quad or triangle face and n-gon: where the end caps are."""
