@@ -720,6 +720,57 @@ def test_bad_input_is_refused():
     assert len(surface.evaluate([], [], []).points) == 0
 
 
+# (face, u, v) outside each kind of face (mixed_prism: face 0 a pentagon, 2 a triangle, 4 a quad), and inside
+OUTSIDE = {
+    "catmull-clark": [(4, 1.5, 0.5), (4, 1e10, 0.5), (4, 0.5, -0.01), (4, -1e-5, 0.0),  # quad: [0, 1]^2
+                      (0, 0.7, 0.2), (0, 2.2, 1.2), (0, 3.1, 0.2), (0, -0.1, 0.3),  # pentagon: 5 tiles of 3 x 2
+                      (2, 1.2, 1.2), (2, 0.2, 0.6)],  # triangle: 3 tiles of 2 x 2
+    "loop": [(2, 0.8, 0.8), (2, -0.01, 0.5), (2, 0.5, 0.5 + 1e-5),  # triangle: u, v >= 0, u + v <= 1
+             (0, 0.3, 0.3), (0, 3.1, 0.1), (0, 2.6, 0.0), (0, 0.2, -0.1),  # pentagon: 3 fan triangles at (k, 0)
+             (4, 0.1, 0.45)],  # quad: 2 fan triangles
+}
+INSIDE = {
+    "catmull-clark": [(4, 1.0, 1.0), (4, 0.0, 0.3), (0, 2.5, 0.5), (0, 1.5, 1.5), (0, 1.0, 0.0), (2, 0.5, 1.5)],
+    "loop": [(2, 0.5, 0.5), (2, 0.0, 1.0), (0, 2.5, 0.0), (0, 2.0, 0.5), (0, 1.25, 0.25), (4, 1.0, 0.5)],
+}
+
+
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+@pytest.mark.parametrize("linear", [False, True])
+def test_queries_outside_their_face_are_refused(scheme, linear):
+    """A (u, v) outside its face's domain (a quad's unit square, a triangle's u, v >= 0, u + v <= 1, an n-gon's
+    sub-face tiles, a Loop polygon's fan triangles) is refused with SubdivInputError naming the query (index,
+    face, u, v) and the domain, by evaluate, evaluate_data and evaluate_face_varying alike, instead of being
+    clamped onto the domain; the domain's own boundary is accepted, and so is round-off beyond it (up to
+    DOMAIN_TOLERANCE), evaluated on the domain's side (the kernel's clamp)."""
+    mesh = load_mesh("mixed_prism")
+    surface = ws.LimitSurface(mesh, scheme=scheme, linear=linear, depth=3)
+    inside = np.array(INSIDE[scheme], dtype=object)
+    f_in, u_in, v_in = inside[:, 0].astype(int), inside[:, 1].astype(float), inside[:, 2].astype(float)
+    surface.evaluate(f_in, u_in, v_in)
+    idx = np.arange(len(mesh.face_vertex_indices))
+    for face, u, v in OUTSIDE[scheme]:
+        faces, us, vs = np.append(f_in, face), np.append(u_in, u), np.append(v_in, v)
+        query = len(f_in)
+        for call in (lambda: surface.evaluate(faces, us, vs),
+                     lambda: surface.evaluate_data(mesh.points, faces, us, vs),
+                     lambda: surface.evaluate_face_varying(mesh.points[mesh.face_vertex_indices], idx, faces, us, vs)):
+            with pytest.raises(SubdivInputError, match="outside the domain") as err:
+                call()
+            message = str(err.value)
+            assert f"query {query} (face {face}, u={u!r}, v={v!r})" in message, message
+            assert err.value.option == "uv" and err.value.index == query
+    # round-off beyond a side: evaluated on it (clamped onto a square, scaled toward a triangle's corner 0,
+    # moving the point by less than the tolerance), a hair farther: refused
+    tol = ws.limit.DOMAIN_TOLERANCE
+    edge = (4, 1.0, 0.25) if scheme == "catmull-clark" else (2, 0.75, 0.25)
+    on = surface.evaluate([edge[0]], [edge[1]], [edge[2]])
+    near = surface.evaluate([edge[0]], [edge[1] + 0.5 * tol], [edge[2]]).points
+    assert np.linalg.norm(near - on.points) <= tol * np.linalg.norm(np.concatenate([on.du, on.dv]))
+    with pytest.raises(SubdivInputError, match="outside the domain"):
+        surface.evaluate([edge[0]], [edge[1] + 2 * tol], [edge[2]])
+
+
 # ------------------------------------------------------------------------------------------ OpenSubdiv Bfr
 def _peer():
     from peers import osd_peer

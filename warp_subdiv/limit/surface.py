@@ -9,12 +9,15 @@ Parameterisation (as OpenSubdiv's ``Bfr::Parameterization``):
   at each corner), laid out as tiles: sub-face i occupies the half-unit square with corner (i mod W, i div W),
   W = ceil(sqrt(n)); inside it, 2 (u - i mod W, v - i div W) is the sub-face's own unit square, with the
   n-gon's corner i at (0,0), the middle of edge i (toward corner i + 1) at (1,0), the face's centre at (1,1)
-  and the middle of edge i - 1 at (0,1). This is Bfr's QUAD_SUBFACES parameterisation; as in Bfr, a (u, v)
-  within a quarter tile beyond a sub-face's square belongs to the nearest sub-face (coordinates are clamped
-  to it);
+  and the middle of edge i - 1 at (0,1). This is Bfr's QUAD_SUBFACES parameterisation;
 * a Loop polygon (n > 3; Loop fan-triangulates polygons into (v0, v_k+1, v_k+2)) is its fan triangles laid out
   as tiles in the same way: triangle k occupies the half-unit square with corner (k, 0), and 2 (u - k, v) is its
   own barycentric (u, v). (OpenSubdiv's Loop has no polygons; this mirrors its sub-face tiles.)
+
+A query outside its face's domain (the unit square, the triangle, the sub-face squares or the fan triangles)
+is refused (``SubdivInputError`` naming the query, its face and (u, v)), except for round-off: up to
+:data:`~warp_subdiv.limit.parameterisation.DOMAIN_TOLERANCE` (1e-6) outside, a query is evaluated on the
+domain's side (clamped onto the square, scaled toward the triangle's corner 0).
 
 Derivatives ``du``, ``dv`` (and ``duu``, ``duv``, ``dvv``) are with respect to these (u, v); normals are the unit
 ``du x dv`` (outward for counter-clockwise faces).
@@ -124,8 +127,9 @@ class LimitSurface:
 
     def evaluate(self, faces, u, v, *, derivatives: int = 1) -> LimitEvaluation:
         """The limit surface at control faces ``faces`` and parameters ``u``, ``v`` (arrays broadcast together;
-        see the module docstring for the parameterisation). ``derivatives``: 1 (points, first derivatives,
-        normals) or 2 (also second derivatives). Hole faces are refused (:attr:`holes` says which)."""
+        see the module docstring for the parameterisation and its domains). ``derivatives``: 1 (points, first
+        derivatives, normals) or 2 (also second derivatives). Hole faces, and (u, v) outside the face's domain
+        by more than round-off, are refused (:attr:`holes` says which faces are holes)."""
         if derivatives not in (1, 2):
             raise SubdivInputError(f"derivatives must be 1 or 2, got {derivatives!r}", option="derivatives",
                                    value=derivatives)
