@@ -771,6 +771,37 @@ def test_queries_outside_their_face_are_refused(scheme, linear):
         surface.evaluate([edge[0]], [edge[1] + 2 * tol], [edge[2]])
 
 
+@pytest.mark.parametrize("linear", [False, True])
+def test_query_arrays_keep_their_shape(linear):
+    """faces, u and v broadcast together as numpy arrays do, and every result takes their shape (points (2, 2, 3)
+    for (2, 2) queries, data (2, 2, k), 1-D data (2, 2), patch (2, 2)), with the values of the flat queries; a
+    query of three scalars is one query (results (1, 3))."""
+    mesh = load_mesh("mixed_prism")
+    surface = ws.LimitSurface(mesh, depth=3, linear=linear)
+    faces = np.array([[1, 4], [5, 6]])
+    u = np.array([[0.25, 0.5], [0.75, 0.1]])
+    v = np.array([[0.5], [0.3]])  # broadcasts against (2, 2)
+    flat = surface.evaluate(faces.ravel(), u.ravel(), np.broadcast_to(v, (2, 2)).ravel(), derivatives=2)
+    ev = surface.evaluate(faces, u, v, derivatives=2)
+    for name in ("points", "du", "dv", "normals", "duu", "duv", "dvv"):
+        assert getattr(ev, name).shape == (2, 2, 3), name
+        np.testing.assert_array_equal(getattr(ev, name).reshape(4, 3), getattr(flat, name))
+    assert ev.patch.shape == (2, 2)
+    assert surface.evaluate(faces[:, :, None], u[:, :, None], [[[0.2, 0.3, 0.4]]]).points.shape == (2, 2, 3, 3)
+    assert surface.evaluate(4, 0.5, 0.5).points.shape == (1, 3)
+    x = np.random.default_rng(RNG_SEED).standard_normal((mesh.num_vertices, 2))
+    res = surface.evaluate_data(x, faces, u, v, derivatives=1)
+    assert res.values.shape == res.du.shape == res.dv.shape == (2, 2, 2)
+    np.testing.assert_array_equal(res.values.reshape(4, 2), surface.evaluate_data(
+        x, faces.ravel(), u.ravel(), np.broadcast_to(v, (2, 2)).ravel()).values)
+    assert surface.evaluate_data(x[:, 0], faces, u, v).values.shape == (2, 2)
+    values, idx = seamed_channel(mesh, np.random.default_rng(RNG_SEED))
+    for mode in ("corners-plus1", "all"):
+        fv = surface.evaluate_face_varying(values, idx, faces, u, v, mode=mode, derivatives=1)
+        assert fv.values.shape == fv.du.shape == (2, 2, 2), mode
+        assert surface.evaluate_face_varying(values[:, 0], idx, faces, u, v, mode=mode).values.shape == (2, 2)
+
+
 # ------------------------------------------------------------------------------------------ OpenSubdiv Bfr
 def _peer():
     from peers import osd_peer

@@ -87,8 +87,9 @@ class FaceParameterisation:
         return out
 
     def check_queries(self, faces, u, v) -> tuple:
-        """(faces int64, u, v float64) flat, broadcast together, checked: integer faces inside the mesh, not
-        holes, finite (u, v) inside the face's domain (up to ``DOMAIN_TOLERANCE``)."""
+        """(faces int64, u, v float64, shape) checked: integer faces inside the mesh, not holes, finite (u, v)
+        inside the face's domain (up to ``DOMAIN_TOLERANCE``); broadcast together and flattened, ``shape`` their
+        broadcast shape (the shape of the results), at least 1-D (three scalars are one query)."""
         try:
             faces_a = np.asarray(faces)
             u_a = np.asarray(u, dtype=np.float64)
@@ -105,6 +106,7 @@ class FaceParameterisation:
         except ValueError:
             raise SubdivInputError(f"faces, u and v have incompatible shapes {np.shape(faces)}, {np.shape(u)}, "
                                    f"{np.shape(v)}", option="faces") from None
+        shape = faces_a.shape if faces_a.ndim else (1,)
         faces_a = faces_a.reshape(-1).astype(np.int64)
         u_a = u_a.reshape(-1)
         v_a = v_a.reshape(-1)
@@ -130,7 +132,7 @@ class FaceParameterisation:
                                    f"{self.domain_of(f)}, by more than the round-off tolerance "
                                    f"{DOMAIN_TOLERANCE:g}{more}", option="uv", element="face", index=i,
                                    value=(f, u, v))
-        return faces_a, u_a, v_a
+        return faces_a, u_a, v_a, shape
 
     def outside_domain(self, faces_a, u_a, v_a, tolerance: float) -> np.ndarray:
         """Whether each (face, u, v) lies farther than ``tolerance`` outside its face's domain: the unit square
