@@ -224,6 +224,18 @@ def grid_mesh(n, rng, triangles=False):
     return ws.Mesh(pts, [len(f) for f in faces], np.concatenate(faces)), pts, n
 
 
+def torus_mesh(n, m, triangles=False):
+    """A torus of n x m quads (or triangles along one diagonal): every vertex regular (valence 4, or 6)."""
+    i, j = np.meshgrid(np.arange(n), np.arange(m), indexing="ij")
+    a, b = 2 * np.pi * i.ravel() / n, 2 * np.pi * j.ravel() / m
+    pts = np.stack([(2 + 0.7 * np.cos(b)) * np.cos(a), (2 + 0.7 * np.cos(b)) * np.sin(a), 0.7 * np.sin(b)], 1)
+    vid = (i * m + j).ravel()
+    right, up, both = ((i + 1) % n * m + j).ravel(), (i * m + (j + 1) % m).ravel(), ((i + 1) % n * m + (j + 1) % m).ravel()
+    faces = np.stack([vid, right, both, vid, both, up], 1).reshape(-1, 3) if triangles else \
+        np.stack([vid, right, both, up], 1)
+    return ws.Mesh(pts, np.full(len(faces), faces.shape[1]), faces.ravel()), pts
+
+
 # ------------------------------------------------------------------------------------------ tests
 def test_bicubic_patch_matches_closed_form_bspline(device):
     """An interior face of a regular quad grid is the uniform bicubic B-spline of its 4x4 control points:
@@ -677,6 +689,24 @@ def test_end_cap_error_bound(name, scheme, rules):
     refined = ws.refine(mesh, 1, scheme=scheme, rules=rules, precision="float64").limit_points()
     corner = coarse.evaluate([0], [0.0], [0.0]).points[0]
     np.testing.assert_allclose(corner, refined[mesh.face_vertex_indices[0]], atol=1e-12)
+
+
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+@pytest.mark.parametrize("linear", [False, True])
+def test_normals_do_not_depend_on_the_scale(scheme, linear):
+    """Points scaled by 1e160 (du x dv overflows float64) or 1e-80 (its squared length underflows) have the unit
+    normals of the unscaled mesh, not [0, 0, nan] or normals of length 0.99997; positions and tangents scale
+    with the points. (A torus: every patch regular, no end caps.)"""
+    mesh, pts = torus_mesh(6, 4, triangles=scheme == "loop")
+    f, u, v = sample(ws.LimitSurface(mesh, scheme=scheme, linear=True), 200, np.random.default_rng(RNG_SEED))
+    unit = ws.LimitSurface(mesh, scheme=scheme, linear=linear, depth=3).evaluate(f, u, v)
+    for scale in (1e160, 1e-80, 1e150, 1e-150):
+        scaled = ws.Mesh(pts * scale, mesh.face_vertex_counts, mesh.face_vertex_indices)
+        ev = ws.LimitSurface(scaled, scheme=scheme, linear=linear, depth=3).evaluate(f, u, v)
+        np.testing.assert_allclose(ev.points / scale, unit.points, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(ev.du / scale, unit.du, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(np.linalg.norm(ev.normals, axis=1), 1.0, atol=1e-15, err_msg=str(scale))
+        np.testing.assert_allclose(ev.normals, unit.normals, atol=1e-14, err_msg=str(scale))
 
 
 def test_results_of_successive_evaluations_are_independent():

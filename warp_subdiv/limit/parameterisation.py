@@ -13,7 +13,7 @@ from ..errors import SubdivInputError
 from ..mesh import Mesh, face_offsets_of
 from ..options import Options, Scheme
 from .patches import HOLE, PatchTree
-from .results import DataEvaluation, LimitEvaluation
+from .results import DataEvaluation, LimitEvaluation, scale_free_normals
 
 #: How a control face is parameterised (``LimitSurface.face_kind``).
 DIRECT, SUBFACES, FAN = 0, 1, 2
@@ -282,9 +282,11 @@ def linear_evaluation(surface, faces_a, u_a, v_a, second: bool) -> LimitEvaluati
         return np.einsum("nm,nmk->nk", weights, P)
 
     p, du, dv = mix(w), mix(wu), mix(wv)
-    nrm = np.cross(du, dv)
-    length = np.linalg.norm(nrm, axis=1, keepdims=True)
-    nrm = np.divide(nrm, length, out=np.zeros_like(nrm), where=length > 0)
+    with np.errstate(over="ignore", invalid="ignore"):  # points of extreme scale: redone scale-free below
+        nrm = np.cross(du, dv)
+        length = np.linalg.norm(nrm, axis=1, keepdims=True)
+        nrm = np.divide(nrm, length, out=np.zeros_like(nrm), where=length > 0)
+    nrm = scale_free_normals(du, dv, nrm)
     zero = np.zeros_like(p)
     return LimitEvaluation(p, du, dv, nrm, zero if second else None, mix(wuv) if second else None,
                            zero.copy() if second else None, np.full(len(p), -1, np.int32))

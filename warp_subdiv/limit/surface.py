@@ -20,7 +20,9 @@ is refused (``SubdivInputError`` naming the query, its face and (u, v)), except 
 domain's side (clamped onto the square, scaled toward the triangle's corner 0).
 
 Derivatives ``du``, ``dv`` (and ``duu``, ``duv``, ``dvv``) are with respect to these (u, v); normals are the unit
-``du x dv`` (outward for counter-clockwise faces).
+``du x dv`` (outward for counter-clockwise faces), of unit length whatever the scale of the points (where
+``du x dv`` would overflow or underflow float64 it is taken of the tangents scaled by powers of two:
+:func:`~warp_subdiv.limit.results.scale_free_normals`).
 
 Data on the surface: :meth:`LimitSurface.evaluate_data` evaluates per-vertex data (vertex primvars) as the limit
 of the same subdivision, with the weights of the positions (sector angles, flatness and end caps' tangent
