@@ -6,6 +6,7 @@ data inside it in those coordinates (varying primvars, bilinear meshes, linear s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -17,6 +18,9 @@ from .results import DataEvaluation, LimitEvaluation, scale_free_normals
 
 #: How a control face is parameterised (``LimitSurface.face_kind``).
 DIRECT, SUBFACES, FAN = 0, 1, 2
+#: The domains of faces parameterised directly: a quad's unit square, a Loop triangle's triangle (the other
+#: kinds of domain are SUBFACES' tiles and FAN's triangles; ``FaceParameterisation.domain``).
+SQUARE, TRIANGLE = 3, 4
 
 #: How far, in the face's (u, v), a query may lie outside its face's domain and still be evaluated (on the
 #: domain's side, where the evaluation clamps it: onto a square, toward a triangle's corner 0): round-off of
@@ -137,21 +141,29 @@ class FaceParameterisation:
     def outside_domain(self, faces_a, u_a, v_a, tolerance: float) -> np.ndarray:
         """Whether each (face, u, v) lies farther than ``tolerance`` outside its face's domain: the unit square
         (a quad), the triangle u, v >= 0, u + v <= 1 (a Loop triangle), the sub-face tiles (a Catmull-Clark
-        n-gon) or the fan triangles' tiles (a Loop polygon), each tile taken as the evaluation kernel picks it."""
-        kind, size = self.kind[faces_a], self.size[faces_a]
-        low = np.minimum(u_a, v_a) < -tolerance
-        quad = (kind == DIRECT) & (size == 4)
-        triangle = (kind == DIRECT) & (size != 4)
-        out = quad & (low | (np.maximum(u_a, v_a) > 1 + tolerance))
-        out |= triangle & (low | (u_a + v_a > 1 + tolerance))
-        tu, tv = kernel_tile(u_a), kernel_tile(v_a)
-        s, t = u_a - tu, v_a - tv  # inside the tile: [0, 1/2]
-        w = self.tiles[faces_a]
-        no_tile = (tu < 0) | (tu >= w) | (tv < 0) | (tv * w + tu >= size)
-        out |= (kind == SUBFACES) & (no_tile | (np.minimum(s, t) < -tolerance) | (np.maximum(s, t) > 0.5 + tolerance))
-        no_triangle = (tu < 0) | (tu > size - 3)
-        out |= (kind == FAN) & (no_triangle | (np.minimum(s, v_a) < -tolerance) | (s + v_a > 0.5 + tolerance))
+        n-gon) or the fan triangles' tiles (a Loop polygon), each tile taken as the evaluation kernel picks it.
+        Each kind of domain is tested on its own queries only (all of them, ungathered, in a mesh of one kind:
+        the common case costs a few passes over u and v)."""
+        domain, present = self.domain, self.domains_present
+        if len(present) == 1:
+            return _outside(int(present[0]), faces_a, u_a, v_a, self, tolerance)
+        out = np.zeros(len(faces_a), bool)
+        of_query = domain[faces_a]
+        for d in present:
+            rows = np.flatnonzero(of_query == d)
+            out[rows] = _outside(int(d), faces_a[rows], u_a[rows], v_a[rows], self, tolerance)
         return out
+
+    @cached_property
+    def domain(self) -> np.ndarray:
+        """Per face its kind of domain: ``SQUARE`` or ``TRIANGLE`` (a face parameterised directly), ``SUBFACES``
+        or ``FAN``."""
+        return np.where(self.kind == DIRECT, np.where(self.size == 4, SQUARE, TRIANGLE), self.kind)
+
+    @cached_property
+    def domains_present(self) -> np.ndarray:
+        """The kinds of domain among the faces."""
+        return np.unique(self.domain)
 
     def domain_of(self, face: int) -> str:
         """The domain of control face ``face`` in words (for messages)."""
@@ -180,6 +192,25 @@ class FaceParameterisation:
         total = np.where(triangle & (s + t > 1), s + t, 1.0)
         s, t = s / total, t / total
         return np.where(outside, tu + s / scale, u_a), np.where(outside, tv + t / scale, v_a)
+
+
+def _outside(domain: int, faces_a, u, v, faces: FaceParameterisation, tolerance: float) -> np.ndarray:
+    """Whether each (u, v) of faces ``faces_a``, all of kind of domain ``domain``, lies farther than
+    ``tolerance`` outside it (see :meth:`FaceParameterisation.outside_domain`)."""
+    if domain == SQUARE:
+        return (np.minimum(u, v) < -tolerance) | (np.maximum(u, v) > 1 + tolerance)
+    if domain == TRIANGLE:
+        return (np.minimum(u, v) < -tolerance) | (u + v > 1 + tolerance)
+    size = faces.size[faces_a]
+    tu = kernel_tile(u)
+    s = u - tu  # inside the tile: [0, 1/2]
+    if domain == FAN:
+        return (tu < 0) | (tu > size - 3) | (np.minimum(s, v) < -tolerance) | (s + v > 0.5 + tolerance)
+    tv = kernel_tile(v)
+    t = v - tv
+    w = faces.tiles[faces_a]
+    no_tile = (tu < 0) | (tu >= w) | (tv < 0) | (tv * w + tu >= size)
+    return no_tile | (np.minimum(s, t) < -tolerance) | (np.maximum(s, t) > 0.5 + tolerance)
 
 
 def kernel_tile(x: np.ndarray) -> np.ndarray:
