@@ -56,32 +56,31 @@ class DataEvaluation:
         return DataEvaluation(*(_leading(x, shape) for x in (self.values, self.du, self.dv)))
 
 
-#: Tangent scales (the largest |component| of du times that of dv) within which du x dv and its squared length
-#: are computed without overflow or underflow in float64: normals computed from such tangents are kept as the
-#: evaluation returns them; outside (points scaled by 1e160, or 1e-80), they are recomputed scale-free.
-SAFE_TANGENT_PRODUCT = (2.0 ** -400, 2.0 ** 400)
+#: How far from 1 the squared length of an evaluation's normal may be before the normal is recomputed: a
+#: normal of tangents of ordinary scale is of unit length to a few ulps; one of tangents whose cross product
+#: overflows or underflows float64 (points scaled by 1e160, or 1e-80) is nan, zero or visibly not of unit length.
+UNIT_LENGTH_TOLERANCE = 1e-10
 
 
 def scale_free_normals(du: np.ndarray, dv: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """``normals`` (n, 3), the unit du x dv an evaluation computed, with every row whose tangents are too large or
-    too small for du x dv in float64 (where it overflows to inf and nan, or its squared length underflows and
-    the normal is not of unit length) recomputed from the tangents scaled by powers of two (exact), their cross
-    product scaled the same way before its length is taken. Rows of ordinary scale, of a zero tangent (a zero
-    normal) or of non-finite tangents are left as they are; rows are changed in place."""
-    a, b = np.abs(du).max(axis=1, initial=0.0), np.abs(dv).max(axis=1, initial=0.0)
-    with np.errstate(over="ignore", under="ignore"):
-        product = a * b
-    lo, hi = SAFE_TANGENT_PRODUCT
-    redo = np.isfinite(product) & (a > 0) & (b > 0) & ((product < lo) | (product > hi))
-    redo |= np.isinf(product) & np.isfinite(a) & np.isfinite(b)
-    if not redo.any():
+    """``normals`` (n, 3), the unit du x dv an evaluation computed, with every row that is not of unit length
+    (where du x dv overflowed to inf and nan, or its squared length underflowed) recomputed from the tangents
+    scaled by powers of two (exact), their cross product scaled the same way before its length is taken. The
+    rows of unit length are kept bit for bit, and so are rows whose tangents are parallel or zero (the normal
+    is zero) or not finite; rows are changed in place."""
+    squared = np.einsum("ij,ij->i", normals, normals)
+    redo = np.flatnonzero(~(np.abs(squared - 1.0) <= UNIT_LENGTH_TOLERANCE))
+    if not len(redo):
         return normals
-    du_r = np.ldexp(du[redo], -np.frexp(a[redo])[1][:, None])
-    dv_r = np.ldexp(dv[redo], -np.frexp(b[redo])[1][:, None])
-    n = np.cross(du_r, dv_r)
-    n = np.ldexp(n, -np.frexp(np.abs(n).max(axis=1))[1][:, None])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    normals[redo] = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+    du_r, dv_r = du[redo], dv[redo]
+    with np.errstate(invalid="ignore", over="ignore"):
+        du_r = np.ldexp(du_r, -np.frexp(np.abs(du_r).max(axis=1))[1][:, None])
+        dv_r = np.ldexp(dv_r, -np.frexp(np.abs(dv_r).max(axis=1))[1][:, None])
+        n = np.cross(du_r, dv_r)
+        n = np.ldexp(n, -np.frexp(np.abs(n).max(axis=1))[1][:, None])
+        length = np.linalg.norm(n, axis=1)
+    ok = length > 0  # not a zero normal (nor nan)
+    normals[redo[ok]] = n[ok] / length[ok, None]
     return normals
 
 
