@@ -224,6 +224,18 @@ def grid_mesh(n, rng, triangles=False):
     return ws.Mesh(pts, [len(f) for f in faces], np.concatenate(faces)), pts, n
 
 
+def torus_mesh(n, m, triangles=False):
+    """A torus of n x m quads (or triangles along one diagonal): every vertex regular (valence 4, or 6)."""
+    i, j = np.meshgrid(np.arange(n), np.arange(m), indexing="ij")
+    a, b = 2 * np.pi * i.ravel() / n, 2 * np.pi * j.ravel() / m
+    pts = np.stack([(2 + 0.7 * np.cos(b)) * np.cos(a), (2 + 0.7 * np.cos(b)) * np.sin(a), 0.7 * np.sin(b)], 1)
+    vid = (i * m + j).ravel()
+    right, up, both = ((i + 1) % n * m + j).ravel(), (i * m + (j + 1) % m).ravel(), ((i + 1) % n * m + (j + 1) % m).ravel()
+    faces = np.stack([vid, right, both, vid, both, up], 1).reshape(-1, 3) if triangles else \
+        np.stack([vid, right, both, up], 1)
+    return ws.Mesh(pts, np.full(len(faces), faces.shape[1]), faces.ravel()), pts
+
+
 # ------------------------------------------------------------------------------------------ tests
 def test_bicubic_patch_matches_closed_form_bspline(device):
     """An interior face of a regular quad grid is the uniform bicubic B-spline of its 4x4 control points:
@@ -603,6 +615,34 @@ def test_parameterisation_of_polygons():
     np.testing.assert_allclose(centre, face_point, atol=1e-10)
 
 
+@pytest.mark.parametrize("name", ["octahedron", "icosahedron"])
+@pytest.mark.parametrize("rules", ["piecewise-smooth", "opensubdiv"])
+def test_catmull_clark_on_all_triangle_meshes(name, rules):
+    """Catmull-Clark on a mesh of triangles only (every face a 3-gon of three quad sub-faces, as OpenSubdiv
+    accepts it): the tree builds without quad faces at level 0, every control vertex's (u, v) evaluates to its
+    limit position, the surface agrees with limit_points / limit_normals at level-3 vertices, and the points of
+    a deeper refinement converge onto it (their distance shrinks about fourfold per level)."""
+    mesh = load_mesh(name)
+    o = ws.Options(scheme="catmull-clark", rules=rules, precision="float64")
+    surface = ws.LimitSurface(mesh, options=o, depth=5)
+    assert (surface.face_kind == ws.limit.SUBFACES).all()
+    counts = mesh.face_vertex_counts
+    faces = np.repeat(np.arange(len(counts)), counts)
+    corners = np.tile(np.arange(3), len(counts))
+    uv = surface.vertex_uv(faces, corners)
+    want = ws.Refiner(mesh, 1, options=o).refine().limit_points()[mesh.face_vertex_indices]
+    np.testing.assert_allclose(surface.evaluate(faces, uv[:, 0], uv[:, 1]).points, want, atol=1e-12)
+    check_consistency(mesh, "catmull-clark", rules, {}, level=3, depth=5)
+    distance = []
+    for level in (3, 4, 5):
+        refiner = ws.Refiner(mesh, level, options=o)
+        f, u, v, verts = refined_vertex_params(surface, refiner, level)
+        got = surface.evaluate(f, u, v).points
+        distance.append(np.linalg.norm(got - refiner.refine().points[verts], axis=1).max())
+    assert distance[-1] < 1e-2 * np.abs(mesh.points).max()
+    assert distance[1] < distance[0] / 3 and distance[2] < distance[1] / 3, distance
+
+
 def corner_samples(surface, depth, per_corner, rng):
     """Random (face, u, v) in the 2^-depth squares (sub-face squares of n-gons) at every corner of every
     quad or triangle face and n-gon: where the end caps are."""
@@ -651,6 +691,24 @@ def test_end_cap_error_bound(name, scheme, rules):
     np.testing.assert_allclose(corner, refined[mesh.face_vertex_indices[0]], atol=1e-12)
 
 
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+@pytest.mark.parametrize("linear", [False, True])
+def test_normals_do_not_depend_on_the_scale(scheme, linear):
+    """Points scaled by 1e160 (du x dv overflows float64) or 1e-80 (its squared length underflows) have the unit
+    normals of the unscaled mesh, not [0, 0, nan] or normals of length 0.99997; positions and tangents scale
+    with the points. (A torus: every patch regular, no end caps.)"""
+    mesh, pts = torus_mesh(6, 4, triangles=scheme == "loop")
+    f, u, v = sample(ws.LimitSurface(mesh, scheme=scheme, linear=True), 200, np.random.default_rng(RNG_SEED))
+    unit = ws.LimitSurface(mesh, scheme=scheme, linear=linear, depth=3).evaluate(f, u, v)
+    for scale in (1e160, 1e-80, 1e150, 1e-150):
+        scaled = ws.Mesh(pts * scale, mesh.face_vertex_counts, mesh.face_vertex_indices)
+        ev = ws.LimitSurface(scaled, scheme=scheme, linear=linear, depth=3).evaluate(f, u, v)
+        np.testing.assert_allclose(ev.points / scale, unit.points, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(ev.du / scale, unit.du, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(np.linalg.norm(ev.normals, axis=1), 1.0, atol=1e-15, err_msg=str(scale))
+        np.testing.assert_allclose(ev.normals, unit.normals, atol=1e-14, err_msg=str(scale))
+
+
 def test_results_of_successive_evaluations_are_independent():
     """evaluate's arrays (numpy memory wrapped for the kernel on the CPU) belong to the caller: a later call
     does not overwrite them, each is contiguous and writable, and the same queries give the same bits."""
@@ -690,6 +748,88 @@ def test_bad_input_is_refused():
     with pytest.raises(SubdivInputError, match="depth"):
         ws.LimitSurface(mesh, depth=0)
     assert len(surface.evaluate([], [], []).points) == 0
+
+
+# (face, u, v) outside each kind of face (mixed_prism: face 0 a pentagon, 2 a triangle, 4 a quad), and inside
+OUTSIDE = {
+    "catmull-clark": [(4, 1.5, 0.5), (4, 1e10, 0.5), (4, 0.5, -0.01), (4, -1e-5, 0.0),  # quad: [0, 1]^2
+                      (0, 0.7, 0.2), (0, 2.2, 1.2), (0, 3.1, 0.2), (0, -0.1, 0.3),  # pentagon: 5 tiles of 3 x 2
+                      (2, 1.2, 1.2), (2, 0.2, 0.6)],  # triangle: 3 tiles of 2 x 2
+    "loop": [(2, 0.8, 0.8), (2, -0.01, 0.5), (2, 0.5, 0.5 + 1e-5),  # triangle: u, v >= 0, u + v <= 1
+             (0, 0.3, 0.3), (0, 3.1, 0.1), (0, 2.6, 0.0), (0, 0.2, -0.1),  # pentagon: 3 fan triangles at (k, 0)
+             (4, 0.1, 0.45)],  # quad: 2 fan triangles
+}
+INSIDE = {
+    "catmull-clark": [(4, 1.0, 1.0), (4, 0.0, 0.3), (0, 2.5, 0.5), (0, 1.5, 1.5), (0, 1.0, 0.0), (2, 0.5, 1.5)],
+    "loop": [(2, 0.5, 0.5), (2, 0.0, 1.0), (0, 2.5, 0.0), (0, 2.0, 0.5), (0, 1.25, 0.25), (4, 1.0, 0.5)],
+}
+
+
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+@pytest.mark.parametrize("linear", [False, True])
+def test_queries_outside_their_face_are_refused(scheme, linear):
+    """A (u, v) outside its face's domain (a quad's unit square, a triangle's u, v >= 0, u + v <= 1, an n-gon's
+    sub-face tiles, a Loop polygon's fan triangles) is refused with SubdivInputError naming the query (index,
+    face, u, v) and the domain, by evaluate, evaluate_data and evaluate_face_varying alike, instead of being
+    clamped onto the domain; the domain's own boundary is accepted, and so is round-off beyond it (up to
+    DOMAIN_TOLERANCE), evaluated on the domain's side (the kernel's clamp)."""
+    mesh = load_mesh("mixed_prism")
+    surface = ws.LimitSurface(mesh, scheme=scheme, linear=linear, depth=3)
+    inside = np.array(INSIDE[scheme], dtype=object)
+    f_in, u_in, v_in = inside[:, 0].astype(int), inside[:, 1].astype(float), inside[:, 2].astype(float)
+    surface.evaluate(f_in, u_in, v_in)
+    idx = np.arange(len(mesh.face_vertex_indices))
+    for face, u, v in OUTSIDE[scheme]:
+        faces, us, vs = np.append(f_in, face), np.append(u_in, u), np.append(v_in, v)
+        query = len(f_in)
+        for call in (lambda: surface.evaluate(faces, us, vs),
+                     lambda: surface.evaluate_data(mesh.points, faces, us, vs),
+                     lambda: surface.evaluate_face_varying(mesh.points[mesh.face_vertex_indices], idx, faces, us, vs)):
+            with pytest.raises(SubdivInputError, match="outside the domain") as err:
+                call()
+            message = str(err.value)
+            assert f"query {query} (face {face}, u={u!r}, v={v!r})" in message, message
+            assert err.value.option == "uv" and err.value.index == query
+    # round-off beyond a side: evaluated on it (clamped onto a square, scaled toward a triangle's corner 0,
+    # moving the point by less than the tolerance), a hair farther: refused
+    tol = ws.limit.DOMAIN_TOLERANCE
+    edge = (4, 1.0, 0.25) if scheme == "catmull-clark" else (2, 0.75, 0.25)
+    on = surface.evaluate([edge[0]], [edge[1]], [edge[2]])
+    near = surface.evaluate([edge[0]], [edge[1] + 0.5 * tol], [edge[2]]).points
+    assert np.linalg.norm(near - on.points) <= tol * np.linalg.norm(np.concatenate([on.du, on.dv]))
+    with pytest.raises(SubdivInputError, match="outside the domain"):
+        surface.evaluate([edge[0]], [edge[1] + 2 * tol], [edge[2]])
+
+
+@pytest.mark.parametrize("linear", [False, True])
+def test_query_arrays_keep_their_shape(linear):
+    """faces, u and v broadcast together as numpy arrays do, and every result takes their shape (points (2, 2, 3)
+    for (2, 2) queries, data (2, 2, k), 1-D data (2, 2), patch (2, 2)), with the values of the flat queries; a
+    query of three scalars is one query (results (1, 3))."""
+    mesh = load_mesh("mixed_prism")
+    surface = ws.LimitSurface(mesh, depth=3, linear=linear)
+    faces = np.array([[1, 4], [5, 6]])
+    u = np.array([[0.25, 0.5], [0.75, 0.1]])
+    v = np.array([[0.5], [0.3]])  # broadcasts against (2, 2)
+    flat = surface.evaluate(faces.ravel(), u.ravel(), np.broadcast_to(v, (2, 2)).ravel(), derivatives=2)
+    ev = surface.evaluate(faces, u, v, derivatives=2)
+    for name in ("points", "du", "dv", "normals", "duu", "duv", "dvv"):
+        assert getattr(ev, name).shape == (2, 2, 3), name
+        np.testing.assert_array_equal(getattr(ev, name).reshape(4, 3), getattr(flat, name))
+    assert ev.patch.shape == (2, 2)
+    assert surface.evaluate(faces[:, :, None], u[:, :, None], [[[0.2, 0.3, 0.4]]]).points.shape == (2, 2, 3, 3)
+    assert surface.evaluate(4, 0.5, 0.5).points.shape == (1, 3)
+    x = np.random.default_rng(RNG_SEED).standard_normal((mesh.num_vertices, 2))
+    res = surface.evaluate_data(x, faces, u, v, derivatives=1)
+    assert res.values.shape == res.du.shape == res.dv.shape == (2, 2, 2)
+    np.testing.assert_array_equal(res.values.reshape(4, 2), surface.evaluate_data(
+        x, faces.ravel(), u.ravel(), np.broadcast_to(v, (2, 2)).ravel()).values)
+    assert surface.evaluate_data(x[:, 0], faces, u, v).values.shape == (2, 2)
+    values, idx = seamed_channel(mesh, np.random.default_rng(RNG_SEED))
+    for mode in ("corners-plus1", "all"):
+        fv = surface.evaluate_face_varying(values, idx, faces, u, v, mode=mode, derivatives=1)
+        assert fv.values.shape == fv.du.shape == (2, 2, 2), mode
+        assert surface.evaluate_face_varying(values[:, 0], idx, faces, u, v, mode=mode).values.shape == (2, 2)
 
 
 # ------------------------------------------------------------------------------------------ OpenSubdiv Bfr

@@ -2,10 +2,10 @@
 regions, exact eigen-masks at extraordinary vertices), and watertight tessellation of the limit surface by uniform
 or per-edge rates.
 """
-from .parameterisation import DIRECT, FAN, SUBFACES, corner_weights
+from .parameterisation import DIRECT, DOMAIN_TOLERANCE, FAN, SUBFACES, corner_weights
 from .results import DataEvaluation, LimitEvaluation
 from .surface import DEFAULT_DEPTH, LimitSurface
 from .tessellation import Tessellation, tessellate
 
 __all__ = ["LimitSurface", "LimitEvaluation", "DataEvaluation", "Tessellation", "tessellate", "corner_weights",
-           "DEFAULT_DEPTH", "DIRECT", "SUBFACES", "FAN"]
+           "DEFAULT_DEPTH", "DIRECT", "SUBFACES", "FAN", "DOMAIN_TOLERANCE"]

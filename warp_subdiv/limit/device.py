@@ -9,7 +9,7 @@ import warp as wp
 
 from .parameterisation import DIRECT, FaceParameterisation
 from .patches import PatchTree
-from .results import DataEvaluation, LimitEvaluation
+from .results import DataEvaluation, LimitEvaluation, scale_free_normals
 
 
 class DeviceEvaluator:
@@ -98,7 +98,10 @@ class DeviceEvaluator:
         def host(x):
             return x.numpy().reshape(n, 3)
 
-        return LimitEvaluation(host(p), host(du), host(dv), host(nrm),
+        du_h, dv_h = host(du), host(dv)
+        # the kernel's unit du x dv overflows or underflows for points of extreme scale: those rows are redone
+        nrm_h = scale_free_normals(du_h, dv_h, host(nrm))
+        return LimitEvaluation(host(p), du_h, dv_h, nrm_h,
                                host(duu) if second else None, host(duv) if second else None,
                                host(dvv) if second else None, patch.numpy())
 

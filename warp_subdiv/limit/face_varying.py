@@ -87,11 +87,14 @@ def _value_surface(surface, idx: np.ndarray, mode: FaceVaryingMode) -> tuple:
 
 def _to_value_faces(surface, faces_a, u_a, v_a):
     """(face, u, v, derivative scale) on the value mesh: the same faces, except that a Loop polygon's value
-    mesh holds its fan triangles (the kernel's tile choice: triangle k at u in [k, k + 1), nearest beyond)."""
+    mesh holds its fan triangles (the kernel's tile choice: triangle k at u in [k, k + 1), nearest beyond). A
+    fan triangle's own coordinates are twice the face's, and so would be a query's round-off outside it: such
+    queries are moved onto the domain first (as the kernel clamps them), so that the value mesh accepts them."""
     scale = np.ones(len(faces_a))
     fan = surface.face_kind[faces_a] == FAN
     if not fan.any():
         return faces_a, u_a, v_a, scale
+    u_a, v_a = surface._parameterisation.onto_domain(faces_a, u_a, v_a)
     counts = np.asarray(surface.mesh.face_vertex_counts, dtype=np.int64)
     first = np.concatenate([[0], np.cumsum(counts - 2)[:-1]])
     tu = np.floor(u_a)

@@ -6,6 +6,7 @@ data inside it in those coordinates (varying primvars, bilinear meshes, linear s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -13,10 +14,20 @@ from ..errors import SubdivInputError
 from ..mesh import Mesh, face_offsets_of
 from ..options import Options, Scheme
 from .patches import HOLE, PatchTree
-from .results import DataEvaluation, LimitEvaluation
+from .results import DataEvaluation, LimitEvaluation, scale_free_normals
 
 #: How a control face is parameterised (``LimitSurface.face_kind``).
 DIRECT, SUBFACES, FAN = 0, 1, 2
+#: The domains of faces parameterised directly: a quad's unit square, a Loop triangle's triangle (the other
+#: kinds of domain are SUBFACES' tiles and FAN's triangles; ``FaceParameterisation.domain``).
+SQUARE, TRIANGLE = 3, 4
+
+#: How far, in the face's (u, v), a query may lie outside its face's domain and still be evaluated (on the
+#: domain's side, where the evaluation clamps it: onto a square, toward a triangle's corner 0): round-off of
+#: computed parameters, those computed in float32 included (Warp's mesh queries return float32 barycentrics,
+#: whose u + v may exceed 1 by about 1e-7). A query farther outside is refused: clamping it would evaluate a
+#: point it does not name.
+DOMAIN_TOLERANCE = 1e-6
 
 
 @dataclass
@@ -80,8 +91,9 @@ class FaceParameterisation:
         return out
 
     def check_queries(self, faces, u, v) -> tuple:
-        """(faces int64, u, v float64) flat, broadcast together, checked: integer faces inside the mesh, not
-        holes, finite (u, v)."""
+        """(faces int64, u, v float64, shape) checked: integer faces inside the mesh, not holes, finite (u, v)
+        inside the face's domain (up to ``DOMAIN_TOLERANCE``); broadcast together and flattened, ``shape`` their
+        broadcast shape (the shape of the results), at least 1-D (three scalars are one query)."""
         try:
             faces_a = np.asarray(faces)
             u_a = np.asarray(u, dtype=np.float64)
@@ -98,6 +110,7 @@ class FaceParameterisation:
         except ValueError:
             raise SubdivInputError(f"faces, u and v have incompatible shapes {np.shape(faces)}, {np.shape(u)}, "
                                    f"{np.shape(v)}", option="faces") from None
+        shape = faces_a.shape if faces_a.ndim else (1,)
         faces_a = faces_a.reshape(-1).astype(np.int64)
         u_a = u_a.reshape(-1)
         v_a = v_a.reshape(-1)
@@ -114,7 +127,97 @@ class FaceParameterisation:
             f = int(faces_a[hole[0]])
             raise SubdivInputError(f"face {f} (query {hole[0]}) is a hole: it has no limit surface", option="faces",
                                    element="face", index=f)
-        return faces_a, u_a, v_a
+        outside = np.flatnonzero(self.outside_domain(faces_a, u_a, v_a, DOMAIN_TOLERANCE))
+        if len(outside):
+            i = int(outside[0])
+            f, u, v = int(faces_a[i]), float(u_a[i]), float(v_a[i])
+            more = f" ({len(outside)} of {len(faces_a)} queries are outside)" if len(outside) > 1 else ""
+            raise SubdivInputError(f"query {i} (face {f}, u={u!r}, v={v!r}) is outside the domain of its face, "
+                                   f"{self.domain_of(f)}, by more than the round-off tolerance "
+                                   f"{DOMAIN_TOLERANCE:g}{more}", option="uv", element="face", index=i,
+                                   value=(f, u, v))
+        return faces_a, u_a, v_a, shape
+
+    def outside_domain(self, faces_a, u_a, v_a, tolerance: float) -> np.ndarray:
+        """Whether each (face, u, v) lies farther than ``tolerance`` outside its face's domain: the unit square
+        (a quad), the triangle u, v >= 0, u + v <= 1 (a Loop triangle), the sub-face tiles (a Catmull-Clark
+        n-gon) or the fan triangles' tiles (a Loop polygon), each tile taken as the evaluation kernel picks it.
+        Each kind of domain is tested on its own queries only (all of them, ungathered, in a mesh of one kind:
+        the common case costs a few passes over u and v)."""
+        domain, present = self.domain, self.domains_present
+        if len(present) == 1:
+            return _outside(int(present[0]), faces_a, u_a, v_a, self, tolerance)
+        out = np.zeros(len(faces_a), bool)
+        of_query = domain[faces_a]
+        for d in present:
+            rows = np.flatnonzero(of_query == d)
+            out[rows] = _outside(int(d), faces_a[rows], u_a[rows], v_a[rows], self, tolerance)
+        return out
+
+    @cached_property
+    def domain(self) -> np.ndarray:
+        """Per face its kind of domain: ``SQUARE`` or ``TRIANGLE`` (a face parameterised directly), ``SUBFACES``
+        or ``FAN``."""
+        return np.where(self.kind == DIRECT, np.where(self.size == 4, SQUARE, TRIANGLE), self.kind)
+
+    @cached_property
+    def domains_present(self) -> np.ndarray:
+        """The kinds of domain among the faces."""
+        return np.unique(self.domain)
+
+    def domain_of(self, face: int) -> str:
+        """The domain of control face ``face`` in words (for messages)."""
+        n, w = int(self.size[face]), int(self.tiles[face])
+        if self.kind[face] == SUBFACES:
+            return (f"a {n}-gon's {n} sub-face tiles [i mod {w}, i mod {w} + 1/2] x [i div {w}, i div {w} + 1/2], "
+                    f"i = 0..{n - 1}")
+        if self.kind[face] == FAN:
+            return f"a {n}-gon's {n - 2} fan triangles u - k, v >= 0, (u - k) + v <= 1/2, k = 0..{n - 3}"
+        return "the quad's unit square [0, 1]^2" if n == 4 else "the triangle's u, v >= 0, u + v <= 1"
+
+    def onto_domain(self, faces_a, u_a, v_a) -> tuple:
+        """(u, v) of checked queries moved onto their faces' domains as the evaluation kernel clamps them (onto
+        the tile's square, or toward the triangle's origin); queries inside are returned unchanged, bit for
+        bit. For the evaluations on the host (linear surfaces) and the fan triangles of face-varying data."""
+        outside = self.outside_domain(faces_a, u_a, v_a, 0.0)
+        if not outside.any():
+            return u_a, v_a
+        kind, size = self.kind[faces_a], self.size[faces_a]
+        tiled = kind != DIRECT
+        tu = np.where(tiled, kernel_tile(u_a), 0.0)
+        tv = np.where(kind == SUBFACES, kernel_tile(v_a), 0.0)
+        scale = np.where(tiled, 2.0, 1.0)  # a tile's own coordinates
+        s, t = np.clip(scale * (u_a - tu), 0, 1), np.clip(scale * (v_a - tv), 0, 1)
+        triangle = (kind == FAN) | ((kind == DIRECT) & (size != 4))
+        total = np.where(triangle & (s + t > 1), s + t, 1.0)
+        s, t = s / total, t / total
+        return np.where(outside, tu + s / scale, u_a), np.where(outside, tv + t / scale, v_a)
+
+
+def _outside(domain: int, faces_a, u, v, faces: FaceParameterisation, tolerance: float) -> np.ndarray:
+    """Whether each (u, v) of faces ``faces_a``, all of kind of domain ``domain``, lies farther than
+    ``tolerance`` outside it (see :meth:`FaceParameterisation.outside_domain`)."""
+    if domain == SQUARE:
+        return (np.minimum(u, v) < -tolerance) | (np.maximum(u, v) > 1 + tolerance)
+    if domain == TRIANGLE:
+        return (np.minimum(u, v) < -tolerance) | (u + v > 1 + tolerance)
+    size = faces.size[faces_a]
+    tu = kernel_tile(u)
+    s = u - tu  # inside the tile: [0, 1/2]
+    if domain == FAN:
+        return (tu < 0) | (tu > size - 3) | (np.minimum(s, v) < -tolerance) | (s + v > 0.5 + tolerance)
+    tv = kernel_tile(v)
+    t = v - tv
+    w = faces.tiles[faces_a]
+    no_tile = (tu < 0) | (tu >= w) | (tv < 0) | (tv * w + tu >= size)
+    return no_tile | (np.minimum(s, t) < -tolerance) | (np.maximum(s, t) > 0.5 + tolerance)
+
+
+def kernel_tile(x: np.ndarray) -> np.ndarray:
+    """The tile coordinate the evaluation kernel takes for a face coordinate ``x`` (float64): its integer part,
+    or the next integer when the fraction is above 3/4 (a point just below a tile's lower side belongs to it)."""
+    tile = np.floor(x)
+    return np.where(x - tile > 0.75, tile + 1, tile)
 
 
 def _all_roots_holes(tree: PatchTree, kind, root, counts) -> np.ndarray:
@@ -191,7 +294,9 @@ def corner_weights(surface, faces, uv, *, derivatives: bool = False) -> tuple:
 
 
 def _linear_weights(surface, faces_a, u_a, v_a):
-    """corner_weights and its derivatives, padded corners at 0 with zero weights."""
+    """corner_weights and its derivatives at checked queries (round-off outside a face moved onto it, as the
+    kernel evaluates it), padded corners at 0 with zero weights."""
+    u_a, v_a = surface._parameterisation.onto_domain(faces_a, u_a, v_a)
     corners, w, wu, wv, wuv = corner_weights(surface, faces_a, np.stack([u_a, v_a], 1), derivatives=True)
     valid = corners >= 0
     return np.maximum(corners, 0), [x * valid for x in (w, wu, wv, wuv)]
@@ -208,9 +313,11 @@ def linear_evaluation(surface, faces_a, u_a, v_a, second: bool) -> LimitEvaluati
         return np.einsum("nm,nmk->nk", weights, P)
 
     p, du, dv = mix(w), mix(wu), mix(wv)
-    nrm = np.cross(du, dv)
-    length = np.linalg.norm(nrm, axis=1, keepdims=True)
-    nrm = np.divide(nrm, length, out=np.zeros_like(nrm), where=length > 0)
+    with np.errstate(over="ignore", invalid="ignore"):  # points of extreme scale: redone scale-free below
+        nrm = np.cross(du, dv)
+        length = np.linalg.norm(nrm, axis=1, keepdims=True)
+        nrm = np.divide(nrm, length, out=np.zeros_like(nrm), where=length > 0)
+    nrm = scale_free_normals(du, dv, nrm)
     zero = np.zeros_like(p)
     return LimitEvaluation(p, du, dv, nrm, zero if second else None, mix(wuv) if second else None,
                            zero.copy() if second else None, np.full(len(p), -1, np.int32))

@@ -285,10 +285,13 @@ def _child_nodes(nodes: _Nodes, sub: LocalLevel, sub_todo: np.ndarray, child: Le
     child_node = np.full(child.num_faces, -1, dtype=np.int64)
     tn = sub.face_node[sub_todo]
     rows = np.flatnonzero(tn >= 0)
-    new = nodes.new(4 * len(rows)).reshape(-1, 4)
-    nodes.set_children(tn[rows], new)
-    for j in range(4):
-        child_node[kids[rows, j]] = new[:, j]
+    # split quad nodes: four children each. Without any (level 0 of a mesh of triangles only) ``kids`` is only
+    # as wide as the largest face, three columns, and has no fourth child to link.
+    if len(rows):
+        new = nodes.new(4 * len(rows)).reshape(-1, 4)
+        nodes.set_children(tn[rows], new)
+        for j in range(4):
+            child_node[kids[rows, j]] = new[:, j]
     for r in np.flatnonzero(tn < 0):  # n-gon base faces (level 0 only): their roots
         f = int(sub_todo[r] if region_faces is None else region_faces[sub_todo[r]])
         for j in range(int(sizes0[f])):

@@ -9,15 +9,20 @@ Parameterisation (as OpenSubdiv's ``Bfr::Parameterization``):
   at each corner), laid out as tiles: sub-face i occupies the half-unit square with corner (i mod W, i div W),
   W = ceil(sqrt(n)); inside it, 2 (u - i mod W, v - i div W) is the sub-face's own unit square, with the
   n-gon's corner i at (0,0), the middle of edge i (toward corner i + 1) at (1,0), the face's centre at (1,1)
-  and the middle of edge i - 1 at (0,1). This is Bfr's QUAD_SUBFACES parameterisation; as in Bfr, a (u, v)
-  within a quarter tile beyond a sub-face's square belongs to the nearest sub-face (coordinates are clamped
-  to it);
+  and the middle of edge i - 1 at (0,1). This is Bfr's QUAD_SUBFACES parameterisation;
 * a Loop polygon (n > 3; Loop fan-triangulates polygons into (v0, v_k+1, v_k+2)) is its fan triangles laid out
   as tiles in the same way: triangle k occupies the half-unit square with corner (k, 0), and 2 (u - k, v) is its
   own barycentric (u, v). (OpenSubdiv's Loop has no polygons; this mirrors its sub-face tiles.)
 
+A query outside its face's domain (the unit square, the triangle, the sub-face squares or the fan triangles)
+is refused (``SubdivInputError`` naming the query, its face and (u, v)), except for round-off: up to
+:data:`~warp_subdiv.limit.parameterisation.DOMAIN_TOLERANCE` (1e-6) outside, a query is evaluated on the
+domain's side (clamped onto the square, scaled toward the triangle's corner 0).
+
 Derivatives ``du``, ``dv`` (and ``duu``, ``duv``, ``dvv``) are with respect to these (u, v); normals are the unit
-``du x dv`` (outward for counter-clockwise faces).
+``du x dv`` (outward for counter-clockwise faces), of unit length whatever the scale of the points (where
+``du x dv`` would overflow or underflow float64 it is taken of the tangents scaled by powers of two:
+:func:`~warp_subdiv.limit.results.scale_free_normals`).
 
 Data on the surface: :meth:`LimitSurface.evaluate_data` evaluates per-vertex data (vertex primvars) as the limit
 of the same subdivision, with the weights of the positions (sector angles, flatness and end caps' tangent
@@ -133,16 +138,19 @@ class LimitSurface:
 
     def evaluate(self, faces, u, v, *, derivatives: int = 1) -> LimitEvaluation:
         """The limit surface at control faces ``faces`` and parameters ``u``, ``v`` (arrays broadcast together;
-        see the module docstring for the parameterisation). ``derivatives``: 1 (points, first derivatives,
-        normals) or 2 (also second derivatives). Hole faces are refused (:attr:`holes` says which)."""
+        the results take their broadcast shape: (n, 3) for n queries, (2, 2, 3) for (2, 2) queries, and three
+        scalars are one query, (1, 3); see the module docstring for the parameterisation and its domains).
+        ``derivatives``: 1 (points, first derivatives, normals) or 2 (also second derivatives). Hole faces, and
+        (u, v) outside the face's domain by more than round-off, are refused (:attr:`holes` says which faces
+        are holes)."""
         if derivatives not in (1, 2):
             raise SubdivInputError(f"derivatives must be 1 or 2, got {derivatives!r}", option="derivatives",
                                    value=derivatives)
-        faces_a, u_a, v_a = self._parameterisation.check_queries(faces, u, v)
+        faces_a, u_a, v_a, shape = self._parameterisation.check_queries(faces, u, v)
         second = derivatives == 2
         if self.tree is None:
-            return linear_evaluation(self, faces_a, u_a, v_a, second)
-        return self._evaluator.evaluate(faces_a, u_a, v_a, second)
+            return linear_evaluation(self, faces_a, u_a, v_a, second).reshaped(shape)
+        return self._evaluator.evaluate(faces_a, u_a, v_a, second).reshaped(shape)
 
     def evaluate_data(self, data, faces, u, v, *, derivatives: int = 0) -> DataEvaluation:
         """The limit of per-control-vertex ``data`` ((V,) or (V, k): vertex primvars) at ``faces``, ``u``, ``v``.
@@ -154,20 +162,21 @@ class LimitSurface:
         ``data`` equal to the points gives :meth:`evaluate`'s points bit for bit, except where prescribed normals
         move the positions (normal control acts on positions only, as in ``refine``). The patch tree of the
         data is built on each call (the cost of constructing this surface); ``derivatives``: 0 or 1 (also
-        ``du``, ``dv``)."""
+        ``du``, ``dv``). Queries as :meth:`evaluate` takes them; results of their shape (+ (k,))."""
         if derivatives not in (0, 1):
             raise SubdivInputError(f"derivatives must be 0 or 1, got {derivatives!r}", option="derivatives",
                                    value=derivatives)
         one_d = np.ndim(data) == 1
         arr = check_rows(data, self.mesh.num_vertices, "vertex data").astype(np.float64)
-        faces_a, u_a, v_a = self._parameterisation.check_queries(faces, u, v)
+        faces_a, u_a, v_a, shape = self._parameterisation.check_queries(faces, u, v)
         if self.tree is None:
             corner_values = arr[np.asarray(self.mesh.face_vertex_indices, dtype=np.int64)]
-            return linear_data(self, corner_values, faces_a, u_a, v_a, derivatives, one_d)
+            return linear_data(self, corner_values, faces_a, u_a, v_a, derivatives, one_d).reshaped(shape)
         tree = limit_patches.build(self.mesh, self.options, self.depth, data=arr)
         if tree.num_nodes != self.tree.num_nodes or tree.num_patches != self.tree.num_patches:
             raise AssertionError("the data's patch tree differs from the surface's")
-        return self._evaluator.evaluate_columns(tree.points[:, 3:], faces_a, u_a, v_a, derivatives, one_d)
+        columns = tree.points[:, 3:]
+        return self._evaluator.evaluate_columns(columns, faces_a, u_a, v_a, derivatives, one_d).reshaped(shape)
 
     def evaluate_face_varying(self, values, indices, faces, u, v, *, mode=FaceVaryingMode.CORNERS_PLUS1,
                               derivatives: int = 0) -> DataEvaluation:
@@ -183,7 +192,8 @@ class LimitSurface:
         point as in :meth:`evaluate`. Mode "all" (and any mode on a linear surface) is linear interpolation
         inside each face (bilinear on quads and sub-faces, barycentric on triangles), as bilinear refinement
         converges to. The value mesh's topology is built on the first call for given indices and mode and
-        reused. ``derivatives``: 0 or 1 (also ``du``, ``dv``)."""
+        reused. ``derivatives``: 0 or 1 (also ``du``, ``dv``). Queries as :meth:`evaluate` takes them; results of
+        their shape (+ (k,))."""
         mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
         if derivatives not in (0, 1):
             raise SubdivInputError(f"derivatives must be 0 or 1, got {derivatives!r}", option="derivatives",
@@ -197,10 +207,10 @@ class LimitSurface:
                                    f"{len(values)} values were given", option="values", element="data",
                                    value=len(values))
         vals = check_rows(values, channel.num_values, "face-varying values", at_least=True).astype(np.float64)
-        faces_a, u_a, v_a = self._parameterisation.check_queries(faces, u, v)
+        faces_a, u_a, v_a, shape = self._parameterisation.check_queries(faces, u, v)
         if mode == FaceVaryingMode.ALL:
-            return linear_data(self, vals[channel.indices], faces_a, u_a, v_a, derivatives, one_d)
-        return channel.evaluate(self, vals, faces_a, u_a, v_a, derivatives, one_d)
+            return linear_data(self, vals[channel.indices], faces_a, u_a, v_a, derivatives, one_d).reshaped(shape)
+        return channel.evaluate(self, vals, faces_a, u_a, v_a, derivatives, one_d).reshaped(shape)
 
     def tessellate(self, *, rate=None, edge_length=None, quads: bool = True):
         """A watertight tessellation of the limit surface (see :func:`warp_subdiv.limit.tessellate`)."""
