@@ -67,6 +67,41 @@ def scatter_rows(targets: wp.array(dtype=wp.int32), values: Any, dst: Any):
         store(dst, targets[i], c, load(values, i, c))
 
 
+@wp.func
+def smallest_normal(like: wp.float32) -> wp.float32:
+    """The smallest normal float32 (2^-126): a squared length below it has lost precision to underflow."""
+    return wp.float32(1.1754943508222875e-38)
+
+
+@wp.func
+def smallest_normal(like: wp.float64) -> wp.float64:  # noqa: F811 (Warp overloads a function by its types)
+    """The smallest normal float64 (2^-1022)."""
+    return wp.float64(2.2250738585072014e-308)
+
+
+@wp.func
+def unit_cross(u: Any, v: Any):
+    """normalize(u x v) whatever the scale of u and v (zero where they are parallel or one is zero).
+
+    The squared length of u x v is of the order of |u|^2 |v|^2: positions near 1e10 in float32 (1e80 in float64)
+    overflow it, and near 1e-10 (1e-80) underflow it, and the plain normalisation gives (0, 0, 0). There (only
+    there: elsewhere the plain formula runs, its results unchanged) each tangent is divided by its largest
+    component first, and the cross product by its own, so every value stays near 1."""
+    n = wp.cross(u, v)
+    length_sq = wp.length_sq(n)
+    if wp.isfinite(length_sq) and length_sq >= smallest_normal(length_sq):
+        return wp.normalize(n)
+    scale_u = wp.max(wp.abs(u))
+    scale_v = wp.max(wp.abs(v))
+    if scale_u == 0.0 or scale_v == 0.0:
+        return n  # a zero tangent: no normal (n is zero)
+    w = wp.cross(u / scale_u, v / scale_v)
+    largest = wp.max(wp.abs(w))
+    if largest == 0.0:
+        return w
+    return wp.normalize(w / largest)
+
+
 @wp.kernel
 def vertex_normals(
     vertex_offsets: wp.array(dtype=wp.int32),
@@ -75,13 +110,14 @@ def vertex_normals(
     zero: Any,
     out: wp.array(dtype=Any),
 ):
-    """Unit normal per vertex (vec3): the normalised sum of the unit normals tu x tv of its contributions; where
-    they cancel exactly, the first non-zero one (docs/rules.md section 9)."""
+    """Unit normal per vertex (vec3): the normalised sum of the unit normals tu x tv of its contributions
+    (:func:`unit_cross`: at any scale of the positions); where they cancel exactly, the first non-zero one
+    (docs/rules.md section 9)."""
     i = wp.tid()
     acc = zero
     first = zero
     for j in range(vertex_offsets[i], vertex_offsets[i + 1]):
-        n = wp.normalize(wp.cross(tangent_u[j], tangent_v[j]))
+        n = unit_cross(tangent_u[j], tangent_v[j])
         if wp.length_sq(first) == wp.length_sq(zero):
             first = n
         acc += n

@@ -291,6 +291,33 @@ def test_mesh_must_be_a_mesh():
         ws.Refiner((GRID_PTS, GRID_COUNTS, GRID_IDX), 1, device="cpu")
 
 
+@pytest.mark.parametrize("tags,option,index", [
+    (dict(creases=[[1, 4]], crease_sharpness=[True]), "crease_sharpness", 0),
+    (dict(creases=[[1, 4], [0, 1]], crease_sharpness=[2.0, "2"]), "crease_sharpness", 1),
+    (dict(creases=[[1, 4]], crease_sharpness=np.array([False])), "crease_sharpness", 0),
+    (dict(creases=[[1, 4]], crease_sharpness=np.array(["2"])), "crease_sharpness", 0),
+    (dict(corners=[0], corner_sharpness="2"), "corner_sharpness", None),
+    (dict(corners=[0], corner_sharpness=True), "corner_sharpness", None),
+    (dict(corners=[0], corner_sharpness=b"2"), "corner_sharpness", None),
+    (dict(corners=[0, 5], corner_sharpness=[1.0, np.bool_(True)]), "corner_sharpness", 1),
+    (dict(corners=[0], corner_sharpness=np.array([1 + 0j])), "corner_sharpness", 0),
+])
+def test_sharpness_refuses_bools_and_strings(tags, option, index):
+    """A bool or a string in a sharpness argument (or as the one value for all tags) is refused naming the
+    argument (and the tag): numpy would turn True into sharpness 1 and '2' into 2 without a word."""
+    with pytest.raises(SubdivInputError, match=f"{option} must hold numbers") as err:
+        grid(**tags)
+    assert err.value.option == option and err.value.index == index
+    if index is not None:
+        assert err.value.element == option.split("_")[0]
+
+
+def test_sharpness_takes_numbers_of_any_kind():
+    """Numbers of every numeric type stay accepted, as before."""
+    for value in ([2], np.array([2], np.int32), np.array([2.0], np.float32), [np.float64(2.0)], 2, np.int64(2)):
+        assert grid(creases=[[1, 4]], crease_sharpness=value).crease_sharpness.tolist() == [2.0]
+        assert grid(corners=[0], corner_sharpness=value).corner_sharpness.tolist() == [2.0]
+
 def test_sharpness_values():
     """Finite sharpness is semi-sharp (supported); >= 10 infinitely sharp; 0 untagged; negative refused."""
     build(grid(creases=[[0, 1], [1, 4]], crease_sharpness=[10.0, 2.5]))

@@ -126,6 +126,46 @@ def test_members_that_refine_otherwise_are_refused():
         MeshBatch([cube, prism], 2, options=options, device="cpu")
 
 
+def test_member_indices_are_sequence_indices():
+    """rows, num_vertices and topology take a member index as a Python sequence does: -1 is the last member
+    (it used to give -52 vertices and empty rows and faces), out of range is an IndexError naming the index and
+    the members, a non-integer a TypeError."""
+    cube, grid = load_mesh("cube"), load_mesh("grid3x3")
+    batch = MeshBatch([grid, cube], 1, scheme="catmull-clark", device="cpu")
+    for i in (-2, -1):
+        j = i + 2
+        assert batch.num_vertices(i) == batch.num_vertices(j)
+        assert np.array_equal(batch.rows(i), batch.rows(j))
+        assert all(np.array_equal(a, b) for a, b in zip(batch.topology(i), batch.topology(j)))
+    assert batch.num_vertices(-1) == Refiner(cube, 1, scheme="catmull-clark", device="cpu").num_vertices
+    for method in (batch.rows, batch.num_vertices, batch.topology):
+        for bad in (2, -3, 100):
+            with pytest.raises(IndexError, match=f"batch member {bad} .*2 members"):
+                method(bad)
+        for bad in (1.0, True, "1"):
+            with pytest.raises(TypeError, match="member index must be an integer"):
+                method(bad)
+    assert batch.num_vertices(np.int64(-1)) == batch.num_vertices(1)
+
+
+def test_member_data_from_any_iterable_and_of_one_width():
+    """Member data may come as any iterable (a generator is read once: two arrays used to be reported as "got 1");
+    members of different widths are refused naming the member and both widths (it used to fail inside numpy)."""
+    cube = load_mesh("cube")
+    batch = MeshBatch([cube, cube], 1, device="cpu")
+    want = batch.evaluate([cube.points, 2 * cube.points])
+    got = batch.evaluate(p for p in [cube.points, 2 * cube.points])
+    assert all(np.array_equal(a, b) for a, b in zip(want, got))
+    res = batch.evaluate_with_limits(iter([cube.points, 2 * cube.points]))
+    assert np.array_equal(res[1].points, want[1])
+    with pytest.raises(SubdivInputError, match="takes 2 arrays, got 3"):
+        batch.evaluate(p for p in [cube.points] * 3)
+    with pytest.raises(SubdivInputError, match="member 1 has data of width 2, member 0 of width 3") as err:
+        batch.evaluate([cube.points, cube.points[:, :2]])
+    assert err.value.index == 1 and err.value.element == "data"
+    ones = batch.evaluate([cube.points[:, 0], cube.points[:, :1]])  # (n,) and (n, 1): one column each
+    assert np.array_equal(ones[0], ones[1])
+
 def test_bad_input():
     """Empty batches, non-meshes, per-vertex flatness, wrong data counts and shapes are SubdivInputError."""
     cube = load_mesh("cube")

@@ -141,3 +141,20 @@ def test_one_refiner_serves_several_threads():
     for t in threads:
         t.join()
     assert not failures
+
+
+@pytest.mark.parametrize("name,scheme", [("cube_creased", "catmull-clark"), ("tri_hexfan", "loop")])
+@pytest.mark.parametrize("precision,scales", [("float32", [1e11, 1e-11, 1e17, 1e-30]),
+                                              ("float64", [1e80, 1e-80, 1e149, 1e-150, 1e-280])])
+def test_limit_normals_do_not_depend_on_the_scale(name, scheme, precision, scales, device):
+    """Unit limit normals of points scaled far from 1 (within the data bound a refiner accepts): the cross
+    product of the limit tangents over- or underflows there (its squared length is of the scale to the fourth),
+    which made every normal (0, 0, 0); the normals are those of the unscaled points."""
+    mesh = load_mesh(name)
+    r = ws.Refiner(mesh, 2, scheme=scheme, precision=precision, device=device)
+    want = r.limit_normals(r.evaluate(mesh.points))
+    tol = 1e-5 if precision == "float32" else 1e-12
+    for s in scales:
+        got = r.limit_normals(r.evaluate(mesh.points * s))
+        np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0, rtol=0, atol=tol, err_msg=f"scale {s:g}")
+        np.testing.assert_allclose(got, want, rtol=0, atol=tol, err_msg=f"scale {s:g}")

@@ -111,3 +111,36 @@ def test_vertex_data_gets_flatness_but_not_normal_control(device):
     np.testing.assert_allclose(data[:, 3], 1.0, atol=1e-12)  # flatness keeps constants (affine)
     with pytest.raises(ValueError, match="positions only"):
         r.evaluate(np.column_stack([p, p]), normal_control=True)
+
+
+@pytest.mark.parametrize("levels", [0, 2])
+def test_limits_of_data_take_no_normal_control(levels):
+    """Limit points of data that is not a position (colours, three columns like positions) take no normal control
+    with normal_control=False, also where the masks are read one level deeper (that extra step used to apply it to
+    every (N, 3) array): they equal matrix("limit") @ data, the same data in four columns, and
+    evaluate_with_limits. Positions keep normal control by default."""
+    mesh = tagged("quad_lshape", corners=[10], concave=[[10, 6]], normals=([5], [[0.0, 0.6, 0.8]]))
+    r = ws.Refiner(mesh, levels, device="cpu", precision="float64")
+    assert r.limit_reads_deeper()
+    colours = np.random.default_rng(4).random((r.base_num_vertices, 3))
+    refined = r.evaluate(colours, normal_control=False)
+    limit = r.limit_points(refined, normal_control=False)
+    np.testing.assert_allclose(limit, r.matrix("limit") @ colours, rtol=0, atol=1e-12)
+    four = r.limit_points(np.column_stack([refined, np.ones(len(refined))]))  # 4 columns: never normal control
+    np.testing.assert_allclose(limit, four[:, :3], rtol=0, atol=1e-14)
+    one_pass = r.evaluate_with_limits(colours, normal_control=False)
+    assert np.array_equal(one_pass.points, refined)
+    assert np.array_equal(one_pass.limit_points, limit)
+    normals = r.limit_normals(refined, normal_control=False)
+    assert np.array_equal(one_pass.limit_normals, normals)
+    assert abs(normals[5] @ [0.0, 0.6, 0.8]) < 0.99  # the surface refined without normal control: not prescribed
+    with pytest.raises(ws.SubdivInputError, match="positions only"):
+        r.limit_points(np.zeros((r.num_vertices, 2)), normal_control=True)
+
+    points = r.evaluate(mesh.points)  # positions: normal control by default, as the matrix with normal_control
+    np.testing.assert_allclose(r.limit_points(points).ravel(),
+                               r.matrix("limit", normal_control=True) @ mesh.points.ravel(), rtol=0, atol=1e-12)
+    one_pass = r.evaluate_with_limits(mesh.points)
+    assert np.array_equal(one_pass.limit_points, r.limit_points(points))
+    assert np.array_equal(one_pass.limit_normals, r.limit_normals(points))
+    np.testing.assert_allclose(one_pass.limit_normals[5], [0.0, 0.6, 0.8], atol=1e-12)

@@ -175,13 +175,26 @@ class MeshBatch:
         self._contiguous = bool(np.all(order == np.arange(len(order))))
         self._starts = self._local = None  # made by the first topology() call
 
+    def member(self, i) -> int:
+        """Member index ``i`` as a Python sequence takes it (negative counts from the end) as 0..M-1: every
+        member-indexed method reads it so. Out of range: ``IndexError``; not an integer: ``TypeError`` (slicing the
+        offsets with either would give another member's rows or none, without a word)."""
+        if isinstance(i, (bool, np.bool_)) or not isinstance(i, numbers.Integral):
+            raise TypeError(f"a batch member index must be an integer, got {i!r}")
+        count = len(self.meshes)
+        if not -count <= i < count:
+            raise IndexError(f"batch member {i} is out of range: the batch has {count} members")
+        return int(i) % count
+
     def rows(self, i: int) -> np.ndarray:
         """(refined vertices of member ``i``,) int64: the union's refined rows of member ``i``'s refined
-        vertices, in the order of the member's own refiner."""
+        vertices, in the order of the member's own refiner. ``i`` as :meth:`member` takes it (-1: the last)."""
+        i = self.member(i)
         return self._order[self._row_offsets[i]:self._row_offsets[i + 1]]
 
     def num_vertices(self, i: int) -> int:
-        """Refined vertices of member ``i``."""
+        """Refined vertices of member ``i`` (as :meth:`member` takes it)."""
+        i = self.member(i)
         return int(self._row_offsets[i + 1] - self._row_offsets[i])
 
     def split(self, refined) -> list:
@@ -193,27 +206,38 @@ class MeshBatch:
         gathered = refined.copy() if self._contiguous else refined[self._order]
         return np.split(gathered, self._row_offsets[1:-1])
 
-    def stack(self, data) -> np.ndarray:
-        """One control-data array per member stacked into the union's control rows (float64, (n, d)); each
-        member's rows are checked to be its own mesh's vertex count."""
-        data = list(data)
-        if len(data) != len(self.meshes):
-            raise SubdivInputError(f"a batch of {len(self.meshes)} meshes takes {len(self.meshes)} arrays, got "
-                                   f"{len(data)}", element="data")
+    def member_arrays(self, data) -> list:
+        """One array per member from ``data``, any iterable (read once, so a generator counts right), checked:
+        one per member, each with its own mesh's vertex count of rows and all of one width (columns; (n,) is one)."""
         arrays = [np.asarray(d) for d in data]
+        if len(arrays) != len(self.meshes):
+            raise SubdivInputError(f"a batch of {len(self.meshes)} meshes takes {len(self.meshes)} arrays, got "
+                                   f"{len(arrays)}", element="data")
+        widths = []
         for i, a in enumerate(arrays):
             n = self.meshes[i].num_vertices
             if a.shape[:1] != (n,):
                 raise SubdivInputError(f"batch member {i} has {n} vertices, its data has shape {a.shape}",
                                        element="data", index=i, value=a.shape)
-        return np.concatenate([a.reshape(len(a), -1) if a.ndim != 2 else a for a in arrays])
+            widths.append(int(np.prod(a.shape[1:], dtype=np.int64)))
+            if widths[i] != widths[0]:
+                raise SubdivInputError(f"batch member {i} has data of width {widths[i]}, member 0 of width "
+                                       f"{widths[0]}: every member's data needs the same columns", element="data",
+                                       index=i, value=widths[i])
+        return arrays
+
+    def stack(self, data) -> np.ndarray:
+        """One control-data array per member (:meth:`member_arrays`) stacked into the union's control rows
+        ((n, d))."""
+        return np.concatenate([a.reshape(len(a), -1) if a.ndim != 2 else a for a in self.member_arrays(data)])
 
     # ------------------------------------------------------------------------------------------ evaluation
     def evaluate(self, data, normal_control=None) -> list:
         """Refined data of every member: ``data`` one (n_i, d) array per member (n_i its control vertices);
         returns one (N_i, d) array per member, as each member's ``Refiner.evaluate`` gives it (1-D data of
         every member gives 1-D results)."""
-        one_d = all(np.ndim(d) == 1 for d in data)
+        data = self.member_arrays(data)
+        one_d = all(d.ndim == 1 for d in data)
         out = self.split(self.refiner.evaluate(self.stack(data), normal_control=normal_control))
         return [o[:, 0] for o in out] if one_d else out
 
@@ -233,9 +257,10 @@ class MeshBatch:
     # ------------------------------------------------------------------------------------------ topology
     def topology(self, i: int) -> tuple:
         """(face_vertex_counts, face_vertex_indices) int32 of member ``i``'s refined mesh in its own vertex
-        numbering, hole faces left out: what the member's own ``Refiner.topology()`` gives."""
-        h = self.refiner.hierarchy
-        lvl = h.final
+        numbering, hole faces left out: what the member's own ``Refiner.topology()`` gives. ``i`` as
+        :meth:`member` takes it."""
+        i = self.member(i)
+        lvl = self.refiner.hierarchy.final
         lo, hi = int(self._face_offsets_last[i]), int(self._face_offsets_last[i + 1])
         if self._starts is None:  # once for all members: face starts, and every union row's member-local id
             self._starts = np.concatenate([[0], np.cumsum(lvl.face_sizes())])

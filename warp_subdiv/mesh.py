@@ -206,9 +206,37 @@ def _check_vertex_ids(ids: np.ndarray, num_vertices: int, name: str, element: st
         )
 
 
+#: Values numpy converts to float64 without a word that are not a sharpness: True becomes 1, '2' becomes 2, the
+#: imaginary part of a complex number is dropped.
+_NOT_NUMBERS = (bool, np.bool_, str, bytes, complex, np.complexfloating)
+
+
+def _refuse_items_that_are_not_numbers(values, name: str, element: str) -> None:
+    """Refuse a sharpness argument that is, or holds, a bool, a string or a complex number (a numpy array of such
+    a dtype, or a sequence with one among numbers), naming ``name`` and the tag (``element`` and its index)."""
+    if isinstance(values, np.ndarray) and values.dtype.kind in "fiu":
+        return
+    if isinstance(values, _NOT_NUMBERS):
+        raise SubdivInputError(f"{name} must hold numbers (one per tag, or one for all), got {values!r} (a bool, a "
+                               "string or a complex number is not a sharpness)", option=name, value=values)
+    try:
+        items = np.asarray(values, dtype=object).ravel().tolist()
+    except (TypeError, ValueError):
+        return  # not array-like: the conversion to float64 refuses it
+    if not any(issubclass(kind, _NOT_NUMBERS) for kind in set(map(type, items))):  # the types present, not a loop
+        return
+    index, item = next((i, x) for i, x in enumerate(items) if isinstance(x, _NOT_NUMBERS))
+    raise SubdivInputError(f"{name} must hold numbers (one per tag), got {item!r} for {element} {index} (a bool, a "
+                           "string or a complex number is not a sharpness)", option=name, element=element,
+                           index=index, value=item)
+
+
 def _sharpness(values, count: int, name: str, element: str) -> np.ndarray:
+    """One finite sharpness >= 0 per tag (float64, capped at :data:`INFINITE_SHARPNESS`): ``values`` one number
+    per tag, one number for all, or None (infinitely sharp)."""
     if values is None:
         return np.full(count, INFINITE_SHARPNESS)
+    _refuse_items_that_are_not_numbers(values, name, element)
     try:
         arr = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError):

@@ -284,41 +284,48 @@ class Refiner(_GradientMethods, _FaceVaryingMethods):
         return out[:, 0] if one_d else out
 
     # ---------------------------------------------------------------------------------------------
-    def limit_points(self, refined_points, *, on_device: bool = False):
+    def limit_points(self, refined_points, *, normal_control=None, on_device: bool = False):
         """Limit positions of the refined vertices (docs/rules.md section 9): l^0 applied to each vertex's ring.
 
         ``refined_points`` (N,) or (N, d) of any width (positions, primvars, face-varying values); the result
         has the same shape. Where this level's masks are not exact (:meth:`limit_reads_deeper`) one more level
-        is refined first (with normal control for (N, 3) data). ``refined_points`` may be a device array (as
+        is refined first, with prescribed normals as :meth:`evaluate` applies them: to (N, 3) data unless
+        ``normal_control=False`` (pass it for data that is not a position, colours say: then the result is
+        ``matrix("limit") @ data`` of the control data). ``refined_points`` may be a device array (as
         :meth:`evaluate_device` takes; its own result is read where it lies, with no copy); ``on_device``: return
         a device array (a view of a shared buffer, valid until the next call) instead of numpy."""
         points, one_d = self._rows_data(refined_points, self.num_vertices, "refined points")
+        normal_control = normal_control_for(normal_control, points.shape[1])
         source, deeper = self._guarded_limit_source()
-        out = source.evaluator.limit_points(points, last_step=deeper, rows=self.num_vertices if deeper else None,
-                                            on_device=on_device)
+        out = source.evaluator.limit_points(points, last_step=deeper, normal_control=normal_control,
+                                            rows=self.num_vertices if deeper else None, on_device=on_device)
         return out[:, 0] if one_d and not on_device else out
 
-    def limit_normals(self, refined_points, *, on_device: bool = False):
+    def limit_normals(self, refined_points, *, normal_control=None, on_device: bool = False):
         """Unit outward limit normals of the refined vertices (docs/rules.md section 9); prescribed normals as
         given.
 
         A crease or corner vertex has one tangent plane per sector; its normal is the normalised sum of the
         sectors' unit normals (exact where there is one sector, e.g. on a boundary). ``refined_points`` and
-        ``on_device`` as in :meth:`limit_points`.
+        ``on_device`` as in :meth:`limit_points`; ``normal_control=False``: the normals of positions refined
+        without normal control (``evaluate(points, normal_control=False)``): computed everywhere, prescribed
+        normals neither applied in an extra step nor reported.
         """
         points, _ = self._rows_data(refined_points, self.num_vertices, "refined points")
         if points.shape[1] != 3:
             raise SubdivInputError(f"limit normals take (N, 3) positions, got {tuple(np.shape(points))}",
                                    element="data", value=tuple(np.shape(points)))
+        normal_control = normal_control_for(normal_control, 3)
         source, deeper = self._guarded_limit_source()
-        return source.evaluator.limit_normals(points, source._prescribed(), last_step=deeper,
+        return source.evaluator.limit_normals(points, source._prescribed(normal_control), last_step=deeper,
+                                              normal_control=normal_control,
                                               rows=self.num_vertices if deeper else None, on_device=on_device)
 
-    def _prescribed(self):
-        """(ids, normals) of the prescribed normals that replace computed limit normals (none where normal
-        control is off)."""
+    def _prescribed(self, normal_control: bool = True):
+        """(ids, normals) of the prescribed normals that replace computed limit normals of positions refined
+        with ``normal_control`` (none where normal control is off, in the options or for these positions)."""
         ids, normals = self.hierarchy.normal_vertices, self.hierarchy.normal_vectors
-        if self.options.normal_strength <= 0:
+        if self.options.normal_strength <= 0 or not normal_control:
             ids, normals = ids[:0], normals[:0]
         return ids, normals
 
@@ -331,7 +338,8 @@ class Refiner(_GradientMethods, _FaceVaryingMethods):
         equal, bitwise, to :meth:`evaluate`, then :meth:`limit_points` and :meth:`limit_normals` of its result.
         Where the masks are read one level deeper (:meth:`limit_reads_deeper`), the refiner one level deeper
         refines the control data once and this level's points are its second-to-last level. ``points`` as
-        :meth:`evaluate` takes (host data or a device array); normals need (n, 3) positions. ``on_device``: the
+        :meth:`evaluate` takes (host data or a device array); normals need (n, 3) positions. ``normal_control`` as
+        :meth:`evaluate` takes it, for every step (the deeper one too) and the normals. ``on_device``: the
         three are device arrays (views of shared buffers, valid until the next call)."""
         data, one_d = self._vertex_data(points)
         width = data.shape[1]
@@ -340,10 +348,10 @@ class Refiner(_GradientMethods, _FaceVaryingMethods):
             raise SubdivInputError(f"limit normals take (n, 3) positions, got width {width}", element="data",
                                    value=width)
         source, deeper = self._guarded_limit_source()
-        controls = (bool(normal_control),) * self.levels + (width == 3,) if deeper else bool(normal_control)
-        res = source.evaluator.evaluate_with_limits(  # (the deeper step takes normal control as limit_points)
-            data, controls, limit_points=limit_points, limit_normals=limit_normals, prescribed=source._prescribed(),
-            level=-2 if deeper else -1, rows=self.num_vertices if deeper else None, on_device=on_device)
+        res = source.evaluator.evaluate_with_limits(
+            data, bool(normal_control), limit_points=limit_points, limit_normals=limit_normals,
+            prescribed=source._prescribed(normal_control), level=-2 if deeper else -1,
+            rows=self.num_vertices if deeper else None, on_device=on_device)
         if one_d and not on_device:
             res.points = res.points[:, 0]
             res.limit_points = None if res.limit_points is None else res.limit_points[:, 0]

@@ -214,16 +214,16 @@ class Evaluator:
                 src = dst
 
     # ------------------------------------------------------------------------------------------ limits
-    def _last_level(self, points, last_step: bool) -> wp.array:
+    def _last_level(self, points, last_step: bool, normal_control: bool) -> wp.array:
         """The last level's buffer holding checked points (lock held): points of the second-to-last level refined
-        through the last step (``last_step``; normal control for (n, 3) data), or the last level's points,
-        copied in unless they are that buffer already (the result of :meth:`evaluate_device`)."""
+        through the last step (``last_step``, ``normal_control`` in it), or the last level's points, copied in
+        unless they are that buffer already (the result of :meth:`evaluate_device`)."""
         width = points.shape[1]
         if last_step:
             self._count_evaluation()
             start = len(self.records()) - 1
             self._load(start, points)
-            self._steps_plan(width, (width == 3,), start=start).run()
+            self._steps_plan(width, (bool(normal_control),), start=start).run()
             return self.level_views(width)[0][-1]
         levels, _ = self.level_views(width)
         own = self._buffers.rows_view(len(levels) - 1, width)[0]
@@ -249,24 +249,25 @@ class Evaluator:
         self._plan(key, lambda run: limits(masks, src, outputs, ids, points, normals, run)).run()
         return (outputs[0] if points else None), (outputs[3] if normals else None)
 
-    def limit_points(self, refined_points, *, last_step: bool = False, rows: int | None = None,
-                     on_device: bool = False):
+    def limit_points(self, refined_points, *, last_step: bool = False, normal_control: bool = False,
+                     rows: int | None = None, on_device: bool = False):
         """Limit values (N, d) of the last level's vertices from checked points, any width: the position mask
-        applied to each vertex's ring. ``last_step``: the points are of the second-to-last level and are refined
-        through the last step first (for masks read one level deeper); ``rows``: only the first rows (a deeper
-        level's vertex children). A numpy array, or with ``on_device`` a view of a shared device buffer."""
+        applied to each vertex's ring. ``last_step``: the points are of the second-to-last level, refined through
+        the last step first (masks read one level deeper), with ``normal_control``; ``rows``: only the first rows
+        (a deeper level's vertex children). A numpy array, or with ``on_device`` a view of a shared buffer."""
         with self._device_scope():
-            src = self._last_level(refined_points, last_step)
+            src = self._last_level(refined_points, last_step, normal_control)
             width = 3 if src.ndim == 1 else src.shape[1]
             out, _ = self._limits(width, rows, True, False, None)
             return out if on_device else self._transfers.to_host(out)
 
-    def limit_normals(self, refined_points, prescribed, *, last_step: bool = False, rows: int | None = None,
-                      on_device: bool = False):
+    def limit_normals(self, refined_points, prescribed, *, last_step: bool = False, normal_control: bool = True,
+                      rows: int | None = None, on_device: bool = False):
         """Unit limit normals (N, 3) of the last level's vertices from checked positions (N, 3); ``prescribed``
-        (ids, normals) replace theirs. ``last_step``, ``rows``, ``on_device`` as in :meth:`limit_points`."""
+        (ids, normals) replace theirs. ``last_step``, ``normal_control``, ``rows``, ``on_device`` as in
+        :meth:`limit_points`."""
         with self._device_scope():
-            src = self._last_level(refined_points, last_step)
+            src = self._last_level(refined_points, last_step, normal_control)
             if src.ndim != 1:
                 raise SubdivInputError(f"limit normals take (n, 3) positions, got {tuple(src.shape)}",
                                        element="data", value=tuple(src.shape))
