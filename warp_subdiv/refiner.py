@@ -184,14 +184,11 @@ class Refiner(_GradientMethods, _FaceVaryingMethods):
     loop_beta = property(lambda self: self.options.loop_beta, doc="The options' Loop vertex weight variant.")
     normal_strength = property(lambda self: self.options.normal_strength, doc="The options' normal control strength.")
     crease_method = property(lambda self: self.options.crease_method, doc="The options' semi-sharp crease decay.")
-    triangle_subdivision = property(lambda self: self.options.triangle_subdivision,
-                                    doc="The options' Catmull-Clark rule for triangles.")
+    triangle_subdivision = property(lambda self: self.options.triangle_subdivision, doc="The options' triangle rule.")
     # the hierarchy's step records, for inspection
     steps = property(lambda self: self.hierarchy.steps, doc="The stencil tables of each refinement step.")
-    flatness_tables = property(lambda self: self.hierarchy.flatness_tables,
-                               doc="The flatness displacement tables of each level (None where none).")
-    normal_tables = property(lambda self: self.hierarchy.normal_tables,
-                             doc="The normal-control displacement tables of each level (None where none).")
+    flatness_tables = property(lambda self: self.hierarchy.flatness_tables, doc="Each level's flatness table.")
+    normal_tables = property(lambda self: self.hierarchy.normal_tables, doc="Each level's normal-control table.")
 
     @property
     def projects(self) -> bool:
