@@ -303,6 +303,11 @@ def test_gradient_inputs_are_checked():
         r.evaluate_device(wp.zeros(r.base_num_vertices + 2, dtype=wp.vec3d), requires_grad=True)
     with pytest.raises(TypeError):
         r.evaluate_device(np.zeros((r.base_num_vertices, 3)), requires_grad=True)
+    for f, rows in ((G.evaluate, r.base_num_vertices), (G.limit_points, r.num_vertices),
+                    (G.limit_normals, r.num_vertices)):  # rows past the end would be read, or left out
+        for wrong in (1, rows - 1, rows + 1):
+            with pytest.raises(ws.SubdivInputError, match="must have shape"):
+                f(r, wp.zeros(wrong, dtype=wp.vec3d, requires_grad=True))
 
 
 def test_levels_zero_is_the_identity():

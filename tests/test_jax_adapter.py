@@ -115,3 +115,33 @@ def test_importing_warp_subdiv_imports_neither_jax_nor_torch():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_inputs_are_checked_eager_and_under_jit():
+    """Data with the wrong number of rows, more than two dimensions or complex values, (N, 2) data for limit
+    normals and normal control on width 2 are refused with SubdivInputError naming the argument, as
+    Refiner.evaluate refuses them, both outside jit (concrete arrays handed to Warp without a copy, which would
+    otherwise be read past their end) and under jax.jit (shapes are static: refused while tracing)."""
+    r = _refiner("float32")
+    n, N = r.base_num_vertices, r.num_vertices
+    bad = [(wsj.evaluate, (n - 1, 3), "vertex data"), (wsj.evaluate, (1, 3), "vertex data"),
+           (wsj.evaluate, (n + 1, 3), "vertex data"), (wsj.evaluate, (n - 1,), "vertex data"),
+           (wsj.evaluate, (n, 3, 1), "vertex data"), (wsj.evaluate, (n, 0), "vertex data"),
+           (wsj.limit_points, (10, 3), "refined points"), (wsj.limit_points, (N + 1, 2), "refined points"),
+           (wsj.limit_normals, (N - 1, 3), "refined points"), (wsj.limit_normals, (N, 2), "refined points")]
+    for f, shape, what in bad:
+        x = jnp.ones(shape, jnp.float32)
+        for run in (f, jax.jit(f, static_argnums=0)):
+            with pytest.raises(ws.SubdivInputError, match=what) as err:
+                run(r, x)
+            assert err.value.element == "data", (f.__name__, shape)
+        with pytest.raises(ws.SubdivInputError, match=what):
+            jax.grad(lambda q, f=f: jnp.sum(f(r, q)))(x)
+    with pytest.raises(ws.SubdivInputError, match="real numbers"):
+        wsj.evaluate(r, jnp.ones((n, 3), jnp.complex64))
+    with pytest.raises(ws.SubdivInputError) as err:
+        wsj.evaluate(r, jnp.ones((n, 2), jnp.float32), normal_control=True)
+    assert err.value.option == "normal_control"
+    np.testing.assert_array_equal(np.asarray(wsj.evaluate(r, jnp.ones((n, 3), jnp.int32))),
+                                  r.evaluate(np.ones((n, 3), np.int32)))  # integers are cast, as numpy's are
+

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import warp as wp
 
-from .evaluator import kernel_view
+from .evaluator import kernel_view, normal_control_for, shaped_rows
 from . import gradients as G
 
 __all__ = ["evaluate", "limit_normals", "limit_points", "function"]
@@ -76,6 +76,19 @@ def _warp_device(x):
     if d.platform in ("gpu", "cuda"):
         return f"cuda:{d.id}"
     return None
+
+
+def _checked_input(refiner, kind: str, normal_control, x) -> tuple:
+    """(x as a (rows, d) JAX array, whether it was (rows,)), checked before Warp reads its memory or a
+    callback's result is declared (under jit: while tracing, from the static shape) as the refiner checks its
+    input (:func:`warp_subdiv.evaluator.shaped_rows`)."""
+    x = jnp.asarray(x)
+    rows, what = ((refiner.base_num_vertices, "vertex data") if kind == "evaluate" else
+                  (refiner.num_vertices, "refined points"))
+    width, one_d = shaped_rows(x.shape, x.dtype.name, rows, what, positions=kind == "limit_normals")
+    if kind == "evaluate":
+        normal_control_for(normal_control, width)
+    return (x[:, None] if one_d else x), one_d
 
 
 def _make(refiner, kind: str, normal_control):
@@ -162,12 +175,7 @@ def _make(refiner, kind: str, normal_control):
     core.defvjp(core_fwd, core_bwd)
 
     def apply(x):
-        x = jnp.asarray(x)
-        one_d = x.ndim == 1
-        if one_d:
-            x = x[:, None]
-        if x.ndim != 2:
-            raise ValueError(f"expected an array (rows, d) or (rows,), got shape {x.shape}")
+        x, one_d = _checked_input(refiner, kind, normal_control, x)
         y = core(x.astype(dtype))
         return y[:, 0] if one_d else y
 
