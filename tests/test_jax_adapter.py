@@ -145,3 +145,49 @@ def test_inputs_are_checked_eager_and_under_jit():
     np.testing.assert_array_equal(np.asarray(wsj.evaluate(r, jnp.ones((n, 3), jnp.int32))),
                                   r.evaluate(np.ones((n, 3), np.int32)))  # integers are cast, as numpy's are
 
+
+_FLOAT64_WITHOUT_X64 = """
+import jax, numpy as np, warp as wp
+import warp_subdiv as ws
+from warp_subdiv import gradients as G, jax as wsj
+from conftest import load_mesh
+assert not jax.config.jax_enable_x64
+mesh = load_mesh("quad_lshape")
+expected = ws.Refiner(mesh, 2, device="cpu").evaluate(mesh.points)
+r64 = ws.Refiner(mesh, 2, precision="float64", device="cpu")
+for call in (lambda: wsj.evaluate(r64, mesh.points), lambda: jax.jit(wsj.function(r64))(mesh.points),
+             lambda: G.adjoint(r64).forward(wp.array(mesh.points, dtype=wp.vec3f), True)):
+    try:
+        call()
+    except ws.SubdivInputError as exc:
+        print("refused:", exc)
+    else:
+        raise SystemExit("not refused")
+for precision in ("float32", "float64"):  # the process is not damaged: new refiners evaluate as before
+    out = ws.Refiner(mesh, 2, precision=precision, device="cpu").evaluate(mesh.points)
+    np.testing.assert_allclose(out, expected, rtol=1e-6, atol=1e-6)
+print("ok")
+"""
+
+
+def test_float64_refiner_without_x64_is_refused_and_leaves_no_damage():
+    """A float64 refiner cannot take JAX arrays while JAX has no 64-bit floats (jax_enable_x64 off: JAX would
+    silently make float32 of them): refused up front, naming the option to set, eagerly and under jit. Arrays
+    of another precision never reach a kernel (a generic Warp kernel launched with mixed precisions registers
+    an overload that does not compile, and every later load of that kernel module fails, in any refiner), so
+    refiners made afterwards, of either precision, evaluate as before. In a fresh process, so that a failure
+    cannot damage the other tests."""
+    import os
+    import pathlib
+
+    tests = pathlib.Path(__file__).parent
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tests.parent), str(tests)]), JAX_ENABLE_X64="0")
+    out = subprocess.run([sys.executable, "-c", _FLOAT64_WITHOUT_X64], capture_output=True, text=True,
+                         timeout=300, env=env, cwd=tests)
+    assert out.returncode == 0, out.stdout + out.stderr
+    lines = out.stdout.strip().splitlines()
+    assert lines[-1] == "ok"
+    refusals = [line for line in lines if line.startswith("refused:")]
+    assert len(refusals) == 3
+    assert all("jax_enable_x64" in line for line in refusals[:2]), refusals
+    assert "float64" in refusals[2], refusals

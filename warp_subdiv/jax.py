@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import warp as wp
 
+from .errors import SubdivInputError
 from .evaluator import kernel_view, normal_control_for, shaped_rows
 from . import gradients as G
 
@@ -81,7 +82,12 @@ def _warp_device(x):
 def _checked_input(refiner, kind: str, normal_control, x) -> tuple:
     """(x as a (rows, d) JAX array, whether it was (rows,)), checked before Warp reads its memory or a
     callback's result is declared (under jit: while tracing, from the static shape) as the refiner checks its
-    input (:func:`warp_subdiv.evaluator.shaped_rows`)."""
+    input (:func:`warp_subdiv.evaluator.shaped_rows`). A float64 refiner needs JAX's 64-bit floats: without
+    them JAX would silently make float32 of the data."""
+    if refiner.options.precision.value == "float64" and not jax.config.jax_enable_x64:
+        raise SubdivInputError("a float64 refiner takes JAX arrays only with JAX's 64-bit floats on "
+                               "(jax.config.update('jax_enable_x64', True)); or build the refiner with "
+                               "precision='float32'", option="precision", value="float64")
     x = jnp.asarray(x)
     rows, what = ((refiner.base_num_vertices, "vertex data") if kind == "evaluate" else
                   (refiner.num_vertices, "refined points"))
