@@ -232,6 +232,92 @@ def test_tape_limit_normals_and_accumulation():
     np.testing.assert_allclose(pts.grad.numpy(), 2 * r.evaluate_vjp(r.limit_normals_vjp(x, g)), atol=1e-12)
 
 
+@pytest.mark.parametrize("case", ["cc-boundary-flatness-normals", "loop-boundary-normal"])
+def test_active_tape_records_without_the_requires_grad_flag(case):
+    """Warp's convention: work on an array that requires grad, under an active wp.Tape, is recorded.
+    evaluate_device, limit_points and limit_normals (on_device) and evaluate_with_limits (on_device) of such an
+    array record their backward without requires_grad=True (their gradients used to be zeros, the loss right);
+    the values equal the unrecorded calls'; requires_grad=False still turns recording off."""
+    r = refiner(case)
+    rng = np.random.default_rng(11)
+    p = _points(r)
+    g = rng.standard_normal((r.num_vertices, 3))
+    gw = wp.array(g, dtype=wp.vec3d)
+    x = r.evaluate(p)
+    pts = wp.array(p, dtype=wp.vec3d, requires_grad=True)
+    loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+    with wp.Tape() as tape:
+        out = r.evaluate_device(pts)
+        lim = r.limit_points(out, on_device=True)
+        wp.launch(_dot_loss, dim=r.num_vertices, inputs=[lim, gw, loss])
+    tape.backward(loss)
+    np.testing.assert_array_equal(out.numpy(), x)
+    np.testing.assert_array_equal(lim.numpy(), r.limit_points(x))
+    expected = (r.matrix("limit", normal_control=True).T @ g.reshape(-1)).reshape(-1, 3)
+    np.testing.assert_allclose(pts.grad.numpy(), expected, atol=1e-12)
+
+    refined = wp.array(x, dtype=wp.vec3d, requires_grad=True)
+    loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+    with wp.Tape() as tape:
+        normals = r.limit_normals(refined, on_device=True)
+        wp.launch(_dot_loss, dim=r.num_vertices, inputs=[normals, gw, loss])
+    tape.backward(loss)
+    np.testing.assert_array_equal(normals.numpy(), r.limit_normals(x))
+    np.testing.assert_allclose(refined.grad.numpy(), r.limit_normals_vjp(x, g), atol=1e-12)
+
+    pts = wp.array(p, dtype=wp.vec3d, requires_grad=True)
+    loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+    with wp.Tape() as tape:
+        res = r.evaluate_with_limits(pts, on_device=True)
+        for a in (res.points, res.limit_points, res.limit_normals):
+            wp.launch(_dot_loss, dim=r.num_vertices, inputs=[a, gw, loss])
+    tape.backward(loss)
+    plain = r.evaluate_with_limits(p)
+    for a, b in ((res.points, plain.points), (res.limit_points, plain.limit_points),
+                 (res.limit_normals, plain.limit_normals)):
+        np.testing.assert_array_equal(a.numpy(), b)
+    expected = r.evaluate_vjp(g + r.limit_points_vjp(g) + r.limit_normals_vjp(x, g))
+    np.testing.assert_allclose(pts.grad.numpy(), expected, atol=1e-12)
+
+    with wp.Tape() as tape:
+        off = r.evaluate_device(pts, requires_grad=False)
+    assert not off.requires_grad and not any(callable(launch) for launch in tape.launches)  # no backward
+    np.testing.assert_array_equal(off.numpy(), x)
+
+
+def test_recorded_evaluate_device_writes_into_out():
+    """evaluate_device(requires_grad=True, out=buf) writes the result into buf (vec3 or (N, 3)) and returns it,
+    recorded: its gradient flows back through buf.grad (out used to be ignored: a fresh array came back and buf
+    stayed as it was). An out that cannot carry the gradient (no requires_grad, not a Warp array, another width
+    or precision) is refused."""
+    r = refiner("cc-boundary-flatness-normals")
+    rng = np.random.default_rng(12)
+    p = _points(r)
+    g = rng.standard_normal((r.num_vertices, 3))
+    expected = (r.matrix(normal_control=True).T @ g.reshape(-1)).reshape(-1, 3)
+    for buf in (wp.zeros(r.num_vertices, dtype=wp.vec3d, requires_grad=True),
+                wp.zeros((r.num_vertices, 3), dtype=wp.float64, requires_grad=True)):
+        pts = wp.array(p, dtype=wp.vec3d, requires_grad=True)
+        loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+        with wp.Tape() as tape:
+            got = r.evaluate_device(pts, requires_grad=True, out=buf)
+            if buf.ndim == 1:
+                wp.launch(_dot_loss, dim=r.num_vertices, inputs=[buf, wp.array(g, dtype=wp.vec3d), loss])
+            else:
+                wp.launch(_dot_loss_2d, dim=(r.num_vertices, 3), inputs=[buf, wp.array(g), loss])
+        assert got is buf
+        tape.backward(loss)
+        np.testing.assert_array_equal(buf.numpy().reshape(-1, 3), r.evaluate(p))
+        np.testing.assert_allclose(pts.grad.numpy(), expected, atol=1e-12)
+    pts = wp.array(p, dtype=wp.vec3d, requires_grad=True)
+    for bad in (wp.zeros(r.num_vertices, dtype=wp.vec3d), np.zeros((r.num_vertices, 3)),
+                wp.zeros((r.num_vertices, 2), dtype=wp.float64, requires_grad=True),
+                wp.zeros(r.num_vertices, dtype=wp.vec3f, requires_grad=True),
+                wp.zeros(r.num_vertices + 1, dtype=wp.vec3d, requires_grad=True)):
+        with pytest.raises(ws.SubdivInputError, match="out"):
+            r.evaluate_device(pts, requires_grad=True, out=bad)
+
+
 def test_two_pass_transposed_steps():
     """Transposed steps read in two passes (near and far child rows, as on large levels) give the same gradient
     as one pass, up to rounding, and the near part covers every parent row; so does the two-pass Loop step."""
@@ -303,6 +389,11 @@ def test_gradient_inputs_are_checked():
         r.evaluate_device(wp.zeros(r.base_num_vertices + 2, dtype=wp.vec3d), requires_grad=True)
     with pytest.raises(TypeError):
         r.evaluate_device(np.zeros((r.base_num_vertices, 3)), requires_grad=True)
+    for f, rows in ((G.evaluate, r.base_num_vertices), (G.limit_points, r.num_vertices),
+                    (G.limit_normals, r.num_vertices)):  # rows past the end would be read, or left out
+        for wrong in (1, rows - 1, rows + 1):
+            with pytest.raises(ws.SubdivInputError, match="must have shape"):
+                f(r, wp.zeros(wrong, dtype=wp.vec3d, requires_grad=True))
 
 
 def test_levels_zero_is_the_identity():

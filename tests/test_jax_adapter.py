@@ -115,3 +115,79 @@ def test_importing_warp_subdiv_imports_neither_jax_nor_torch():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_inputs_are_checked_eager_and_under_jit():
+    """Data with the wrong number of rows, more than two dimensions or complex values, (N, 2) data for limit
+    normals and normal control on width 2 are refused with SubdivInputError naming the argument, as
+    Refiner.evaluate refuses them, both outside jit (concrete arrays handed to Warp without a copy, which would
+    otherwise be read past their end) and under jax.jit (shapes are static: refused while tracing)."""
+    r = _refiner("float32")
+    n, N = r.base_num_vertices, r.num_vertices
+    bad = [(wsj.evaluate, (n - 1, 3), "vertex data"), (wsj.evaluate, (1, 3), "vertex data"),
+           (wsj.evaluate, (n + 1, 3), "vertex data"), (wsj.evaluate, (n - 1,), "vertex data"),
+           (wsj.evaluate, (n, 3, 1), "vertex data"), (wsj.evaluate, (n, 0), "vertex data"),
+           (wsj.limit_points, (10, 3), "refined points"), (wsj.limit_points, (N + 1, 2), "refined points"),
+           (wsj.limit_normals, (N - 1, 3), "refined points"), (wsj.limit_normals, (N, 2), "refined points")]
+    for f, shape, what in bad:
+        x = jnp.ones(shape, jnp.float32)
+        for run in (f, jax.jit(f, static_argnums=0)):
+            with pytest.raises(ws.SubdivInputError, match=what) as err:
+                run(r, x)
+            assert err.value.element == "data", (f.__name__, shape)
+        with pytest.raises(ws.SubdivInputError, match=what):
+            jax.grad(lambda q, f=f: jnp.sum(f(r, q)))(x)
+    with pytest.raises(ws.SubdivInputError, match="real numbers"):
+        wsj.evaluate(r, jnp.ones((n, 3), jnp.complex64))
+    with pytest.raises(ws.SubdivInputError) as err:
+        wsj.evaluate(r, jnp.ones((n, 2), jnp.float32), normal_control=True)
+    assert err.value.option == "normal_control"
+    np.testing.assert_array_equal(np.asarray(wsj.evaluate(r, jnp.ones((n, 3), jnp.int32))),
+                                  r.evaluate(np.ones((n, 3), np.int32)))  # integers are cast, as numpy's are
+
+
+_FLOAT64_WITHOUT_X64 = """
+import jax, numpy as np, warp as wp
+import warp_subdiv as ws
+from warp_subdiv import gradients as G, jax as wsj
+from conftest import load_mesh
+assert not jax.config.jax_enable_x64
+mesh = load_mesh("quad_lshape")
+expected = ws.Refiner(mesh, 2, device="cpu").evaluate(mesh.points)
+r64 = ws.Refiner(mesh, 2, precision="float64", device="cpu")
+for call in (lambda: wsj.evaluate(r64, mesh.points), lambda: jax.jit(wsj.function(r64))(mesh.points),
+             lambda: G.adjoint(r64).forward(wp.array(mesh.points, dtype=wp.vec3f), True)):
+    try:
+        call()
+    except ws.SubdivInputError as exc:
+        print("refused:", exc)
+    else:
+        raise SystemExit("not refused")
+for precision in ("float32", "float64"):  # the process is not damaged: new refiners evaluate as before
+    out = ws.Refiner(mesh, 2, precision=precision, device="cpu").evaluate(mesh.points)
+    np.testing.assert_allclose(out, expected, rtol=1e-6, atol=1e-6)
+print("ok")
+"""
+
+
+def test_float64_refiner_without_x64_is_refused_and_leaves_no_damage():
+    """A float64 refiner cannot take JAX arrays while JAX has no 64-bit floats (jax_enable_x64 off: JAX would
+    silently make float32 of them): refused up front, naming the option to set, eagerly and under jit. Arrays
+    of another precision never reach a kernel (a generic Warp kernel launched with mixed precisions registers
+    an overload that does not compile, and every later load of that kernel module fails, in any refiner), so
+    refiners made afterwards, of either precision, evaluate as before. In a fresh process, so that a failure
+    cannot damage the other tests."""
+    import os
+    import pathlib
+
+    tests = pathlib.Path(__file__).parent
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tests.parent), str(tests)]), JAX_ENABLE_X64="0")
+    out = subprocess.run([sys.executable, "-c", _FLOAT64_WITHOUT_X64], capture_output=True, text=True,
+                         timeout=300, env=env, cwd=tests)
+    assert out.returncode == 0, out.stdout + out.stderr
+    lines = out.stdout.strip().splitlines()
+    assert lines[-1] == "ok"
+    refusals = [line for line in lines if line.startswith("refused:")]
+    assert len(refusals) == 3
+    assert all("jax_enable_x64" in line for line in refusals[:2]), refusals
+    assert "float64" in refusals[2], refusals

@@ -69,3 +69,28 @@ def test_float32_zero_copy_input():
     assert out.dtype == torch.float32
     np.testing.assert_array_equal(out.numpy(), r.evaluate(p.numpy()))
     np.testing.assert_array_equal(wst.evaluate(r, p.double()).numpy(), out.numpy())
+
+
+def test_inputs_are_checked():
+    """Tensors with the wrong number of rows, more than two dimensions or complex values, (N, 2) data for limit
+    normals and normal control on width 2 are refused with SubdivInputError naming the argument, as
+    Refiner.evaluate refuses them (a tensor is otherwise handed to Warp without a copy and read past its end);
+    integer tensors are cast, as numpy's integers are."""
+    r = _refiner("float32")
+    n, N = r.base_num_vertices, r.num_vertices
+    bad = [(wst.evaluate, (n - 1, 3), "vertex data"), (wst.evaluate, (1, 3), "vertex data"),
+           (wst.evaluate, (n + 1, 3), "vertex data"), (wst.evaluate, (n - 1,), "vertex data"),
+           (wst.evaluate, (n, 3, 1), "vertex data"), (wst.evaluate, (n, 0), "vertex data"),
+           (wst.limit_points, (10, 3), "refined points"), (wst.limit_points, (N + 1, 2), "refined points"),
+           (wst.limit_normals, (N - 1, 3), "refined points"), (wst.limit_normals, (N, 2), "refined points")]
+    for f, shape, what in bad:
+        with pytest.raises(ws.SubdivInputError, match=what) as err:
+            f(r, torch.ones(shape, requires_grad=True))
+        assert err.value.element == "data", (f.__name__, shape)
+    with pytest.raises(ws.SubdivInputError, match="real numbers"):
+        wst.evaluate(r, torch.ones((n, 3), dtype=torch.complex64))
+    with pytest.raises(ws.SubdivInputError) as err:
+        wst.evaluate(r, torch.ones((n, 2)), normal_control=True)
+    assert err.value.option == "normal_control"
+    np.testing.assert_array_equal(wst.evaluate(r, torch.ones((n, 3), dtype=torch.int32)).numpy(),
+                                  r.evaluate(np.ones((n, 3), np.int32)))

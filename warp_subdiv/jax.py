@@ -26,7 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 import warp as wp
 
-from .evaluator import kernel_view
+from .errors import SubdivInputError
+from .evaluator import kernel_view, normal_control_for, shaped_rows
 from . import gradients as G
 
 __all__ = ["evaluate", "limit_normals", "limit_points", "function"]
@@ -76,6 +77,24 @@ def _warp_device(x):
     if d.platform in ("gpu", "cuda"):
         return f"cuda:{d.id}"
     return None
+
+
+def _checked_input(refiner, kind: str, normal_control, x) -> tuple:
+    """(x as a (rows, d) JAX array, whether it was (rows,)), checked before Warp reads its memory or a
+    callback's result is declared (under jit: while tracing, from the static shape) as the refiner checks its
+    input (:func:`warp_subdiv.evaluator.shaped_rows`). A float64 refiner needs JAX's 64-bit floats: without
+    them JAX would silently make float32 of the data."""
+    if refiner.options.precision.value == "float64" and not jax.config.jax_enable_x64:
+        raise SubdivInputError("a float64 refiner takes JAX arrays only with JAX's 64-bit floats on "
+                               "(jax.config.update('jax_enable_x64', True)); or build the refiner with "
+                               "precision='float32'", option="precision", value="float64")
+    x = jnp.asarray(x)
+    rows, what = ((refiner.base_num_vertices, "vertex data") if kind == "evaluate" else
+                  (refiner.num_vertices, "refined points"))
+    width, one_d = shaped_rows(x.shape, x.dtype.name, rows, what, positions=kind == "limit_normals")
+    if kind == "evaluate":
+        normal_control_for(normal_control, width)
+    return (x[:, None] if one_d else x), one_d
 
 
 def _make(refiner, kind: str, normal_control):
@@ -162,12 +181,7 @@ def _make(refiner, kind: str, normal_control):
     core.defvjp(core_fwd, core_bwd)
 
     def apply(x):
-        x = jnp.asarray(x)
-        one_d = x.ndim == 1
-        if one_d:
-            x = x[:, None]
-        if x.ndim != 2:
-            raise ValueError(f"expected an array (rows, d) or (rows,), got shape {x.shape}")
+        x, one_d = _checked_input(refiner, kind, normal_control, x)
         y = core(x.astype(dtype))
         return y[:, 0] if one_d else y
 

@@ -73,6 +73,16 @@ class _GradientMethods:
                     self._adjoint = gradients.Adjoint(self)
         return self._adjoint
 
+    def _recorded(self, data):
+        """:mod:`warp_subdiv.gradients` where work on ``data`` is recorded now, by Warp's convention (a Warp array
+        that requires grad, under an active ``wp.Tape``): the device entry points then hand the work to it (fresh
+        arrays, their backward recorded); else None."""
+        if not (isinstance(data, wp.array) and data.requires_grad):
+            return None
+        from . import gradients
+
+        return gradients if gradients.recording(data) else None
+
     def matrix(self, level=None, *, normal_control: bool = False, with_offset: bool = False):
         """The sparse map from control data to ``level``'s data (None: the last level; ``"limit"``: limit
         positions): a ``scipy.sparse.csr_matrix`` (a :class:`~warp_subdiv.gradients.CSRMatrix` of the same CSR
@@ -139,7 +149,24 @@ class _FaceVaryingMethods:
         return self._face_varying["channel"]
 
 
-class Refiner(_GradientMethods, _FaceVaryingMethods):
+class _Views:
+    """Read-only views of a refiner's options and of its hierarchy's tables, as plain attributes."""
+
+    scheme = property(lambda self: self.options.scheme, doc="The options' subdivision scheme.")
+    rules = property(lambda self: self.options.rules, doc="The options' rule set.")
+    boundary = property(lambda self: self.options.boundary, doc="The options' boundary interpolation.")
+    precision = property(lambda self: self.options.precision, doc="The options' evaluation precision.")
+    loop_beta = property(lambda self: self.options.loop_beta, doc="The options' Loop vertex weight variant.")
+    normal_strength = property(lambda self: self.options.normal_strength, doc="The options' normal control strength.")
+    crease_method = property(lambda self: self.options.crease_method, doc="The options' semi-sharp crease decay.")
+    triangle_subdivision = property(lambda self: self.options.triangle_subdivision, doc="The options' triangle rule.")
+    # the hierarchy's step records, for inspection
+    steps = property(lambda self: self.hierarchy.steps, doc="The stencil tables of each refinement step.")
+    flatness_tables = property(lambda self: self.hierarchy.flatness_tables, doc="Each level's flatness table.")
+    normal_tables = property(lambda self: self.hierarchy.normal_tables, doc="Each level's normal-control table.")
+
+
+class Refiner(_Views, _GradientMethods, _FaceVaryingMethods):
     """Builds the topology and stencil tables of ``levels`` refinement steps once.
 
     :meth:`evaluate` then refines any per-vertex data (positions of animation frames, vertex primvars) of
@@ -175,20 +202,6 @@ class Refiner(_GradientMethods, _FaceVaryingMethods):
         self._deeper = None
         self._adjoint = None
         self._face_varying: dict = {}
-
-    # option values, as plain attributes (read-only views of self.options)
-    scheme = property(lambda self: self.options.scheme, doc="The options' subdivision scheme.")
-    rules = property(lambda self: self.options.rules, doc="The options' rule set.")
-    boundary = property(lambda self: self.options.boundary, doc="The options' boundary interpolation.")
-    precision = property(lambda self: self.options.precision, doc="The options' evaluation precision.")
-    loop_beta = property(lambda self: self.options.loop_beta, doc="The options' Loop vertex weight variant.")
-    normal_strength = property(lambda self: self.options.normal_strength, doc="The options' normal control strength.")
-    crease_method = property(lambda self: self.options.crease_method, doc="The options' semi-sharp crease decay.")
-    triangle_subdivision = property(lambda self: self.options.triangle_subdivision, doc="The options' triangle rule.")
-    # the hierarchy's step records, for inspection
-    steps = property(lambda self: self.hierarchy.steps, doc="The stencil tables of each refinement step.")
-    flatness_tables = property(lambda self: self.hierarchy.flatness_tables, doc="Each level's flatness table.")
-    normal_tables = property(lambda self: self.hierarchy.normal_tables, doc="Each level's normal-control table.")
 
     @property
     def projects(self) -> bool:
@@ -228,7 +241,7 @@ class Refiner(_GradientMethods, _FaceVaryingMethods):
     def _vertex_data(self, points):
         return self._rows_data(points, self.base_num_vertices, "vertex data")
 
-    def evaluate_device(self, points, normal_control: bool = True, requires_grad: bool = False, *, out=None):
+    def evaluate_device(self, points, normal_control: bool = True, requires_grad: bool | None = None, *, out=None):
         """Refine (n, 3) positions; returns the final level's device array of vec3 (no copy to the host).
 
         ``points``: host data (numpy), or a device array used where it lies, with no copy to the host: a Warp
@@ -239,15 +252,16 @@ class Refiner(_GradientMethods, _FaceVaryingMethods):
         any float precision and stride) the result is written into, and which is returned.
 
         The array is a shared buffer of the evaluator, overwritten by the next call (from any thread).
-        ``requires_grad=True``: ``points`` is a Warp array on the refiner's device (vec3 (n,) or (n, d) of its
+        ``requires_grad=True``, or None for a Warp array that requires grad under an active ``wp.Tape`` (Warp's
+        convention; False: never): ``points`` is a Warp array on the refiner's device (vec3 (n,) or (n, d) of its
         precision: any width; normal control, on by default, acts on width 3 only); the result is a fresh array
-        with a gradient, and under an active ``wp.Tape`` its backward (the transposed tables,
-        :mod:`warp_subdiv.gradients`) is recorded and adds to ``points.grad``."""
-        if requires_grad:
+        with a gradient (or ``out``, a Warp array with one), and under an active ``wp.Tape`` its backward (the
+        transposed tables, :mod:`warp_subdiv.gradients`) is recorded and adds to ``points.grad``."""
+        if requires_grad or (requires_grad is None and self._recorded(points)):
             from . import gradients
 
             return gradients.evaluate(self, points, None if normal_control is True else normal_control,
-                                      requires_grad=True)
+                                      requires_grad=True, out=out)
         arr, _ = self._vertex_data(points)
         if arr.shape[1] != 3:
             raise SubdivInputError(f"evaluate_device takes (n, 3) positions, got {tuple(arr.shape)}", element="data",
@@ -290,7 +304,9 @@ class Refiner(_GradientMethods, _FaceVaryingMethods):
         ``normal_control=False`` (pass it for data that is not a position, colours say: then the result is
         ``matrix("limit") @ data`` of the control data). ``refined_points`` may be a device array (as
         :meth:`evaluate_device` takes; its own result is read where it lies, with no copy); ``on_device``: return
-        a device array (a view of a shared buffer, valid until the next call) instead of numpy."""
+        a device array (a view of a shared buffer, valid until the next call; recorded as by evaluate_device)."""
+        if on_device and (recorded := self._recorded(refined_points)):
+            return recorded.limit_points(self, refined_points)
         points, one_d = self._rows_data(refined_points, self.num_vertices, "refined points")
         normal_control = normal_control_for(normal_control, points.shape[1])
         source, deeper = self._guarded_limit_source()
@@ -308,6 +324,8 @@ class Refiner(_GradientMethods, _FaceVaryingMethods):
         without normal control (``evaluate(points, normal_control=False)``): computed everywhere, prescribed
         normals neither applied in an extra step nor reported.
         """
+        if on_device and (recorded := self._recorded(refined_points)):
+            return recorded.limit_normals(self, refined_points)
         points, _ = self._rows_data(refined_points, self.num_vertices, "refined points")
         if points.shape[1] != 3:
             raise SubdivInputError(f"limit normals take (N, 3) positions, got {tuple(np.shape(points))}",
@@ -336,8 +354,10 @@ class Refiner(_GradientMethods, _FaceVaryingMethods):
         Where the masks are read one level deeper (:meth:`limit_reads_deeper`), the refiner one level deeper
         refines the control data once and this level's points are its second-to-last level. ``points`` as
         :meth:`evaluate` takes (host data or a device array); normals need (n, 3) positions. ``normal_control`` as
-        :meth:`evaluate` takes it, for every step (the deeper one too) and the normals. ``on_device``: the
-        three are device arrays (views of shared buffers, valid until the next call)."""
+        :meth:`evaluate` takes it, for every step (the deeper one too) and the normals. ``on_device``: the three are
+        device arrays (views of shared buffers, valid until the next call; recorded as in limit_points)."""
+        if on_device and (recorded := self._recorded(points)):
+            return recorded.evaluate_with_limits(self, points, normal_control, limit_points, limit_normals)
         data, one_d = self._vertex_data(points)
         width = data.shape[1]
         normal_control = normal_control_for(normal_control, width)

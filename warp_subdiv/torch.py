@@ -22,7 +22,7 @@ from __future__ import annotations
 import torch
 import warp as wp
 
-from .evaluator import kernel_view
+from .evaluator import kernel_view, normal_control_for, shaped_rows
 from . import gradients as G
 
 __all__ = ["evaluate", "limit_normals", "limit_points"]
@@ -49,12 +49,16 @@ _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
 
 def _apply(refiner, kind, normal_control, x: torch.Tensor) -> torch.Tensor:
+    # checked before the cast, which would drop an imaginary part, and before Warp reads the memory
     x = torch.as_tensor(x)
-    one_d = x.dim() == 1
+    rows, what = ((refiner.base_num_vertices, "vertex data") if kind == "evaluate" else
+                  (refiner.num_vertices, "refined points"))
+    width, one_d = shaped_rows(x.shape, str(x.dtype).removeprefix("torch."), rows, what,
+                               positions=kind == "limit_normals")
+    if kind == "evaluate":
+        normal_control_for(normal_control, width)
     if one_d:
         x = x[:, None]
-    if x.dim() != 2:
-        raise ValueError(f"expected a tensor (rows, d) or (rows,), got shape {tuple(x.shape)}")
     device = wp.device_to_torch(refiner.device)
     y = _Refine.apply(x.to(device=device, dtype=_DTYPES[refiner.options.precision.value]), refiner, kind,
                       normal_control)

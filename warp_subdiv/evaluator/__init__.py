@@ -11,7 +11,7 @@ copies in and out), ``inputs`` and ``interop`` (checking a caller's host and dev
 from .buffers import LevelBuffers, kernel_view
 from .dispatch import apply, displace, limit_normals, limit_positions, refine_step
 from .evaluator import Evaluated, Evaluator, default_device
-from .inputs import host_rows, normal_control_for, vertex_rows
+from .inputs import host_rows, normal_control_for, shaped_rows, vertex_rows
 from .interop import device_rows
 from .launch import Launcher, load_kernels
 from .records import (PRECISIONS, Displacement, ExplicitRows, LimitMasks, Projection, QuadStep, StencilStep, StepRecord,
@@ -20,4 +20,4 @@ from .records import (PRECISIONS, Displacement, ExplicitRows, LimitMasks, Projec
 __all__ = ["PRECISIONS", "Displacement", "Evaluated", "Evaluator", "ExplicitRows", "Launcher", "LevelBuffers",
            "LimitMasks", "Projection", "QuadStep", "StencilStep", "StepRecord", "TriangleStep", "Uploader", "apply",
            "default_device", "device_rows", "displace", "host_rows", "kernel_view", "limit_normals", "limit_positions",
-           "load_kernels", "normal_control_for", "refine_step", "vertex_rows"]
+           "load_kernels", "normal_control_for", "refine_step", "shaped_rows", "vertex_rows"]

@@ -3,7 +3,9 @@ points); the evaluator's methods take data checked here and check it no further.
 
 Host data (numpy arrays, lists) is checked by :func:`host_rows`, device arrays by
 :func:`~warp_subdiv.evaluator.interop.device_rows` (shape and precision only: reading the values back to check
-them would cost a transfer); :func:`vertex_rows` tells the two apart.
+them would cost a transfer); :func:`vertex_rows` tells the two apart. The framework adapters (JAX, PyTorch) check
+their arrays by shape and element type with :func:`shaped_rows` before they cast them, hand them to Warp or
+declare a callback's result (under ``jax.jit`` a value has a shape and no data yet).
 """
 from __future__ import annotations
 
@@ -11,7 +13,11 @@ import numpy as np
 
 from ..errors import SubdivInputError
 from ..mesh import DATA_BOUND, check_rows
-from .interop import device_rows
+from .interop import check_row_shape, device_rows
+
+#: Element types (by name, as numpy, JAX and PyTorch spell them) of real numbers, which an adapter casts to the
+#: refiner's precision as :func:`host_rows` takes any real numpy array: booleans, integers, floats.
+_REAL_PREFIXES = ("bool", "int", "uint", "float", "bfloat")
 
 
 def host_rows(data, rows: int, what: str, precision: str) -> np.ndarray:
@@ -25,6 +31,22 @@ def host_rows(data, rows: int, what: str, precision: str) -> np.ndarray:
         if -bound <= lo and hi <= bound and -np.inf < lo and hi < np.inf:
             return data
     return check_rows(data, rows, what, bound=bound)
+
+
+def shaped_rows(shape, dtype_name: str, rows: int, what: str, *, positions: bool = False) -> tuple[int, bool]:
+    """(width, one_d) of data known by its ``shape`` and element type ``dtype_name`` ("float32", "int64",
+    "complex64": numpy's, JAX's or PyTorch's name without the "torch." prefix), checked as :func:`host_rows`
+    checks a numpy array's shape and type: (rows,) or (rows, d) with d >= 1, of real numbers; ``positions``:
+    (rows, 3) only (limit normals). The values are not read (checked where they are read, if at all)."""
+    shape = tuple(int(s) for s in shape)
+    name = str(dtype_name)
+    if not name.startswith(_REAL_PREFIXES):
+        raise SubdivInputError(f"{what} must hold real numbers, got dtype {name}", element="data", value=name)
+    as_rows = (shape[0], 1) if len(shape) == 1 else shape
+    check_row_shape(shape, as_rows, rows, what)
+    if positions and as_rows[1] != 3:
+        raise SubdivInputError(f"limit normals take ({rows}, 3) {what}, got {shape}", element="data", value=shape)
+    return as_rows[1], len(shape) == 1
 
 
 def vertex_rows(data, rows: int, what: str, device, precision: str) -> tuple:

@@ -115,11 +115,18 @@ def device_rows(obj, rows: int, what: str, device) -> wp.array | None:
     if arr is None:
         return None
     view = as_rows(arr)
-    if view.shape[0] != rows or view.shape[1] < 1:
-        raise SubdivInputError(f"{what} must have shape ({rows}, d) with d >= 1, got {tuple(arr.shape)}"
-                               + ("" if view.shape == tuple(arr.shape) else f" ({view.shape} as rows)"),
-                               element="data", value=tuple(arr.shape))
+    check_row_shape(tuple(arr.shape), view.shape, rows, what)
     return view
+
+
+def check_row_shape(shape: tuple, as_rows: tuple, rows: int, what: str) -> None:
+    """Refuse data of ``shape`` (read as ``as_rows``, its (rows, width): 1-D data and vec3 rows differ from
+    their shape) unless it is (rows, d) with d >= 1, in the words of the host data's check."""
+    shape, as_rows = tuple(shape), tuple(as_rows)
+    if len(as_rows) != 2 or as_rows[0] != rows or as_rows[1] < 1:
+        raise SubdivInputError(f"{what} must have shape ({rows}, d) with d >= 1, got {shape}"
+                               + ("" if as_rows == shape else f" ({as_rows} as rows)"),
+                               element="data", value=shape)
 
 
 def is_contiguous_rows(view: wp.array) -> bool:

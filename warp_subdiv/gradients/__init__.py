@@ -10,7 +10,8 @@ points on Warp arrays (recorded on a ``wp.Tape``) and on numpy arrays (vector-Ja
 """
 from .passes import Adjoint, adjoint
 from .sparse import CSRMatrix, matrix
-from .tape import evaluate, evaluate_vjp, limit_normals, limit_normals_vjp, limit_points, limit_points_vjp
+from .tape import (evaluate, evaluate_vjp, evaluate_with_limits, limit_normals, limit_normals_vjp, limit_points,
+                   limit_points_vjp, recording)
 
-__all__ = ["Adjoint", "CSRMatrix", "adjoint", "evaluate", "evaluate_vjp", "limit_normals", "limit_normals_vjp",
-           "limit_points", "limit_points_vjp", "matrix"]
+__all__ = ["Adjoint", "CSRMatrix", "adjoint", "evaluate", "evaluate_vjp", "evaluate_with_limits", "limit_normals",
+           "limit_normals_vjp", "limit_points", "limit_points_vjp", "matrix", "recording"]

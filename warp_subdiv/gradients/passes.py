@@ -31,6 +31,20 @@ def check_positions(x: wp.array) -> None:
                                value=tuple(x.shape))
 
 
+def check_data(adj: "Adjoint", *arrays: wp.array) -> None:
+    """Refuse arrays of another precision or device than the refiner's before a kernel sees them: the kernels
+    are generic, and a launch mixing the data's precision with the records' registers an overload that does not
+    compile; Warp keeps it, and every later load of that kernel module (any refiner's, in this process) fails."""
+    for a in arrays:
+        if a.dtype not in (adj.scalar, adj.vec):
+            name = wp.types.type_repr(a.dtype)
+            raise SubdivInputError(f"the refiner's gradients take {adj.precision} data (its precision), got {name}",
+                                   element="data", value=name)
+        if a.device != adj.device:
+            raise SubdivInputError(f"data on {a.device}, the refiner on {adj.device}", element="data",
+                                   value=str(a.device))
+
+
 class Adjoint:
     """Forward and backward passes of one refiner on Warp arrays, with the transposed tables of its steps and
     limit masks (built on first use, then kept).
@@ -114,6 +128,7 @@ class Adjoint:
     # ---------------------------------------------------------------------------------------- refinement
     def forward(self, x: wp.array, normal_control: bool) -> wp.array:
         """Refine control data ``x`` (kernel view) through every step; a fresh array of the last level's rows."""
+        check_data(self, x)
         width = self.width(x)
         normal_control_for(normal_control, width)
         records = self.evaluator.records()
@@ -129,6 +144,7 @@ class Adjoint:
                  accumulate: bool = False) -> wp.array:
         """The gradient with respect to the control data of a gradient ``grad`` (kernel view, last level's
         rows): written into ``out`` (or a fresh array), added to it with ``accumulate``."""
+        check_data(self, grad, *([] if out is None else [out]))
         width = self.width(grad)
         normal_control_for(normal_control, width)
         L = self.refiner.levels
@@ -192,6 +208,7 @@ class Adjoint:
     def limit_points_forward(self, x: wp.array) -> wp.array:
         """Limit values of the last level's data ``x`` (kernel view); width-3 data takes normal control in the
         extra step where the masks are read one level deeper (as :meth:`Refiner.limit_points`)."""
+        check_data(self, x)
         source, deeper = self.refiner.limit_source()
         sa = source.adjoint
         run = self.launcher
@@ -207,6 +224,7 @@ class Adjoint:
 
     def limit_points_backward(self, grad: wp.array) -> wp.array:
         """The gradient with respect to the last level's data of a gradient of :meth:`limit_points_forward`."""
+        check_data(self, grad)
         source, deeper = self.refiner.limit_source()
         sa = source.adjoint
         rec = sa.tables.limit(self.refiner.num_vertices)
@@ -224,6 +242,7 @@ class Adjoint:
 
     def limit_normals_forward(self, x: wp.array) -> wp.array:
         """Unit limit normals of the last level's positions ``x`` (vec3), as :meth:`Refiner.limit_normals`."""
+        check_data(self, x)
         check_positions(x)
         source, deeper = self.refiner.limit_source()
         sa = source.adjoint
@@ -248,6 +267,7 @@ class Adjoint:
     def limit_normals_backward(self, x: wp.array, grad: wp.array) -> wp.array:
         """The gradient with respect to the last level's positions ``x`` of a gradient ``grad`` of the limit
         normals (vec3 arrays); recomputes the tangents from ``x``."""
+        check_data(self, x, grad)
         check_positions(x)
         check_positions(grad)
         source, deeper = self.refiner.limit_source()

@@ -1,6 +1,8 @@
-"""The gradients' entry points: :func:`evaluate`, :func:`limit_points` and :func:`limit_normals` take and return
-Warp arrays and record their backward pass (the refiner's :class:`~warp_subdiv.gradients.passes.Adjoint`) on an
-active ``wp.Tape`` (``Tape.record_func``); :func:`evaluate_vjp`, :func:`limit_points_vjp` and
+"""The gradients' entry points: :func:`evaluate`, :func:`limit_points`, :func:`limit_normals` (and the three in
+one, :func:`evaluate_with_limits`) take and return Warp arrays and record their backward pass (the refiner's
+:class:`~warp_subdiv.gradients.passes.Adjoint`) on an active ``wp.Tape`` (``Tape.record_func``) where an input
+requires grad, as Warp records launches (:func:`recording`: the refiner's device entry points route through
+here then); :func:`evaluate_vjp`, :func:`limit_points_vjp` and
 :func:`limit_normals_vjp` take and return numpy arrays. Host data is checked by
 :func:`~warp_subdiv.evaluator.host_rows`, Warp arrays by :func:`~warp_subdiv.evaluator.device_rows` (as the
 refiner checks its inputs).
@@ -11,7 +13,7 @@ import numpy as np
 import warp as wp
 
 from ..errors import SubdivInputError
-from ..evaluator import PRECISIONS, device_rows, host_rows, kernel_view, normal_control_for
+from ..evaluator import PRECISIONS, Evaluated, device_rows, host_rows, kernel_view, normal_control_for
 from .passes import Adjoint, adjoint, check_positions
 from .records import _kernels
 
@@ -118,25 +120,54 @@ def _grad_view(arr: wp.array, rows: int) -> wp.array:
     return kernel_view(g.reshape((rows, 1)) if g.ndim == 1 else g)
 
 
-def _record(inputs, output, backward) -> None:
+def recording(*arrays) -> bool:
+    """Whether work on ``arrays`` is recorded now, by Warp's convention for launches: a ``wp.Tape`` is active
+    and one of them is a Warp array that requires grad. The refiner's device entry points follow it (their
+    ``requires_grad`` argument overrides it)."""
+    return _active_tape() is not None and any(isinstance(a, wp.array) and a.requires_grad for a in arrays)
+
+
+def _record(requires_grad: bool, inputs, output, backward) -> None:
+    """Record ``backward`` on the active tape where the result has a gradient and an input needs one."""
     tape = _active_tape()
-    if tape is None or not any(a.requires_grad for a in inputs):
+    if tape is None or not requires_grad or not any(a.requires_grad for a in inputs):
         return
     tape.record_func(backward, [a for a in list(inputs) + [output] if a.requires_grad])
 
 
-def evaluate(refiner, points: wp.array, normal_control=None, requires_grad=None) -> wp.array:
+def _given_out(refiner, out, width: int, requires_grad: bool) -> wp.array:
+    """The kernel view of a caller's ``out`` for :func:`evaluate`'s result: a Warp array checked as the inputs
+    are (the last level's rows, the refiner's precision and device, contiguous), of the result's width, and
+    with a gradient array where the result has one (the recorded backward reads ``out.grad``)."""
+    if not isinstance(out, wp.array):
+        raise SubdivInputError(f"out must be a warp array where the result has a gradient (its backward reads "
+                               f"out.grad), got {type(out).__name__}", element="data", value=type(out).__name__)
+    view = _user_array(refiner, out, refiner.num_vertices, "out")
+    if adjoint(refiner).width(view) != width:
+        raise SubdivInputError(f"out must have width {width} (the points'), got {tuple(out.shape)}",
+                               element="data", value=tuple(out.shape))
+    if requires_grad and not out.requires_grad:
+        raise SubdivInputError("out must have requires_grad=True: the recorded backward reads out.grad",
+                               element="data")
+    return view
+
+
+def evaluate(refiner, points: wp.array, normal_control=None, requires_grad=None, *, out=None) -> wp.array:
     """Refine a Warp array of control data (vec3 (n,), (n, d) or (n,) of the refiner's precision, on its device);
-    returns a fresh array of the last level in the same convention. ``normal_control`` as in
+    returns a fresh array of the last level in the same convention, or ``out`` (a Warp array of the last level's
+    rows and the points' width, as the points are checked) written in place. ``normal_control`` as in
     :meth:`Refiner.evaluate` (None: on for width 3). ``requires_grad`` (default: the input's): the result has a
-    gradient array, and under an active ``wp.Tape`` the backward pass (the transposed tables) is recorded; it
-    adds to ``points.grad``."""
+    gradient array (``out`` must have one), and under an active ``wp.Tape`` the backward pass (the transposed
+    tables) is recorded; it adds to ``points.grad``."""
     adj = adjoint(refiner)
     x = _user_array(refiner, points, refiner.base_num_vertices, "points")
     width = adj.width(x)
     nc = bool(normal_control_for(normal_control, width))
     rg = points.requires_grad if requires_grad is None else bool(requires_grad)
-    out, view = _result_like(adj, points, refiner.num_vertices, width, rg)
+    if out is None:
+        out, view = _result_like(adj, points, refiner.num_vertices, width, rg)
+    else:
+        view = _given_out(refiner, out, width, rg)
     with _NoTape():
         wp.copy(view, adj.forward(x, nc))
     n = refiner.base_num_vertices
@@ -144,7 +175,7 @@ def evaluate(refiner, points: wp.array, normal_control=None, requires_grad=None)
     def backward():
         adj.backward(_grad_view(out, refiner.num_vertices), nc, out=_grad_view(points, n), accumulate=True)
 
-    _record([points], out, backward)
+    _record(rg, [points], out, backward)
     return out
 
 
@@ -163,7 +194,7 @@ def limit_points(refiner, refined: wp.array, requires_grad=None) -> wp.array:
         g = adj.limit_points_backward(_grad_view(out, N))
         adj.launcher.rows(_kernels().add_rows, N, [g, _grad_view(refined, N)])
 
-    _record([refined], out, backward)
+    _record(rg, [refined], out, backward)
     return out
 
 
@@ -184,5 +215,16 @@ def limit_normals(refiner, refined: wp.array, requires_grad=None) -> wp.array:
         g = adj.limit_normals_backward(x, _grad_view(out, N))
         adj.launcher.rows(_kernels().add_rows, N, [g, _grad_view(refined, N)])
 
-    _record([refined], out, backward)
+    _record(rg, [refined], out, backward)
     return out
+
+
+def evaluate_with_limits(refiner, points: wp.array, normal_control=None, with_limit_points: bool = True,
+                         with_limit_normals: bool = True) -> Evaluated:
+    """:meth:`Refiner.evaluate_with_limits` on the device, recorded: :func:`evaluate` of ``points``, then
+    :func:`limit_points` and :func:`limit_normals` of its result (each a fresh array with a gradient where
+    ``points`` requires one; under an active ``wp.Tape`` each backward is recorded). The same values as the
+    evaluator's one pass, whose shared buffers a tape cannot hold."""
+    refined = evaluate(refiner, points, normal_control)
+    return Evaluated(refined, limit_points(refiner, refined) if with_limit_points else None,
+                     limit_normals(refiner, refined) if with_limit_normals else None)
