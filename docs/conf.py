@@ -43,7 +43,11 @@ myst_heading_anchors = 3
 # (:mod:`warp_subdiv.tables`) are left as plain text where no target exists: nitpicky mode stays off.
 autodoc_member_order = "bysource"
 autodoc_typehints = "signature"
-autodoc_default_options = {"members": True, "undoc-members": True, "show-inheritance": False}
+# Members a public class inherits from the package's own private bases (Refiner's views, gradient and
+# face-varying methods) are documented with it; what Python's and numpy's classes provide is not.
+autodoc_default_options = {"members": True, "undoc-members": True, "show-inheritance": False,
+                           "inherited-members": "object,BaseException,Exception,Warning,UserWarning,str,int,Enum,"
+                                                "tuple,dict,list"}
 # The adapters import their framework at module level; a framework that is not installed is mocked.
 autodoc_mock_imports = [name for name in ("torch", "jax", "jaxlib") if importlib.util.find_spec(name) is None]
 

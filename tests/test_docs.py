@@ -63,7 +63,11 @@ def undocumented(module_names):
             if not (obj.__doc__ or "").strip():
                 missing.append(f"{name}.{public}")
             if inspect.isclass(obj):
-                for attr, member in vars(obj).items():
+                own = {}  # public members defined by the package's classes, inherited ones included
+                for base in reversed(obj.__mro__):
+                    if base.__module__.split(".")[0] in (name.split(".")[0], obj.__module__.split(".")[0]):
+                        own.update(vars(base))
+                for attr, member in own.items():
                     if attr.startswith("_"):
                         continue
                     if isinstance(member, property):

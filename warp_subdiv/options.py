@@ -55,6 +55,7 @@ class Choice(str, enum.Enum):
 
     @classmethod
     def values(cls) -> tuple:
+        """Every member's value, in declaration order (the values an option of this kind accepts)."""
         return tuple(m.value for m in cls)
 
 
