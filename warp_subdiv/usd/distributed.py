@@ -19,11 +19,12 @@ meshes of a USD file on a Dask cluster: a local one of ``workers`` worker proces
 
 Every task writes into a temporary folder next to the output. When all succeeded the driver stitches each
 animated mesh's chunks as USD value clips (:func:`stitch_clips`: ``UsdUtils.StitchClipsTopology`` and
-``StitchClipsManifest``, one clip set per mesh on the mesh prim), renames the folder to ``<output
-stem>.chunks`` and writes the output layer last: clip sets, then sublayers ``[topology, per-mesh layers...,
-input]``. Any failure cancels the other tasks and removes the folder, so no output and no chunk file is
-left; a worker that dies has its tasks rerun elsewhere by Dask. Each task applies the memory guard against
-its worker's memory (the worker's memory limit, and ``max_memory`` when given).
+``StitchClipsManifest``, one clip set per mesh on the mesh prim), renames the folder to ``<output>.chunks``
+(:func:`chunk_folder`: ``shot.usdc.chunks``, each output file its own) and writes the output layer last: clip
+sets, then sublayers ``[topology, per-mesh layers..., input]``. A run whose input reads anything in that
+folder is refused before any task starts. Any failure cancels the other tasks and removes the folder, so no
+output and no chunk file is left; a worker that dies has its tasks rerun elsewhere by Dask. Each task applies
+the memory guard against its worker's memory (the worker's memory limit, and ``max_memory`` when given).
 
 :func:`stitch` (``warp-subdiv stitch``) assembles chunk layers that ``warp-subdiv refine --frames A:B`` runs
 wrote (a farm scheduler launching them itself): no Dask needed.
@@ -273,8 +274,19 @@ def stitch_clips(output_layer: Sdf.Layer, folder: str, clips: dict, topology_sou
 
 
 # ------------------------------------------------------------------------------------------------ the bake
+def chunk_folder(output: str) -> str:
+    """The folder of a distributed bake's chunks: named after the output's full file name (``shot.usdc`` ->
+    ``shot.usdc.chunks``), so that outputs that differ only in their extension do not share it."""
+    return output + ".chunks"
+
+
+def stitch_folder(output: str) -> str:
+    """The folder of a stitched output's topology and manifests (``shot.usda`` -> ``shot.usda.stitch``)."""
+    return output + ".stitch"
+
+
 class _Folder:
-    """A temporary folder next to the output, renamed to ``final`` (default ``<stem>.chunks``) when it is
+    """A temporary folder next to the output, renamed to ``final`` (default :func:`chunk_folder`) when it is
     complete. As a context manager: everything it holds is discarded when the block fails, and when it succeeds
     the older folder set aside is removed, and the folder itself where the output was flattened (``flatten``:
     its layers were copied into the output)."""
@@ -284,7 +296,7 @@ class _Folder:
         self.flatten = flatten
         parent = os.path.dirname(output)
         self.created = make_folders(parent)
-        self.final = final or os.path.splitext(output)[0] + ".chunks"
+        self.final = final or chunk_folder(output)
         self.path = tempfile.mkdtemp(prefix="." + os.path.basename(self.final) + "-", dir=parent)
         self.old = None
 
@@ -379,7 +391,8 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     flatten = bool(run.pop("flatten", False))
     run.setdefault("max_memory", None)
     p = plan(input_path, levels, **{k: v for k, v in _plan_keywords(run).items()}, prims=run.get("prims"))
-    out_abs = check_output_path(output_path, p.stage)
+    # the chunk folder is replaced as a whole: the input must not read anything in it
+    out_abs = check_output_path(output_path, p.stage, folders=[chunk_folder(os.path.abspath(output_path))])
     run.pop("progress", None)
 
     timings = {"plan_s": _time.perf_counter() - start}
@@ -579,7 +592,8 @@ def _plain(value):
 def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
     """Assemble the layers that ``warp-subdiv refine IN -o CHUNK --frames A:B`` runs wrote (the same input,
     levels and options, frame ranges in any order) into ``output_path``: each animated refined mesh gets a
-    clip set over the chunks, everything else comes from the first chunk (``<stem>.stitch/topology.usdc``).
+    clip set over the chunks, everything else comes from the first chunk (``<output>.stitch/topology.usdc``,
+    :func:`stitch_folder`).
     Chunks stay where they are and are referenced by relative paths. Ranges that share their ends (1:25,
     25:50) interpolate across chunk boundaries; with 1:25, 26:50 values between 25 and 26 hold at 25.
     Returns a :class:`warp_subdiv.usd.Result` (no reports)."""
@@ -620,11 +634,14 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
             raise SubdivInputError(f"{l1.realPath}: its frames {r1[0]:g}:{r1[1]:g} overlap those of {l0.realPath} "
                                    f"({r0[0]:g}:{r0[1]:g}) beyond a shared end")
     out_abs = check_output_path(output_path)
+    files = [layer.realPath for _, layer in ranges]
+    if os.path.realpath(out_abs) in {os.path.realpath(f) for f in files}:
+        raise SubdivInputError(f"{output_path}: is one of the chunks to stitch; write the stitched layer somewhere "
+                               "else")
     if not os.path.exists(first[2]):
         raise SubdivInputError(f"{first[2]}: the chunks' input is missing")
     stage = Usd.Stage.Open(first[2])
-    out_abs = check_output_path(output_path, stage)
-    files = [layer.realPath for _, layer in ranges]
+    out_abs = check_output_path(output_path, stage, folders=[stitch_folder(out_abs)], reads=files)
     prims = list(first[1].get("prims") or [])
     clips = {}
     for path in prims:
@@ -635,7 +652,7 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
     custom["warpSubdiv"]["stitched"] = Vt.StringArray([relative_asset_path(f, os.path.dirname(out_abs))
                                                        for f in files])
     custom["warpSubdiv"]["flattened"] = bool(flatten)
-    with _Folder(out_abs, os.path.splitext(out_abs)[0] + ".stitch", flatten=flatten) as folder:
+    with _Folder(out_abs, stitch_folder(out_abs), flatten=flatten) as folder:
         layer = OutputLayer(out_abs, stage, custom)
         try:
             # one refinement wrote every chunk: their static content is the same, the first one's defaults

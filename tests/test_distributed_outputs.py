@@ -1,0 +1,120 @@
+"""What distributed bakes and stitched chunks write besides the refined values: each output owns its folder of
+chunks, a run never rewrites a file its input reads, chunks record every option that decides their values and
+a stitch refuses chunks that disagree, and the output's time samples are the input's."""
+import os
+
+import pytest
+from pxr import Sdf, Usd, UsdGeom
+
+from test_usd_support import grid, write_mesh
+from warp_subdiv.errors import SubdivInputError
+from warp_subdiv.usd import distributed as dist
+from warp_subdiv.usd.refine import refine_usd
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ANIMATED = os.path.join(ROOT, "scenes", "animated.usda")  # one creased plate, frames 1-24, primvars, a subset
+
+
+@pytest.fixture(scope="module")
+def client():
+    """One in-process Dask worker (a thread): these tests are about files, not about processes."""
+    distributed = pytest.importorskip("distributed")
+    saved = dict(os.environ)
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None,
+                                       silence_logs=50)
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+    os.environ.clear()
+    os.environ.update(saved)
+
+
+def faces(path, prim="/World/Mesh"):
+    stage = Usd.Stage.Open(str(path))
+    return len(UsdGeom.Mesh(stage.GetPrimAtPath(prim)).GetFaceVertexCountsAttr().Get())
+
+
+def animated_grid(path, nx, frames=range(1, 13)):
+    """A flat nx x 1 grid whose points move at every frame: several frame chunks."""
+    pts = grid(nx, 1)[0]
+    moving = {float(t): pts + [0.0, 0.0, 0.1 * t] for t in frames}
+    return write_mesh(path, pts, *grid(nx, 1)[1:], time_points=moving)
+
+
+# -- chunk folders ---------------------------------------------------------------------------------------
+
+def test_outputs_sharing_a_stem_keep_their_own_chunks(client, tmp_path):
+    """shot.usda and shot.usdc in one folder: baking another input to shot.usdc leaves shot.usda composing its
+    own mesh (each output's chunks are in a folder named after its full file name)."""
+    a = write_mesh(tmp_path / "a.usda", *grid(2, 1))
+    b = write_mesh(tmp_path / "b.usda", *grid(5, 1))
+    dist.bake(a, str(tmp_path / "shot.usda"), 1, client=client)
+    dist.bake(b, str(tmp_path / "shot.usdc"), 1, client=client)
+    assert faces(tmp_path / "shot.usda") == 8
+    assert faces(tmp_path / "shot.usdc") == 20
+    assert {"shot.usda.chunks", "shot.usdc.chunks"} <= set(os.listdir(tmp_path))
+
+
+def test_a_bake_refuses_to_replace_the_chunks_its_input_reads(client, tmp_path):
+    """Refining a bake's own output again into a file whose chunk folder the input reads would rewrite the
+    input under it: refused, and the input still composes as before."""
+    a = write_mesh(tmp_path / "a.usda", *grid(2, 1))
+    shot = tmp_path / "shot.usda"
+    dist.bake(a, str(shot), 1, client=client)
+    # an input that reads the chunks of the output the next run writes (a hand-made layer)
+    other = tmp_path / "other.usdc"
+    dist.bake(a, str(other), 1, client=client)
+    reader = Sdf.Layer.CreateNew(str(tmp_path / "reader.usda"))
+    reader.subLayerPaths.append("./other.usdc.chunks/" + os.listdir(tmp_path / "other.usdc.chunks")[0])
+    reader.subLayerPaths.append("./a.usda")
+    reader.Save()
+    with pytest.raises(SubdivInputError, match=r"other\.usdc\.chunks.*the input reads"):
+        dist.bake(str(tmp_path / "reader.usda"), str(other), 1, client=client, scheme="catmull-clark",
+                  prims=["/World/Mesh"])
+    assert faces(tmp_path / "reader.usda") == 8 and faces(other) == 8
+    # the bake's own output as input, written next to it: the input's chunks stay as they are
+    dist.bake(str(shot), str(tmp_path / "shot.usdc"), 1, client=client, scheme="catmull-clark",
+              prims=["/World/Mesh"])
+    assert faces(shot) == 8 and faces(tmp_path / "shot.usdc") == 32
+
+
+def test_stitches_sharing_a_stem_keep_their_own_topology(tmp_path):
+    """Stitching the chunks of b into shot.usdc after those of a into shot.usda leaves shot.usda with a's
+    topology under a's points; a stitch refuses to write over one of its chunks."""
+    def chunks(name, nx):
+        src = animated_grid(tmp_path / f"{name}.usda", nx)
+        out = []
+        for k, frames in enumerate([(None, 6), (6, None)]):
+            out.append(str(tmp_path / f"{name}{k}.usdc"))
+            refine_usd(src, out[-1], 1, frames=frames)
+        return out
+
+    dist.stitch(chunks("a", 2), str(tmp_path / "shot.usda"))
+    dist.stitch(chunks("b", 5), str(tmp_path / "shot.usdc"))
+    assert faces(tmp_path / "shot.usda") == 8 and faces(tmp_path / "shot.usdc") == 20
+    stage = Usd.Stage.Open(str(tmp_path / "shot.usda"))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Mesh"))
+    assert len(mesh.GetPointsAttr().Get(3.0)) == 15  # a's 3 x 2 control points refined once
+    with pytest.raises(SubdivInputError, match="a1.usdc: .*chunk"):
+        dist.stitch([str(tmp_path / "a0.usdc"), str(tmp_path / "a1.usdc")], str(tmp_path / "a1.usdc"))
+
+
+def test_refine_refuses_an_output_the_input_references_in_a_variant(tmp_path):
+    """The files an input reads include those its other variants reference: writing one of them is refused."""
+    write_mesh(tmp_path / "part.usda", *grid(2, 1))
+    write_mesh(tmp_path / "b.usda", *grid(3, 1))
+    src = tmp_path / "scene.usda"
+    stage = Usd.Stage.CreateNew(str(src))
+    prim = stage.DefinePrim("/World")
+    looks = prim.GetVariantSets().AddVariantSet("look")
+    for name, part in (("a", "./part.usda"), ("b", "./b.usda")):
+        looks.AddVariant(name)
+        looks.SetVariantSelection(name)
+        with looks.GetVariantEditContext():
+            prim.GetReferences().AddReference(part)
+    looks.SetVariantSelection("a")
+    stage.GetRootLayer().Save()
+    with pytest.raises(SubdivInputError, match="b.usda: the input reads this file"):
+        refine_usd(str(src), str(tmp_path / "b.usda"), 1)
+    assert faces(tmp_path / "b.usda") == 3 and faces(src) == 2
