@@ -118,3 +118,37 @@ def test_refine_refuses_an_output_the_input_references_in_a_variant(tmp_path):
     with pytest.raises(SubdivInputError, match="b.usda: the input reads this file"):
         refine_usd(str(src), str(tmp_path / "b.usda"), 1)
     assert faces(tmp_path / "b.usda") == 3 and faces(src) == 2
+
+
+# -- recorded options --------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("option, value, named", [
+    ("vertex_order", "opensubdiv", "vertex order"), ("boundary", "edge-only", "boundary"),
+    ("precision", "float64", "precision"), ("semi_sharp", "sharp", "semi-sharp"), ("rules", "opensubdiv", "rules"),
+    ("limit", True, "limit"), ("normals", True, "normals"),
+])
+def test_stitch_refuses_chunks_refined_with_other_options(tmp_path, option, value, named):
+    """Every option that decides the refined values is recorded in each chunk, and chunks refined with another
+    value of one of them are refused (a chunk in another vertex order scrambles the mesh, another boundary
+    rule makes the shape jump), naming the option and both chunks; nothing is written."""
+    src = animated_grid(tmp_path / "in.usda", 3)
+    first, second = str(tmp_path / "c0.usdc"), str(tmp_path / "c1.usdc")
+    refine_usd(src, first, 1, frames=(None, 6))
+    refine_usd(src, second, 1, frames=(6, None), **{option: value})
+    with pytest.raises(SubdivInputError, match=rf"c1.usdc: {named} differs from .*c0.usdc's") as info:
+        dist.stitch([first, second], str(tmp_path / "out.usda"))
+    assert "chunks must come from one refinement" in str(info.value)
+    assert sorted(os.listdir(tmp_path)) == ["c0.usdc", "c1.usdc", "in.usda"]
+
+
+def test_stitch_accepts_chunks_whose_options_resolve_alike(tmp_path):
+    """Options that name what the defaults resolve to (the compact vertex order for the piecewise-smooth rules,
+    the file's own boundary rule) refine alike: such chunks are stitched."""
+    src = animated_grid(tmp_path / "in.usda", 3)
+    first, second = str(tmp_path / "c0.usdc"), str(tmp_path / "c1.usdc")
+    refine_usd(src, first, 1, frames=(None, 6))
+    refine_usd(src, second, 1, frames=(6, None), vertex_order="compact", boundary="edge-and-corner")
+    dist.stitch([first, second], str(tmp_path / "out.usda"))
+    record = dict(Sdf.Layer.FindOrOpen(second).customLayerData)["warpSubdiv"]
+    assert list(record["vertexOrders"]) == ["compact"] and list(record["boundaries"]) == ["edge-and-corner"]
+    assert record["semiSharp"] == "keep" and list(record["precisions"]) == ["float32"]

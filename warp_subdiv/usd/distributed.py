@@ -50,8 +50,8 @@ from ..io.usd_write import (USD_EXTENSIONS, OutputLayer, check_output_path, make
                             remove_folders)
 from ..runtime import threads as th
 from ..runtime.estimate import MemoryGuardError
-from ..version import __version__
 from .planning import PrimReport, make_refiner, plan
+from .record import check_same_refinement, layer_record
 from .refine import Result, refine_usd
 
 #: Fewest time samples a frame chunk holds (an animated mesh with fewer than twice this is one unit).
@@ -512,16 +512,10 @@ def _merge(p, units, results):
 def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, timings) -> str:
     """Stitch the chunks, move the folder into place and write the output layer (last)."""
     frames = run.get("frames")
-    custom = {"warpSubdiv": {
-        "version": __version__, "levels": int(levels), "source": os.path.basename(p.input),
-        "prims": Vt.StringArray([sp.path for sp in p.prims]),
-        "rules": Vt.StringArray(sorted({sp.rules for sp in p.prims})),
-        "schemes": Vt.StringArray(sorted({sp.scheme for sp in p.prims})), "limitPoints": bool(run.get("limit")),
-        "normals": bool(run.get("normals")), "flattened": bool(flatten),
-        "distributed": {"workers": int(n_workers), "tasks": len(units)},
-    }}
-    if frames is not None:
-        custom["warpSubdiv"]["frames"] = ":".join("" if v is None else f"{v:g}" for v in frames)
+    custom = layer_record(p, levels, limit=bool(run.get("limit")), normals=bool(run.get("normals")),
+                          semi_sharp=run.get("semi_sharp", "keep"), vertex_order=run.get("vertex_order", "auto"),
+                          all_variants=bool(run.get("all_variants")), flatten=flatten, frames=frames)
+    custom["warpSubdiv"]["distributed"] = {"workers": int(n_workers), "tasks": len(units)}
     layer = OutputLayer(out_abs, p.stage, custom)
     try:
         final = folder.final
@@ -585,10 +579,6 @@ def _retarget(layer: Sdf.Layer, old_dir: str, new_dir: str) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ stitch
-def _plain(value):
-    return list(value) if isinstance(value, Vt.StringArray) else value
-
-
 def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
     """Assemble the layers that ``warp-subdiv refine IN -o CHUNK --frames A:B`` runs wrote (the same input,
     levels and options, frame ranges in any order) into ``output_path``: each animated refined mesh gets a
@@ -620,11 +610,8 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
             frames = (float(a) if a else None, float(b) if b else None)
         chunks.append((layer, info, source, frames))
     first = chunks[0]
+    check_same_refinement([(layer.realPath, info) for layer, info, _, _ in chunks])
     for layer, info, source, _ in chunks[1:]:
-        for key in ("levels", "prims", "rules", "schemes", "limitPoints", "normals"):
-            if _plain(info.get(key)) != _plain(first[1].get(key)):
-                raise SubdivInputError(f"{layer.realPath}: {key} differs from {first[0].realPath}'s; chunks must "
-                                       "come from one refinement")
         if source != first[2]:
             raise SubdivInputError(f"{layer.realPath}: refines {source}, {first[0].realPath} refines {first[2]}")
     ranges = [(_clip_range(layer, frames), layer) for layer, _, _, frames in chunks]
