@@ -3,8 +3,9 @@ chunks, a run never rewrites a file its input reads, chunks record every option 
 a stitch refuses chunks that disagree, and the output's time samples are the input's."""
 import os
 
+import numpy as np
 import pytest
-from pxr import Sdf, Usd, UsdGeom
+from pxr import Sdf, Usd, UsdGeom, Vt
 
 from test_usd_support import grid, write_mesh
 from warp_subdiv.errors import SubdivInputError
@@ -152,3 +153,108 @@ def test_stitch_accepts_chunks_whose_options_resolve_alike(tmp_path):
     record = dict(Sdf.Layer.FindOrOpen(second).customLayerData)["warpSubdiv"]
     assert list(record["vertexOrders"]) == ["compact"] and list(record["boundaries"]) == ["edge-and-corner"]
     assert record["semiSharp"] == "keep" and list(record["precisions"]) == ["float32"]
+
+
+# -- time samples ----------------------------------------------------------------------------------------
+
+def composed_times(path, roots=("/World",)):
+    """Attribute path -> its time samples, as the stage composes them (value clips included)."""
+    stage = Usd.Stage.Open(str(path))
+    out = {}
+    for root in roots:
+        for prim in Usd.PrimRange(stage.GetPrimAtPath(root)):
+            for attr in prim.GetAttributes():
+                times = attr.GetTimeSamples()
+                if times:
+                    out[str(attr.GetPath())] = times
+    return out
+
+
+def authored_times(path):
+    """Attribute path -> the time samples a (flattened) layer authors."""
+    layer = Sdf.Layer.FindOrOpen(str(path))
+    out = {}
+
+    def visit(p):
+        if p.IsPropertyPath() and layer.GetNumTimeSamplesForPath(p):
+            out[str(p)] = list(layer.ListTimeSamplesForPath(p))
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    return out
+
+
+def test_distributed_and_stitched_outputs_have_the_input_time_samples(client, tmp_path):
+    """The outputs of a distributed bake and of a stitch author exactly the input's time samples, attribute by
+    attribute, flattened or not: no sample just before each chunk boundary (value clip times that repeat the
+    boundary make USD add one there), and no sample at a chunk boundary for an attribute sampled more sparsely
+    than the points (primvars:weight: at 1, 12 and 24 only)."""
+    source = composed_times(ANIMATED)
+    assert source["/World/Animated/Plate.primvars:weight"] == [1.0, 12.0, 24.0]
+    single = tmp_path / "single.usda"
+    refine_usd(ANIMATED, str(single), 1, flatten=True)
+    expected = authored_times(single)
+    for name, times in source.items():
+        assert expected[name] == times, name  # the single-process bake keeps them
+
+    outputs = {}
+    for flatten in (False, True):
+        out = tmp_path / f"dist_{flatten}.usda"
+        dist.bake(ANIMATED, str(out), 1, chunk_frames=5, client=client, flatten=flatten)
+        outputs[out] = flatten
+        files = []
+        for k, frames in enumerate([(None, 9), (9, 17), (17, None)]):
+            files.append(str(tmp_path / f"farm_{flatten}" / f"chunk{k}.usdc"))
+            refine_usd(ANIMATED, files[-1], 1, frames=frames)
+        out = tmp_path / f"stitched_{flatten}.usda"
+        dist.stitch(files, str(out), flatten=flatten)
+        outputs[out] = flatten
+    reference = Usd.Stage.Open(str(single))
+    for out, flatten in outputs.items():
+        assert composed_times(out) == composed_times(single), out
+        if flatten:
+            assert authored_times(out) == expected, out
+        stage = Usd.Stage.Open(str(out))
+        for name in ("primvars:weight", "points"):
+            want = reference.GetAttributeAtPath("/World/Animated/Plate." + name)
+            got = stage.GetAttributeAtPath("/World/Animated/Plate." + name)
+            for t in np.arange(0.0, 26.0, 0.25):
+                np.testing.assert_allclose(np.asarray(got.Get(t)), np.asarray(want.Get(t)), rtol=1e-6, atol=1e-6,
+                                           err_msg=f"{out} {name} at {t}")
+
+
+
+def test_stitched_time_varying_topology_reads_as_the_single_bake(tmp_path):
+    """A mesh whose faces change at time 6, with a primvar sampled at 1 and 12 and a subset at 2 and 10: a
+    chunk within one topology writes it as its default only; stitched, every attribute reads as in the
+    single-process bake at every time (its topology too, which value clips would interpolate towards the next
+    chunk), and no sample lies between the input's time codes."""
+    pts, counts, idx = grid(2, 1)
+
+    def setup(stage, mesh):
+        fvi = mesh.GetFaceVertexIndicesAttr()
+        fvi.Set(Vt.IntArray(idx), 1.0)
+        fvi.Set(Vt.IntArray(idx[4:] + idx[:4]), 6.0)
+        w = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("w", Sdf.ValueTypeNames.FloatArray, "varying")
+        w.Set(Vt.FloatArray([0.0] * 6), 1.0)
+        w.Set(Vt.FloatArray([float(i) for i in range(6)]), 12.0)
+        subset = UsdGeom.Subset.Define(stage, "/World/Mesh/sub")
+        subset.CreateElementTypeAttr("face")
+        subset.CreateIndicesAttr().Set(Vt.IntArray([0]), 2.0)
+        subset.GetIndicesAttr().Set(Vt.IntArray([1]), 10.0)
+
+    moving = {float(t): pts + [0, 0, 0.1 * t] for t in range(1, 13)}
+    src = write_mesh(tmp_path / "in.usda", pts, counts, idx, time_points=moving, setup=setup)
+    refine_usd(src, str(tmp_path / "single.usda"), 1)
+    files = []
+    for k, frames in enumerate([(None, 4), (4, 8), (8, None)]):
+        files.append(str(tmp_path / f"c{k}.usdc"))
+        refine_usd(src, files[-1], 1, frames=frames)
+    dist.stitch(files, str(tmp_path / "out.usda"))
+    want, got = Usd.Stage.Open(str(tmp_path / "single.usda")), Usd.Stage.Open(str(tmp_path / "out.usda"))
+    for name in ("/World/Mesh.faceVertexIndices", "/World/Mesh.points", "/World/Mesh.primvars:w",
+                 "/World/Mesh/sub.indices"):
+        for t in np.arange(0.0, 14.0, 0.25):
+            np.testing.assert_allclose(np.asarray(got.GetAttributeAtPath(name).Get(t), dtype=float),
+                                       np.asarray(want.GetAttributeAtPath(name).Get(t), dtype=float), atol=1e-6,
+                                       err_msg=f"{name} at {t}")
+        assert set(got.GetAttributeAtPath(name).GetTimeSamples()) <= set(range(1, 13)), name

@@ -469,7 +469,7 @@ def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_wo
         # the first chunk of each mesh is the topology's source: one plan refined the chunks, its defaults are
         # the single bake's, and the later chunks hold time samples only (Unit.samples_only)
         firsts = [chunks[0][0] for chunks in clips.values()]
-        topo = stitch_clips(layer.layer, folder.path, clips, firsts) if clips else None
+        topo = stitch_clips(layer.layer, folder.path, clips, firsts, p.stage) if clips else None
         timings["stitch_s"] = _time.perf_counter() - t
         t = _time.perf_counter()
         # asset paths were written for the temporary folder: point them at the final one
@@ -581,7 +581,7 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
         try:
             # one refinement wrote every chunk: their static content is the same, the first one's defaults
             # are those of a run over all the frames
-            topo = stitch_clips(layer.layer, folder.path, clips, files[:1])
+            topo = stitch_clips(layer.layer, folder.path, clips, files[:1], stage)
             if topo is None:  # nothing animated: the first chunk's content is the topology
                 topo = os.path.join(folder.path, "topology.usdc")
                 t = Sdf.Layer.CreateNew(topo)
