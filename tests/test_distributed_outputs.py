@@ -258,3 +258,40 @@ def test_stitched_time_varying_topology_reads_as_the_single_bake(tmp_path):
                                        np.asarray(want.GetAttributeAtPath(name).Get(t), dtype=float), atol=1e-6,
                                        err_msg=f"{name} at {t}")
         assert set(got.GetAttributeAtPath(name).GetTimeSamples()) <= set(range(1, 13)), name
+
+
+def test_reindexed_primvars_agree_with_the_single_bake_at_chunk_ends(client, tmp_path):
+    """Primvars whose indices change at samples that are chunk boundaries (7 and 13 in the distributed bake, 10
+    in the stitch): the outputs read as the single-process bake at every time, sub-frames and the step before
+    each change included, and have its time samples."""
+    from test_usd_bugs import REINDEXED_TIMES, reindexed_primvars_scene
+
+    src = reindexed_primvars_scene(tmp_path / "in.usda")
+    stage = Usd.Stage.Open(src)
+    points = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Mesh")).GetPointsAttr()
+    rest = np.asarray(points.Get())
+    for t in range(1, 18):
+        points.Set(Vt.Vec3fArray.FromNumpy((rest + [0.0, 0.0, 0.1 * t]).astype(np.float32)), float(t))
+    stage.GetRootLayer().Save()
+    single = tmp_path / "single.usda"
+    refine_usd(src, str(single), 1)
+    distributed_out = tmp_path / "dist.usda"
+    res = dist.bake(src, str(distributed_out), 1, chunk_frames=6, client=client)
+    assert [u["frames"] for u in res.timings["units"]] == [(None, 7.0), (7.0, 13.0), (13.0, None)]
+    files = [str(tmp_path / "c0.usdc"), str(tmp_path / "c1.usdc")]
+    refine_usd(src, files[0], 1, frames=(None, 10))
+    refine_usd(src, files[1], 1, frames=(10, None))
+    stitched = tmp_path / "stitched.usda"
+    dist.stitch(files, str(stitched))
+    reference = Usd.Stage.Open(str(single))
+    want = UsdGeom.PrimvarsAPI(reference.GetPrimAtPath("/World/Mesh"))
+    steps = [t - Usd.TimeCode.SafeStep() for t in (7.0, 10.0, 13.0)]
+    for out in (distributed_out, stitched):
+        assert composed_times(out) == composed_times(single), out
+        out_stage = Usd.Stage.Open(str(out))
+        got = UsdGeom.PrimvarsAPI(out_stage.GetPrimAtPath("/World/Mesh"))
+        for name in ("v", "vy", "fv", "u"):
+            for t in REINDEXED_TIMES + steps + list(np.arange(0.0, 18.0, 0.5)):
+                np.testing.assert_allclose(np.asarray(got.GetPrimvar(name).ComputeFlattened(t)),
+                                           np.asarray(want.GetPrimvar(name).ComputeFlattened(t)), atol=1e-6,
+                                           err_msg=f"{out} {name} at {t}")
