@@ -96,13 +96,13 @@ def test_frame_chunks_compose_like_the_single_bake(client, single, tmp_path):
     res = dist.bake(ANIMATED, str(out), 1, chunk_frames=5, client=client)
     assert res.reports[0].samples == 24
     assert_same_composition(str(single / "animated.usda"), str(out))
-    assert sorted(os.listdir(out.parent)) == ["animated.chunks", "animated.usda"]
-    chunks = sorted(os.listdir(out.parent / "animated.chunks"))
+    assert sorted(os.listdir(out.parent)) == ["animated.usda", "animated.usda.chunks"]
+    chunks = sorted(os.listdir(out.parent / "animated.usda.chunks"))
     assert chunks == [f"0000_World_Animated_Plate.{k:04d}.usdc" for k in range(5)] + ["manifest.0000.usdc",
                                                                                     "topology.usdc"]
     stage = Usd.Stage.Open(str(out))
     clips = Usd.ClipsAPI(stage.GetPrimAtPath("/World/Animated/Plate")).GetClipAssetPaths()
-    assert all(a.path.startswith("./animated.chunks/") for a in clips)
+    assert all(a.path.startswith("./animated.usda.chunks/") for a in clips)
     ranged = tmp_path / "ranged.usda"
     dist.bake(ANIMATED, str(ranged), 1, chunk_frames=4, frames=(3.5, 20), client=client)
     assert_same_composition(str(single / "animated_3_20.usda"), str(ranged))
@@ -116,7 +116,7 @@ def test_later_chunks_hold_time_samples_only(client, single, tmp_path):
     res = dist.bake(ANIMATED, str(out), 1, chunk_frames=6, client=client)
     assert [u["kind"] for u in res.timings["units"]] == ["frames"] * 4
     assert_same_composition(str(single / "animated.usda"), str(out))
-    folder = tmp_path / "animated.chunks"
+    folder = tmp_path / "animated.usda.chunks"
     plate = "/World/Animated/Plate"
     names = [f"0000_World_Animated_Plate.{k:04d}.usdc" for k in range(4)]
     first = Sdf.Layer.FindOrOpen(str(folder / names[0]))
@@ -208,8 +208,8 @@ def test_killed_worker_tasks_are_rerun(client, single, tmp_path):
     killed = {u for u, pid in started if pid == str(pids[0])}
     assert any(u in killed and pid != str(pids[0]) for u, pid in started)  # a killed unit ran again elsewhere
     assert_same_composition(str(single / "animated.usda"), str(out))
-    assert sorted(os.listdir(out.parent)) == ["animated.chunks", "animated.usda"]
-    assert not [n for n in os.listdir(out.parent / "animated.chunks") if n.startswith(".")]
+    assert sorted(os.listdir(out.parent)) == ["animated.usda", "animated.usda.chunks"]
+    assert not [n for n in os.listdir(out.parent / "animated.usda.chunks") if n.startswith(".")]
 
 
 def test_stitch_farm_chunks(single, tmp_path):
@@ -223,17 +223,17 @@ def test_stitch_farm_chunks(single, tmp_path):
     out = tmp_path / "stitched.usda"
     dist.stitch(files[::-1], str(out))
     assert_same_composition(str(single / "animated.usda"), str(out))
-    assert sorted(os.listdir(tmp_path)) == ["farm", "stitched.stitch", "stitched.usda"]
+    assert sorted(os.listdir(tmp_path)) == ["farm", "stitched.usda", "stitched.usda.stitch"]
     bad = str(tmp_path / "farm" / "bad.usdc")
     refine_usd(ANIMATED, bad, 1, frames=(5, 12))
     with pytest.raises(dist.SubdivInputError, match="overlap"):
         dist.stitch(files + [bad], str(tmp_path / "nope.usda"))
-    assert not os.path.exists(tmp_path / "nope.usda") and not os.path.exists(tmp_path / "nope.stitch")
+    assert not os.path.exists(tmp_path / "nope.usda") and not os.path.exists(tmp_path / "nope.usda.stitch")
     # flattened: the clips' content is copied into the output, and the folder of stitched layers is removed
     flat = tmp_path / "flat.usda"
     dist.stitch(files, str(flat), flatten=True)
     assert_same_composition(str(single / "animated.usda"), str(flat))
-    assert not os.path.exists(tmp_path / "flat.stitch")
+    assert not os.path.exists(tmp_path / "flat.usda.stitch")
 
 
 def test_cli_scheduler_threads_and_stitch(client, single, tmp_path):

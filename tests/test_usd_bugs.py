@@ -493,3 +493,52 @@ def test_frames_must_be_finite(text):
 
     with pytest.raises(SubdivInputError, match="frames .*finite"):
         parse_frames(text)
+
+
+# -- time-sampled primvars whose indexing changes ----------------------------------------------------------
+
+#: (time, values, indices as a function of the element number) of the primvars of reindexed_primvars_scene:
+#: the indices change at 7 (all 0 -> all 1), 10 (alternating) and 13 (three values: USD holds values of
+#: another length), not at 16.
+REINDEXED = [(1.0, [0.0, 10.0], lambda i: 0), (7.0, [0.0, 15.0], lambda i: 1), (10.0, [5.0, 15.0], lambda i: i % 2),
+             (13.0, [1.0, 2.0, 3.0], lambda i: i % 3), (16.0, [2.0, 3.0, 4.0], lambda i: i % 3)]
+#: Times to compare at: samples, sub-frames, just before and after a change, outside the samples.
+REINDEXED_TIMES = [0.0, 1.0, 2.5, 4.0, 6.99, 7.0, 8.5, 10.0, 11.5, 12.99, 13.0, 14.5, 16.0, 17.0]
+
+
+def reindexed_primvars_scene(path, times=REINDEXED):
+    """A 2 x 2 grid with indexed vertex, varying, face-varying and uniform primvars whose values and indices are
+    time-sampled together (``times``)."""
+    pts, counts, idx = grid(2, 2)
+
+    def setup(stage, mesh):
+        api = UsdGeom.PrimvarsAPI(mesh)
+        for name, interp, n in (("v", "vertex", 9), ("vy", "varying", 9), ("fv", "faceVarying", 16),
+                                ("u", "uniform", 4)):
+            pv = api.CreatePrimvar(name, T.FloatArray, interp)
+            for t, values, index in times:
+                pv.Set(Vt.FloatArray(values), t)
+                pv.SetIndices(Vt.IntArray([index(i) for i in range(n)]), t)
+
+    return write_mesh(path, pts, counts, idx, setup=setup)
+
+
+def test_primvars_read_as_the_input_where_their_indices_change(tmp_path):
+    """USD interpolates a primvar's values between samples but holds its indices (and holds values of another
+    length): where the indices change, the input reads the earlier indices with interpolated values until the
+    next sample (at 4 it reads 0 everywhere). The refined primvars, flattened or re-indexed per sample, read as
+    the input at every time, sub-frames included: as the refinement of the input's values at that time."""
+    src = reindexed_primvars_scene(tmp_path / "in.usda")
+    dst = tmp_path / "out.usda"
+    refine_usd(src, str(dst), 1, device="cpu")
+    out = UsdGeom.PrimvarsAPI(out_prim(dst))
+    for t in REINDEXED_TIMES:
+        at_t = tmp_path / f"at_{t}.usda"  # the input as it is at t, refined (its primvars written at t)
+        refine_usd(src, str(at_t), 1, device="cpu", frames=(t, t))
+        expected = UsdGeom.PrimvarsAPI(out_prim(at_t))
+        for name in ("v", "vy", "fv", "u"):
+            got = np.asarray(out.GetPrimvar(name).ComputeFlattened(t))
+            want = np.asarray(expected.GetPrimvar(name).ComputeFlattened(t))
+            np.testing.assert_allclose(got, want, atol=1e-5, err_msg=f"{name} at {t}")
+    src_api = UsdGeom.PrimvarsAPI(out_prim(src))
+    assert np.all(np.asarray(src_api.GetPrimvar("fv").ComputeFlattened(4.0)) == 0.0)  # what the user saw

@@ -12,7 +12,7 @@ import re
 import tempfile
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, Vt
+from pxr import Sdf, Usd, UsdGeom, UsdUtils, Vt
 
 from ..runtime import phases as _phases
 from ..errors import SubdivInputError
@@ -46,9 +46,24 @@ def remove_folders(created) -> None:
             return  # not empty (someone else wrote there) or gone: leave it and its ancestors
 
 
-def check_output_path(output: str, stage: Usd.Stage | None = None) -> str:
+def files_read(stage: Usd.Stage) -> set:
+    """The real paths of the files ``stage`` reads or may read: the layers it uses (its layer stack, the layers
+    it references, the value clips it opened) and every layer and asset its root layer depends on
+    (``UsdUtils.ComputeAllDependencies``: also the references of variants not selected, payloads not loaded and
+    value clips not opened yet), so that a run never writes over anything the input may compose."""
+    paths = [layer.realPath for layer in stage.GetUsedLayers()]
+    root = stage.GetRootLayer()
+    if not root.anonymous:
+        layers, assets, _ = UsdUtils.ComputeAllDependencies(root.identifier)
+        paths += [layer.realPath for layer in layers] + list(assets)
+    return {os.path.realpath(p) for p in paths if p}
+
+
+def check_output_path(output: str, stage: Usd.Stage | None = None, *, folders=(), reads=()) -> str:
     """Absolute output path, as given (symbolic links not resolved: USD anchors the relative sublayer path to
-    the path a layer is opened by); refuses unknown extensions and any file the input stage reads."""
+    the path a layer is opened by); refuses unknown extensions and any file the input ``stage`` reads
+    (:func:`files_read`) or the run reads besides it (``reads``: files). ``folders``: the folders the run
+    replaces next to the output (a distributed bake's chunks): refused where they hold a file read."""
     ext = os.path.splitext(output)[1].lower()
     if ext not in USD_EXTENSIONS:
         raise SubdivInputError(f"{output}: the output of a USD refinement must end in .usd, .usda or .usdc")
@@ -63,12 +78,15 @@ def check_output_path(output: str, stage: Usd.Stage | None = None) -> str:
         raise SubdivInputError(f"{output}: cannot write there: {folder} is not a folder")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise SubdivInputError(f"{output}: cannot write there: {folder} is not writable")
-    if stage is not None:
-        for layer in stage.GetUsedLayers():
-            real = layer.realPath
-            if real and os.path.realpath(real) == out:
-                raise SubdivInputError(f"{output}: the input reads this file ({layer.identifier}); "
-                                       "write the refined layer somewhere else")
+    read = (files_read(stage) if stage is not None else set()) | {os.path.realpath(p) for p in reads}
+    if out in read:
+        raise SubdivInputError(f"{output}: the input reads this file; write the refined layer somewhere else")
+    for replaced in folders:
+        real = os.path.realpath(replaced)
+        inside = sorted(p for p in read if p == real or p.startswith(real + os.sep))
+        if inside:
+            raise SubdivInputError(f"{output}: its folder {replaced} would be replaced, and the input reads "
+                                   f"{inside[0]} there; write the refined layer somewhere else")
     return given
 
 

@@ -19,11 +19,12 @@ meshes of a USD file on a Dask cluster: a local one of ``workers`` worker proces
 
 Every task writes into a temporary folder next to the output. When all succeeded the driver stitches each
 animated mesh's chunks as USD value clips (:func:`stitch_clips`: ``UsdUtils.StitchClipsTopology`` and
-``StitchClipsManifest``, one clip set per mesh on the mesh prim), renames the folder to ``<output
-stem>.chunks`` and writes the output layer last: clip sets, then sublayers ``[topology, per-mesh layers...,
-input]``. Any failure cancels the other tasks and removes the folder, so no output and no chunk file is
-left; a worker that dies has its tasks rerun elsewhere by Dask. Each task applies the memory guard against
-its worker's memory (the worker's memory limit, and ``max_memory`` when given).
+``StitchClipsManifest``, one clip set per mesh on the mesh prim), renames the folder to ``<output>.chunks``
+(:func:`chunk_folder`: ``shot.usdc.chunks``, each output file its own) and writes the output layer last: clip
+sets, then sublayers ``[topology, per-mesh layers..., input]``. A run whose input reads anything in that
+folder is refused before any task starts. Any failure cancels the other tasks and removes the folder, so no
+output and no chunk file is left; a worker that dies has its tasks rerun elsewhere by Dask. Each task applies
+the memory guard against its worker's memory (the worker's memory limit, and ``max_memory`` when given).
 
 :func:`stitch` (``warp-subdiv stitch``) assembles chunk layers that ``warp-subdiv refine --frames A:B`` runs
 wrote (a farm scheduler launching them itself): no Dask needed.
@@ -49,8 +50,9 @@ from ..io.usd_write import (USD_EXTENSIONS, OutputLayer, check_output_path, make
                             remove_folders)
 from ..runtime import threads as th
 from ..runtime.estimate import MemoryGuardError
-from ..version import __version__
 from .planning import PrimReport, make_refiner, plan
+from .clips import animated, clip_range, stitch_clips
+from .record import check_same_refinement, layer_record
 from .refine import Result, refine_usd
 
 #: Fewest time samples a frame chunk holds (an animated mesh with fewer than twice this is one unit).
@@ -208,73 +210,20 @@ def _plan_keywords(run: dict) -> dict:
     return {k: run[k] for k in keep if k in run}
 
 
-# ------------------------------------------------------------------------------------------------ stitching
-def _clip_range(layer: Sdf.Layer, frames) -> tuple:
-    """(start, end) stage times a chunk covers: its frames, its own samples where an end is open."""
-    samples = layer.ListAllTimeSamples()
-    lo = frames[0] if frames and frames[0] is not None else (min(samples) if samples else 0.0)
-    hi = frames[1] if frames and frames[1] is not None else (max(samples) if samples else lo)
-    return float(lo), float(hi)
-
-
-def _animated(layer: Sdf.Layer, path: str) -> bool:
-    """Whether ``layer`` holds time samples at or under ``path``."""
-    found = []
-
-    def visit(p):
-        if not found and p.IsPropertyPath() and layer.GetNumTimeSamplesForPath(p):
-            found.append(p)
-
-    spec = layer.GetPrimAtPath(path)
-    if spec is not None:
-        layer.Traverse(spec.path, visit)
-    return bool(found)
-
-
-def stitch_clips(output_layer: Sdf.Layer, folder: str, clips: dict, topology_sources: list) -> list:
-    """Author USD value clips in ``output_layer``: ``clips`` maps a prim path (the clip set's prim) to its
-    chunks, [(file, start, end)] in time order. Writes into ``folder`` the topology layer (everything the
-    chunks hold that is not time-sampled, from ``topology_sources``: UsdUtils.StitchClipsTopology, the first
-    chunk's defaults winning) and one manifest per clip set (UsdUtils.StitchClipsManifest); returns the
-    topology layer's path (None when there are no clips), for the caller to sublayer.
-
-    Each clip set's ``active`` switches to chunk k at its start and ``times`` maps [start, end] of chunk k
-    onto itself; chunk layers may carry any stage time codes (a ``--frames`` run copies the input's)."""
-    if not clips:
-        return None
-    anchor = os.path.dirname(output_layer.realPath or output_layer.identifier)
-    topo_path = os.path.join(folder, "topology.usdc")
-    topo = Sdf.Layer.CreateNew(topo_path)
-    UsdUtils.StitchClipsTopology(topo, [f for f in topology_sources])
-    topo.subLayerPaths.clear()
-    topo.customLayerData = {}
-    for key in ("startTimeCode", "endTimeCode"):
-        topo.pseudoRoot.ClearInfo(key)
-    topo.Save()
-    stage = Usd.Stage.Open(output_layer)
-    stage.SetEditTarget(Usd.EditTarget(output_layer))
-    for n, (path, chunks) in enumerate(sorted(clips.items())):
-        files = [c[0] for c in chunks]
-        manifest_path = os.path.join(folder, f"manifest.{n:04d}.usdc")
-        manifest = Sdf.Layer.CreateNew(manifest_path)
-        UsdUtils.StitchClipsManifest(manifest, topo, files, Sdf.Path(path))
-        prim = stage.OverridePrim(path)
-        api = Usd.ClipsAPI(prim)
-        api.SetClipAssetPaths(Sdf.AssetPathArray([relative_asset_path(f, anchor) for f in files]))
-        api.SetClipPrimPath(path)
-        api.SetClipActive(Vt.Vec2dArray([(start, k) for k, (_, start, _) in enumerate(chunks)]))
-        times = []
-        for _, start, end in chunks:
-            times += [(start, start), (end, end)]
-        api.SetClipTimes(Vt.Vec2dArray(times))
-        api.SetClipManifestAssetPath(Sdf.AssetPath(relative_asset_path(manifest_path, anchor)))
-    del stage
-    return topo_path
-
-
 # ------------------------------------------------------------------------------------------------ the bake
+def chunk_folder(output: str) -> str:
+    """The folder of a distributed bake's chunks: named after the output's full file name (``shot.usdc`` ->
+    ``shot.usdc.chunks``), so that outputs that differ only in their extension do not share it."""
+    return output + ".chunks"
+
+
+def stitch_folder(output: str) -> str:
+    """The folder of a stitched output's topology and manifests (``shot.usda`` -> ``shot.usda.stitch``)."""
+    return output + ".stitch"
+
+
 class _Folder:
-    """A temporary folder next to the output, renamed to ``final`` (default ``<stem>.chunks``) when it is
+    """A temporary folder next to the output, renamed to ``final`` (default :func:`chunk_folder`) when it is
     complete. As a context manager: everything it holds is discarded when the block fails, and when it succeeds
     the older folder set aside is removed, and the folder itself where the output was flattened (``flatten``:
     its layers were copied into the output)."""
@@ -284,7 +233,7 @@ class _Folder:
         self.flatten = flatten
         parent = os.path.dirname(output)
         self.created = make_folders(parent)
-        self.final = final or os.path.splitext(output)[0] + ".chunks"
+        self.final = final or chunk_folder(output)
         self.path = tempfile.mkdtemp(prefix="." + os.path.basename(self.final) + "-", dir=parent)
         self.old = None
 
@@ -379,7 +328,8 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     flatten = bool(run.pop("flatten", False))
     run.setdefault("max_memory", None)
     p = plan(input_path, levels, **{k: v for k, v in _plan_keywords(run).items()}, prims=run.get("prims"))
-    out_abs = check_output_path(output_path, p.stage)
+    # the chunk folder is replaced as a whole: the input must not read anything in it
+    out_abs = check_output_path(output_path, p.stage, folders=[chunk_folder(os.path.abspath(output_path))])
     run.pop("progress", None)
 
     timings = {"plan_s": _time.perf_counter() - start}
@@ -499,16 +449,10 @@ def _merge(p, units, results):
 def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_workers, timings) -> str:
     """Stitch the chunks, move the folder into place and write the output layer (last)."""
     frames = run.get("frames")
-    custom = {"warpSubdiv": {
-        "version": __version__, "levels": int(levels), "source": os.path.basename(p.input),
-        "prims": Vt.StringArray([sp.path for sp in p.prims]),
-        "rules": Vt.StringArray(sorted({sp.rules for sp in p.prims})),
-        "schemes": Vt.StringArray(sorted({sp.scheme for sp in p.prims})), "limitPoints": bool(run.get("limit")),
-        "normals": bool(run.get("normals")), "flattened": bool(flatten),
-        "distributed": {"workers": int(n_workers), "tasks": len(units)},
-    }}
-    if frames is not None:
-        custom["warpSubdiv"]["frames"] = ":".join("" if v is None else f"{v:g}" for v in frames)
+    custom = layer_record(p, levels, limit=bool(run.get("limit")), normals=bool(run.get("normals")),
+                          semi_sharp=run.get("semi_sharp", "keep"), vertex_order=run.get("vertex_order", "auto"),
+                          all_variants=bool(run.get("all_variants")), flatten=flatten, frames=frames)
+    custom["warpSubdiv"]["distributed"] = {"workers": int(n_workers), "tasks": len(units)}
     layer = OutputLayer(out_abs, p.stage, custom)
     try:
         final = folder.final
@@ -525,7 +469,7 @@ def _write_output(p, out_abs, folder, units, results, levels, run, flatten, n_wo
         # the first chunk of each mesh is the topology's source: one plan refined the chunks, its defaults are
         # the single bake's, and the later chunks hold time samples only (Unit.samples_only)
         firsts = [chunks[0][0] for chunks in clips.values()]
-        topo = stitch_clips(layer.layer, folder.path, clips, firsts) if clips else None
+        topo = stitch_clips(layer.layer, folder.path, clips, firsts, p.stage) if clips else None
         timings["stitch_s"] = _time.perf_counter() - t
         t = _time.perf_counter()
         # asset paths were written for the temporary folder: point them at the final one
@@ -572,14 +516,11 @@ def _retarget(layer: Sdf.Layer, old_dir: str, new_dir: str) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ stitch
-def _plain(value):
-    return list(value) if isinstance(value, Vt.StringArray) else value
-
-
 def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
     """Assemble the layers that ``warp-subdiv refine IN -o CHUNK --frames A:B`` runs wrote (the same input,
     levels and options, frame ranges in any order) into ``output_path``: each animated refined mesh gets a
-    clip set over the chunks, everything else comes from the first chunk (``<stem>.stitch/topology.usdc``).
+    clip set over the chunks, everything else comes from the first chunk (``<output>.stitch/topology.usdc``,
+    :func:`stitch_folder`).
     Chunks stay where they are and are referenced by relative paths. Ranges that share their ends (1:25,
     25:50) interpolate across chunk boundaries; with 1:25, 26:50 values between 25 and 26 hold at 25.
     Returns a :class:`warp_subdiv.usd.Result` (no reports)."""
@@ -606,41 +547,41 @@ def stitch(chunk_paths, output_path: str, *, flatten: bool = False):
             frames = (float(a) if a else None, float(b) if b else None)
         chunks.append((layer, info, source, frames))
     first = chunks[0]
+    check_same_refinement([(layer.realPath, info) for layer, info, _, _ in chunks])
     for layer, info, source, _ in chunks[1:]:
-        for key in ("levels", "prims", "rules", "schemes", "limitPoints", "normals"):
-            if _plain(info.get(key)) != _plain(first[1].get(key)):
-                raise SubdivInputError(f"{layer.realPath}: {key} differs from {first[0].realPath}'s; chunks must "
-                                       "come from one refinement")
         if source != first[2]:
             raise SubdivInputError(f"{layer.realPath}: refines {source}, {first[0].realPath} refines {first[2]}")
-    ranges = [(_clip_range(layer, frames), layer) for layer, _, _, frames in chunks]
+    ranges = [(clip_range(layer, frames), layer) for layer, _, _, frames in chunks]
     ranges.sort(key=lambda r: r[0])
     for (r0, l0), (r1, l1) in zip(ranges, ranges[1:]):
         if r1[0] < r0[1] or r0 == r1:
             raise SubdivInputError(f"{l1.realPath}: its frames {r1[0]:g}:{r1[1]:g} overlap those of {l0.realPath} "
                                    f"({r0[0]:g}:{r0[1]:g}) beyond a shared end")
     out_abs = check_output_path(output_path)
+    files = [layer.realPath for _, layer in ranges]
+    if os.path.realpath(out_abs) in {os.path.realpath(f) for f in files}:
+        raise SubdivInputError(f"{output_path}: is one of the chunks to stitch; write the stitched layer somewhere "
+                               "else")
     if not os.path.exists(first[2]):
         raise SubdivInputError(f"{first[2]}: the chunks' input is missing")
     stage = Usd.Stage.Open(first[2])
-    out_abs = check_output_path(output_path, stage)
-    files = [layer.realPath for _, layer in ranges]
+    out_abs = check_output_path(output_path, stage, folders=[stitch_folder(out_abs)], reads=files)
     prims = list(first[1].get("prims") or [])
     clips = {}
     for path in prims:
-        if any(_animated(layer, path) for _, layer in ranges):
+        if any(animated(layer, path) for _, layer in ranges):
             clips[path] = [(layer.realPath, r[0], r[1]) for r, layer in ranges]
     custom = {"warpSubdiv": dict(first[1])}
     custom["warpSubdiv"]["frames"] = f"{ranges[0][0][0]:g}:{ranges[-1][0][1]:g}"
     custom["warpSubdiv"]["stitched"] = Vt.StringArray([relative_asset_path(f, os.path.dirname(out_abs))
                                                        for f in files])
     custom["warpSubdiv"]["flattened"] = bool(flatten)
-    with _Folder(out_abs, os.path.splitext(out_abs)[0] + ".stitch", flatten=flatten) as folder:
+    with _Folder(out_abs, stitch_folder(out_abs), flatten=flatten) as folder:
         layer = OutputLayer(out_abs, stage, custom)
         try:
             # one refinement wrote every chunk: their static content is the same, the first one's defaults
             # are those of a run over all the frames
-            topo = stitch_clips(layer.layer, folder.path, clips, files[:1])
+            topo = stitch_clips(layer.layer, folder.path, clips, files[:1], stage)
             if topo is None:  # nothing animated: the first chunk's content is the topology
                 topo = os.path.join(folder.path, "topology.usdc")
                 t = Sdf.Layer.CreateNew(topo)

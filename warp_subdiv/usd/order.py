@@ -35,6 +35,14 @@ def check_vertex_order(value) -> str:
     return value
 
 
+def resolved_vertex_order(vertex_order: str, options) -> str:
+    """The order a mesh refined with ``options`` is written in: "compact" or "opensubdiv" ("auto": compact
+    for the piecewise-smooth rules)."""
+    if vertex_order == "compact" or (vertex_order == "auto" and options.piecewise_smooth):
+        return "compact"
+    return "opensubdiv"
+
+
 def appearance_order(indices: np.ndarray, num: int, keep: int = 0):
     """(new id of every old id (num,), old id of every new id (num,)), int32 (int64 beyond its range): ids below
     ``keep`` keep their number; the others are numbered from ``keep`` in the order ``indices`` first uses them,

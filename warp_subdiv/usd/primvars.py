@@ -9,7 +9,7 @@ else linearly per face.
 from __future__ import annotations
 
 import numpy as np
-from pxr import Sdf
+from pxr import Sdf, Usd
 
 from ..errors import SubdivInputError
 from ..io.usd_read import SubdivPrim
@@ -54,8 +54,15 @@ def write_primvars(sp, layer, prim, refinement, fvar_mode, warnings, limit, time
 def write_primvar(sp, pv, layer, prim, refinement, fvar_mode=None, warnings=None, limit=False, times=None):
     """Refine one primvar at ``times`` (default: the default time and each of its selected samples). A default
     that does not fit the mesh beside time samples gives way to the first selected sample (with a warning).
-    ``limit``: vertex and face-varying values are limit values (as the points are with ``limit``)."""
+    ``limit``: vertex and face-varying values are limit values (as the points are with ``limit``). Where the
+    input's indexing changes at a sample, the primvar is also written just before it (:func:`held_time`)."""
+    previous = None
     for t in ([DEFAULT] + list(pv.times)) if times is None else times:
+        if t != DEFAULT:
+            held = held_time(pv, previous, t) if previous is not None else None
+            if held is not None:
+                write_primvar_at(sp, pv, held, layer, prim, refinement, fvar_mode, limit)
+            previous = t
         try:
             write_primvar_at(sp, pv, t, layer, prim, refinement, fvar_mode, limit)
         except SubdivInputError as exc:
@@ -65,6 +72,31 @@ def write_primvar(sp, pv, layer, prim, refinement, fvar_mode=None, warnings=None
             if warnings is not None:
                 warnings.append(f"{sp.path}: {pv.name} default does not fit the mesh ({str(exc).split(': ', 1)[-1]})"
                                 f": the sample at time {pv.times[0]:g} stands in for it")
+
+
+def held_time(pv, previous: float, t: float):
+    """The time just before sample ``t`` (the written time before it: ``previous``) at which primvar ``pv`` is
+    written as the input reads it there, or None where none is needed.
+
+    USD interpolates an indexed primvar's values between two samples but holds its indices (and holds values
+    whose count changes): up to ``t`` the input reads the earlier indices with values interpolated towards
+    those of ``t``. Refined samples are flattened (vertex and varying) or indexed anew (face-varying) per
+    sample, and USD would interpolate from the earlier refined values to those of ``t``, which another indexing
+    built. Where the indexing changes at ``t``, the refinement of the input as it reads a step before ``t``
+    (``Usd.TimeCode.SafeStep``) ends the earlier stretch, so that the output reads as the input at every time
+    but within that step. Indexed uniform primvars need none: their values are the input's, under indices
+    that are remapped, and held, alike."""
+    if not pv.indexed or pv.interpolation == "uniform":
+        return None
+    before = t - Usd.TimeCode.SafeStep(max(1e6, abs(t)))
+    if before <= previous:
+        return None
+    (values, indices), (values_at, indices_at) = pv.raw(before), pv.raw(t)
+    if values is None or values_at is None:
+        return None
+    if len(values) == len(values_at) and np.array_equal(np.asarray(indices), np.asarray(indices_at)):
+        return None
+    return before
 
 
 @_phases.timed("refine")

@@ -40,19 +40,18 @@ import time as _time
 from dataclasses import dataclass, field
 
 import numpy as np
-from pxr import Vt
 
 from ..errors import SubdivInputError
 from ..io.usd_write import OutputLayer, check_output_path
 from ..refiner import Refiner
 from ..runtime import phases as _phases
 from ..runtime.estimate import check_memory, total_bytes
-from ..version import __version__
 from .ahead import Ahead
 from .batching import Batches
 from .order import check_vertex_order
 from .output_layout import layout
 from .planning import Plan, make_refiner, plan
+from .record import layer_record
 from .refinement import MeshRefinement
 from .writer import PrimWriter
 
@@ -221,15 +220,8 @@ def refine_usd(
              device=device, all_variants=all_variants, shipped=shipped)
     out_abs = check_output_path(output_path, p.stage)
     check_memory(p.estimates, max_memory, levels)
-    custom = {"warpSubdiv": {
-        "version": __version__, "levels": int(levels), "source": os.path.basename(input_path),
-        "prims": Vt.StringArray([sp.path for sp in p.prims]),
-        "rules": Vt.StringArray(sorted({sp.rules for sp in p.prims})),
-        "schemes": Vt.StringArray(sorted({sp.scheme for sp in p.prims})), "limitPoints": bool(limit),
-        "normals": bool(normals), "flattened": bool(flatten), "allVariants": bool(all_variants),
-    }}
-    if frames is not None:
-        custom["warpSubdiv"]["frames"] = ":".join("" if v is None else f"{v:g}" for v in frames)
+    custom = layer_record(p, levels, limit=limit, normals=normals, semi_sharp=semi_sharp, vertex_order=vertex_order,
+                          all_variants=all_variants, flatten=flatten, frames=frames)
     layer = OutputLayer(out_abs, p.stage, custom)
     bake = None
     try:

@@ -14,7 +14,7 @@ from ..refiner import Refiner
 from ..runtime import phases as _phases
 from ..tables import FaceMap, corners_to_vertices, vertices_used
 from .batching import points_key
-from .order import OrderedRefiner
+from .order import OrderedRefiner, resolved_vertex_order
 from .primvars import face_varying_input
 from .subsets import EdgeMap
 
@@ -44,7 +44,7 @@ class MeshRefinement:
                  vertex_order="opensubdiv", prepared: dict | None = None):
         self.sp = sp
         self._prepared = prepared  # results by control points
-        if vertex_order == "compact" or (vertex_order == "auto" and options.piecewise_smooth):
+        if resolved_vertex_order(vertex_order, options) == "compact":
             refiner = OrderedRefiner(refiner)  # the same results, numbered to compress well
         self.refiner = refiner
         self.counts, self.indices = refiner.topology()
