@@ -295,3 +295,19 @@ def test_reindexed_primvars_agree_with_the_single_bake_at_chunk_ends(client, tmp
                 np.testing.assert_allclose(np.asarray(got.GetPrimvar(name).ComputeFlattened(t)),
                                            np.asarray(want.GetPrimvar(name).ComputeFlattened(t)), atol=1e-6,
                                            err_msg=f"{out} {name} at {t}")
+
+
+def test_a_published_chunk_folder_is_readable_as_a_new_folder_would_be(tmp_path):
+    """The chunk folder is made with mkdtemp (0700) and renamed into place: once published it has the mode a
+    folder made with os.mkdir gets (0777 less the umask), or other users could not read the chunks the output
+    composes."""
+    from warp_subdiv.usd.distributed import _Folder
+
+    old = os.umask(0o022)
+    try:
+        folder = _Folder(str(tmp_path / "shot.usdc"))
+        folder.publish()
+        folder.done()
+    finally:
+        os.umask(old)
+    assert oct(os.stat(tmp_path / "shot.usdc.chunks").st_mode & 0o777) == oct(0o755)

@@ -46,6 +46,7 @@ from dataclasses import asdict, dataclass
 from pxr import Sdf, Usd, UsdUtils, Vt
 
 from ..errors import SubdivInputError
+from ..io.files import current_umask
 from ..io.usd_write import (USD_EXTENSIONS, OutputLayer, check_output_path, make_folders, relative_asset_path,
                             remove_folders)
 from ..runtime import threads as th
@@ -251,6 +252,7 @@ class _Folder:
             self.old = tempfile.mkdtemp(prefix="." + os.path.basename(self.final) + "-old-",
                                         dir=os.path.dirname(self.final))
             os.replace(self.final, os.path.join(self.old, "chunks"))
+        os.chmod(self.path, 0o777 & ~current_umask())  # mkdtemp's 0700 would keep other users out of the chunks
         os.replace(self.path, self.final)
         self.path = self.final
 
