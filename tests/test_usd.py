@@ -112,6 +112,28 @@ def test_output_layer_sublayers_the_input_and_keeps_stage_metadata(refined_scene
     assert stage.GetPrimAtPath("/World/Looks/Red").IsValid()
 
 
+def test_output_layer_keeps_the_input_custom_layer_data(tmp_path):
+    """The output becomes the stage's root layer: the input root layer's customLayerData (render settings,
+    studio tags) is kept in it, beside the bake's own entries under warpSubdiv, which replace those of an
+    input that was itself baked. A flattened output keeps them too."""
+    pts, counts, idx = grid(1, 1)
+
+    def tags(stage, mesh):
+        stage.GetRootLayer().customLayerData = {
+            "renderSettings": {"samples": 64, "camera": "/World/Cam"}, "studio": "shot_010",
+            "warpSubdiv": {"levels": 9}}
+
+    src = write_mesh(tmp_path / "in.usda", pts, counts, idx, setup=tags)
+    for flatten in (False, True):
+        dst = tmp_path / f"out_{flatten}.usda"
+        refine_usd(src, str(dst), 1, device="cpu", flatten=flatten)
+        data = Sdf.Layer.FindOrOpen(str(dst)).customLayerData
+        assert data["renderSettings"] == {"samples": 64, "camera": "/World/Cam"}, data
+        assert data["studio"] == "shot_010"
+        assert data["warpSubdiv"]["levels"] == 1 and data["warpSubdiv"]["flattened"] == flatten
+        assert dict(opened(str(dst)).GetRootLayer().customLayerData)["studio"] == "shot_010"
+
+
 @pytest.mark.parametrize("ext,binary", [(".usdc", True), (".usd", True), (".usda", False)])
 def test_output_formats(tmp_path, ext, binary):
     dst = tmp_path / ("out" + ext)

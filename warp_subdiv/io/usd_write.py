@@ -19,7 +19,8 @@ from ..errors import SubdivInputError
 from .usd_stage import DEFAULT, times_for_frames
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc")
-#: Layer metadata that is the input's own business and is not copied to the output layer.
+#: Layer metadata that is the input's own business and is not copied to the output layer (customLayerData is
+#: merged with the bake's own, :class:`OutputLayer`).
 _NOT_COPIED = {"subLayers", "subLayerOffsets", "primChildren", "comment", "documentation", "customLayerData",
                "owner", "sessionOwner", "hasOwnedSubLayers"}
 
@@ -95,7 +96,8 @@ def relative_asset_path(target: str, anchor_dir: str) -> str:
 
 
 class OutputLayer:
-    """The refined layer under construction, at a temporary path in the output's folder."""
+    """The refined layer under construction, at a temporary path in the output's folder. It takes the input
+    root layer's metadata (stage metadata, customLayerData merged with ``custom_data``, whose keys win)."""
 
     def __init__(self, output: str, input_stage: Usd.Stage, custom_data: dict | None = None):
         self.output = output
@@ -120,8 +122,12 @@ class OutputLayer:
             src_path = source.realPath or source.identifier
             self.source = src_path
             self.layer.subLayerPaths.append(relative_asset_path(src_path, folder))
-            if custom_data:
-                self.layer.customLayerData = custom_data
+            # the output becomes the stage's root layer: the input root layer's customLayerData (render
+            # settings, studio tags) stays with it, the bake's own entries (one key) replacing the input's
+            custom = dict(source.customLayerData)
+            custom.update(custom_data or {})
+            if custom:
+                self.layer.customLayerData = custom
         except BaseException:
             self.discard()
             raise
