@@ -154,10 +154,10 @@ class OutputLayer:
 
     @_phases.timed("write")
     def copy(self, source, dest) -> None:
-        """Copy the spec at ``source`` (a refined mesh, its attributes, time samples and children) to ``dest``
-        (which may lie inside a variant), replacing what ``dest`` held."""
+        """Copy the spec at ``source`` (a refined mesh, its attributes, time samples and children; or one
+        attribute) to ``dest`` (which may lie inside a variant), replacing what ``dest`` held."""
         dest = Sdf.Path(str(dest))
-        Sdf.CreatePrimInLayer(self.layer, dest)  # its parents, variant sets and variants
+        Sdf.CreatePrimInLayer(self.layer, dest.GetPrimPath())  # its parents, variant sets and variants
         if not Sdf.CopySpec(self.layer, Sdf.Path(str(source)), self.layer, dest):
             raise SubdivInputError(f"{self.output}: could not copy {source} to {dest}")
 
@@ -171,6 +171,12 @@ class OutputLayer:
         spec = self.layer.GetPrimAtPath(Sdf.Path(str(path)))
         if spec is not None:
             spec.referenceList.prependedItems.remove(Sdf.Reference("", Sdf.Path(str(target))))
+
+    def remove(self, path) -> None:
+        """Remove the prim spec at ``path`` and everything under it."""
+        spec = self.layer.GetPrimAtPath(Sdf.Path(str(path)))
+        if spec is not None:
+            del spec.realNameParent.nameChildren[spec.name]
 
     def container(self, path) -> None:
         """The root prim that holds refined prototypes and shared meshes: a class, so that it is not part of

@@ -27,7 +27,8 @@ refiner per distinct control mesh.
 Transforms, materials, relationships and every other prim come from the input unchanged.
 
 The steps of a bake live in the modules of this package: the plan (:mod:`~warp_subdiv.usd.planning`), the
-layout of the output (:mod:`~warp_subdiv.usd.output_layout`), the batches of small meshes
+layout of the output (:mod:`~warp_subdiv.usd.output_layout`) and the check that it composes to the refined
+data (:mod:`~warp_subdiv.usd.composition`), the batches of small meshes
 (:mod:`~warp_subdiv.usd.batching`), the meshes refined ahead on worker threads (:mod:`~warp_subdiv.usd.ahead`),
 each mesh's refinement (:mod:`~warp_subdiv.usd.refinement`) and writer (:mod:`~warp_subdiv.usd.writer`,
 :mod:`~warp_subdiv.usd.primvars`, :mod:`~warp_subdiv.usd.subsets`). What they share is held by one
