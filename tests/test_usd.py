@@ -158,6 +158,33 @@ def test_flatten_writes_a_self_contained_layer(tmp_path):
     assert composed.GetAttribute("cornerIndices").Get() is None  # still blocked
 
 
+def test_flatten_with_all_variants_is_refused(tmp_path):
+    """A flattened layer is the composed stage: it holds the selected variant of each variant set only, so
+    flatten would drop every variant that all_variants refined. The combination is refused before anything is
+    read or written, naming both options (tessellate too, which checks when it writes)."""
+    from test_usd_production import new_stage, place, write_asset
+    from warp_subdiv.usd.tessellate import tessellate_file
+
+    asset = write_asset(tmp_path / "cube.usda")
+    src = tmp_path / "scene.usda"
+    stage = new_stage(src)
+    place(stage, "/World/A", asset)
+    stage.Save()
+    before = digest(str(src))
+    dst = tmp_path / "flat.usda"
+    with pytest.raises(SubdivInputError, match="all_variants and flatten cannot be combined") as err:
+        refine_usd(str(src), str(dst), 1, device="cpu", all_variants=True, flatten=True)
+    assert err.value.option == ("all_variants", "flatten")
+    with pytest.raises(SubdivInputError, match="all_variants and flatten cannot be combined"):
+        tessellate_file(str(src), str(dst), rate=2, device="cpu", all_variants=True, flatten=True)
+    assert not dst.exists() and not [f for f in os.listdir(tmp_path) if f.startswith(".warp-subdiv-")]
+    assert digest(str(src)) == before
+    # either alone works: the variants are kept in an override layer, or the selected one flattened
+    refine_usd(str(src), str(tmp_path / "variants.usda"), 1, device="cpu", all_variants=True)
+    refine_usd(str(src), str(dst), 1, device="cpu", flatten=True)
+    assert list(Sdf.Layer.FindOrOpen(str(dst)).subLayerPaths) == []
+
+
 def test_frames_select_time_samples(tmp_path):
     src = os.path.join(SCENES_DIR, "animated.usda")
     dst = tmp_path / "frames.usda"

@@ -85,6 +85,20 @@ def check_output_path(output: str, stage: Usd.Stage | None = None) -> str:
     return given
 
 
+def check_flatten(flatten: bool, all_variants: bool) -> None:
+    """Refuse ``flatten`` with ``all_variants``: a flattened layer is the composed stage, which holds the
+    selected variant of each variant set only (``Usd.Stage.Flatten``), so every other variant refined would be
+    dropped. Flattening the output's layer stack instead (``UsdUtils.FlattenLayerStack``) keeps the variant
+    sets but also the input's references and payloads: not the self-contained layer ``flatten`` promises."""
+    if flatten and all_variants:
+        raise SubdivInputError(
+            "all_variants and flatten cannot be combined: a flattened layer is the composed stage, which holds the "
+            "selected variant of each variant set only, so the variants refined with all_variants would be "
+            "dropped; refine with all_variants alone (a layer over the input that keeps every variant set) or "
+            "with flatten alone (one self-contained layer of the selected variants)",
+            option=("all_variants", "flatten"))
+
+
 def relative_asset_path(target: str, anchor_dir: str) -> str:
     """``target`` relative to ``anchor_dir`` as an anchored USD asset path ("./x.usda", "../a/x.usd")."""
     try:
@@ -223,9 +237,11 @@ class OutputLayer:
     # -- finishing -------------------------------------------------------------------------------------
     @_phases.timed("write")
     def commit(self, flatten: bool = False) -> None:
-        """Save (or flatten) to the temporary file and rename it over the output."""
+        """Save (or flatten) to the temporary file and rename it over the output. A layer that records
+        variants refined with all_variants (customLayerData) is not flattened (:func:`check_flatten`)."""
         try:
             if flatten:
+                check_flatten(flatten, bool((self.layer.customLayerData.get("warpSubdiv") or {}).get("allVariants")))
                 stage = Usd.Stage.Open(self.layer)
                 flat = stage.Flatten()
                 del stage
