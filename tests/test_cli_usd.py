@@ -68,6 +68,8 @@ IN_PROCESS = {
     "bad size": (["refine", SCENE, "-o", "{work}/p5.usda", "--levels", "1", "--max-memory", "lots"],
                  "--max-memory 'lots'", "p5.usda"),
     "output is input": (["refine", SCENE, "-o", SCENE, "--levels", "1"], "the input reads this file", None),
+    "flatten all variants": (["refine", SCENE, "-o", "{work}/p6.usda", "--levels", "1", "--all-variants", "--flatten"],
+                             "--flatten cannot be combined", "p6.usda"),
 }
 
 

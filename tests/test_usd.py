@@ -112,6 +112,28 @@ def test_output_layer_sublayers_the_input_and_keeps_stage_metadata(refined_scene
     assert stage.GetPrimAtPath("/World/Looks/Red").IsValid()
 
 
+def test_output_layer_keeps_the_input_custom_layer_data(tmp_path):
+    """The output becomes the stage's root layer: the input root layer's customLayerData (render settings,
+    studio tags) is kept in it, beside the bake's own entries under warpSubdiv, which replace those of an
+    input that was itself baked. A flattened output keeps them too."""
+    pts, counts, idx = grid(1, 1)
+
+    def tags(stage, mesh):
+        stage.GetRootLayer().customLayerData = {
+            "renderSettings": {"samples": 64, "camera": "/World/Cam"}, "studio": "shot_010",
+            "warpSubdiv": {"levels": 9}}
+
+    src = write_mesh(tmp_path / "in.usda", pts, counts, idx, setup=tags)
+    for flatten in (False, True):
+        dst = tmp_path / f"out_{flatten}.usda"
+        refine_usd(src, str(dst), 1, device="cpu", flatten=flatten)
+        data = Sdf.Layer.FindOrOpen(str(dst)).customLayerData
+        assert data["renderSettings"] == {"samples": 64, "camera": "/World/Cam"}, data
+        assert data["studio"] == "shot_010"
+        assert data["warpSubdiv"]["levels"] == 1 and data["warpSubdiv"]["flattened"] == flatten
+        assert dict(opened(str(dst)).GetRootLayer().customLayerData)["studio"] == "shot_010"
+
+
 @pytest.mark.parametrize("ext,binary", [(".usdc", True), (".usd", True), (".usda", False)])
 def test_output_formats(tmp_path, ext, binary):
     dst = tmp_path / ("out" + ext)
@@ -134,6 +156,33 @@ def test_flatten_writes_a_self_contained_layer(tmp_path):
     assert prim.specifier == Sdf.SpecifierDef and prim.attributes["subdivisionScheme"].default == "none"
     composed = opened(str(dst)).GetPrimAtPath("/World/PiecewiseSmooth/LPlate")
     assert composed.GetAttribute("cornerIndices").Get() is None  # still blocked
+
+
+def test_flatten_with_all_variants_is_refused(tmp_path):
+    """A flattened layer is the composed stage: it holds the selected variant of each variant set only, so
+    flatten would drop every variant that all_variants refined. The combination is refused before anything is
+    read or written, naming both options (tessellate too, which checks when it writes)."""
+    from test_usd_production import new_stage, place, write_asset
+    from warp_subdiv.usd.tessellate import tessellate_file
+
+    asset = write_asset(tmp_path / "cube.usda")
+    src = tmp_path / "scene.usda"
+    stage = new_stage(src)
+    place(stage, "/World/A", asset)
+    stage.Save()
+    before = digest(str(src))
+    dst = tmp_path / "flat.usda"
+    with pytest.raises(SubdivInputError, match="all_variants and flatten cannot be combined") as err:
+        refine_usd(str(src), str(dst), 1, device="cpu", all_variants=True, flatten=True)
+    assert err.value.option == ("all_variants", "flatten")
+    with pytest.raises(SubdivInputError, match="all_variants and flatten cannot be combined"):
+        tessellate_file(str(src), str(dst), rate=2, device="cpu", all_variants=True, flatten=True)
+    assert not dst.exists() and not [f for f in os.listdir(tmp_path) if f.startswith(".warp-subdiv-")]
+    assert digest(str(src)) == before
+    # either alone works: the variants are kept in an override layer, or the selected one flattened
+    refine_usd(str(src), str(tmp_path / "variants.usda"), 1, device="cpu", all_variants=True)
+    refine_usd(str(src), str(dst), 1, device="cpu", flatten=True)
+    assert list(Sdf.Layer.FindOrOpen(str(dst)).subLayerPaths) == []
 
 
 def test_frames_select_time_samples(tmp_path):

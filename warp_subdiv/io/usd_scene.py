@@ -67,12 +67,15 @@ class Occurrence:
 
 @dataclass
 class SiteRef:
-    """An internal reference to a prototype's refined content (site ``site``), authored at ``dest``."""
+    """An internal reference to a prototype's refined content (site ``site``), authored at ``dest``, for the
+    instance prim ``composed`` (in configuration ``config``), whose USD prototype is ``prototype``: instances
+    of one USD prototype compose alike."""
 
     dest: Sdf.Path
     site: str
     composed: str
     config: object = None
+    prototype: str = ""
 
 
 @dataclass
@@ -312,7 +315,7 @@ class _Explorer:
             key = self.instance_site(cfg, prim)
             if key is not None:
                 site.refs.append(SiteRef(self.dest(prim.GetPath(), site_root, dest_root, fixed), key,
-                                         str(prim.GetPath()), cfg))
+                                         str(prim.GetPath()), cfg, str(prim.GetPrototype().GetPath())))
         return site
 
     def instance_site(self, cfg, inst) -> str | None:

@@ -20,7 +20,8 @@ from .files import publish
 from .usd_stage import DEFAULT, times_for_frames
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc")
-#: Layer metadata that is the input's own business and is not copied to the output layer.
+#: Layer metadata that is the input's own business and is not copied to the output layer (customLayerData is
+#: merged with the bake's own, :class:`OutputLayer`).
 _NOT_COPIED = {"subLayers", "subLayerOffsets", "primChildren", "comment", "documentation", "customLayerData",
                "owner", "sessionOwner", "hasOwnedSubLayers"}
 
@@ -90,6 +91,20 @@ def check_output_path(output: str, stage: Usd.Stage | None = None, *, folders=()
     return given
 
 
+def check_flatten(flatten: bool, all_variants: bool) -> None:
+    """Refuse ``flatten`` with ``all_variants``: a flattened layer is the composed stage, which holds the
+    selected variant of each variant set only (``Usd.Stage.Flatten``), so every other variant refined would be
+    dropped. Flattening the output's layer stack instead (``UsdUtils.FlattenLayerStack``) keeps the variant
+    sets but also the input's references and payloads: not the self-contained layer ``flatten`` promises."""
+    if flatten and all_variants:
+        raise SubdivInputError(
+            "all_variants and flatten cannot be combined: a flattened layer is the composed stage, which holds the "
+            "selected variant of each variant set only, so the variants refined with all_variants would be "
+            "dropped; refine with all_variants alone (a layer over the input that keeps every variant set) or "
+            "with flatten alone (one self-contained layer of the selected variants)",
+            option=("all_variants", "flatten"))
+
+
 def relative_asset_path(target: str, anchor_dir: str) -> str:
     """``target`` relative to ``anchor_dir`` as an anchored USD asset path ("./x.usda", "../a/x.usd")."""
     try:
@@ -101,7 +116,8 @@ def relative_asset_path(target: str, anchor_dir: str) -> str:
 
 
 class OutputLayer:
-    """The refined layer under construction, at a temporary path in the output's folder."""
+    """The refined layer under construction, at a temporary path in the output's folder. It takes the input
+    root layer's metadata (stage metadata, customLayerData merged with ``custom_data``, whose keys win)."""
 
     def __init__(self, output: str, input_stage: Usd.Stage, custom_data: dict | None = None):
         self.output = output
@@ -126,8 +142,12 @@ class OutputLayer:
             src_path = source.realPath or source.identifier
             self.source = src_path
             self.layer.subLayerPaths.append(relative_asset_path(src_path, folder))
-            if custom_data:
-                self.layer.customLayerData = custom_data
+            # the output becomes the stage's root layer: the input root layer's customLayerData (render
+            # settings, studio tags) stays with it, the bake's own entries (one key) replacing the input's
+            custom = dict(source.customLayerData)
+            custom.update(custom_data or {})
+            if custom:
+                self.layer.customLayerData = custom
         except BaseException:
             self.discard()
             raise
@@ -154,10 +174,10 @@ class OutputLayer:
 
     @_phases.timed("write")
     def copy(self, source, dest) -> None:
-        """Copy the spec at ``source`` (a refined mesh, its attributes, time samples and children) to ``dest``
-        (which may lie inside a variant), replacing what ``dest`` held."""
+        """Copy the spec at ``source`` (a refined mesh, its attributes, time samples and children; or one
+        attribute) to ``dest`` (which may lie inside a variant), replacing what ``dest`` held."""
         dest = Sdf.Path(str(dest))
-        Sdf.CreatePrimInLayer(self.layer, dest)  # its parents, variant sets and variants
+        Sdf.CreatePrimInLayer(self.layer, dest.GetPrimPath())  # its parents, variant sets and variants
         if not Sdf.CopySpec(self.layer, Sdf.Path(str(source)), self.layer, dest):
             raise SubdivInputError(f"{self.output}: could not copy {source} to {dest}")
 
@@ -171,6 +191,12 @@ class OutputLayer:
         spec = self.layer.GetPrimAtPath(Sdf.Path(str(path)))
         if spec is not None:
             spec.referenceList.prependedItems.remove(Sdf.Reference("", Sdf.Path(str(target))))
+
+    def remove(self, path) -> None:
+        """Remove the prim spec at ``path`` and everything under it."""
+        spec = self.layer.GetPrimAtPath(Sdf.Path(str(path)))
+        if spec is not None:
+            del spec.realNameParent.nameChildren[spec.name]
 
     def container(self, path) -> None:
         """The root prim that holds refined prototypes and shared meshes: a class, so that it is not part of
@@ -217,9 +243,11 @@ class OutputLayer:
     # -- finishing -------------------------------------------------------------------------------------
     @_phases.timed("write")
     def commit(self, flatten: bool = False) -> None:
-        """Save (or flatten) to the temporary file and rename it over the output."""
+        """Save (or flatten) to the temporary file and rename it over the output. A layer that records
+        variants refined with all_variants (customLayerData) is not flattened (:func:`check_flatten`)."""
         try:
             if flatten:
+                check_flatten(flatten, bool((self.layer.customLayerData.get("warpSubdiv") or {}).get("allVariants")))
                 stage = Usd.Stage.Open(self.layer)
                 flat = stage.Flatten()
                 del stage

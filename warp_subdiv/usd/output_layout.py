@@ -1,6 +1,7 @@
 """Where a bake writes the refined data in its output layer (:class:`Layout`, :func:`layout`): each distinct
 input's home, the copies of it, the internal references of instances and shared meshes; and the check that
-the composed output shows the refined data.
+the composed output shows the refined data (made by :mod:`~warp_subdiv.usd.composition`, which also repairs
+the output where an opinion of the input is stronger than the arc that brings the refined data).
 
 Meshes inside scene-graph instances go into a refined prototype (``/__warpSubdiv/Prototype_<n>``, under a
 class) that every instance of the prototype references; identical meshes elsewhere are refined once and
@@ -13,18 +14,15 @@ from dataclasses import dataclass
 
 from pxr import Sdf
 
-from ..errors import SubdivInputError
-from ..io.usd_stage import DEFAULT
 from ..io.usd_write import OutputLayer
 from ..runtime import phases as _phases
+from .composition import CheckedMesh, CompositionCheck, Instances
 from .planning import Plan
 
 
 #: The root prim of the output layer that holds refined prototypes and shared meshes (a class: not part of the
 #: scene; a suffix is added where the input has a prim of that name).
 CONTAINER = "__warpSubdiv"
-#: The attributes whose composed values must come from the refined data (checked on the output).
-_CHECKED = ("subdivisionScheme", "faceVertexCounts", "faceVertexIndices", "points")
 
 
 @dataclass
@@ -59,34 +57,69 @@ class Layout:
     @_phases.timed("write")
     def check(self, layer: OutputLayer, p: Plan, reports, *, samples_only: bool = False) -> None:
         """Compose the output (in each variant configuration that was read) and check that every refined mesh
-        composes to its refined data: the strongest opinion of its topology, points and scheme must be the
-        output layer's. A shared mesh that fails gets its own copy; anything else is an error naming the
-        input's opinion that wins. ``samples_only``: the layer holds no default values (see :func:`refine_usd`),
-        only the scheme, which it still holds, is checked."""
-        scene = p.scene
+        composes to its refined data: the strongest opinion of every attribute written at its unit's home must
+        hold the refined value (:class:`~warp_subdiv.usd.composition.CompositionCheck`). A shared mesh where
+        one does not gets its own copy; elsewhere the stronger opinion of the input is overridden with the
+        refined value at its own site; what cannot be repaired is an error naming the opinion that wins.
+        ``samples_only``: the layer holds no default values (see :func:`refine_usd`), only the scheme, which
+        it still holds, is checked."""
         faces = {key: rep.faces_out for key, rep in zip(p.keys, reports)}
-        todo = [(o.composed, o.config, o.key, o.dest if o.dest in self.shared else None) for o in scene.top.meshes]
+        todo = [CheckedMesh(o.composed, o.config, o.key, o.dest if o.dest in self.shared else None,
+                            o.dest not in self.shared and o.dest == Sdf.Path(o.composed))
+                for o in p.scene.top.meshes]
+        instanced, groups = self._instanced_meshes(p.scene)
+        owners = {home: key for key, home in self.homes.items()}
+        for key, paths in self.copies.items():
+            owners.update((path, key) for path in paths)
+        shared = set(self.shared.values())
+        CompositionCheck(layer, self.homes, owners, faces, samples_only).run(
+            todo + instanced, lambda mesh: self._unshare(layer, mesh, owners), groups)
+        self._drop_unreferenced(layer, shared)
+
+    def _instanced_meshes(self, scene) -> tuple:
+        """The meshes of refined prototypes to check: (meshes, :class:`~warp_subdiv.usd.composition.Instances`):
+        the meshes of prototypes reached through nested instances only, as read; the others as read through one
+        top-level instance, and through one other top-level instance of each other USD prototype that
+        references the refined prototype in the same configuration (instances of one USD prototype compose
+        alike, those of different ones may not: a class one of them inherits, a variant authored on it)."""
+        meshes, groups = [], []
         for key in self.prototypes:
-            todo += [(o.composed, o.config, o.key, None) for o in scene.sites[key].meshes]
-        by_config: dict = {}
-        for item in todo:
-            by_config.setdefault(item[1], []).append(item)
-        for config, items in by_config.items():
-            stage = config.open(layer.layer)
-            for composed, _, key, shared in items:
-                bad = _losing_opinion(stage.GetPrimAtPath(composed), layer.layer, faces[key], samples_only)
-                if bad is None:
-                    continue
-                if shared is not None:  # the reference loses: write the mesh's own copy instead
-                    layer.unreference(shared, self.homes[key])
-                    layer.copy(self.homes[key], shared)
-                    continue
-                where = "".join(f" with {vset} = {v} on {path}" for path, vset, v in config.selections)
-                raise SubdivInputError(
-                    f"{composed}: the refined mesh written for it{where} does not compose: {bad} is stronger "
-                    "(an opinion outside the variant or instance that carries the refined data); refine without "
-                    "all_variants, or move the mesh into a referenced asset")
-            del stage
+            site = scene.sites[key].meshes
+            refs = [r for r in scene.top.refs if r.site == key]
+            read = next((r for r in refs if site and Sdf.Path(site[0].composed).HasPrefix(Sdf.Path(r.composed))),
+                        None)
+            if read is None:  # reached through nested instances only: checked through the one it was read in
+                meshes += [CheckedMesh(o.composed, o.config, o.key) for o in site]
+                continue
+            kept = {read.prototype: read.composed}
+            for r in refs:
+                if r.config == read.config:
+                    kept.setdefault(r.prototype, r.composed)
+            groups.append(Instances([CheckedMesh(o.composed, o.config, o.key) for o in site], read.composed,
+                                    list(kept.values())))
+        return meshes, groups
+
+    def _unshare(self, layer: OutputLayer, mesh, owners: dict) -> None:
+        """Give a mesh that references a shared refined mesh its own copy instead (a local opinion of the output
+        layer, stronger than the input's opinions that the reference loses to)."""
+        home = self.homes[mesh.key]
+        layer.unreference(mesh.shared, home)
+        layer.copy(home, mesh.shared)
+        self.refs.remove((mesh.shared, home))
+        del self.shared[mesh.shared]
+        self.copies[mesh.key].append(mesh.shared)
+        owners[mesh.shared] = mesh.key
+
+    def _drop_unreferenced(self, layer: OutputLayer, keys) -> None:
+        """Remove the shared refined meshes of units ``keys`` that every mesh got its own copy of (and the
+        container, when nothing is left in it); a copy becomes the unit's home."""
+        for key in keys:
+            if key not in self.shared.values():
+                layer.remove(self.homes[key])
+                self.homes[key] = self.copies[key].pop(0)
+        spec = layer.layer.GetPrimAtPath(self.container)
+        if spec is not None and not spec.nameChildren:
+            layer.remove(self.container)
 
     def hint_roots(self, p: Plan) -> dict:
         """Composed prims whose ancestors' extentsHint is recomputed, with the times written under them: the
@@ -112,24 +145,6 @@ class Layout:
         for r in scene.top.refs:
             roots.setdefault(r.composed, set()).update(site_times(r.site))
         return {path: sorted(times) for path, times in roots.items()}
-
-
-def _losing_opinion(prim, layer: Sdf.Layer, faces: int, samples_only: bool = False):
-    """None when the composed ``prim`` takes its refined attributes from ``layer`` (and has ``faces`` faces);
-    else the stronger opinion (layer and spec path) that wins, as text. ``samples_only``: only the scheme is
-    checked (a layer without default values: no topology, maybe no points)."""
-    if not prim:
-        return "nothing (the prim does not compose)"
-    for name in _CHECKED[:1] if samples_only else _CHECKED:
-        attr = prim.GetAttribute(name)
-        stack = [s for s in attr.GetPropertyStack(DEFAULT)
-                 if s.HasDefaultValue() or s.layer.GetNumTimeSamplesForPath(s.path)] if attr else []
-        if stack and stack[0].layer != layer:
-            return f"{stack[0].layer.identifier} {stack[0].path}"
-    counts = prim.GetAttribute("faceVertexCounts").Get()
-    if not samples_only and (counts is None or len(counts) != faces):
-        return f"a faceVertexCounts of {0 if counts is None else len(counts)} faces (not {faces})"
-    return None
 
 
 def layout(p: Plan) -> Layout:

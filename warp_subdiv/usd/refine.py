@@ -27,7 +27,8 @@ refiner per distinct control mesh.
 Transforms, materials, relationships and every other prim come from the input unchanged.
 
 The steps of a bake live in the modules of this package: the plan (:mod:`~warp_subdiv.usd.planning`), the
-layout of the output (:mod:`~warp_subdiv.usd.output_layout`), the batches of small meshes
+layout of the output (:mod:`~warp_subdiv.usd.output_layout`) and the check that it composes to the refined
+data (:mod:`~warp_subdiv.usd.composition`), the batches of small meshes
 (:mod:`~warp_subdiv.usd.batching`), the meshes refined ahead on worker threads (:mod:`~warp_subdiv.usd.ahead`),
 each mesh's refinement (:mod:`~warp_subdiv.usd.refinement`) and writer (:mod:`~warp_subdiv.usd.writer`,
 :mod:`~warp_subdiv.usd.primvars`, :mod:`~warp_subdiv.usd.subsets`). What they share is held by one
@@ -42,7 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import SubdivInputError
-from ..io.usd_write import OutputLayer, check_output_path
+from ..io.usd_write import OutputLayer, check_flatten, check_output_path
 from ..refiner import Refiner
 from ..runtime import phases as _phases
 from ..runtime.estimate import check_memory, total_bytes
@@ -209,12 +210,15 @@ def refine_usd(
     read only time samples from a chunk (the first chunk supplies everything else), and saving a refined
     faceVertexIndices is most of a short chunk's cost. The layer alone does not compose to the refined meshes,
     so only their scheme is checked to compose from it.
+    ``flatten``: write one self-contained layer, the composed stage flattened (instead of a layer over the
+    input); it holds the selected variants only, and is refused with ``all_variants``.
     ``shipped``: hierarchies built elsewhere (a distributed bake's topology task ships a mesh's tables to the
     tasks that refine its frames, :mod:`warp_subdiv.usd.distributed`): the refiner of a mesh that one of them
     fits starts from it (:meth:`~warp_subdiv.tables.Hierarchy.fits`), and such a mesh is not batched.
     """
     start = _time.perf_counter()
     _check_run(input_path, output_path, levels, vertex_order)
+    check_flatten(flatten, all_variants)
     p = plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
              precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit,
              device=device, all_variants=all_variants, shipped=shipped)
