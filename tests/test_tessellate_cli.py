@@ -391,3 +391,17 @@ def test_cli_frames(tmp_path):
                  "--frames", "2:2", "--quiet"]) == 0
     stage = Usd.Stage.Open(str(tmp_path / "out.usda"))
     assert stage.GetPrimAtPath("/Cube").GetAttribute("points").GetTimeSamples() == [2.0]
+
+
+def test_flatten_with_all_variants_is_refused_before_any_work(tmp_path, capsys):
+    """As refine does: a flattened layer holds the selected variants only, so the two options together would
+    drop every other variant tessellated; the command refuses them (exit 2, both flags named) and writes nothing."""
+    from warp_subdiv import cli
+
+    scene = tmp_path / "in.usda"
+    _scene(str(scene))
+    out = tmp_path / "out.usda"
+    code = cli.main(["tessellate", str(scene), "-o", str(out), "--rate", "2", "--all-variants", "--flatten"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--all-variants and --flatten cannot be combined" in err
+    assert not out.exists()

@@ -32,7 +32,7 @@ FLAGS = {"levels": "--levels", "prims": "--prim", "scheme": "--scheme", "rules":
          "threads": "--threads", "workers": "--workers", "scheduler": "--scheduler", "chunk_frames": "--chunk-frames",
          "camera": "--camera", "view": "--view", "size": "--size", "time": "--time", "samples": "--samples",
          "rate": "--rate", "edge_length": "--edge-length", "depth": "--depth", "flatten": "--flatten",
-         "purpose": "--purpose"}
+         "purpose": "--purpose", "all_variants": "--all-variants", "vertex_order": "--vertex-order"}
 
 
 class UsageError(SubdivInputError):

@@ -6,7 +6,7 @@ the output where an opinion of the input is stronger than the arc that brings th
 Meshes inside scene-graph instances go into a refined prototype (``/__warpSubdiv/Prototype_<n>``, under a
 class) that every instance of the prototype references; identical meshes elsewhere are refined once and
 written once (``/__warpSubdiv/Mesh_<n>``, referenced); with ``all_variants`` every variant that changes a mesh
-is refined into the same variant set and variant (:func:`warp_subdiv.io.usd_read.read_scene`).
+is refined into the same variant set and variant (:func:`warp_subdiv.io.usd_scene.read_scene`).
 """
 from __future__ import annotations
 

@@ -21,7 +21,7 @@ Meshes inside scene-graph instances go into a refined prototype (``/__warpSubdiv
 class) that every instance of the prototype references; identical meshes elsewhere are refined once and
 written once (``/__warpSubdiv/Mesh_<n>``, referenced); with ``all_variants`` every variant that changes a mesh
 is refined into the same variant set and variant (:mod:`warp_subdiv.usd.output_layout`,
-:func:`warp_subdiv.io.usd_read.read_scene`). Topology that changes over time is refined per sample, with a
+:func:`warp_subdiv.io.usd_scene.read_scene`). Topology that changes over time is refined per sample, with a
 refiner per distinct control mesh.
 
 Transforms, materials, relationships and every other prim come from the input unchanged.

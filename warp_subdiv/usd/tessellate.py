@@ -120,7 +120,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     (u, v) are written as ``primvars:tessellation:baseFace`` (uniform) and ``primvars:tessellation:uv``
     (faceVarying).
 
-    Where the data goes is refine's layout (:func:`warp_subdiv.io.usd_read.read_scene`,
+    Where the data goes is refine's layout (:func:`warp_subdiv.io.usd_scene.read_scene`,
     :func:`warp_subdiv.usd.layout`): meshes inside scene-graph instances (and instanceable PointInstancer
     prototypes) are tessellated once per prototype into ``/__warpSubdiv/Prototype_<n>``, which every instance
     of that prototype references (instances stay instances); meshes with identical inputs outside instances
@@ -129,7 +129,10 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     checked: every tessellated mesh must compose to its tessellation."""
     import os
 
+    from ..io.usd_write import check_flatten
     from ..version import __version__
+
+    check_flatten(flatten, all_variants)  # before any work, as refine refuses it
     from .output_layout import layout
     from .planning import Plan
     from ..io.usd_read import read_mesh
