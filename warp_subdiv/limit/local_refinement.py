@@ -159,7 +159,6 @@ def cut_out(cur: LocalLevel, region: np.ndarray, options: Options) -> LocalLevel
         keep[keep] &= level.sector_vertex[matched[keep]] == verts[sub.sector_vertex[keep]]
         keep[keep] &= level.sector_k()[matched[keep]] == sub.sector_k()[keep]
         _filter_sectors(sub, keep, level, matched)
-    sub.new_sector_flatness = level.new_sector_flatness
     sub.face_hole = level.face_hole[faces].copy()
     face_node = cur.face_node[faces]
     return LocalLevel(sub, cur.points[verts], face_node, normal_ids, normal_vectors, cur.depth)

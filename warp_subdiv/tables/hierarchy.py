@@ -155,7 +155,7 @@ class Hierarchy:
         self.modified_edge_rules = o.piecewise_smooth and bool(
             np.any((level.sector_k() >= 2) & (np.abs(shift) > 1e-15)))
         self.projects = o.piecewise_smooth and (
-            bool(np.any(base_s > 0)) or level.new_sector_flatness > 0 or len(self.normal_vertices) > 0)
+            bool(np.any(base_s > 0)) or len(self.normal_vertices) > 0)
         return level
 
     def _guard(self, max_memory: int | None) -> None:

@@ -69,7 +69,7 @@ def base_level(
     semi_vertex = semi_sharp_vertices(edge_verts, edge_sharpness, vert_sharpness)
     sectors = find_sectors(mesh, rule_set, conn, faces.edges, vclass, edge_sharp,
                            np.where(semi_vertex, 0, sharp_count))
-    flatness_of_sectors, new_flatness = sector_flatness(flatness, sectors[0], nv)
+    flatness_of_sectors = sector_flatness(flatness, sectors[0], nv)
 
     uniform = faces.face_size
     level = full_level(
@@ -80,7 +80,7 @@ def base_level(
         edge_corners=conn.edge_corners, vert_corner_offsets=conn.vert_offsets, vert_corners=conn.vert_corners,
         vert_class=vclass, edge_sharpness=edge_sharpness, vert_sharpness=vert_sharpness,
         sectors=Sectors(*sectors[:5], flatness_of_sectors, sectors[5]), crease_method=crease_method,
-        linear=linear, new_sector_flatness=new_flatness, control_face=faces.control_face,
+        linear=linear, control_face=faces.control_face,
     )
     level.degenerate_edges = bool(np.any(edge_verts[:, 0] == edge_verts[:, 1]))
     return level

@@ -70,7 +70,6 @@ class Level:
     sector_flatness: np.ndarray | None = None  # (S,) float64
     # (S,) bool: the sector's limit normal is reversed (two opposite corner sectors, docs/rules.md section 9)
     sector_flip: np.ndarray | None = None
-    new_sector_flatness: float = float("nan")  # s of the regular crease sectors that later levels create
     degenerate_edges: bool = False  # some edge has one vertex at both ends (level 0 only)
     # level 0 of a fan-triangulated polygon mesh (Loop) only: the control polygon of each triangle
     control_face: np.ndarray | None = None  # (F,) int64; None: face f is control face f
@@ -181,7 +180,7 @@ class Sectors(NamedTuple):
 
 def full_level(scheme, num_vertices: int, face_size: int, corner_vert, face_hole, *, corner_edge, edge_verts,
                edge_corner_offsets, edge_corners, vert_corner_offsets, vert_corners, vert_class, edge_sharpness,
-               vert_sharpness, sectors: Sectors, crease_method, linear: bool, new_sector_flatness: float,
+               vert_sharpness, sectors: Sectors, crease_method, linear: bool,
                face_offsets=None, corner_next_table=None, control_face=None) -> Level:
     """A level with all its tables: the one constructor of full levels, for the control mesh's analysis and
     every refinement step alike. Index arrays become int32 (no copy when they already are); the face count
@@ -214,6 +213,5 @@ def full_level(scheme, num_vertices: int, face_size: int, corner_vert, face_hole
         sector_kind=sectors.kind,
         sector_flatness=sectors.flatness,
         sector_flip=np.zeros(len(sectors.vertex), bool) if sectors.flip is None else sectors.flip,
-        new_sector_flatness=new_sector_flatness,
         control_face=control_face,
     )

@@ -355,7 +355,6 @@ def _assemble(level: Level, split: _ChildSplit, threads: int = 1) -> Level:
         edge_corners=child_ecorners, vert_corner_offsets=child_voff, vert_corners=child_vcorners,
         vert_class=child_class, edge_sharpness=child_edge_sharpness, vert_sharpness=child_vert_sharpness,
         sectors=sectors, crease_method=level.crease_method, linear=level.linear,
-        new_sector_flatness=level.new_sector_flatness,
     )
 
 
@@ -431,5 +430,5 @@ def _child_sectors(level: Level, split: _ChildSplit, slots: _EdgeSlots) -> Secto
         np.concatenate([split.vertex_child_corner[level.sector_corners], new_corners.reshape(-1)]),
         np.concatenate([level.sector_theta, np.full(n_new, np.pi / k_new)]),
         np.concatenate([level.sector_kind, np.full(n_new, rules.SECTOR_CREASE, np.int8)]),
-        np.concatenate([level.sector_flatness, np.full(n_new, level.new_sector_flatness)]),
+        np.concatenate([level.sector_flatness, np.full(n_new, np.nan)]),  # regular: s* = 0 (sector_flatness)
         np.concatenate([level.sector_flip, np.zeros(n_new, bool)]))

@@ -138,15 +138,20 @@ def _opposite_corner_normals(mesh, corner_vert, nxt, prv, c, kind, crease_cross)
 
 
 def sector_flatness(flatness, sector_vertex, num_vertices):
-    """Per-sector flatness s (NaN: the optimal s*) and the s of regular crease sectors made later."""
+    """Per-sector flatness s of the control vertices' sectors (NaN: the optimal s*). The regular crease sectors
+    refinement makes later keep s* = 0 (``topology.refinement``), whatever ``flatness`` is: a number is the
+    flatness of every control sector, as an array of that number would be. Were the new crease vertices
+    flattened too, their modified rings would overlap their neighbours' on every level (the averaged
+    modifications of rules section 6), and no limit or tangent mask would be an eigenvector of the resulting
+    subdivision matrix at crease vertices and darts (limit points would only converge to the surface)."""
     if flatness is None:
-        return np.full(len(sector_vertex), np.nan), float("nan")
+        return np.full(len(sector_vertex), np.nan)
     arr = np.asarray(flatness, dtype=np.float64)
     if arr.ndim == 0:
-        return np.full(len(sector_vertex), float(arr)), float(arr)
+        return np.full(len(sector_vertex), float(arr))
     if arr.shape != (num_vertices,):
         raise SubdivInputError(f"flatness must be a number or one value per vertex ({num_vertices}), got {arr.shape}")
-    return arr[sector_vertex], float("nan")
+    return arr[sector_vertex]
 
 
 def _concave_sector_heads(mesh, conn: Connectivity, edge_sharp, edges, vclass, sharp_count, head, k):
