@@ -18,7 +18,7 @@ PACKAGE = "warp_subdiv"
 #: Floor of each unit: a root module or a subpackage. A unit imports only from units on lower floors (and
 #: from itself). The facade ``warp_subdiv/__init__.py`` is the top: nothing inside imports it.
 FLOORS = {
-    "warp_subdiv.version": 1, "warp_subdiv.errors": 1, "warp_subdiv.options": 2, "warp_subdiv.mesh": 2,
+    "warp_subdiv.version": 1, "warp_subdiv.errors": 1, "warp_subdiv.checks": 1, "warp_subdiv.options": 2, "warp_subdiv.mesh": 2,
     "warp_subdiv.runtime": 3,
     "warp_subdiv.rules": 4, "warp_subdiv.io": 4, "warp_subdiv.kernels": 4,
     "warp_subdiv.topology": 5,

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .checks import NOT_NUMBERS, first_non_number
 from .errors import SubdivInputError
 
 #: Sharpness at or above this value is infinitely sharp (as in USD and OpenSubdiv).
@@ -206,26 +207,16 @@ def _check_vertex_ids(ids: np.ndarray, num_vertices: int, name: str, element: st
         )
 
 
-#: Values numpy converts to float64 without a word that are not a sharpness: True becomes 1, '2' becomes 2, the
-#: imaginary part of a complex number is dropped.
-_NOT_NUMBERS = (bool, np.bool_, str, bytes, complex, np.complexfloating)
-
-
 def _refuse_items_that_are_not_numbers(values, name: str, element: str) -> None:
     """Refuse a sharpness argument that is, or holds, a bool, a string or a complex number (a numpy array of such
     a dtype, or a sequence with one among numbers), naming ``name`` and the tag (``element`` and its index)."""
-    if isinstance(values, np.ndarray) and values.dtype.kind in "fiu":
-        return
-    if isinstance(values, _NOT_NUMBERS):
+    if isinstance(values, NOT_NUMBERS):
         raise SubdivInputError(f"{name} must hold numbers (one per tag, or one for all), got {values!r} (a bool, a "
                                "string or a complex number is not a sharpness)", option=name, value=values)
-    try:
-        items = np.asarray(values, dtype=object).ravel().tolist()
-    except (TypeError, ValueError):
-        return  # not array-like: the conversion to float64 refuses it
-    if not any(issubclass(kind, _NOT_NUMBERS) for kind in set(map(type, items))):  # the types present, not a loop
+    found = first_non_number(values)
+    if found is None:
         return
-    index, item = next((i, x) for i, x in enumerate(items) if isinstance(x, _NOT_NUMBERS))
+    index, item = found
     raise SubdivInputError(f"{name} must hold numbers (one per tag), got {item!r} for {element} {index} (a bool, a "
                            "string or a complex number is not a sharpness)", option=name, element=element,
                            index=index, value=item)

@@ -17,6 +17,7 @@ import sys
 
 import numpy as np
 
+from .checks import NOT_NUMBERS, first_non_number
 from .errors import SubdivInputError
 
 
@@ -269,38 +270,29 @@ def _unit_number(value, option: str) -> float:
     return number
 
 
-# numpy turns a bool into 1.0 or 0.0 and parses a numeric string, so these would pass as a flatness unless refused
-# (numpy's str_ and bytes_ are subclasses of str and bytes)
-_NOT_NUMBERS = (bool, np.bool_, str, bytes)
-
-
 def _refuse_flatness_items_that_are_not_numbers(value) -> None:
     """Refuse a per-vertex flatness holding a bool or a string (a numpy array of bools, strings or complex
     numbers, or a list with one among numbers), which numpy would convert to floats without a word."""
-    if isinstance(value, np.ndarray) and value.dtype.kind in "fiu":
-        return
     if isinstance(value, np.ndarray) and value.dtype.kind in "bUSc":
         raise SubdivInputError(f"flatness must hold numbers (one per control vertex), got an array of "
                                f"{value.dtype} {value!r}", option="flatness", value=value)
-    try:
-        items = np.asarray(value, dtype=object).ravel().tolist()
-    except (TypeError, ValueError):
-        return  # not array-like: the conversion to float64 refuses it
-    if not any(issubclass(kind, _NOT_NUMBERS) for kind in set(map(type, items))):  # the types present, not a loop
+    found = first_non_number(value)
+    if found is None:
         return
-    index, item = next((i, x) for i, x in enumerate(items) if isinstance(x, _NOT_NUMBERS))
+    index, item = found
     raise SubdivInputError(f"flatness must hold numbers (one per control vertex), got {item!r} at vertex {index} "
-                           "(a bool or a string is not a flatness)", option="flatness", element="vertex",
-                           index=index, value=item)
+                           "(a bool, a string or a complex number is not a flatness)", option="flatness",
+                           element="vertex", index=index, value=item)
 
 
 def _flatness(value):
     """None, a number in [0, 1], or a read-only float64 array of per-vertex values in [0, 1] or NaN (optimal)."""
     if value is None:
         return None
-    if isinstance(value, _NOT_NUMBERS):
+    if isinstance(value, NOT_NUMBERS):
         raise SubdivInputError(f"flatness must be None, a number in [0, 1] or one number per control vertex, got "
-                               f"{value!r} (a bool or a string is not a flatness)", option="flatness", value=value)
+                               f"{value!r} (a bool, a string or a complex number is not a flatness)",
+                               option="flatness", value=value)
     if isinstance(value, numbers.Real):
         return _unit_number(value, "flatness")
     _refuse_flatness_items_that_are_not_numbers(value)
