@@ -127,8 +127,8 @@ class OrderedRefiner:
         """Refined data in the compact order back in the refiner's order."""
         return _rows(refined, self.new_id)
 
-    def limit_points(self, refined_points):
-        return self.compact(self.refiner.limit_points(self._own(refined_points)))
+    def limit_points(self, refined_points, *, normal_control=None):
+        return self.compact(self.refiner.limit_points(self._own(refined_points), normal_control=normal_control))
 
     def limit_normals(self, refined_points):
         return self.compact(self.refiner.limit_normals(self._own(refined_points)))

@@ -167,10 +167,6 @@ def face_varying_input(sp: SubdivPrim, pv, t):
 
 def limit_values(refiner: Refiner, refined: np.ndarray) -> np.ndarray:
     """Limit values of refined vertex data (N, d) that is not a position: as the points' limit, but without
-    normal control, which the refiner applies to 3-wide data where its limit masks read one level deeper
-    (3-wide data goes through 4 wide, a zero column added)."""
+    normal control (which the refiner would apply to 3-wide data where its limit masks read one level deeper)."""
     data = np.asarray(refined, dtype=np.float64)
-    data = data.reshape(len(data), -1)
-    if data.shape[1] == 3:
-        return refiner.limit_points(np.pad(data, ((0, 0), (0, 1))))[:, :3]
-    return refiner.limit_points(data)
+    return refiner.limit_points(data.reshape(len(data), -1), normal_control=False)
