@@ -1,4 +1,5 @@
 """Shared fixtures: test meshes, reference data and the devices to run on (CPU always, CUDA when present)."""
+import contextlib
 import os
 
 import numpy as np
@@ -42,3 +43,21 @@ def dense(table, num_sources=None):
     rows = np.repeat(np.arange(table.num_rows), np.diff(table.offsets.astype(np.int64)))
     np.add.at(out, (rows, table.indices.astype(np.int64)), table.weights)
     return out
+
+
+@contextlib.contextmanager
+def dask_client(**cluster):
+    """A Dask client of a ``distributed.LocalCluster(**cluster)`` (skips without Dask). Dask's nannies set
+    MALLOC_TRIM_THRESHOLD_, OMP_NUM_THREADS and others in this process's environment; they are restored
+    afterwards so later tests (and their subprocesses) run as a user's process would."""
+    distributed = pytest.importorskip("distributed")
+    saved = dict(os.environ)
+    local = distributed.LocalCluster(threads_per_worker=1, dashboard_address=None, silence_logs=50, **cluster)
+    client = distributed.Client(local)
+    try:
+        yield client
+    finally:
+        client.close()
+        local.close()
+        os.environ.clear()
+        os.environ.update(saved)

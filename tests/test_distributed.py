@@ -12,6 +12,8 @@ from pxr import Sdf, Usd
 from warp_subdiv.usd import distributed as dist
 from warp_subdiv.usd.refine import refine_usd
 
+from conftest import dask_client
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ANIMATED = os.path.join(ROOT, "scenes", "animated.usda")  # one creased plate, frames 1-24, primvars, a subset
 STATIC = os.path.join(ROOT, "scenes", "concave_corner.usda")  # several static meshes
@@ -53,18 +55,8 @@ def assert_same_composition(expected, actual, roots=("/World",)):
 @pytest.fixture(scope="module")
 def client():
     """One local cluster of two worker processes for the module's tests."""
-    distributed = pytest.importorskip("distributed")
-    # Dask's nannies set MALLOC_TRIM_THRESHOLD_, OMP_NUM_THREADS and others in this process's environment;
-    # they are restored afterwards so later tests (and their subprocesses) run as a user's process would
-    saved = dict(os.environ)
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                                       silence_logs=50)
-    c = distributed.Client(cluster)
-    yield c
-    c.close()
-    cluster.close()
-    os.environ.clear()
-    os.environ.update(saved)
+    with dask_client(n_workers=2, processes=True) as c:
+        yield c
 
 
 def _fault(client, spec):

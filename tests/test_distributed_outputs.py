@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdGeom, Vt
 
+from conftest import dask_client
 from test_usd_support import grid, write_mesh
 from warp_subdiv.errors import SubdivInputError
 from warp_subdiv.usd import distributed as dist
@@ -19,16 +20,8 @@ ANIMATED = os.path.join(ROOT, "scenes", "animated.usda")  # one creased plate, f
 @pytest.fixture(scope="module")
 def client():
     """One in-process Dask worker (a thread): these tests are about files, not about processes."""
-    distributed = pytest.importorskip("distributed")
-    saved = dict(os.environ)
-    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None,
-                                       silence_logs=50)
-    c = distributed.Client(cluster)
-    yield c
-    c.close()
-    cluster.close()
-    os.environ.clear()
-    os.environ.update(saved)
+    with dask_client(n_workers=1, processes=False) as c:
+        yield c
 
 
 def faces(path, prim="/World/Mesh"):
