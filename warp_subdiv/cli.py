@@ -32,7 +32,9 @@ FLAGS = {"levels": "--levels", "prims": "--prim", "scheme": "--scheme", "rules":
          "threads": "--threads", "workers": "--workers", "scheduler": "--scheduler", "chunk_frames": "--chunk-frames",
          "camera": "--camera", "view": "--view", "size": "--size", "time": "--time", "samples": "--samples",
          "rate": "--rate", "edge_length": "--edge-length", "depth": "--depth", "flatten": "--flatten",
-         "purpose": "--purpose", "all_variants": "--all-variants", "vertex_order": "--vertex-order"}
+         "purpose": "--purpose", "all_variants": "--all-variants", "vertex_order": "--vertex-order",
+         "max_levels": "--max-levels", "pixel_error": "--pixel-error", "resolution": "--resolution",
+         "offscreen_level": "--offscreen-level", "lod_variants": "--lod-variants"}
 
 
 class UsageError(SubdivInputError):
@@ -82,7 +84,20 @@ def _add_refine(sub) -> None:
                                      "USD output is a layer that sublayers IN and overrides the refined meshes.")
     cmd.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
     cmd.add_argument("-o", "--output", required=True, help="output file (.obj for OBJ input; .usd/.usda/.usdc)")
-    cmd.add_argument("--levels", type=int, required=True, help="number of refinement levels (>= 0)")
+    cmd.add_argument("--levels", type=int, required=True,
+                     help="number of refinement levels (>= 0); USD: of the meshes without a subdiv:levels of their "
+                          "own or on an ancestor (the nearest wins); with --camera, the most any mesh gets")
+    cmd.add_argument("--max-levels", type=int, default=None, metavar="N",
+                     help="USD: refine no mesh more than N levels, whatever sets its level")
+    cmd.add_argument("--camera", default=None, metavar="PRIM",
+                     help="USD: a UsdGeom.Camera prim; with --pixel-error each mesh gets the smallest level whose "
+                          "longest refined edge projects to at most that many pixels (the worst of --frames)")
+    cmd.add_argument("--pixel-error", type=float, default=None, metavar="PX",
+                     help="with --camera: the longest refined edge on screen, in pixels (> 0)")
+    cmd.add_argument("--resolution", default=None, metavar="WxH",
+                     help="with --camera: the image size (default: the stage's render settings, else 1920x1080)")
+    cmd.add_argument("--offscreen-level", type=int, default=None, metavar="N",
+                     help="with --camera: the level of meshes outside the camera's frustum (default 0)")
     cmd.add_argument("--prim", action="append", metavar="PATH",
                      help="refine only the meshes at or under this prim path (repeatable; USD only)")
     cmd.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
@@ -150,7 +165,10 @@ def _add_info(sub) -> None:
     """The arguments of ``info``."""
     cmd = sub.add_parser("info", help="list the subdivision meshes of a file with predicted output sizes")
     cmd.add_argument("input", help="input file: .obj, .usd, .usda or .usdc")
-    cmd.add_argument("--levels", type=int, default=4, help="predict sizes for levels 1..N (default 4)")
+    cmd.add_argument("--levels", type=int, default=4,
+                     help="predict sizes for levels 1..N (default 4); USD: the level of meshes without a "
+                          "subdiv:levels (each mesh's level is shown with where it comes from)")
+    cmd.add_argument("--max-levels", type=int, default=None, metavar="N", help="USD: as for refine")
     cmd.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path")
 
 
@@ -332,9 +350,11 @@ def _table(rows, header, left=(0, 1, 2)) -> list:
 def _summary(source, output, levels, device, reports, seconds, predicted, phases=None) -> None:
     from .runtime.estimate import format_bytes
 
-    print(f"{source} -> {output}: {levels} levels on {device}")
-    header = ("prim", "scheme", "rules", "faces in", "faces out", "vertices out", "samples", "time")
-    rows = [(r.path, r.scheme, r.rules, f"{r.faces_in:,}", f"{r.faces_out:,}", f"{r.vertices_out:,}", r.samples,
+    mixed = {r.level for r in reports if r.level is not None} - {levels}
+    print(f"{source} -> {output}: {levels} levels on {device}" + (" (per mesh: see the level column)" if mixed else ""))
+    header = ("prim", "scheme", "rules", "level", "faces in", "faces out", "vertices out", "samples", "time")
+    rows = [(r.path, r.scheme, r.rules, "-" if r.level is None else r.level, f"{r.faces_in:,}", f"{r.faces_out:,}",
+             f"{r.vertices_out:,}", r.samples,
              f"{r.seconds:.2f} s") for r in reports]
     for line in _table(rows, header):
         print("  " + line)
@@ -386,6 +406,9 @@ def _refine_usd(args, max_memory, progress) -> int:
                max_memory=max_memory, flatten=args.flatten, semi_sharp="sharp" if args.semi_sharp_as_sharp else "keep",
                progress=progress)
     run["vertex_order"] = args.vertex_order  # always passed: every chunk of a distributed bake numbers alike
+    levels = dict(max_levels=args.max_levels, camera=args.camera, pixel_error=args.pixel_error,
+                  resolution=args.resolution, offscreen_level=args.offscreen_level)
+    run.update((k, v) for k, v in levels.items() if v is not None)
     if args.all_variants:
         if args.workers or args.scheduler:
             raise UsageError("--all-variants does not combine with --workers or --scheduler")
@@ -420,6 +443,10 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
 
     if args.prim or args.frames:
         raise UsageError("--prim and --frames apply to USD input only")
+    if any(v is not None for v in (args.max_levels, args.camera, args.pixel_error, args.resolution,
+                                   args.offscreen_level)):
+        raise UsageError("--max-levels, --camera, --pixel-error, --resolution and --offscreen-level apply to USD "
+                         "input only")
     if args.limit or args.normals or args.flatten or args.all_variants:
         raise UsageError("--limit, --normals, --flatten and --all-variants apply to USD input only")
     start = time.perf_counter()
@@ -504,7 +531,7 @@ def _info(args) -> int:
 
     from .usd import estimate_prim, make_refiner, plan
 
-    p = plan(args.input, args.levels, prims=args.prim, require_meshes=False)
+    p = plan(args.input, args.levels, prims=args.prim, require_meshes=False, max_levels=args.max_levels)
     stage = p.stage
     times = ""
     if stage.HasAuthoredTimeCodeRange():
@@ -512,10 +539,12 @@ def _info(args) -> int:
     print(f"{args.input}: {len(p.prims)} subdivision mesh{'es' if len(p.prims) != 1 else ''} (upAxis "
           f"{UsdGeom.GetStageUpAxis(stage)}, metersPerUnit {UsdGeom.GetStageMetersPerUnit(stage):g}{times})")
     uses = p.scene.uses()
-    for sp, options, key, analysis in zip(p.prims, p.options, p.keys, p.analyses):
+    for sp, options, key, analysis, level in zip(p.prims, p.options, p.keys, p.analyses, p.levels):
         print(sp.path)
         if uses.get(key, 1) > 1:
             print(f"  refined once for {uses[key]} meshes (instances of one prototype, or identical inputs)")
+        source = p.level_sources.get(sp.path, (level, "levels"))[1]
+        print(f"  level: {level} ({_flagged(source, ('levels', 'max_levels'))})")
         _print_control(sp.mesh, sp.scheme, sp.boundary, sp.rules, sp.usd_scheme, sp.orientation)
         print(f"  tags: {_tags_summary(sp)}")
         if sp.point_times:
@@ -537,6 +566,10 @@ def _info(args) -> int:
         _print_levels(lambda lv, sp=sp, control=control: estimate_prim(sp, lv, control=control), args.levels)
     for path, reason in p.left_alone:
         print(f"{path}: left alone ({reason})")
+    if p.level_sources:
+        print("levels (each mesh read; instances of one prototype by the first one):")
+        for path, (level, source) in p.level_sources.items():
+            print(f"  {path}: {level} ({_flagged(source, ('levels', 'max_levels'))})")
     print(f"total predicted memory at {args.levels} levels: {format_bytes(p.predicted_bytes)}")
     return 0
 

@@ -65,6 +65,8 @@ SUBDIV_ATTRIBUTES = {
                         "corner sectors: one value for the mesh, or one per control point (NaN: the optimal s*); "
                         "unset: s* everywhere"),
     "subdiv:normalStrength": (("float", "double"), "normal control strength s in [0, 1]"),
+    "subdiv:levels": (("int",), "the refinement level of the mesh, >= 0 (on an ancestor prim too: of every mesh "
+                                "under it; the nearest wins); read by the USD bake (warp_subdiv.usd.levels)"),
 }
 
 #: Attributes whose values define the control mesh's topology and tags: where any of them is time-sampled and

@@ -4,6 +4,7 @@ output layer (:class:`Scene`, built by :func:`read_scene`).
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import re
 from dataclasses import dataclass, field
@@ -111,6 +112,8 @@ class Scene:
     left_alone: list  # (path, reason)
     stages: list  # the composed stages the units read from (kept open while they are read)
     instances: list = field(default_factory=list)  # (instance prim path, site key) at the top level
+    levels: dict = field(default_factory=dict)  # unit -> its level (with read_scene's level)
+    placed: dict = field(default_factory=dict)  # composed mesh path -> (level, source), as read
 
     def uses(self) -> dict:
         """How many composed meshes (instance proxies of every instance included) each unit refines for."""
@@ -183,11 +186,15 @@ class _Config:
 class _Explorer:
     """Walks a stage for :func:`read_scene`."""
 
-    def __init__(self, stage, roots, read, all_variants):
+    def __init__(self, stage, roots, read, all_variants, level=None, level_context=None):
         self.base = stage
         self.roots = roots
         self.read = read
         self.all_variants = all_variants
+        self.level, self.level_context = level, level_context
+        self.levels: dict = {}
+        self.placed: dict = {}
+        self._read: dict = {}  # input digest -> SubdivPrim or None
         self.units: dict = {}
         self.sites: dict = {}
         self.left_alone: list = []
@@ -247,16 +254,32 @@ class _Explorer:
         return meshes, instances, owners
 
     def unit(self, prim) -> str | None:
-        """The input digest of a mesh, read once per digest; None when it is left alone."""
-        key = input_fingerprint(prim)
-        if key not in self.units:
+        """The unit of a mesh: its input digest (read once per digest), with its level appended when levels
+        are chosen per mesh (``level``: meshes with equal inputs and different levels refine apart); None
+        when it is left alone."""
+        digest = input_fingerprint(prim)
+        if digest not in self._read:
             sp = self.read(prim)
-            self.units[key] = sp
+            self._read[digest] = sp
             if sp is None:
                 scheme = prim.GetAttribute("subdivisionScheme").Get()
                 self.left_alone.append((str(prim.GetPath()), "empty mesh" if scheme != "none"
                                         else "subdivisionScheme none"))
-        return key if self.units[key] is not None else None
+                self.units[digest] = None
+        sp = self._read[digest]
+        if sp is None:
+            return None
+        key = digest
+        if self.level is not None:
+            level, source = self.level(prim, sp)
+            self.placed[str(prim.GetPath())] = (level, source)
+            key = f"{digest}@{level}"
+            self.levels[key] = level
+            if key not in self.units and str(prim.GetPath()) != sp.path:
+                # the same input at another level: a unit of its own, named after the mesh it was met at
+                sp = dataclasses.replace(sp, path=str(prim.GetPath()), prim=prim)
+        self.units.setdefault(key, sp)
+        return key
 
     def subtree_digest(self, cfg, root: Sdf.Path) -> str:
         """A digest of every selected mesh at or under ``root`` (through instances too) in ``cfg``."""
@@ -323,7 +346,8 @@ class _Explorer:
         when nothing in it is refined."""
         path = inst.GetPath()
         scope = () if self.selected(path) else tuple(str(r) for r in self.roots if r.HasPrefix(path))
-        cache = (cfg, str(inst.GetPrototype().GetPath()), scope)
+        cache = (cfg, str(inst.GetPrototype().GetPath()), scope,
+                 self.level_context(inst) if self.level_context is not None else None)
         if cache not in self._site_of:
             site_cfg = cfg
             if self.all_variants:  # selections below the instance need it (and its ancestors) composed in place
@@ -352,7 +376,8 @@ def _instance_ancestors(prim: Usd.Prim) -> list:
     return out[::-1]
 
 
-def read_scene(stage: Usd.Stage, prim_paths=None, *, read, all_variants: bool = False, where: str = "") -> Scene:
+def read_scene(stage: Usd.Stage, prim_paths=None, *, read, all_variants: bool = False, where: str = "",
+               level=None, level_context=None) -> Scene:
     """Every mesh at or under ``prim_paths`` (default: the whole stage), inside instances and PointInstancer
     prototypes too, read with ``read(prim) -> SubdivPrim | None`` once per distinct input
     (:func:`input_fingerprint`), and where its refined data goes:
@@ -363,12 +388,18 @@ def read_scene(stage: Usd.Stage, prim_paths=None, *, read, all_variants: bool = 
       content from inside it. Prototypes are explored once each; contents that are equal are one site;
     * with ``all_variants``: every variant of every variant set that changes a mesh (nested sets too) is
       composed and read, and its meshes go inside the same variant set and variant in the output paths.
+
+    ``level``: ``level(prim, sp) -> (level, source)`` for each composed mesh read (levels chosen per mesh):
+    a unit is then a distinct input at one level (:attr:`Scene.levels`, :attr:`Scene.placed`);
+    ``level_context(instance prim)``: what else the levels inside an instance depend on (a hashable value),
+    so that instances of one prototype whose levels may differ are read apart.
     """
     roots = check_roots(stage, prim_paths, where)
-    explorer = _Explorer(stage, roots, read, all_variants)
+    explorer = _Explorer(stage, roots, read, all_variants, level, level_context)
     top = explorer.explore(_Config(), Sdf.Path.absoluteRootPath, Sdf.Path.absoluteRootPath, (),
                            Sdf.Path.absoluteRootPath)
-    scene = Scene(explorer.units, top, explorer.sites, explorer.left_alone, list(explorer._stages.values()))
+    scene = Scene(explorer.units, top, explorer.sites, explorer.left_alone, list(explorer._stages.values()),
+                  levels=explorer.levels, placed=explorer.placed)
     scene.instances = [(r.composed, r.site) for r in top.refs]
     return scene
 

@@ -50,8 +50,8 @@ class Batches:
     the writer reads differently (or not at all) is evaluated as without batching. Any input error while
     preparing leaves the chunk (or that sample) to the unbatched path, which reports it as it would."""
 
-    def __init__(self, p, levels, device, limit, normals, *, refiner, defaults: bool = True, shipped=()):
-        self.levels, self.device, self.limit, self.normals = levels, device, limit, normals
+    def __init__(self, p, device, limit, normals, *, refiner, defaults: bool = True, shipped=()):
+        self.levels, self.device, self.limit, self.normals = p.levels, device, limit, normals
         self.refiner = refiner  # (prim index, prim) -> the prim's refiner, as the bake builds it
         self.defaults = defaults  # whether default values are written (not with samples_only)
         self.prims, self.options = p.prims, p.options
@@ -64,7 +64,7 @@ class Batches:
             if (sp.topologies or sp.scheme == "bilinear" or rows > small
                     or isinstance(options.flatness, np.ndarray) or any(h.fits(sp.mesh, options) for h in shipped)):
                 continue
-            key = (options, tuple(sp.point_times))
+            key = (options, p.levels[i], tuple(sp.point_times))
             cost = rows * (len(sp.point_times) + 1)
             chunk, held = open_chunks.get(key, (None, 0))
             if chunk is None or held + cost > BATCH_ROWS:
@@ -98,7 +98,8 @@ class Batches:
         """Every time sample of one group of members as one union (see the class docstring)."""
         sps = [self.prims[j] for j, _ in members]
         with _phases.phase("analyse"):
-            batch = MeshBatch([sp.mesh for sp in sps], self.levels, options=self.options[members[0][0]],
+            first = members[0][0]
+            batch = MeshBatch([sp.mesh for sp in sps], self.levels[first], options=self.options[first],
                               device=self.device, check=False)
         with_limits = self.limit or self.normals
         queries = [Usd.AttributeQuery(sp.prim.GetAttribute("points")) for sp in sps]

@@ -60,6 +60,8 @@ from .refine import Result, refine_usd
 MIN_CHUNK_SAMPLES = 4
 #: Frame chunks per worker when ``chunk_frames`` is not given (load balance, and little lost to a dead worker).
 CHUNKS_PER_WORKER = 3
+#: The keywords of refine_usd that choose the meshes' levels (warp_subdiv.usd.levels).
+LEVEL_KEYWORDS = ("max_levels", "camera", "pixel_error", "resolution", "offscreen_level", "mesh_levels")
 #: Environment variable that makes tasks misbehave, for the tests (see _fault).
 FAULT_ENV = "WARP_SUBDIV_TEST_FAULT"
 
@@ -164,7 +166,7 @@ def topology_task(input_path, path, levels, run, threads=None):
     limit = _worker_setup(threads)
     p = plan(input_path, levels, prims=[path], **_plan_keywords(run))
     i = [sp.path for sp in p.prims].index(path)
-    refiner = make_refiner(p.prims[i], levels, options=p.options[i], device=run.get("device"),
+    refiner = make_refiner(p.prims[i], p.levels[i], options=p.options[i], device=run.get("device"),
                            max_memory=_memory(run.get("max_memory"), limit), reuse=(p.analyses[i].hierarchy,))
     return refiner.hierarchy, _time.perf_counter() - start
 
@@ -207,7 +209,7 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
 
 def _plan_keywords(run: dict) -> dict:
     keep = ("scheme", "rules", "boundary", "precision", "frames", "semi_sharp", "normals", "limit", "device",
-            "all_variants")
+            "all_variants") + LEVEL_KEYWORDS
     return {k: run[k] for k in keep if k in run}
 
 
@@ -330,6 +332,10 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     flatten = bool(run.pop("flatten", False))
     run.setdefault("max_memory", None)
     p = plan(input_path, levels, **{k: v for k, v in _plan_keywords(run).items()}, prims=run.get("prims"))
+    if run.get("camera") is not None:  # the tasks see their own frames only: they take the levels chosen here
+        for key in LEVEL_KEYWORDS:
+            run.pop(key, None)
+        run["mesh_levels"] = {path: level for path, (level, _) in p.level_sources.items()}
     # the chunk folder is replaced as a whole: the input must not read anything in it
     out_abs = check_output_path(output_path, p.stage, folders=[chunk_folder(os.path.abspath(output_path))])
     run.pop("progress", None)

@@ -23,6 +23,7 @@ from ..refiner import Refiner
 from ..runtime import phases as _phases
 from ..runtime import threads as _threads
 from ..runtime.estimate import Estimate, MemoryGuardError, estimate, total_bytes
+from .levels import LevelChooser
 
 
 @dataclass
@@ -36,6 +37,7 @@ class PrimReport:
     vertices_out: int
     samples: int
     seconds: float = 0.0
+    level: int | None = None  # the level it was refined to (see warp_subdiv.usd.levels)
 
 
 @dataclass
@@ -54,6 +56,14 @@ class Plan:
     # the level-0 refiner each of prims was analysed with: the bake's refiner of the same control mesh and
     # options starts from its analysis instead of analysing again (make_refiner's reuse), and drops it then
     analyses: list = field(default_factory=list, repr=False)
+    levels: list = field(default_factory=list)  # the level of each of prims (warp_subdiv.usd.levels)
+    # composed mesh path -> (level, where it came from: "levels", "subdiv:levels on /path", a camera ...)
+    level_sources: dict = field(default_factory=dict)
+
+    @property
+    def max_level(self) -> int:
+        """The highest level of any mesh (0 without meshes)."""
+        return max(self.levels, default=0)
 
     @property
     def predicted_bytes(self) -> int:
@@ -95,6 +105,12 @@ def plan(
     device=None,
     all_variants: bool = False,
     shipped=(),
+    max_levels: int | None = None,
+    camera: str | None = None,
+    pixel_error: float | None = None,
+    resolution=None,
+    offscreen_level: int | None = None,
+    mesh_levels=None,
 ) -> Plan:
     """Open ``input_path`` and read every subdivision mesh at or under ``prims``; predict output sizes.
 
@@ -106,33 +122,50 @@ def plan(
 
     Every control mesh is analysed with the run's options (``make_refiner(sp, 0)``, kept in
     :attr:`Plan.analyses`), so bad tags, options or devices fail here, before any refinement. ``shipped``:
-    hierarchies built elsewhere (see :func:`~warp_subdiv.usd.refine_usd`) that the analysis starts from."""
+    hierarchies built elsewhere (see :func:`~warp_subdiv.usd.refine_usd`) that the analysis starts from.
+
+    Each mesh's level (:attr:`Plan.levels`, :attr:`Plan.level_sources`) is chosen by
+    :class:`~warp_subdiv.usd.levels.LevelChooser`: its ``subdiv:levels`` or an ancestor's, else ``levels``;
+    with ``camera`` and ``pixel_error`` (``resolution``, ``offscreen_level``) the smallest level whose refined
+    edges project small enough, up to that; ``max_levels`` caps them all; ``mesh_levels`` ({composed path:
+    level}) wins over all of them."""
     scheme, rules, boundary, precision = _run_options(scheme, rules, boundary, precision)
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     stage = open_stage(input_path)
+    chooser = LevelChooser(stage, levels, max_levels=max_levels, camera=camera, pixel_error=pixel_error,
+                           resolution=resolution, offscreen_level=offscreen_level, frames=frames, device=device,
+                           mesh_levels=mesh_levels)
     force = bool(prims) and scheme is not None  # an explicit scheme on named prims: polygonal meshes too
 
     def read(prim):
         return read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme or "auto", rules=rules,
                          boundary=boundary, force=force)
 
-    scene = read_scene(stage, prims, read=read, all_variants=all_variants, where=input_path)
-    out = Plan(input_path, stage, [], [], scene=scene)
+    options_of: dict = {}
+
+    def level(prim, sp):
+        if id(sp) not in options_of:
+            options_of[id(sp)] = options_for(sp, precision=precision)
+        return chooser(prim, sp, options_of[id(sp)])
+
+    scene = read_scene(stage, prims, read=read, all_variants=all_variants, where=input_path, level=level,
+                       level_context=chooser.context)
+    out = Plan(input_path, stage, [], [], scene=scene, level_sources=dict(scene.placed))
     out.left_alone.extend(scene.left_alone)
 
-    def analyse(sp):
+    def analyse(key, sp):
         """The options, level-0 refiner and estimate of one mesh."""
-        options = options_for(sp, precision=precision)
+        options = options_of.get(id(sp)) or options_for(sp, precision=precision)
         control = make_refiner(sp, 0, options=options, device=device, reuse=shipped)
-        return options, control, estimate_prim(sp, levels, precision, normals, limit, control)
+        return options, control, estimate_prim(sp, scene.levels[key], precision, normals, limit, control)
 
     # the meshes are independent: a few contiguous ranges of them on the threads (the first error in the
     # plan's order is raised, as one after the other would raise it)
     units = [(key, sp) for key, sp in scene.units.items() if sp is not None]
 
     def analyse_range(a, b):
-        return [analyse(sp) for _, sp in units[a:b]]
+        return [analyse(key, sp) for key, sp in units[a:b]]
 
     jobs = [_phases.bound(analyse_range, a, b)
             for a, b in _threads.ranges(len(units), _threads.default_threads(), 1)]
@@ -140,6 +173,7 @@ def plan(
     for (key, sp), (options, control, e) in zip(units, analysed):
         out.prims.append(sp)
         out.keys.append(key)
+        out.levels.append(scene.levels[key])
         out.options.append(options)
         out.analyses.append(control)
         out.warnings.extend(f"{sp.path}: {w}" for w in sp.warnings)

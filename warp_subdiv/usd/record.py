@@ -24,6 +24,7 @@ RESULT_KEYS = {
     "levels": "levels", "prims": "prims", "schemes": "scheme", "rules": "rules", "boundaries": "boundary",
     "precisions": "precision", "vertexOrders": "vertex order", "semiSharp": "semi-sharp", "limitPoints": "limit",
     "normals": "normals", "allVariants": "all variants", "meshOptions": "the meshes' refinement options",
+    "meshLevels": "the meshes' levels",
 }
 
 
@@ -42,7 +43,11 @@ def options_digest(p: Plan, vertex_order: str) -> str:
 def layer_record(p: Plan, levels: int, *, limit: bool, normals: bool, semi_sharp: str, vertex_order: str,
                  all_variants: bool, flatten: bool, frames=None) -> dict:
     """The ``customLayerData`` of a layer that refines the meshes of plan ``p``: ``{"warpSubdiv": {...}}``
-    (the version, the input's file name, the frames where given, and the keys of :data:`RESULT_KEYS`)."""
+    (the version, the input's file name, the frames where given, and the keys of :data:`RESULT_KEYS`).
+
+    ``levels`` is the run's default level; ``meshLevels`` maps every composed mesh refined to its own level
+    (:attr:`Plan.level_sources`: ``subdiv:levels``, a camera, ``max_levels``), so chunks whose meshes were
+    refined to other levels are told apart."""
     record = {
         "version": __version__, "levels": int(levels), "source": os.path.basename(p.input),
         "prims": Vt.StringArray([sp.path for sp in p.prims]),
@@ -53,6 +58,7 @@ def layer_record(p: Plan, levels: int, *, limit: bool, normals: bool, semi_sharp
         "semiSharp": str(semi_sharp), "limitPoints": bool(limit), "normals": bool(normals),
         "allVariants": bool(all_variants), "meshOptions": options_digest(p, vertex_order),
         "flattened": bool(flatten),
+        "meshLevels": {path: int(level) for path, (level, _) in sorted(p.level_sources.items())},
     }
     if frames is not None:
         record["frames"] = format_frames(frames)
@@ -60,6 +66,8 @@ def layer_record(p: Plan, levels: int, *, limit: bool, normals: bool, semi_sharp
 
 
 def _plain(value):
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
     return list(value) if isinstance(value, Vt.StringArray) else value
 
 

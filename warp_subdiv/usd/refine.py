@@ -93,9 +93,9 @@ class Bake:
     the meshes refined ahead on worker threads (``ahead``), ``progress`` and ``warnings``. :meth:`write` writes
     every mesh; :meth:`close` stops the workers."""
 
-    def __init__(self, p: Plan, layer: OutputLayer, levels: int, *, device, limit, normals, vertex_order,
+    def __init__(self, p: Plan, layer: OutputLayer, *, device, limit, normals, vertex_order,
                  samples_only: bool, batch: bool, max_memory, shipped, progress):
-        self.plan, self.layer, self.levels = p, layer, levels
+        self.plan, self.layer = p, layer
         self.device, self.limit, self.normals = device, limit, normals
         self.vertex_order, self.samples_only = vertex_order, samples_only
         self.shipped = tuple(h for h in shipped if h is not None)
@@ -103,7 +103,7 @@ class Bake:
         self.warnings = list(p.warnings)
         self.batches = self.ahead = None
         if batch:
-            self.batches = Batches(p, levels, device, limit, normals, refiner=self.refiner,
+            self.batches = Batches(p, device, limit, normals, refiner=self.refiner,
                                    defaults=not samples_only, shipped=self.shipped)
         self.ahead = Ahead(self, max_memory)
 
@@ -112,10 +112,10 @@ class Bake:
         :meth:`~warp_subdiv.io.usd_read.SubdivPrim.with_topology`): it starts from a shipped hierarchy, else from
         the plan's level-0 analysis, where one fits (:func:`~warp_subdiv.usd.make_refiner`)."""
         p = self.plan
-        analysis = p.analyses[i]
+        analysis, level = p.analyses[i], p.levels[i]
         reuse = self.shipped + ((analysis.hierarchy,) if analysis is not None else ())
-        refiner = make_refiner(sp, self.levels, options=p.options[i], device=self.device, reuse=reuse)
-        if analysis is not None and self.levels > 0 and not sp.topologies:
+        refiner = make_refiner(sp, level, options=p.options[i], device=self.device, reuse=reuse)
+        if analysis is not None and level > 0 and not sp.topologies:
             p.analyses[i] = None  # used: not kept for the rest of the bake
         return refiner
 
@@ -125,7 +125,7 @@ class Bake:
         a batch prepared for it, else with a refiner of its own. The writer and the workers build them here."""
         prepared = self.batches.take(i) if self.batches is not None and not sp.topologies else None
         refiner, results = prepared if prepared is not None else (self.refiner(i, sp), None)
-        return MeshRefinement(sp, refiner, self.plan.options[i], self.levels, self.limit, self.normals,
+        return MeshRefinement(sp, refiner, self.plan.options[i], self.plan.levels[i], self.limit, self.normals,
                               self.vertex_order, results)
 
     def write(self):
@@ -181,9 +181,23 @@ def refine_usd(
     samples_only: bool = False,
     batch: bool = True,
     shipped=(),
+    max_levels: int | None = None,
+    camera: str | None = None,
+    pixel_error: float | None = None,
+    resolution=None,
+    offscreen_level: int | None = None,
+    mesh_levels=None,
 ) -> Result:
-    """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) ``levels`` times and
-    write the layer ``output_path`` (.usd, .usda or .usdc) that sublayers the input and overrides them.
+    """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) and write the layer
+    ``output_path`` (.usd, .usda or .usdc) that sublayers the input and overrides them.
+
+    Each mesh's level (:mod:`warp_subdiv.usd.levels`): its ``subdiv:levels`` or the nearest ancestor's, else
+    ``levels``; ``max_levels`` caps every mesh. ``camera`` (a UsdGeom.Camera prim path) with ``pixel_error``
+    (pixels > 0): each mesh gets the smallest level, at most the one above, whose longest refined edge
+    projects to at most ``pixel_error`` pixels at ``resolution`` ((width, height) or "WxH"; default: the
+    stage's render settings, else 1920x1080) at the worst of the selected frames; meshes outside the frustum
+    get ``offscreen_level`` (default 0). ``mesh_levels``: {composed mesh path: level}, winning over all of
+    these (levels decided elsewhere). Meshes with identical inputs and different levels are refined apart.
 
     Meshes inside instances are refined once per prototype and written once per distinct refined prototype,
     which the instances reference (they stay instances); meshes with identical inputs are refined once.
@@ -221,15 +235,17 @@ def refine_usd(
     check_flatten(flatten, all_variants)
     p = plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
              precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit,
-             device=device, all_variants=all_variants, shipped=shipped)
+             device=device, all_variants=all_variants, shipped=shipped, max_levels=max_levels, camera=camera,
+             pixel_error=pixel_error, resolution=resolution, offscreen_level=offscreen_level,
+             mesh_levels=mesh_levels)
     out_abs = check_output_path(output_path, p.stage)
-    check_memory(p.estimates, max_memory, levels)
+    check_memory(p.estimates, max_memory, p.max_level)
     custom = layer_record(p, levels, limit=limit, normals=normals, semi_sharp=semi_sharp, vertex_order=vertex_order,
                           all_variants=all_variants, flatten=flatten, frames=frames)
     layer = OutputLayer(out_abs, p.stage, custom)
     bake = None
     try:
-        bake = Bake(p, layer, levels, device=device, limit=limit, normals=normals, vertex_order=vertex_order,
+        bake = Bake(p, layer, device=device, limit=limit, normals=normals, vertex_order=vertex_order,
                     samples_only=samples_only, batch=batch, max_memory=max_memory, shipped=shipped,
                     progress=progress)
         reports, out_layout = bake.write()

@@ -47,7 +47,7 @@ class PrimWriter:
                 refinement, prepared = prepared, None
             else:
                 refinement = bake.refinement(self.i, spg)
-            bake.progress.step(w_tables / len(groups), f"{self.label}: {bake.levels} levels"
+            bake.progress.step(w_tables / len(groups), f"{self.label}: {bake.plan.levels[self.i]} levels"
                                + (f" (topology {group + 1})" if self.varying else ""))
             self._write_topology(refinement, group)
             self._write_points(refinement, spg, group, normals_spec, w_sample)
@@ -62,7 +62,8 @@ class PrimWriter:
             if group == sp.default_topology or not self.varying:
                 report = PrimReport(sp.path, sp.scheme, sp.rules if sp.scheme != "bilinear" else "-",
                                     spg.mesh.num_faces, len(refinement.counts), spg.mesh.num_vertices,
-                                    refinement.refiner.num_vertices, len(sp.point_times) or 1)
+                                    refinement.refiner.num_vertices, len(sp.point_times) or 1,
+                                    level=bake.plan.levels[self.i])
             del refinement
         return report
 

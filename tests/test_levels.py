@@ -1,0 +1,285 @@
+"""Per-mesh levels of a USD bake: ``subdiv:levels`` on a mesh or an ancestor (instanced prototypes too), the run's
+default and ``max_levels``, levels from a camera's pixel error (checked by refining and projecting through
+usd-core's own frustum), and the errors of bad levels, cameras and pixel errors."""
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, Usd, UsdGeom
+
+import warp_subdiv as ws
+from warp_subdiv import cli
+from warp_subdiv.errors import SubdivInputError
+from warp_subdiv.usd import plan, refine_usd
+from warp_subdiv.usd.levels import longest_projected_edge
+
+from test_usd_production import CUBE, CUBE_FACES, assert_valid, define_mesh, new_stage
+
+FACES_AT = {0: 6, 1: 24, 2: 96, 3: 384, 4: 1536}  # a cube's faces per level
+
+
+def set_levels(prim, value, type_name=Sdf.ValueTypeNames.Int):
+    prim.CreateAttribute("subdiv:levels", type_name).Set(value)
+
+
+def faces(stage, path):
+    return len(stage.GetPrimAtPath(path).GetAttribute("faceVertexCounts").Get())
+
+
+def scene_levels(path):
+    """/World/Default/Cube (no level), /World/Group (subdiv:levels 2) with Cube and Own (its own 0), two
+    instances of /Proto whose /Proto/Geo says 3, and /World/Outer (subdiv:levels 0) with an instance of /Plain
+    (no level inside)."""
+    stage = new_stage(path)
+    define_mesh(stage, "/World/Default/Cube", CUBE, CUBE_FACES)
+    set_levels(UsdGeom.Xform.Define(stage, "/World/Group").GetPrim(), 2)
+    define_mesh(stage, "/World/Group/Cube", CUBE, CUBE_FACES)
+    set_levels(define_mesh(stage, "/World/Group/Own", CUBE, CUBE_FACES).GetPrim(), 0)
+    for proto, level in (("/Proto", 3), ("/Plain", None)):
+        stage.CreateClassPrim(proto)
+        geo = UsdGeom.Xform.Define(stage, proto + "/Geo").GetPrim()
+        if level is not None:
+            set_levels(geo, level)
+        define_mesh(stage, proto + "/Geo/Mesh", CUBE, CUBE_FACES)
+    for inst, proto in (("/World/I1", "/Proto"), ("/World/I2", "/Proto"), ("/World/Outer/I3", "/Plain"),
+                        ("/World/I4", "/Plain")):
+        prim = UsdGeom.Xform.Define(stage, inst).GetPrim()
+        prim.GetReferences().AddInternalReference(proto)
+        prim.SetInstanceable(True)
+    set_levels(stage.GetPrimAtPath("/World/Outer"), 0)
+    stage.Save()
+    return str(path)
+
+
+def test_levels_from_mesh_ancestor_default_and_instances(tmp_path):
+    src = scene_levels(tmp_path / "scene.usda")
+    p = plan(src, 1)
+    got = {path: level for path, (level, _) in p.level_sources.items()}
+    assert got == {"/World/Default/Cube": 1, "/World/Group/Cube": 2, "/World/Group/Own": 0,
+                   "/World/I1/Geo/Mesh": 3, "/World/Outer/I3/Geo/Mesh": 0, "/World/I4/Geo/Mesh": 1}
+    assert p.level_sources["/World/Group/Cube"][1] == "subdiv:levels on /World/Group"
+    assert p.level_sources["/World/I1/Geo/Mesh"][1] == "subdiv:levels on /World/I1/Geo"  # inside the prototype
+    assert p.level_sources["/World/Default/Cube"][1] == "levels"
+    dst = tmp_path / "out.usda"
+    result = refine_usd(src, str(dst), 1)
+    out = Usd.Stage.Open(str(dst))
+    expect = {"/World/Default/Cube": 1, "/World/Group/Cube": 2, "/World/Group/Own": 0, "/World/I1/Geo/Mesh": 3,
+              "/World/I2/Geo/Mesh": 3, "/World/Outer/I3/Geo/Mesh": 0, "/World/I4/Geo/Mesh": 1}
+    for path, level in expect.items():
+        assert faces(out, path) == FACES_AT[level], path
+    # identical cubes at different levels are refined apart, at one level once (I1 and I2 share a unit, and so do
+    # /World/Default/Cube and I4's mesh at level 1; Own differs from I3's mesh by its own subdiv:levels)
+    assert sorted(r.level for r in result.reports) == [0, 0, 1, 2, 3]
+    # the refined points are those of warp_subdiv.refine at each mesh's level (as a set: the bake's order)
+    for path, level in expect.items():
+        want = ws.refine(ws.Mesh(CUBE, [4] * 6, np.ravel(CUBE_FACES)), level, device="cpu").points
+        pts = np.asarray(out.GetPrimAtPath(path).GetAttribute("points").Get(), dtype=np.float64)
+        assert np.allclose(np.sort(pts, axis=0), np.sort(want, axis=0), atol=1e-6), path
+    assert out.GetPrimAtPath("/World/I1").IsInstance() and out.GetPrimAtPath("/World/I4").IsInstance()
+    # instances whose meshes get different levels reference different refined prototypes
+    refs = {inst: out.GetPrimAtPath(inst).GetPrototype() for inst in ("/World/I1", "/World/I2", "/World/I4")}
+    assert refs["/World/I1"] == refs["/World/I2"] != refs["/World/I4"]
+    record = dict(Sdf.Layer.FindOrOpen(str(dst)).customLayerData)["warpSubdiv"]
+    assert record["levels"] == 1 and record["meshLevels"]["/World/Group/Own"] == 0
+    assert record["meshLevels"]["/World/I1/Geo/Mesh"] == 3
+    assert_valid(src, dst)
+
+
+def test_max_levels_caps_every_mesh(tmp_path):
+    src = scene_levels(tmp_path / "scene.usda")
+    p = plan(src, 3, max_levels=2)
+    got = {path: level for path, (level, _) in p.level_sources.items()}
+    assert got == {"/World/Default/Cube": 2, "/World/Group/Cube": 2, "/World/Group/Own": 0,
+                   "/World/I1/Geo/Mesh": 2, "/World/Outer/I3/Geo/Mesh": 0, "/World/I4/Geo/Mesh": 2}
+    assert p.level_sources["/World/I1/Geo/Mesh"][1] == "max_levels (from subdiv:levels on /World/I1/Geo)"
+    # the memory guard sees the chosen levels: the prediction is that of level 2, not 3
+    assert max(len(e.counts) - 1 for e in p.estimates) == 2
+
+
+def test_info_shows_levels_and_sources(tmp_path, capsys):
+    src = scene_levels(tmp_path / "scene.usda")
+    assert cli.main(["info", src, "--levels", "1", "--max-levels", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "  level: 1 (--levels)" in text  # each refined unit
+    assert "  level: 2 (subdiv:levels on /World/Group)" in text
+    listed = text.split("levels (each mesh read")[1]  # each composed mesh
+    for line in ("/World/Default/Cube: 1 (--levels)", "/World/Group/Cube: 2 (subdiv:levels on /World/Group)",
+                 "/World/Group/Own: 0 (subdiv:levels on /World/Group/Own)",
+                 "/World/I1/Geo/Mesh: 2 (--max-levels (from subdiv:levels on /World/I1/Geo))",
+                 "/World/Outer/I3/Geo/Mesh: 0 (subdiv:levels on /World/Outer)", "/World/I4/Geo/Mesh: 1 (--levels)"):
+        assert "\n  " + line + "\n" in listed, line
+    assert "unknown attribute subdiv:levels" not in text
+
+
+@pytest.mark.parametrize("value, type_name, message", [
+    (-1, Sdf.ValueTypeNames.Int, "/World/Group.subdiv:levels must be an int >= 0, got -1"),
+    (1.5, Sdf.ValueTypeNames.Float, "/World/Group.subdiv:levels must be an int >= 0, got a float"),
+    ("2", Sdf.ValueTypeNames.String, "/World/Group.subdiv:levels must be an int >= 0, got a string"),
+])
+def test_bad_levels_name_the_prim(tmp_path, value, type_name, message):
+    stage = new_stage(tmp_path / "bad.usda")
+    set_levels(UsdGeom.Xform.Define(stage, "/World/Group").GetPrim(), value, type_name)
+    define_mesh(stage, "/World/Group/Cube", CUBE, CUBE_FACES)
+    stage.Save()
+    with pytest.raises(SubdivInputError, match=message):
+        refine_usd(str(tmp_path / "bad.usda"), str(tmp_path / "out.usda"), 1)
+    assert not (tmp_path / "out.usda").exists()
+
+
+def test_bad_level_on_the_mesh_itself_names_it(tmp_path):
+    stage = new_stage(tmp_path / "bad.usda")
+    set_levels(define_mesh(stage, "/World/Cube", CUBE, CUBE_FACES).GetPrim(), 2.0, Sdf.ValueTypeNames.Double)
+    stage.Save()
+    with pytest.raises(SubdivInputError, match="/World/Cube: subdiv:levels must be int"):
+        plan(str(tmp_path / "bad.usda"), 1)
+
+
+def test_bad_run_levels_name_the_flag(tmp_path, capsys):
+    src = scene_levels(tmp_path / "scene.usda")
+    assert cli.main(["refine", src, "-o", str(tmp_path / "o.usda"), "--levels", "1", "--max-levels", "-1"]) == 2
+    assert "--max-levels must be an integer >= 0, got -1" in capsys.readouterr().err
+
+
+# -- levels from a camera ----------------------------------------------------------------------------------------
+
+RES = (640, 480)
+
+
+def scene_camera(path, animated=False):
+    """A camera at the origin looking down -z (aperture 4:3, like RES) and three identical cubes: /World/Near at
+    z = -6, /World/Far at z = -60 (both wholly on screen) and /World/Behind at z = +10. ``animated``: the camera
+    moves to z = -45 at time 2 (15 from Far)."""
+    stage = new_stage(path)
+    cam = UsdGeom.Camera.Define(stage, "/World/Cam")
+    cam.CreateHorizontalApertureAttr(20.955)
+    cam.CreateVerticalApertureAttr(20.955 * RES[1] / RES[0])
+    cam.CreateClippingRangeAttr(Gf.Vec2f(0.1, 1000.0))
+    move = cam.AddTranslateOp()
+    if animated:
+        move.Set(Gf.Vec3d(0, 0, 0), 1.0)
+        move.Set(Gf.Vec3d(0, 0, -45), 2.0)
+    else:
+        move.Set(Gf.Vec3d(0, 0, 0))
+    for name, z in (("Near", -6.0), ("Far", -60.0), ("Behind", 10.0)):
+        xform = UsdGeom.Xform.Define(stage, f"/World/{name}")
+        xform.AddTranslateOp().Set(Gf.Vec3d(-0.5, -0.5, z))
+        define_mesh(stage, f"/World/{name}/Cube", CUBE, CUBE_FACES)
+    stage.Save()
+    return str(path)
+
+
+def pixels_of_longest_edge(stage, mesh_path, level, time):
+    """The longest edge of the cube refined ``level`` times (warp_subdiv.refine), placed by the mesh's world
+    transform and projected through usd-core's frustum of /World/Cam at ``time``, in pixels at RES: every
+    point transformed by Gf (its projective divide), edge by edge."""
+    refined = ws.refine(ws.Mesh(CUBE, [4] * 6, np.ravel(CUBE_FACES)), level, device="cpu")
+    world = UsdGeom.Xformable(stage.GetPrimAtPath(mesh_path)).ComputeLocalToWorldTransform(time)
+    frustum = UsdGeom.Camera(stage.GetPrimAtPath("/World/Cam")).GetCamera(time).frustum
+    to_clip = frustum.ComputeViewMatrix() * frustum.ComputeProjectionMatrix()
+    ndc = [to_clip.Transform(world.Transform(Gf.Vec3d(*map(float, p)))) for p in refined.points]
+    assert all(-1 <= v[0] <= 1 and -1 <= v[1] <= 1 for v in ndc)  # wholly on screen: every edge counts
+    longest = 0.0
+    counts, indices = refined.face_vertex_counts, refined.face_vertex_indices
+    start = 0
+    for n in counts:
+        face = indices[start:start + n]
+        start += n
+        for a, b in zip(face, np.roll(face, -1)):
+            dx = (ndc[a][0] - ndc[b][0]) * RES[0] / 2
+            dy = (ndc[a][1] - ndc[b][1]) * RES[1] / 2
+            longest = max(longest, float(np.hypot(dx, dy)))
+    return longest
+
+
+def camera_levels(src, **kw):
+    p = plan(src, kw.pop("levels", 6), camera="/World/Cam", pixel_error=kw.pop("pixel_error", 12.0),
+             resolution=kw.pop("resolution", "640x480"), **kw)
+    return {path: level for path, (level, _) in p.level_sources.items()}, p
+
+
+def test_camera_near_gets_more_levels_each_the_smallest_that_meets_the_error(tmp_path):
+    src = scene_camera(tmp_path / "scene.usda")
+    levels, p = camera_levels(src, pixel_error=12.0)
+    near, far = levels["/World/Near/Cube"], levels["/World/Far/Cube"]
+    assert near > far >= 1
+    stage = Usd.Stage.Open(src)
+    for path, level in (("/World/Near/Cube", near), ("/World/Far/Cube", far)):
+        assert pixels_of_longest_edge(stage, path, level, Usd.TimeCode.Default()) <= 12.0, path
+        assert pixels_of_longest_edge(stage, path, level - 1, Usd.TimeCode.Default()) > 12.0, path
+    assert levels["/World/Behind/Cube"] == 0  # off-screen
+    assert p.level_sources["/World/Behind/Cube"][1] == "camera /World/Cam (off-screen; at most levels)"
+    # the cap: --levels
+    capped, _ = camera_levels(src, pixel_error=12.0, levels=2)
+    assert capped["/World/Near/Cube"] == 2 and capped["/World/Far/Cube"] == min(far, 2)
+
+
+def test_camera_offscreen_level_and_bake(tmp_path):
+    src = scene_camera(tmp_path / "scene.usda")
+    dst = tmp_path / "out.usda"
+    assert cli.main(["refine", src, "-o", str(dst), "--levels", "4", "--camera", "/World/Cam", "--pixel-error", "30",
+                     "--resolution", "640x480", "--offscreen-level", "1", "--quiet"]) == 0
+    out = Usd.Stage.Open(str(dst))
+    levels, _ = camera_levels(src, pixel_error=30.0, levels=4, offscreen_level=1)
+    assert levels["/World/Behind/Cube"] == 1
+    for path, level in levels.items():
+        assert faces(out, path) == FACES_AT[level], path
+    assert levels["/World/Near/Cube"] > levels["/World/Far/Cube"]
+    assert_valid(src, dst)
+
+
+def test_camera_resolution_from_render_settings(tmp_path):
+    src = scene_camera(tmp_path / "scene.usda")
+    stage = Usd.Stage.Open(src)
+    from pxr import UsdRender
+
+    settings = UsdRender.Settings.Define(stage, "/Render/Settings")
+    settings.CreateResolutionAttr(Gf.Vec2i(2 * RES[0], 2 * RES[1]))
+    stage.SetMetadata("renderSettingsPrimPath", "/Render/Settings")
+    stage.Save()
+    p = plan(src, 6, camera="/World/Cam", pixel_error=24.0)
+    doubled = {path: level for path, (level, _) in p.level_sources.items()}
+    same, _ = camera_levels(src, pixel_error=12.0)  # twice the pixels, twice the error: the same levels
+    assert doubled == same
+
+
+def test_animated_camera_worst_frame_wins(tmp_path):
+    src = scene_camera(tmp_path / "scene.usda", animated=True)
+    stage = Usd.Stage.Open(src)
+    each = [camera_levels(src, frames=(t, t))[0]["/World/Far/Cube"] for t in (1.0, 2.0)]
+    assert each[1] > each[0]  # closer at time 2
+    both, _ = camera_levels(src, frames=(1.0, 2.0))
+    level = both["/World/Far/Cube"]
+    assert level == max(each)
+    assert all(pixels_of_longest_edge(stage, "/World/Far/Cube", level, t) <= 12.0 for t in (1.0, 2.0))
+    assert pixels_of_longest_edge(stage, "/World/Far/Cube", level - 1, 2.0) > 12.0
+    every, _ = camera_levels(src)  # no frames: every time sample
+    assert every["/World/Far/Cube"] == level
+
+
+def test_longest_projected_edge_clips_at_the_near_plane():
+    frustum = Gf.Frustum()  # at the origin, looking down -z
+    frustum.SetPerspective(90.0, 1.0, 1.0, 100.0)
+    matrix = np.array(frustum.ComputeViewMatrix() * frustum.ComputeProjectionMatrix())
+    square = np.array([(-1, -1, -4), (1, -1, -4), (1, 1, -4), (-1, 1, -4)], dtype=float)
+    # 2 units at distance 4 through a 90 degree field of view: half the width of 100 pixels
+    assert longest_projected_edge(square, [4], [0, 1, 2, 3], matrix, (100, 100)) == pytest.approx(25.0)
+    behind = square * [1, 1, -1]
+    assert longest_projected_edge(behind, [4], [0, 1, 2, 3], matrix, (100, 100)) == 0.0
+    # edges that cross the near plane (z = -1) are measured from there: the longest, from (0.6, 0, 4) to
+    # (0.5, 0, -4), crosses it at x = 0.5375
+    crossing = np.array([(0.5, 0, -4), (0.5, 0, 4), (0.6, 0, 4)], dtype=float)
+    got = longest_projected_edge(crossing, [3], [0, 1, 2], matrix, (100, 100))
+    assert got == pytest.approx((0.5375 / 1 - 0.5 / 4) * 50)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--camera", "/World/Near", "--pixel-error", "2"], "--camera /World/Near: a Xform, not a Camera"),
+    (["--camera", "/World/Nothing", "--pixel-error", "2"], "--camera /World/Nothing: no prim"),
+    (["--camera", "/World/Cam", "--pixel-error", "0"], "--pixel-error must be a number > 0 (pixels), got 0.0"),
+    (["--camera", "/World/Cam"], "--camera needs --pixel-error"),
+    (["--pixel-error", "2"], "--pixel-error is for levels from --camera: give --camera too"),
+    (["--camera", "/World/Cam", "--pixel-error", "2", "--resolution", "640"], "--resolution must be WxH"),
+])
+def test_bad_camera_input_names_the_flag(tmp_path, capsys, argv, message):
+    src = scene_camera(tmp_path / "scene.usda")
+    assert cli.main(["refine", src, "-o", str(tmp_path / "o.usda"), "--levels", "2"] + argv) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o.usda").exists()

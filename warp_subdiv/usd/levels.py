@@ -1,0 +1,360 @@
+"""The level of each mesh of a bake: from the scene (``subdiv:levels`` on the mesh or an ancestor), the run's
+default and cap, or a camera's pixel error (:class:`LevelChooser`, which :func:`~warp_subdiv.usd.plan` asks for
+every composed mesh it reads).
+
+* ``subdiv:levels`` (an ``int`` >= 0) on a mesh or any ancestor prim sets the mesh's level; the nearest wins,
+  so an Xform over a group sets its meshes and a mesh's own attribute overrides it. It is read on the composed
+  prims, so opinions inside instance prototypes, variants and references count like any other attribute.
+* ``levels`` (``--levels``) is the level of a mesh without one.
+* ``camera`` / ``pixel_error``: each mesh gets the smallest level whose longest refined edge projects to at
+  most ``pixel_error`` pixels through the camera (:class:`CameraLevels`); its ``subdiv:levels``, else
+  ``levels``, is then the most it gets. Meshes outside the camera's frustum get ``offscreen_level``.
+* ``max_levels`` (``--max-levels``) caps every mesh, whatever set its level.
+
+Meshes whose inputs are identical but whose levels differ are distinct units of the bake (refined and written
+once per level); instances of one prototype whose meshes get different levels reference different refined
+prototypes (one per distinct set of levels).
+"""
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+
+import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdRender
+
+from ..errors import SubdivInputError
+from ..io.usd_read import SubdivPrim
+from ..io.usd_stage import DEFAULT, times_for_frames
+from ..mesh import face_offsets_of, next_corner_of
+from ..refiner import Refiner
+from ..runtime.estimate import MemoryGuardError
+from .refinement import MeshRefinement
+
+#: The attribute that sets the level of a mesh and of every mesh under a prim.
+LEVELS_ATTRIBUTE = "subdiv:levels"
+#: The resolution a camera's pixel error is measured at when the stage has no render settings.
+DEFAULT_RESOLUTION = (1920, 1080)
+_INT_TYPES = {Sdf.ValueTypeNames.Int, Sdf.ValueTypeNames.UInt, Sdf.ValueTypeNames.Int64,
+              Sdf.ValueTypeNames.UInt64, Sdf.ValueTypeNames.UChar}
+
+
+def check_level(value, option: str) -> int:
+    """``value`` as a level (an integer >= 0); SubdivInputError naming ``option`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise SubdivInputError(f"{option} must be an integer >= 0, got {value!r}", option=option, value=value)
+    return int(value)
+
+
+def authored_level(prim: Usd.Prim) -> int | None:
+    """The ``subdiv:levels`` of ``prim`` (None when it has no value); an error naming the prim when it is not an
+    integer >= 0."""
+    attr = prim.GetAttribute(LEVELS_ATTRIBUTE)
+    if not attr or not attr.HasValue():
+        return None
+    value = attr.Get()
+    where = f"{prim.GetPath()}.{LEVELS_ATTRIBUTE}"
+    if attr.GetTypeName() not in _INT_TYPES:
+        raise SubdivInputError(f"{where} must be an int >= 0, got a {attr.GetTypeName()} ({value!r})",
+                               option="levels", value=value)
+    if attr.GetNumTimeSamples():
+        raise SubdivInputError(f"{where}: a level cannot change over time (it has time samples)",
+                               option="levels", value=value)
+    if value is None or int(value) < 0:
+        raise SubdivInputError(f"{where} must be an int >= 0, got {value!r}", option="levels", value=value)
+    return int(value)
+
+
+def nearest_level(prim: Usd.Prim):
+    """(level, path of the prim that sets it) from the ``subdiv:levels`` of ``prim`` or its nearest ancestor
+    that has one (through instance proxies to the instance and above), or None."""
+    while prim and not prim.IsPseudoRoot():
+        level = authored_level(prim)
+        if level is not None:
+            return level, str(prim.GetPath())
+        prim = prim.GetParent()
+    return None
+
+
+def stage_resolution(stage: Usd.Stage) -> tuple:
+    """(width, height) in pixels of the stage's render settings (``renderSettingsPrimPath``), else
+    :data:`DEFAULT_RESOLUTION`."""
+    settings = UsdRender.Settings.GetStageRenderSettings(stage)
+    if settings:
+        value = settings.GetResolutionAttr().Get()
+        if value is not None and value[0] > 0 and value[1] > 0:
+            return int(value[0]), int(value[1])
+    return DEFAULT_RESOLUTION
+
+
+def check_resolution(value) -> tuple:
+    """(width, height) from a pair of positive integers or the text ``WxH``."""
+    text = value
+    if isinstance(value, str):
+        parts = value.lower().split("x")
+        try:
+            value = tuple(int(p) for p in parts) if len(parts) == 2 else None
+        except ValueError:
+            value = None
+    ok = (isinstance(value, (tuple, list)) and len(value) == 2
+          and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v > 0 for v in value))
+    if not ok:
+        raise SubdivInputError(f"resolution must be WxH in pixels (two integers > 0), got {text!r}",
+                               option="resolution", value=text)
+    return int(value[0]), int(value[1])
+
+
+def longest_projected_edge(points, counts, indices, matrix, resolution) -> float:
+    """The longest edge of the faces (``counts``, ``indices``) over ``points`` (world space, (n, 3)), in pixels,
+    through ``matrix`` (world to clip space, USD's row-vector convention: a view times a projection matrix of
+    a :class:`Gf.Frustum`) at ``resolution``; 0 when no edge is on screen.
+
+    An edge counts when, clipped to the camera's near plane, its projection's bounding box touches the screen
+    (so edges that pass just outside a corner count too: the measure errs towards more levels); an edge wholly
+    behind the near plane does not count. An edge that crosses the near plane is measured from where it
+    crosses it (its projection is unbounded beyond)."""
+    counts = np.asarray(counts, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    if len(indices) == 0:
+        return 0.0
+    homogeneous = np.concatenate([np.asarray(points, dtype=np.float64), np.ones((len(points), 1))], axis=1)
+    clip = homogeneous @ np.asarray(matrix, dtype=np.float64)
+    nxt = next_corner_of(counts, face_offsets_of(counts))
+    a, b = clip[indices], clip[indices[nxt]]
+    da, db = a[:, 2] + a[:, 3], b[:, 2] + b[:, 3]  # >= 0: in front of the near plane
+    keep = (da > 0) | (db > 0)
+    a, b, da, db = a[keep], b[keep], da[keep], db[keep]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(da < 0, da / (da - db), 0.0)[:, None]
+        a = np.where(t > 0, a + t * (b - a), a)
+        t = np.where(db < 0, db / (db - da), 0.0)[:, None]
+        b = np.where(t > 0, b + t * (a - b), b)
+        na, nb = a[:, :2] / a[:, 3:4], b[:, :2] / b[:, 3:4]
+    lo, hi = np.minimum(na, nb), np.maximum(na, nb)
+    seen = np.all(np.isfinite(na) & np.isfinite(nb), axis=1) & np.all((lo <= 1) & (hi >= -1), axis=1)
+    if not seen.any():
+        return 0.0
+    d = (nb[seen] - na[seen]) * (0.5 * np.asarray(resolution, dtype=np.float64))
+    return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d))))
+
+
+def conformed_frustum(camera: UsdGeom.Camera, time, resolution) -> Gf.Frustum:
+    """The camera's frustum at ``time`` (usd-core's ``GetCamera(time).frustum``: its world transform, aperture
+    and clipping range) with the window widened in one direction to the resolution's aspect ratio (as
+    UsdRender's default ``expandAperture`` conform policy does), so that pixels are square."""
+    frustum = camera.GetCamera(time).frustum
+    window = frustum.GetWindow()
+    lo, hi = window.GetMin(), window.GetMax()
+    size = hi - lo
+    aspect = resolution[0] / resolution[1]
+    centre = (lo + hi) * 0.5
+    if size[0] / size[1] < aspect:
+        half = Gf.Vec2d(size[1] * aspect, size[1]) * 0.5
+    else:
+        half = Gf.Vec2d(size[0], size[0] / aspect) * 0.5
+    frustum.SetWindow(Gf.Range2d(centre - half, centre + half))
+    return frustum
+
+
+def _xform_times(prim: Usd.Prim, own: bool = False) -> set:
+    """Time samples of the transforms of ``prim`` and its ancestors (and of all of ``prim``'s attributes when
+    ``own``: a camera's aperture and focal length)."""
+    out: set = set()
+    first = True
+    while prim and not prim.IsPseudoRoot():
+        for attr in prim.GetAttributes():
+            if (own and first) or attr.GetName().startswith("xformOp"):
+                out.update(attr.GetTimeSamples())
+        prim, first = prim.GetParent(), False
+    return out
+
+
+class CameraLevels:
+    """Levels from a camera's pixel error: for each mesh, the smallest level whose longest refined edge projects
+    to at most ``pixel_error`` pixels at ``resolution`` (:func:`longest_projected_edge`), at the worst of the
+    times it is measured at, up to a cap.
+
+    The edges measured are the refined mesh's own edges (of its refined faces, the control edges of the next
+    level), on the refined points the bake writes (refined control points; with ``--limit`` the written limit
+    points lie near them), placed by the mesh's world transform. The times: the time samples in ``frames``
+    of the mesh's points and of the transforms of the mesh, the camera and their ancestors, and of the
+    camera's own attributes (focal length, aperture), with the ends of ``frames`` (see
+    :func:`~warp_subdiv.io.usd_stage.times_for_frames`); the default time when nothing is animated.
+
+    A mesh whose control points' bounding box (which holds the refined surface: subdivision is a convex
+    combination of them) lies outside the camera's frustum at every one of those times is off-screen and
+    gets ``offscreen_level``.
+
+    Refined edges roughly halve per level. The level is predicted from the longest edges at levels 0 and 1
+    (the ratio between them, at least 1/2, at most 3/4, extrapolated), then checked by refining and measuring
+    at the predicted level and the one below, moving up or down until the smallest level that meets the bound
+    is found (or the cap)."""
+
+    def __init__(self, stage: Usd.Stage, camera: str, pixel_error, *, resolution=None, frames=None,
+                 offscreen_level: int = 0, device=None):
+        prim = stage.GetPrimAtPath(camera) if isinstance(camera, (str, Sdf.Path)) and camera else None
+        if not prim or not prim.IsA(UsdGeom.Camera):
+            what = "no prim" if not prim else f"a {prim.GetTypeName() or 'typeless prim'}, not a Camera"
+            raise SubdivInputError(f"camera {camera}: {what}", option="camera", value=camera)
+        if (isinstance(pixel_error, bool) or not isinstance(pixel_error, (int, float, np.number))
+                or not math.isfinite(pixel_error) or pixel_error <= 0):
+            raise SubdivInputError(f"pixel_error must be a number > 0 (pixels), got {pixel_error!r}",
+                                   option="pixel_error", value=pixel_error)
+        self.path = str(prim.GetPath())
+        self.device = device
+        self.camera = UsdGeom.Camera(prim)
+        self.pixel_error = float(pixel_error)
+        self.resolution = stage_resolution(stage) if resolution is None else check_resolution(resolution)
+        self.frames = frames
+        self.offscreen_level = check_level(offscreen_level, "offscreen_level")
+        self._camera_times = _xform_times(prim, own=True)
+        self._frustums: dict = {}
+        self._refined: OrderedDict = OrderedDict()  # (id(sp), level) -> MeshRefinement, a few kept
+
+    def times(self, prim: Usd.Prim, sp: SubdivPrim) -> list:
+        """The times a mesh is measured at (see the class)."""
+        times = set(self._camera_times) | _xform_times(prim) | set(sp.point_times)
+        times = times_for_frames(times, self.frames)
+        return times or [DEFAULT]
+
+    def frustum(self, time) -> Gf.Frustum:
+        key = "default" if time == DEFAULT else float(time)
+        if key not in self._frustums:
+            self._frustums[key] = conformed_frustum(self.camera, time, self.resolution)
+        return self._frustums[key]
+
+    def refinement(self, sp: SubdivPrim, options, level: int):
+        """The mesh refined ``level`` times as the bake refines it (its topology and positions), a few kept."""
+        key = (id(sp), level)
+        if key not in self._refined:
+            try:
+                refiner = Refiner(sp.mesh, level, options=options, device=self.device)
+            except MemoryGuardError:
+                raise
+            except SubdivInputError as exc:
+                raise sp.error(exc) from None
+            self._refined[key] = MeshRefinement(sp, refiner, options, level, False, False, "opensubdiv")
+            while len(self._refined) > 4:
+                self._refined.popitem(last=False)
+        self._refined.move_to_end(key)
+        return self._refined[key]
+
+    def longest_edge(self, prim, sp, options, level, placements) -> float:
+        """The longest projected refined edge at ``level`` over ``placements`` ([(time, world matrix, clip
+        matrix)])."""
+        r = self.refinement(sp, options, level)
+        worst = 0.0
+        for t, world, clip in placements:
+            pts = np.asarray(r.positions(sp.points_at(t))[0], dtype=np.float64)
+            world_pts = pts @ world[:3, :3] + world[3, :3]
+            worst = max(worst, longest_projected_edge(world_pts, r.counts, r.indices, clip, self.resolution))
+        return worst
+
+    def level(self, prim: Usd.Prim, sp: SubdivPrim, options, cap: int):
+        """(level, note) of the composed mesh ``prim`` (read as ``sp``, refined with ``options``), at most
+        ``cap``; the note says why ("off-screen", "N.N px", or that the cap held it)."""
+        if sp.topologies:
+            raise SubdivInputError(f"{sp.path}: levels from a camera need a topology that does not change over "
+                                   "time; give the mesh subdiv:levels", option="camera")
+        xformable = UsdGeom.Xformable(prim)
+        placements, visible = [], False
+        for t in self.times(prim, sp):
+            world = xformable.ComputeLocalToWorldTransform(t)
+            frustum = self.frustum(t)
+            pts = sp.points_at(t)
+            box = Gf.BBox3d(Gf.Range3d(Gf.Vec3d(*pts.min(axis=0)), Gf.Vec3d(*pts.max(axis=0))), world)
+            visible = visible or frustum.Intersects(box)
+            clip = np.array(frustum.ComputeViewMatrix() * frustum.ComputeProjectionMatrix())
+            placements.append((t, np.array(world), clip))
+        if not visible:
+            return min(self.offscreen_level, cap), "off-screen"
+        px = self.pixel_error
+
+        def edge(level):
+            return self.longest_edge(prim, sp, options, level, placements)
+
+        e0 = edge(0)
+        if e0 <= px or cap == 0:
+            return 0, f"{e0:.3g} px" if e0 <= px else f"{e0:.3g} px at the cap"
+        e1 = edge(1)
+        if e1 <= px or cap == 1:
+            return 1, f"{e1:.3g} px" if e1 <= px else f"{e1:.3g} px at the cap"
+        ratio = min(max(e1 / e0, 0.5), 0.75)
+        level = min(cap, max(2, 1 + math.ceil(math.log(px / e1) / math.log(ratio))))
+        found = {0: e0, 1: e1}
+
+        def measured(n):
+            if n not in found:
+                found[n] = edge(n)
+            return found[n]
+
+        while level < cap and measured(level) > px:
+            level += 1
+        while level > 1 and measured(level - 1) <= px:
+            level -= 1
+        e = measured(level)
+        return level, f"{e:.3g} px" + ("" if e <= px else " at the cap")
+
+
+class LevelChooser:
+    """The level of every composed mesh of a bake (see the module): ``chooser(prim, sp, options)`` gives
+    (level, source), the source saying where the level came from for ``info`` and the reports.
+
+    ``mesh_levels``: {composed mesh path: level} decided before (a distributed bake's driver hands the levels
+    its camera chose to the tasks, which see only their own frames): these win over everything else."""
+
+    def __init__(self, stage: Usd.Stage, levels: int, *, max_levels=None, camera=None, pixel_error=None,
+                 resolution=None, offscreen_level=None, frames=None, device=None, mesh_levels=None):
+        self.levels = check_level(levels, "levels")
+        self.mesh_levels = {str(path): check_level(level, f"mesh_levels[{path!r}]")
+                            for path, level in dict(mesh_levels or {}).items()}
+        self.max_levels = None if max_levels is None else check_level(max_levels, "max_levels")
+        if camera is None:
+            for name, value in (("pixel_error", pixel_error), ("resolution", resolution),
+                                ("offscreen_level", offscreen_level)):
+                if value is not None:
+                    raise SubdivInputError(f"{name} is for levels from camera: give camera too",
+                                           option=(name, "camera"), value=value)
+            self.camera = None
+        else:
+            if pixel_error is None:
+                raise SubdivInputError("camera needs pixel_error (the longest refined edge, in pixels)",
+                                       option=("camera", "pixel_error"))
+            self.camera = CameraLevels(stage, camera, pixel_error, resolution=resolution, frames=frames,
+                                       offscreen_level=0 if offscreen_level is None else offscreen_level,
+                                       device=device)
+
+    @property
+    def per_instance(self) -> bool:
+        """Whether a mesh's level depends on where each instance of its prototype is (a camera's), so that
+        every instance is read on its own (instances whose meshes get equal levels still share one refined
+        prototype)."""
+        return self.camera is not None
+
+    def context(self, instance: Usd.Prim):
+        """What the levels of the meshes inside ``instance`` depend on besides the prototype: the
+        ``subdiv:levels`` at or above the instance prim (and with a camera, the instance itself)."""
+        outer = nearest_level(instance)
+        return (outer, str(instance.GetPath())) if self.per_instance else outer
+
+    def __call__(self, prim: Usd.Prim, sp: SubdivPrim, options):
+        given = self.mesh_levels.get(str(prim.GetPath()))
+        if given is not None:
+            return given, "mesh_levels"
+        found = nearest_level(prim)
+        if found is not None:
+            level, where = found
+            source = f"{LEVELS_ATTRIBUTE} on {where}"
+        else:
+            level, source = self.levels, "levels"
+        if self.camera is not None:
+            level, note = self.camera.level(prim, sp, options, level)
+            source = f"camera {self.camera.path} ({note}; at most {source})"
+        if self.max_levels is not None and level > self.max_levels:
+            level, source = self.max_levels, f"max_levels (from {source})"
+        return level, source
+
+
+__all__ = ["CameraLevels", "DEFAULT_RESOLUTION", "LEVELS_ATTRIBUTE", "LevelChooser", "authored_level",
+           "check_level", "check_resolution", "conformed_frustum", "longest_projected_edge", "nearest_level",
+           "stage_resolution"]
