@@ -283,3 +283,78 @@ def test_bad_camera_input_names_the_flag(tmp_path, capsys, argv, message):
     assert cli.main(["refine", src, "-o", str(tmp_path / "o.usda"), "--levels", "2"] + argv) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o.usda").exists()
+
+
+# -- LOD variants --------------------------------------------------------------------------------------------------
+
+def scene_assets(folder):
+    """asset.usda (a cube /Asset/Geo/Mesh) referenced by /World/A and /World/B (identical meshes) and by the
+    instances /World/I1, /World/I2; shot.usda holds no mesh opinion of its own (the LOD variants' case)."""
+    from test_usd_production import write_asset
+
+    asset = write_asset(folder / "asset.usda")
+    stage = new_stage(folder / "shot.usda")
+    for name, instance in (("A", False), ("B", False), ("I1", True), ("I2", True)):
+        prim = UsdGeom.Xform.Define(stage, f"/World/{name}").GetPrim()
+        prim.GetReferences().AddReference("./asset.usda")
+        prim.SetInstanceable(instance)
+    stage.Save()
+    return asset, str(folder / "shot.usda")
+
+
+MESHES = ("/World/A/Geo/Mesh", "/World/B/Geo/Mesh", "/World/I1/Geo/Mesh", "/World/I2/Geo/Mesh")
+
+
+def with_selection(dst, level, tmp_path):
+    """The output with every subdivLOD variant set selecting ``level`` (a copy of the layer, selections edited)."""
+    layer = Sdf.Layer.FindOrOpen(str(dst))
+    copy = tmp_path / f"selected{level}.usda"
+    layer.Export(str(copy))
+    edited = Sdf.Layer.FindOrOpen(str(copy))
+    found = []
+
+    def visit(path):
+        spec = edited.GetPrimAtPath(path) if path.IsPrimPath() else None
+        if spec is not None and "subdivLOD" in spec.variantSets.keys():
+            spec.variantSelections["subdivLOD"] = f"level{level}"
+            found.append(str(path))
+
+    edited.Traverse(Sdf.Path.absoluteRootPath, visit)
+    edited.Save()
+    return str(copy), found
+
+
+def test_lod_variants_compose_to_each_level(tmp_path):
+    asset, src = scene_assets(tmp_path)
+    dst = tmp_path / "lod.usda"
+    assert cli.main(["refine", src, "-o", str(dst), "--levels", "1", "--lod-variants", "0,2,1", "--quiet"]) == 0
+    layer = Sdf.Layer.FindOrOpen(str(dst))
+    # the identical meshes share one refined mesh, the instances one prototype: each written once per level
+    homes = with_selection(dst, 1, tmp_path)[1]
+    assert len(homes) == 2
+    assert list(dict(layer.customLayerData)["warpSubdiv"]["lodVariants"]) == [0, 2, 1]
+    default = Usd.Stage.Open(str(dst))
+    assert all(faces(default, m) == FACES_AT[1] for m in MESHES)  # the last level is selected
+    assert default.GetPrimAtPath("/World/I1").IsInstance()
+    for level in (0, 1, 2):
+        path, found = with_selection(dst, level, tmp_path)
+        out = Usd.Stage.Open(path)
+        want = ws.refine(ws.Mesh(CUBE, [4] * 6, np.ravel(CUBE_FACES)), level, device="cpu")
+        for mesh in MESHES:
+            prim = out.GetPrimAtPath(mesh)
+            assert len(prim.GetAttribute("faceVertexCounts").Get()) == want.num_faces, (level, mesh)
+            pts = np.asarray(prim.GetAttribute("points").Get(), dtype=np.float64)
+            assert np.allclose(np.sort(pts, axis=0), np.sort(want.points, axis=0), atol=1e-6), (level, mesh)
+            assert prim.GetAttribute("subdivisionScheme").Get() == "none"
+    assert_valid(src, dst)
+
+
+def test_lod_variants_bad_input(tmp_path, capsys):
+    _, src = scene_assets(tmp_path)
+    out = str(tmp_path / "o.usda")
+    assert cli.main(["refine", src, "-o", out, "--levels", "1", "--lod-variants", "0,x"]) == 2
+    assert "--lod-variants must be levels separated by commas (0,1,2), got '0,x'" in capsys.readouterr().err
+    assert cli.main(["refine", src, "-o", out, "--levels", "1", "--lod-variants", "1,1"]) == 2
+    assert "--lod-variants lists a level twice" in capsys.readouterr().err
+    with pytest.raises(SubdivInputError, match="lod_variants does not combine with camera"):
+        refine_usd(src, out, 1, lod_variants=[0, 1], camera="/World/Cam", pixel_error=1.0)

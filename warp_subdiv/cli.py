@@ -98,6 +98,10 @@ def _add_refine(sub) -> None:
                      help="with --camera: the image size (default: the stage's render settings, else 1920x1080)")
     cmd.add_argument("--offscreen-level", type=int, default=None, metavar="N",
                      help="with --camera: the level of meshes outside the camera's frustum (default 0)")
+    cmd.add_argument("--lod-variants", default=None, metavar="L0,L1,...",
+                     help="USD: write every refined mesh at each of these levels, inside the variants level<N> of a "
+                          "variant set subdivLOD (the last selected); the meshes must come through references, "
+                          "payloads or instances (a variant is weaker than the input's local opinions)")
     cmd.add_argument("--prim", action="append", metavar="PATH",
                      help="refine only the meshes at or under this prim path (repeatable; USD only)")
     cmd.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
@@ -407,12 +411,14 @@ def _refine_usd(args, max_memory, progress) -> int:
                progress=progress)
     run["vertex_order"] = args.vertex_order  # always passed: every chunk of a distributed bake numbers alike
     levels = dict(max_levels=args.max_levels, camera=args.camera, pixel_error=args.pixel_error,
-                  resolution=args.resolution, offscreen_level=args.offscreen_level)
+                  resolution=args.resolution, offscreen_level=args.offscreen_level, lod_variants=args.lod_variants)
     run.update((k, v) for k, v in levels.items() if v is not None)
     if args.all_variants:
         if args.workers or args.scheduler:
             raise UsageError("--all-variants does not combine with --workers or --scheduler")
         run["all_variants"] = True
+    if args.lod_variants is not None and (args.workers or args.scheduler):
+        raise UsageError("--lod-variants does not combine with --workers or --scheduler")
     if args.workers or args.scheduler:
         from .usd import bake
 
@@ -444,9 +450,9 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     if args.prim or args.frames:
         raise UsageError("--prim and --frames apply to USD input only")
     if any(v is not None for v in (args.max_levels, args.camera, args.pixel_error, args.resolution,
-                                   args.offscreen_level)):
-        raise UsageError("--max-levels, --camera, --pixel-error, --resolution and --offscreen-level apply to USD "
-                         "input only")
+                                   args.offscreen_level, args.lod_variants)):
+        raise UsageError("--max-levels, --camera, --pixel-error, --resolution, --offscreen-level and --lod-variants "
+                         "apply to USD input only")
     if args.limit or args.normals or args.flatten or args.all_variants:
         raise UsageError("--limit, --normals, --flatten and --all-variants apply to USD input only")
     start = time.perf_counter()
@@ -566,7 +572,7 @@ def _info(args) -> int:
         _print_levels(lambda lv, sp=sp, control=control: estimate_prim(sp, lv, control=control), args.levels)
     for path, reason in p.left_alone:
         print(f"{path}: left alone ({reason})")
-    if p.level_sources:
+    if any(source != "levels" for _, source in p.level_sources.values()):  # else each is --levels, as said above
         print("levels (each mesh read; instances of one prototype by the first one):")
         for path, (level, source) in p.level_sources.items():
             print(f"  {path}: {level} ({_flagged(source, ('levels', 'max_levels'))})")

@@ -24,7 +24,7 @@ RESULT_KEYS = {
     "levels": "levels", "prims": "prims", "schemes": "scheme", "rules": "rules", "boundaries": "boundary",
     "precisions": "precision", "vertexOrders": "vertex order", "semiSharp": "semi-sharp", "limitPoints": "limit",
     "normals": "normals", "allVariants": "all variants", "meshOptions": "the meshes' refinement options",
-    "meshLevels": "the meshes' levels",
+    "meshLevels": "the meshes' levels", "lodVariants": "lod variants",
 }
 
 
@@ -41,7 +41,7 @@ def options_digest(p: Plan, vertex_order: str) -> str:
 
 
 def layer_record(p: Plan, levels: int, *, limit: bool, normals: bool, semi_sharp: str, vertex_order: str,
-                 all_variants: bool, flatten: bool, frames=None) -> dict:
+                 all_variants: bool, flatten: bool, frames=None, lod_variants=None) -> dict:
     """The ``customLayerData`` of a layer that refines the meshes of plan ``p``: ``{"warpSubdiv": {...}}``
     (the version, the input's file name, the frames where given, and the keys of :data:`RESULT_KEYS`).
 
@@ -62,13 +62,15 @@ def layer_record(p: Plan, levels: int, *, limit: bool, normals: bool, semi_sharp
     }
     if frames is not None:
         record["frames"] = format_frames(frames)
+    if lod_variants:
+        record["lodVariants"] = Vt.IntArray([int(v) for v in lod_variants])
     return {"warpSubdiv": record}
 
 
 def _plain(value):
     if isinstance(value, dict):
         return {k: _plain(v) for k, v in value.items()}
-    return list(value) if isinstance(value, Vt.StringArray) else value
+    return list(value) if isinstance(value, (Vt.StringArray, Vt.IntArray)) else value
 
 
 def check_same_refinement(records) -> None:

@@ -51,6 +51,7 @@ from .ahead import Ahead
 from .batching import Batches
 from .order import check_vertex_order
 from .output_layout import layout
+from .lod import check_lod_variants, declare_variant_set, lod_path, variant_name
 from .planning import Plan, make_refiner, plan
 from .record import layer_record
 from .refinement import MeshRefinement
@@ -94,8 +95,10 @@ class Bake:
     every mesh; :meth:`close` stops the workers."""
 
     def __init__(self, p: Plan, layer: OutputLayer, *, device, limit, normals, vertex_order,
-                 samples_only: bool, batch: bool, max_memory, shipped, progress):
+                 samples_only: bool, batch: bool, max_memory, shipped, progress, lod_variants=None):
         self.plan, self.layer = p, layer
+        self.lod_variants = lod_variants  # levels written as variants of every mesh (warp_subdiv.usd.lod)
+        batch = batch and not lod_variants  # batches and workers refine each mesh at its planned level only
         self.device, self.limit, self.normals = device, limit, normals
         self.vertex_order, self.samples_only = vertex_order, samples_only
         self.shipped = tuple(h for h in shipped if h is not None)
@@ -141,8 +144,15 @@ class Bake:
             if self.batches is not None:
                 self.batches.prepare(i)  # the first prim of a chunk of small meshes: the chunk is evaluated now
             target = str(out_layout.homes[key])
-            prepared = self.ahead.take(i)
-            report = PrimWriter(self, i, target, f"[{i + 1}/{len(p.prims)}] {sp.path}").write(prepared)
+            label = f"[{i + 1}/{len(p.prims)}] {sp.path}"
+            if self.lod_variants:
+                for level in self.lod_variants:
+                    p.levels[i] = level
+                    report = PrimWriter(self, i, str(lod_path(target, level)), f"{label} ({variant_name(level)})"
+                                        ).write()
+                declare_variant_set(layer.layer, target, self.lod_variants)
+            else:
+                report = PrimWriter(self, i, target, label).write(self.ahead.take(i))
             for dst in out_layout.copies[key]:
                 layer.copy(out_layout.homes[key], dst)
             report.seconds = _time.perf_counter() - t0
@@ -187,6 +197,7 @@ def refine_usd(
     resolution=None,
     offscreen_level: int | None = None,
     mesh_levels=None,
+    lod_variants=None,
 ) -> Result:
     """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) and write the layer
     ``output_path`` (.usd, .usda or .usdc) that sublayers the input and overrides them.
@@ -198,6 +209,9 @@ def refine_usd(
     stage's render settings, else 1920x1080) at the worst of the selected frames; meshes outside the frustum
     get ``offscreen_level`` (default 0). ``mesh_levels``: {composed mesh path: level}, winning over all of
     these (levels decided elsewhere). Meshes with identical inputs and different levels are refined apart.
+    ``lod_variants``: levels (a list, or "0,1,2"): every mesh is refined to each and written inside the variant
+    ``level<N>`` of a variant set ``subdivLOD`` on its refined data, the last one selected
+    (:mod:`warp_subdiv.usd.lod`); the levels above and ``camera`` do not apply then.
 
     Meshes inside instances are refined once per prototype and written once per distinct refined prototype,
     which the instances reference (they stay instances); meshes with identical inputs are refined once.
@@ -233,6 +247,13 @@ def refine_usd(
     start = _time.perf_counter()
     _check_run(input_path, output_path, levels, vertex_order)
     check_flatten(flatten, all_variants)
+    if lod_variants is not None:
+        lod_variants = check_lod_variants(lod_variants)
+        for name, value in (("camera", camera), ("all_variants", all_variants or None), ("flatten", flatten or None),
+                            ("mesh_levels", mesh_levels), ("samples_only", samples_only or None)):
+            if value is not None:
+                raise SubdivInputError(f"lod_variants does not combine with {name}", option=("lod_variants", name))
+        levels = max(lod_variants)  # the plan's (and the memory guard's) level of every mesh
     p = plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
              precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit,
              device=device, all_variants=all_variants, shipped=shipped, max_levels=max_levels, camera=camera,
@@ -241,13 +262,13 @@ def refine_usd(
     out_abs = check_output_path(output_path, p.stage)
     check_memory(p.estimates, max_memory, p.max_level)
     custom = layer_record(p, levels, limit=limit, normals=normals, semi_sharp=semi_sharp, vertex_order=vertex_order,
-                          all_variants=all_variants, flatten=flatten, frames=frames)
+                          all_variants=all_variants, flatten=flatten, frames=frames, lod_variants=lod_variants)
     layer = OutputLayer(out_abs, p.stage, custom)
     bake = None
     try:
         bake = Bake(p, layer, device=device, limit=limit, normals=normals, vertex_order=vertex_order,
                     samples_only=samples_only, batch=batch, max_memory=max_memory, shipped=shipped,
-                    progress=progress)
+                    progress=progress, lod_variants=lod_variants)
         reports, out_layout = bake.write()
         # bounding-box hints above the refined meshes: recomputed for the refined surfaces
         layer.override_extents_hints(p.stage, out_layout.hint_roots(p), frames)
