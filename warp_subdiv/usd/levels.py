@@ -218,6 +218,8 @@ class CameraLevels:
         return times or [DEFAULT]
 
     def frustum(self, time) -> Gf.Frustum:
+        """The camera's frustum at ``time``, conformed to the resolution (:func:`conformed_frustum`), once per
+        time."""
         key = "default" if time == DEFAULT else float(time)
         if key not in self._frustums:
             self._frustums[key] = conformed_frustum(self.camera, time, self.resolution)
