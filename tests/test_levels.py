@@ -13,7 +13,7 @@ from warp_subdiv.usd.levels import longest_projected_edge
 
 from test_usd_production import CUBE, CUBE_FACES, assert_valid, define_mesh, new_stage
 
-FACES_AT = {0: 6, 1: 24, 2: 96, 3: 384, 4: 1536}  # a cube's faces per level
+FACES_AT = {level: 6 * 4**level for level in range(8)}  # a cube's faces per level
 
 
 def set_levels(prim, value, type_name=Sdf.ValueTypeNames.Int):
@@ -358,3 +358,116 @@ def test_lod_variants_bad_input(tmp_path, capsys):
     assert "--lod-variants lists a level twice" in capsys.readouterr().err
     with pytest.raises(SubdivInputError, match="lod_variants does not combine with camera"):
         refine_usd(src, out, 1, lod_variants=[0, 1], camera="/World/Cam", pixel_error=1.0)
+
+
+# -- levels with variants, instances, chunks and distributed bakes -----------------------------------------------
+
+def test_levels_inside_variants_with_all_variants(tmp_path):
+    """A variant that sets subdiv:levels on the asset's Geo refines its mesh at that level, inside the variant."""
+    from test_usd_production import write_asset
+
+    asset = write_asset(tmp_path / "asset.usda")  # variant set crease = smooth | sharp on /Asset
+    layer = Sdf.Layer.FindOrOpen(asset)
+    geo = Sdf.CreatePrimInLayer(layer, Sdf.Path("/Asset{crease=sharp}Geo"))
+    Sdf.AttributeSpec(geo, "subdiv:levels", Sdf.ValueTypeNames.Int).default = 2
+    layer.Save()
+    stage = new_stage(tmp_path / "shot.usda")
+    stage.DefinePrim("/World/A").GetReferences().AddReference("./asset.usda")
+    stage.Save()
+    dst = tmp_path / "out.usda"
+    refine_usd(str(tmp_path / "shot.usda"), str(dst), 1, all_variants=True)
+    out = Usd.Stage.Open(str(dst))
+    assert faces(out, "/World/A/Geo/Mesh") == FACES_AT[1]  # smooth, selected
+    out.GetPrimAtPath("/World/A").GetVariantSet("crease").SetVariantSelection("sharp")
+    assert faces(out, "/World/A/Geo/Mesh") == FACES_AT[2]
+
+
+def test_camera_levels_split_instances_by_distance(tmp_path):
+    """Instances of one prototype near and far get different levels (different refined prototypes); two at the
+    same distance share one."""
+    stage = Usd.Stage.Open(scene_camera(tmp_path / "scene.usda"))
+    stage.CreateClassPrim("/Proto")
+    define_mesh(stage, "/Proto/Cube", CUBE, CUBE_FACES)
+    for name, (x, z) in {"N1": (-1.0, -6.0), "N2": (0.0, -6.0), "F": (0.0, -60.0)}.items():
+        inst = UsdGeom.Xform.Define(stage, f"/World/{name}")
+        inst.AddTranslateOp().Set(Gf.Vec3d(x, -0.5, z))
+        inst.GetPrim().GetReferences().AddInternalReference("/Proto")
+        inst.GetPrim().SetInstanceable(True)
+    stage.Save()
+    src = str(tmp_path / "scene.usda")
+    levels, _ = camera_levels(src)
+    assert levels["/World/N1/Cube"] == levels["/World/N2/Cube"] > levels["/World/F/Cube"]
+    dst = tmp_path / "out.usda"
+    refine_usd(src, str(dst), 6, camera="/World/Cam", pixel_error=12.0, resolution=(640, 480))
+    out = Usd.Stage.Open(str(dst))
+    for name in ("N1", "N2", "F"):
+        assert faces(out, f"/World/{name}/Cube") == FACES_AT[levels[f"/World/{name}/Cube"]]
+        assert out.GetPrimAtPath(f"/World/{name}").IsInstance()
+    assert out.GetPrimAtPath("/World/N1").GetPrototype() == out.GetPrimAtPath("/World/N2").GetPrototype()
+    assert out.GetPrimAtPath("/World/N1").GetPrototype() != out.GetPrimAtPath("/World/F").GetPrototype()
+    assert_valid(src, dst)
+
+
+def test_lod_variants_refuse_a_mesh_authored_in_the_input(tmp_path):
+    """A variant cannot override the input's local opinions: the run stops and writes nothing."""
+    stage = new_stage(tmp_path / "local.usda")
+    define_mesh(stage, "/World/Cube", CUBE, CUBE_FACES)
+    stage.Save()
+    with pytest.raises(SubdivInputError, match="/World/Cube: composes to a faceVertexCounts of 6 faces"):
+        refine_usd(str(tmp_path / "local.usda"), str(tmp_path / "o.usda"), 1, lod_variants=[0, 1])
+    assert not (tmp_path / "o.usda").exists()
+
+
+def camera_over_grid(path):
+    """A 3 x 1 plate moving up each frame (1-12) under a camera that comes down from z = 12 to z = 3."""
+    from test_distributed_outputs import animated_grid
+
+    src = animated_grid(path, 3)
+    stage = Usd.Stage.Open(src)
+    cam = UsdGeom.Camera.Define(stage, "/World/Cam")
+    cam.CreateHorizontalApertureAttr(20.955)
+    cam.CreateVerticalApertureAttr(20.955 * RES[1] / RES[0])
+    move = cam.AddTranslateOp()
+    for t in range(1, 13):
+        move.Set(Gf.Vec3d(1.5, 0.5, 12.0 - 9.0 * (t - 1) / 11), float(t))
+    stage.Save()
+    return src
+
+
+def test_stitch_refuses_chunks_at_other_levels(tmp_path):
+    from warp_subdiv.usd import distributed as dist
+
+    src = camera_over_grid(tmp_path / "in.usda")
+    first, second = str(tmp_path / "c0.usdc"), str(tmp_path / "c1.usdc")
+    # a camera chooses over each chunk's own frames: the later chunk is nearer, so finer
+    kw = dict(camera="/World/Cam", pixel_error=40.0, resolution=RES)
+    refine_usd(src, first, 5, frames=(None, 6), **kw)
+    refine_usd(src, second, 5, frames=(6, None), **kw)
+    levels = [dict(Sdf.Layer.FindOrOpen(c).customLayerData)["warpSubdiv"]["meshLevels"]["/World/Mesh"]
+              for c in (first, second)]
+    assert levels[0] < levels[1]
+    with pytest.raises(SubdivInputError, match=r"c1.usdc: the meshes' levels differs from .*c0.usdc's"):
+        dist.stitch([first, second], str(tmp_path / "out.usda"))
+    # the levels decided once (mesh_levels) make chunks that stitch
+    fixed = {"/World/Mesh": levels[1]}
+    refine_usd(src, first, 5, frames=(None, 6), mesh_levels=fixed)
+    refine_usd(src, second, 5, frames=(6, None), mesh_levels=fixed)
+    dist.stitch([first, second], str(tmp_path / "out.usda"))
+
+
+def test_distributed_camera_bake_chooses_once(tmp_path):
+    """Frame tasks see their own frames; the driver chooses the levels over all of them and hands them on, so
+    the bake equals the single-process one."""
+    pytest.importorskip("distributed")
+    from conftest import dask_client
+    from test_distributed import assert_same_composition
+    from warp_subdiv.usd import distributed as dist
+
+    src = camera_over_grid(tmp_path / "in.usda")
+    kw = dict(camera="/World/Cam", pixel_error=40.0, resolution=RES)
+    single = str(tmp_path / "single.usda")
+    refine_usd(src, single, 5, **kw)
+    with dask_client(n_workers=1, processes=False) as client:
+        result = dist.bake(src, str(tmp_path / "dist.usda"), 5, client=client, chunk_frames=4, **kw)
+    assert len(result.timings["units"]) >= 2  # frame chunks
+    assert_same_composition(single, str(tmp_path / "dist.usda"))
