@@ -471,3 +471,34 @@ def test_distributed_camera_bake_chooses_once(tmp_path):
         result = dist.bake(src, str(tmp_path / "dist.usda"), 5, client=client, chunk_frames=4, **kw)
     assert len(result.timings["units"]) >= 2  # frame chunks
     assert_same_composition(single, str(tmp_path / "dist.usda"))
+
+
+# -- tessellate --camera -------------------------------------------------------------------------------------------
+
+def test_tessellate_camera_rates(tmp_path):
+    """One quad facing the camera near and the same quad far: each of its (straight) limit edges gets
+    ceil(projected length / px) segments, the length projected through usd-core's frustum by Gf; a quad behind
+    the camera gets rate 1; the tessellation is the rate x rate grid."""
+    quad = [(0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (1.0, 1.0, 0.0), (0.0, 1.0, 0.0)]
+    stage = Usd.Stage.Open(scene_camera(tmp_path / "scene.usda"))
+    for name in ("Near", "Far", "Behind"):
+        stage.RemovePrim(f"/World/{name}/Cube")
+        define_mesh(stage, f"/World/{name}/Quad", quad, [(0, 1, 2, 3)])
+    stage.Save()
+    src, dst = str(tmp_path / "scene.usda"), tmp_path / "tess.usda"
+    assert cli.main(["tessellate", src, "-o", str(dst), "--camera", "/World/Cam", "--pixel-error", "7",
+                     "--resolution", "640x480", "--quiet"]) == 0
+    out = Usd.Stage.Open(str(dst))
+    frustum = UsdGeom.Camera(stage.GetPrimAtPath("/World/Cam")).GetCamera(Usd.TimeCode.Default()).frustum
+    to_clip = frustum.ComputeViewMatrix() * frustum.ComputeProjectionMatrix()
+    rates = {}
+    for name in ("Near", "Far"):
+        world = UsdGeom.Xformable(stage.GetPrimAtPath(f"/World/{name}/Quad")).ComputeLocalToWorldTransform(0)
+        a, b = (to_clip.Transform(world.Transform(Gf.Vec3d(*p))) for p in quad[:2])
+        pixels = np.hypot((a[0] - b[0]) * RES[0] / 2, (a[1] - b[1]) * RES[1] / 2)
+        rates[name] = int(np.ceil(pixels / 7.0))
+        assert faces(out, f"/World/{name}/Quad") == rates[name] ** 2, name
+    assert rates["Near"] > rates["Far"] > 1
+    assert faces(out, "/World/Behind/Quad") == 1
+    assert_valid(src, dst)
+    assert cli.main(["tessellate", src, "-o", str(dst), "--camera", "/World/Near", "--pixel-error", "7"]) == 2

@@ -217,6 +217,13 @@ def _add_tessellate(sub) -> None:
                      help="target edge length in object space: each control edge gets ceil(limit length / L) "
                           "segments")
     how.add_argument("--rate", type=int, metavar="N", help="segments per control edge (uniform)")
+    how.add_argument("--camera", default=None, metavar="PRIM",
+                     help="USD: a UsdGeom.Camera prim; with --pixel-error each control edge gets ceil(its limit "
+                          "curve's projected length / PX) segments (the worst of --frames)")
+    cmd.add_argument("--pixel-error", type=float, default=None, metavar="PX",
+                     help="with --camera: the longest segment on screen, in pixels (> 0)")
+    cmd.add_argument("--resolution", default=None, metavar="WxH",
+                     help="with --camera: the image size (default: the stage's render settings, else 1920x1080)")
     cmd.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path (USD)")
     cmd.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
                      help="as for refine: auto takes each mesh's subdivisionScheme (OBJ: Loop for all triangles)")
@@ -634,11 +641,13 @@ def _tessellate(args) -> int:
     result = tessellate_file(args.input, args.output, rate=args.rate, edge_length=args.edge_length, prims=args.prim,
                              scheme=args.scheme, rules=args.rules, boundary=args.boundary, depth=args.depth,
                              quads=not args.triangles, device=args.device, flatten=args.flatten,
-                             frames=args.frames, all_variants=args.all_variants)
+                             frames=args.frames, all_variants=args.all_variants, camera=args.camera,
+                             pixel_error=args.pixel_error, resolution=args.resolution)
     for w in result.warnings:
         _warn(w)
     if not args.quiet:
-        how = f"rate {args.rate}" if args.rate is not None else f"edge length {args.edge_length:g}"
+        how = (f"rate {args.rate}" if args.rate is not None else f"edge length {args.edge_length:g}"
+               if args.edge_length is not None else f"camera {args.camera}, {args.pixel_error:g} px")
         print(f"{args.input} -> {args.output}: limit surfaces tessellated ({how}) on {_device_name(args.device)}")
         header = ("prim", "scheme", "rules", "faces in", "faces out", "vertices out", "time")
         rows = [(r.path, r.scheme, r.rules, f"{r.faces_in:,}", f"{r.faces_out:,}", f"{r.vertices_out:,}",

@@ -171,6 +171,17 @@ def _edge_points(surface, faces, corners, t) -> tuple:
 
 def _edge_lengths(surface) -> np.ndarray:
     """Length of every control edge's limit curve, from 16 segments evaluated on one of its faces."""
+    has, p = edge_curves(surface)
+    lengths = np.zeros(len(has))
+    lengths[has] = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
+    return lengths
+
+
+def edge_curves(surface, samples: int = 17):
+    """The limit curve of every control edge, sampled: (has (E,) bool: the edge lies on a face that is not a
+    hole, points (has.sum(), samples, 3): ``samples`` points evenly spaced in the parameter of one of its
+    faces). The edge-length rates measure these polylines (object space); a camera's rates project them
+    (:class:`warp_subdiv.usd.levels.CameraLevels`)."""
     mesh = surface.mesh
     counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
     corner_edge = np.asarray(mesh.edges.corner_edge, dtype=np.int64)
@@ -181,16 +192,12 @@ def _edge_lengths(surface) -> np.ndarray:
     owner = np.full(E, -1, dtype=np.int64)
     order = np.flatnonzero(usable)[::-1]
     owner[corner_edge[order]] = order  # the first usable corner of each edge
-    lengths = np.zeros(E)
     has = owner >= 0
     h = owner[has]
-    samples = 17
     t = np.tile(np.linspace(0.0, 1.0, samples), len(h))
     hh = np.repeat(h, samples)
     uv = _edge_points(surface, corner_face[hh], corner_index[hh], t)
-    p = surface.evaluate(corner_face[hh], uv[:, 0], uv[:, 1]).points.reshape(len(h), samples, 3)
-    lengths[has] = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
-    return lengths
+    return has, surface.evaluate(corner_face[hh], uv[:, 0], uv[:, 1]).points.reshape(len(h), samples, 3)
 
 
 class _Lines:

@@ -104,25 +104,23 @@ def check_resolution(value) -> tuple:
     return int(value[0]), int(value[1])
 
 
-def longest_projected_edge(points, counts, indices, matrix, resolution) -> float:
-    """The longest edge of the faces (``counts``, ``indices``) over ``points`` (world space, (n, 3)), in pixels,
-    through ``matrix`` (world to clip space, USD's row-vector convention: a view times a projection matrix of
-    a :class:`Gf.Frustum`) at ``resolution``; 0 when no edge is on screen.
+def projected_lengths(a, b, matrix, resolution) -> np.ndarray:
+    """The lengths in pixels of the segments from ``a`` to ``b`` ((m, 3) each, world space) through ``matrix``
+    (world to clip space, USD's row-vector convention: a view times a projection matrix of a
+    :class:`Gf.Frustum`) at ``resolution``; 0 for a segment that is not on screen.
 
-    An edge counts when, clipped to the camera's near plane, its projection's bounding box touches the screen
-    (so edges that pass just outside a corner count too: the measure errs towards more levels); an edge wholly
-    behind the near plane does not count. An edge that crosses the near plane is measured from where it
-    crosses it (its projection is unbounded beyond)."""
-    counts = np.asarray(counts, dtype=np.int64)
-    indices = np.asarray(indices, dtype=np.int64)
-    if len(indices) == 0:
-        return 0.0
-    homogeneous = np.concatenate([np.asarray(points, dtype=np.float64), np.ones((len(points), 1))], axis=1)
-    clip = homogeneous @ np.asarray(matrix, dtype=np.float64)
-    nxt = next_corner_of(counts, face_offsets_of(counts))
-    a, b = clip[indices], clip[indices[nxt]]
+    A segment counts when, clipped to the camera's near plane, its projection's bounding box touches the screen
+    (so segments that pass just outside a corner count too: the measure errs towards more); a segment wholly
+    behind the near plane does not. A segment that crosses the near plane is measured from where it crosses
+    it (its projection is unbounded beyond)."""
+    def clip(points):
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return np.concatenate([points, np.ones((len(points), 1))], axis=1) @ np.asarray(matrix, dtype=np.float64)
+
+    a, b = clip(a), clip(b)
+    out = np.zeros(len(a))
     da, db = a[:, 2] + a[:, 3], b[:, 2] + b[:, 3]  # >= 0: in front of the near plane
-    keep = (da > 0) | (db > 0)
+    keep = np.flatnonzero((da > 0) | (db > 0))
     a, b, da, db = a[keep], b[keep], da[keep], db[keep]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(da < 0, da / (da - db), 0.0)[:, None]
@@ -132,10 +130,23 @@ def longest_projected_edge(points, counts, indices, matrix, resolution) -> float
         na, nb = a[:, :2] / a[:, 3:4], b[:, :2] / b[:, 3:4]
     lo, hi = np.minimum(na, nb), np.maximum(na, nb)
     seen = np.all(np.isfinite(na) & np.isfinite(nb), axis=1) & np.all((lo <= 1) & (hi >= -1), axis=1)
-    if not seen.any():
-        return 0.0
     d = (nb[seen] - na[seen]) * (0.5 * np.asarray(resolution, dtype=np.float64))
-    return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d))))
+    out[keep[seen]] = np.sqrt(np.einsum("ij,ij->i", d, d))
+    return out
+
+
+def longest_projected_edge(points, counts, indices, matrix, resolution) -> float:
+    """The longest edge of the faces (``counts``, ``indices``) over ``points`` (world space, (n, 3)), in pixels,
+    through ``matrix`` at ``resolution`` (as :func:`projected_lengths` measures them); 0 when no edge is on
+    screen."""
+    counts = np.asarray(counts, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    if len(indices) == 0:
+        return 0.0
+    points = np.asarray(points, dtype=np.float64)
+    nxt = next_corner_of(counts, face_offsets_of(counts))
+    lengths = projected_lengths(points[indices], points[indices[nxt]], matrix, resolution)
+    return float(lengths.max(initial=0.0))
 
 
 def conformed_frustum(camera: UsdGeom.Camera, time, resolution) -> Gf.Frustum:
@@ -252,12 +263,9 @@ class CameraLevels:
             worst = max(worst, longest_projected_edge(world_pts, r.counts, r.indices, clip, self.resolution))
         return worst
 
-    def level(self, prim: Usd.Prim, sp: SubdivPrim, options, cap: int):
-        """(level, note) of the composed mesh ``prim`` (read as ``sp``, refined with ``options``), at most
-        ``cap``; the note says why ("off-screen", "N.N px", or that the cap held it)."""
-        if sp.topologies:
-            raise SubdivInputError(f"{sp.path}: levels from a camera need a topology that does not change over "
-                                   "time; give the mesh subdiv:levels", option="camera")
+    def placements(self, prim: Usd.Prim, sp: SubdivPrim):
+        """([(time, world matrix, clip matrix)] at every time the composed mesh ``prim`` is measured at, whether
+        its control points' bounding box meets the frustum at any of them)."""
         xformable = UsdGeom.Xformable(prim)
         placements, visible = [], False
         for t in self.times(prim, sp):
@@ -268,6 +276,35 @@ class CameraLevels:
             visible = visible or frustum.Intersects(box)
             clip = np.array(frustum.ComputeViewMatrix() * frustum.ComputeProjectionMatrix())
             placements.append((t, np.array(world), clip))
+        return placements, visible
+
+    def edge_rates(self, prim: Usd.Prim, sp: SubdivPrim, curves_at, max_rate: int):
+        """(per-edge tessellation rates, note) of the composed mesh ``prim``: each control edge gets
+        ceil(its limit curve's projected length / ``pixel_error``) segments (at most ``max_rate``), at the worst
+        time; ``curves_at(points) -> (has, samples)`` samples the edge curves of the limit surface of those
+        control points (:func:`warp_subdiv.limit.edge_curves`). An off-screen mesh gets rate 1."""
+        placements, visible = self.placements(prim, sp)
+        worst = None
+        for t, world, clip in placements if visible else placements[:1]:
+            has, samples = curves_at(sp.points_at(t))
+            if worst is None:
+                worst = np.zeros(len(has))
+            if not visible:
+                break
+            pts = samples @ world[:3, :3] + world[3, :3]
+            seg = projected_lengths(pts[:, :-1], pts[:, 1:], clip, self.resolution).reshape(len(pts), -1)
+            worst[has] = np.maximum(worst[has], seg.sum(axis=1))
+        rates = np.clip(np.ceil(worst / self.pixel_error), 1, max_rate).astype(np.int64)
+        note = "off-screen" if not visible else f"{float(worst.max(initial=0.0)):.3g} px longest edge"
+        return rates, note
+
+    def level(self, prim: Usd.Prim, sp: SubdivPrim, options, cap: int):
+        """(level, note) of the composed mesh ``prim`` (read as ``sp``, refined with ``options``), at most
+        ``cap``; the note says why ("off-screen", "N.N px", or that the cap held it)."""
+        if sp.topologies:
+            raise SubdivInputError(f"{sp.path}: levels from a camera need a topology that does not change over "
+                                   "time; give the mesh subdiv:levels", option="camera")
+        placements, visible = self.placements(prim, sp)
         if not visible:
             return min(self.offscreen_level, cap), "off-screen"
         px = self.pixel_error
@@ -359,4 +396,5 @@ class LevelChooser:
 
 __all__ = ["CameraLevels", "DEFAULT_RESOLUTION", "LEVELS_ATTRIBUTE", "LevelChooser", "authored_level",
            "check_level", "check_resolution", "conformed_frustum", "longest_projected_edge", "nearest_level",
+           "projected_lengths",
            "stage_resolution"]

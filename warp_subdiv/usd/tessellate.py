@@ -35,15 +35,17 @@ class FileResult:
 
 def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length=None, prims=None, scheme="auto",
                     rules=None, boundary=None, depth=None, quads: bool = True, device=None,
-                    flatten: bool = False, frames=None, all_variants: bool = False) -> FileResult:
+                    flatten: bool = False, frames=None, all_variants: bool = False, camera=None, pixel_error=None,
+                    resolution=None) -> FileResult:
     """Tessellate the limit surfaces of an OBJ or USD file (the ``tessellate`` command's library side).
 
     OBJ input is written as OBJ or as a USD layer holding one mesh; USD input as a layer over it (see
     :func:`tessellate_usd`). ``rate`` / ``edge_length`` as for :func:`tessellate`; ``prims``, ``scheme``,
     ``rules``, ``boundary`` as for the USD bake; ``depth`` of the :class:`~warp_subdiv.limit.LimitSurface`
     (None: its default); ``quads=False`` for triangles only; ``flatten`` (USD) for one self-contained layer;
-    ``all_variants`` (USD) tessellates every variant that changes a mesh, as refine does. Errors name options by
-    keyword."""
+    ``all_variants`` (USD) tessellates every variant that changes a mesh, as refine does. ``camera`` (USD, a
+    UsdGeom.Camera prim path) with ``pixel_error`` and ``resolution`` instead of ``rate`` / ``edge_length``:
+    per-edge rates from the camera (see :func:`tessellate_usd`). Errors name options by keyword."""
     import os
     import time
 
@@ -55,7 +57,7 @@ def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length
                    quads=quads, device=device)
     if kind == "obj":
         for name, value in (("prims", prims), ("flatten", flatten), ("frames", frames),
-                            ("all_variants", all_variants)):
+                            ("all_variants", all_variants), ("camera", camera)):
             if value:
                 raise SubdivInputError(f"{name} applies to USD input only", option=name)
         reports, warnings_ = tessellate_obj(input_path, output_path, out_kind, **options)
@@ -63,7 +65,8 @@ def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length
         if out_kind != "usd":
             raise SubdivInputError(f"{output_path}: USD input is written as .usd, .usda or .usdc")
         reports, warnings_ = tessellate_usd(input_path, output_path, prims=prims, flatten=flatten, frames=frames,
-                                            all_variants=all_variants, **options)
+                                            all_variants=all_variants, camera=camera, pixel_error=pixel_error,
+                                            resolution=resolution, **options)
     return FileResult(reports, warnings_, time.perf_counter() - start)
 
 
@@ -107,7 +110,8 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
 
 
 def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length, scheme, rules, boundary, depth,
-                   quads, device, frames=None, all_variants: bool = False):
+                   quads, device, frames=None, all_variants: bool = False, camera=None, pixel_error=None,
+                   resolution=None):
     """Tessellate every subdivision mesh of a USD file and write a layer over it, with the conventions of
     refine (:func:`warp_subdiv.usd.refine_usd`): an ``over`` at each mesh's path with ``subdivisionScheme =
     "none"``, its points, faces, normals and extent (at the default time and every selected time sample of the
@@ -126,7 +130,14 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     of that prototype references (instances stay instances); meshes with identical inputs outside instances
     are tessellated once, written once (``/__warpSubdiv/Mesh_<n>``) and referenced; with ``all_variants`` every
     variant that changes a mesh is tessellated into the same variant set and variant. The composed output is
-    checked: every tessellated mesh must compose to its tessellation."""
+    checked: every tessellated mesh must compose to its tessellation.
+
+    ``camera`` (a UsdGeom.Camera prim path) with ``pixel_error`` (pixels > 0) and ``resolution`` (default: the
+    stage's render settings, else 1920x1080), instead of ``rate`` and ``edge_length``: each control edge gets
+    ceil(the projected length of its limit curve / ``pixel_error``) segments, at the worst time of ``frames``
+    (:meth:`warp_subdiv.usd.levels.CameraLevels.edge_rates`: the edge-length mode's curves, measured in pixels
+    through the camera); rates are per edge, so the tessellation stays watertight. Meshes off screen get rate
+    1; instances and identical meshes placed differently are tessellated apart where their rates differ."""
     import os
 
     from ..io.usd_write import check_flatten
@@ -149,7 +160,17 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     def read(prim):
         return read_mesh(prim, scheme=scheme, rules=rules, boundary=boundary, frames=chosen)
 
-    scene = read_scene(stage, prims, read=read, all_variants=all_variants, where=input_path)
+    rates_of: dict = {}  # digest of a mesh's camera rates -> the rates
+    level = context = None
+    if camera is not None:
+        level, context = _camera_rates(stage, camera, pixel_error, resolution, chosen, rates_of, rate, edge_length,
+                                       dict(scheme=scheme, rules=rules, boundary=boundary, depth=depth,
+                                            device=device))
+    elif pixel_error is not None or resolution is not None:
+        raise SubdivInputError("pixel_error and resolution are for rates from camera: give camera too",
+                               option=("pixel_error", "camera"))
+    scene = read_scene(stage, prims, read=read, all_variants=all_variants, where=input_path, level=level,
+                       level_context=context)
     p = Plan(input_path, stage, [], [], scene=scene)
     p.left_alone.extend(scene.left_alone)
     for key, sp in scene.units.items():
@@ -162,6 +183,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     warnings_ = [f"{sp.path}: {w}" for sp in p.prims for w in sp.warnings]
     custom = {"warpSubdiv": {"version": __version__, "command": "tessellate", "source": os.path.basename(input_path),
                              "rate": int(rate) if rate is not None else 0,
+                             **({"camera": str(camera), "pixelError": float(pixel_error)} if camera else {}),
                              "edgeLength": float(edge_length) if edge_length is not None else 0.0,
                              "allVariants": bool(all_variants)}}
     layer = OutputLayer(out_abs, stage, custom)
@@ -170,7 +192,8 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
         out_layout = layout(p)
         for sp, key in zip(p.prims, p.keys):
             target = str(out_layout.homes[key])  # its own path, a prototype's content or a shared mesh
-            reports.append(_tessellate_prim(sp, target, layer, warnings_, rate=rate, edge_length=edge_length,
+            mesh_rate = {"edges": rates_of[scene.levels[key]]} if camera is not None else rate
+            reports.append(_tessellate_prim(sp, target, layer, warnings_, rate=mesh_rate, edge_length=edge_length,
                                             scheme=scheme, rules=rules, boundary=boundary, depth=depth, quads=quads,
                                             device=device))
             for dst in out_layout.copies[key]:
@@ -183,6 +206,42 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
         layer.discard()
         raise
     return reports, warnings_
+
+
+def _camera_rates(stage, camera, pixel_error, resolution, frames, rates_of, rate, edge_length, surface_options):
+    """read_scene's ``level`` and ``level_context`` for rates from a camera: each composed mesh's per-edge rates
+    (:meth:`~warp_subdiv.usd.levels.CameraLevels.edge_rates`), kept in ``rates_of`` under a digest of them that
+    becomes part of the mesh's unit."""
+    import hashlib
+
+    from ..limit import MAX_RATE, edge_curves
+    from .levels import CameraLevels
+    from .planning import options_for
+
+    if rate is not None or edge_length is not None:
+        raise SubdivInputError("give rate, edge_length or camera, not two of them", option=("camera", "rate"))
+    cam = CameraLevels(stage, camera, pixel_error, resolution=resolution, frames=frames)
+    depth, device = surface_options.pop("depth"), surface_options.pop("device")
+
+    def level(prim, sp):
+        if sp.topologies:
+            raise SubdivInputError(f"{sp.path}: its topology changes over time; tessellate takes one topology")
+        options = options_for(sp, precision="float64", **surface_options)
+        if sp.scheme == "bilinear":
+            options = options.replace(linear=True)
+
+        def curves_at(points):
+            try:
+                return edge_curves(_surface(_with_points(sp.mesh, points), options, depth, device))
+            except SubdivInputError as exc:
+                raise sp.error(exc) from None
+
+        rates, note = cam.edge_rates(prim, sp, curves_at, MAX_RATE)
+        digest = hashlib.sha1(rates.tobytes()).hexdigest()[:16]
+        rates_of[digest] = rates
+        return digest, f"camera {cam.path} ({note})"
+
+    return level, lambda instance: str(instance.GetPath())
 
 
 def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme, rules, boundary, depth, quads,
