@@ -502,3 +502,19 @@ def test_tessellate_camera_rates(tmp_path):
     assert faces(out, "/World/Behind/Quad") == 1
     assert_valid(src, dst)
     assert cli.main(["tessellate", src, "-o", str(dst), "--camera", "/World/Near", "--pixel-error", "7"]) == 2
+
+
+def test_lod_variants_ignore_scene_levels_and_refuse_max_levels(tmp_path):
+    """Every mesh gets every listed level whatever its subdiv:levels says (and the memory guard predicts the
+    highest); max_levels is refused rather than dropped."""
+    asset, src = scene_assets(tmp_path)
+    layer = Sdf.Layer.FindOrOpen(src)
+    Sdf.AttributeSpec(layer.GetPrimAtPath("/World/A"), "subdiv:levels", Sdf.ValueTypeNames.Int).default = 0
+    layer.Save()
+    p = plan(src, 2, scene_levels=False)
+    assert set(p.levels) == {2}
+    dst = tmp_path / "lod.usda"
+    refine_usd(src, str(dst), 1, lod_variants=[1, 2])
+    assert faces(Usd.Stage.Open(str(dst)), "/World/A/Geo/Mesh") == FACES_AT[2]
+    with pytest.raises(SubdivInputError, match="lod_variants does not combine with max_levels"):
+        refine_usd(src, str(dst), 1, lod_variants=[1, 2], max_levels=1)

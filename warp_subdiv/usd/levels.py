@@ -340,11 +340,14 @@ class LevelChooser:
     (level, source), the source saying where the level came from for ``info`` and the reports.
 
     ``mesh_levels``: {composed mesh path: level} decided before (a distributed bake's driver hands the levels
-    its camera chose to the tasks, which see only their own frames): these win over everything else."""
+    its camera chose to the tasks, which see only their own frames): these win over everything else.
+    ``scene_levels=False``: ``subdiv:levels`` is not read (every mesh at ``levels``: LOD variants)."""
 
     def __init__(self, stage: Usd.Stage, levels: int, *, max_levels=None, camera=None, pixel_error=None,
-                 resolution=None, offscreen_level=None, frames=None, device=None, mesh_levels=None):
+                 resolution=None, offscreen_level=None, frames=None, device=None, mesh_levels=None,
+                 scene_levels: bool = True):
         self.levels = check_level(levels, "levels")
+        self.scene_levels = scene_levels
         self.mesh_levels = {str(path): check_level(level, f"mesh_levels[{path!r}]")
                             for path, level in dict(mesh_levels or {}).items()}
         self.max_levels = None if max_levels is None else check_level(max_levels, "max_levels")
@@ -373,14 +376,15 @@ class LevelChooser:
     def context(self, instance: Usd.Prim):
         """What the levels of the meshes inside ``instance`` depend on besides the prototype: the
         ``subdiv:levels`` at or above the instance prim (and with a camera, the instance itself)."""
-        outer = nearest_level(instance)
-        return (outer, str(instance.GetPath())) if self.per_instance else outer
+        outer = nearest_level(instance) if self.scene_levels else None
+        value = None if outer is None else outer[0]
+        return (value, str(instance.GetPath())) if self.per_instance else value
 
     def __call__(self, prim: Usd.Prim, sp: SubdivPrim, options):
         given = self.mesh_levels.get(str(prim.GetPath()))
         if given is not None:
             return given, "mesh_levels"
-        found = nearest_level(prim)
+        found = nearest_level(prim) if self.scene_levels else None
         if found is not None:
             level, where = found
             source = f"{LEVELS_ATTRIBUTE} on {where}"

@@ -43,6 +43,17 @@ def check_lod_variants(value) -> list:
     return levels
 
 
+def check_lod_run(lod_variants, **others) -> list:
+    """The levels of ``lod_variants`` (:func:`check_lod_variants`), refused beside any of ``others`` (the run's
+    options that choose levels per mesh or write elsewhere: camera, max_levels, all_variants, flatten,
+    mesh_levels, samples_only) that is set."""
+    levels = check_lod_variants(lod_variants)
+    for name, value in others.items():
+        if value is not None and value is not False:
+            raise SubdivInputError(f"lod_variants does not combine with {name}", option=("lod_variants", name))
+    return levels
+
+
 def variant_name(level: int) -> str:
     """The variant that holds level ``level``: ``level<N>``."""
     return f"level{int(level)}"
@@ -64,4 +75,4 @@ def declare_variant_set(layer: Sdf.Layer, target, levels) -> None:
     spec.variantSelections[LOD_VARIANT_SET] = variant_name(levels[-1])
 
 
-__all__ = ["LOD_VARIANT_SET", "check_lod_variants", "declare_variant_set", "lod_path", "variant_name"]
+__all__ = ["LOD_VARIANT_SET", "check_lod_run", "check_lod_variants", "declare_variant_set", "lod_path", "variant_name"]

@@ -111,6 +111,7 @@ def plan(
     resolution=None,
     offscreen_level: int | None = None,
     mesh_levels=None,
+    scene_levels: bool = True,
 ) -> Plan:
     """Open ``input_path`` and read every subdivision mesh at or under ``prims``; predict output sizes.
 
@@ -128,14 +129,14 @@ def plan(
     :class:`~warp_subdiv.usd.levels.LevelChooser`: its ``subdiv:levels`` or an ancestor's, else ``levels``;
     with ``camera`` and ``pixel_error`` (``resolution``, ``offscreen_level``) the smallest level whose refined
     edges project small enough, up to that; ``max_levels`` caps them all; ``mesh_levels`` ({composed path:
-    level}) wins over all of them."""
+    level}) wins over all of them; ``scene_levels=False`` reads no ``subdiv:levels``."""
     scheme, rules, boundary, precision = _run_options(scheme, rules, boundary, precision)
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     stage = open_stage(input_path)
     chooser = LevelChooser(stage, levels, max_levels=max_levels, camera=camera, pixel_error=pixel_error,
                            resolution=resolution, offscreen_level=offscreen_level, frames=frames, device=device,
-                           mesh_levels=mesh_levels)
+                           mesh_levels=mesh_levels, scene_levels=scene_levels)
     force = bool(prims) and scheme is not None  # an explicit scheme on named prims: polygonal meshes too
 
     def read(prim):

@@ -51,7 +51,7 @@ from .ahead import Ahead
 from .batching import Batches
 from .order import check_vertex_order
 from .output_layout import layout
-from .lod import check_lod_variants, declare_variant_set, lod_path, variant_name
+from .lod import check_lod_run, declare_variant_set, lod_path, variant_name
 from .planning import Plan, make_refiner, plan
 from .record import layer_record
 from .refinement import MeshRefinement
@@ -211,7 +211,8 @@ def refine_usd(
     these (levels decided elsewhere). Meshes with identical inputs and different levels are refined apart.
     ``lod_variants``: levels (a list, or "0,1,2"): every mesh is refined to each and written inside the variant
     ``level<N>`` of a variant set ``subdivLOD`` on its refined data, the last one selected
-    (:mod:`warp_subdiv.usd.lod`); the levels above and ``camera`` do not apply then.
+    (:mod:`warp_subdiv.usd.lod`); ``subdiv:levels`` does not apply then (the memory guard predicts every mesh at
+    the highest of the levels), and ``camera`` and ``max_levels`` are refused.
 
     Meshes inside instances are refined once per prototype and written once per distinct refined prototype,
     which the instances reference (they stay instances); meshes with identical inputs are refined once.
@@ -248,17 +249,14 @@ def refine_usd(
     _check_run(input_path, output_path, levels, vertex_order)
     check_flatten(flatten, all_variants)
     if lod_variants is not None:
-        lod_variants = check_lod_variants(lod_variants)
-        for name, value in (("camera", camera), ("all_variants", all_variants or None), ("flatten", flatten or None),
-                            ("mesh_levels", mesh_levels), ("samples_only", samples_only or None)):
-            if value is not None:
-                raise SubdivInputError(f"lod_variants does not combine with {name}", option=("lod_variants", name))
+        lod_variants = check_lod_run(lod_variants, camera=camera, max_levels=max_levels, all_variants=all_variants,
+                                     flatten=flatten, mesh_levels=mesh_levels, samples_only=samples_only)
         levels = max(lod_variants)  # the plan's (and the memory guard's) level of every mesh
     p = plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
              precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit,
              device=device, all_variants=all_variants, shipped=shipped, max_levels=max_levels, camera=camera,
              pixel_error=pixel_error, resolution=resolution, offscreen_level=offscreen_level,
-             mesh_levels=mesh_levels)
+             mesh_levels=mesh_levels, scene_levels=lod_variants is None)
     out_abs = check_output_path(output_path, p.stage)
     check_memory(p.estimates, max_memory, p.max_level)
     custom = layer_record(p, levels, limit=limit, normals=normals, semi_sharp=semi_sharp, vertex_order=vertex_order,
