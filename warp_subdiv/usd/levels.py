@@ -196,10 +196,12 @@ class CameraLevels:
     combination of them) lies outside the camera's frustum at every one of those times is off-screen and
     gets ``offscreen_level``.
 
-    Refined edges roughly halve per level. The level is predicted from the longest edges at levels 0 and 1
-    (the ratio between them, at least 1/2, at most 3/4, extrapolated), then checked by refining and measuring
-    at the predicted level and the one below, moving up or down until the smallest level that meets the bound
-    is found (or the cap)."""
+    Refined edges roughly halve per level, and not faster in the limit. The level is predicted from the
+    longest edge at level 1, halving per level from there (a prediction that errs low: measuring one level too
+    low costs a quarter of the level it falls short of, one too high four times the level needed), then
+    checked by refining and measuring at the predicted level (and the one below where it meets the bound),
+    moving up or down until the smallest level that meets the bound is found; a mesh that needs more than the
+    cap gets the cap, which is not measured."""
 
     def __init__(self, stage: Usd.Stage, camera: str, pixel_error, *, resolution=None, frames=None,
                  offscreen_level: int = 0, device=None):
@@ -318,8 +320,9 @@ class CameraLevels:
         e1 = edge(1)
         if e1 <= px or cap == 1:
             return 1, f"{e1:.3g} px" if e1 <= px else f"{e1:.3g} px at the cap"
-        ratio = min(max(e1 / e0, 0.5), 0.75)
-        level = min(cap, max(2, 1 + math.ceil(math.log(px / e1) / math.log(ratio))))
+        # edges halve per level at best in the limit: the level they would need halving from level 1 on, which
+        # errs low (a level too low costs a quarter of the next one to measure, a level too high four times it)
+        level = min(cap, max(2, 1 + math.ceil(math.log2(e1 / px))))
         found = {0: e0, 1: e1}
 
         def measured(n):
@@ -329,9 +332,11 @@ class CameraLevels:
 
         while level < cap and measured(level) > px:
             level += 1
-        while level > 1 and measured(level - 1) <= px:
+        while level > 2 and measured(level - 1) <= px:
             level -= 1
-        e = measured(level)
+        if level not in found:  # the cap, reached from below: not measured there
+            return level, f"{found[level - 1]:.3g} px at level {level - 1}; the cap"
+        e = found[level]
         return level, f"{e:.3g} px" + ("" if e <= px else " at the cap")
 
 
