@@ -104,20 +104,30 @@ def check_resolution(value) -> tuple:
     return int(value[0]), int(value[1])
 
 
-def projected_lengths(a, b, matrix, resolution) -> np.ndarray:
-    """The lengths in pixels of the segments from ``a`` to ``b`` ((m, 3) each, world space) through ``matrix``
-    (world to clip space, USD's row-vector convention: a view times a projection matrix of a
-    :class:`Gf.Frustum`) at ``resolution``; 0 for a segment that is not on screen.
+def to_clip(points, matrix) -> np.ndarray:
+    """World-space ``points`` ((n, 3)) in clip space ((n, 4)) through ``matrix`` (USD's row-vector convention:
+    a view times a projection matrix of a :class:`Gf.Frustum`)."""
+    m = np.asarray(matrix, dtype=np.float64)
+    return np.asarray(points, dtype=np.float64).reshape(-1, 3) @ m[:3] + m[3]
+
+
+def _on_screen_pixels(na, nb, resolution) -> np.ndarray:
+    """Pixel lengths of the segments between NDC points ``na`` and ``nb`` ((m, 2)); 0 where the segment's
+    bounding box misses the screen."""
+    lo, hi = np.minimum(na, nb), np.maximum(na, nb)
+    seen = np.all(np.isfinite(na) & np.isfinite(nb), axis=1) & np.all((lo <= 1) & (hi >= -1), axis=1)
+    d = (nb - na) * (0.5 * np.asarray(resolution, dtype=np.float64))
+    return np.where(seen, np.sqrt(np.einsum("ij,ij->i", d, d)), 0.0)
+
+
+def clip_lengths(a, b, resolution) -> np.ndarray:
+    """The lengths in pixels at ``resolution`` of the segments between clip-space points ``a`` and ``b``
+    ((m, 4) each, :func:`to_clip`); 0 for a segment that is not on screen.
 
     A segment counts when, clipped to the camera's near plane, its projection's bounding box touches the screen
     (so segments that pass just outside a corner count too: the measure errs towards more); a segment wholly
     behind the near plane does not. A segment that crosses the near plane is measured from where it crosses
     it (its projection is unbounded beyond)."""
-    def clip(points):
-        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        return np.concatenate([points, np.ones((len(points), 1))], axis=1) @ np.asarray(matrix, dtype=np.float64)
-
-    a, b = clip(a), clip(b)
     out = np.zeros(len(a))
     da, db = a[:, 2] + a[:, 3], b[:, 2] + b[:, 3]  # >= 0: in front of the near plane
     keep = np.flatnonzero((da > 0) | (db > 0))
@@ -127,25 +137,31 @@ def projected_lengths(a, b, matrix, resolution) -> np.ndarray:
         a = np.where(t > 0, a + t * (b - a), a)
         t = np.where(db < 0, db / (db - da), 0.0)[:, None]
         b = np.where(t > 0, b + t * (a - b), b)
-        na, nb = a[:, :2] / a[:, 3:4], b[:, :2] / b[:, 3:4]
-    lo, hi = np.minimum(na, nb), np.maximum(na, nb)
-    seen = np.all(np.isfinite(na) & np.isfinite(nb), axis=1) & np.all((lo <= 1) & (hi >= -1), axis=1)
-    d = (nb[seen] - na[seen]) * (0.5 * np.asarray(resolution, dtype=np.float64))
-    out[keep[seen]] = np.sqrt(np.einsum("ij,ij->i", d, d))
+        out[keep] = _on_screen_pixels(a[:, :2] / a[:, 3:4], b[:, :2] / b[:, 3:4], resolution)
     return out
+
+
+def projected_lengths(a, b, matrix, resolution) -> np.ndarray:
+    """The lengths in pixels of the segments from ``a`` to ``b`` ((m, 3) each, world space) through ``matrix``
+    at ``resolution`` (:func:`clip_lengths`)."""
+    return clip_lengths(to_clip(a, matrix), to_clip(b, matrix), resolution)
 
 
 def longest_projected_edge(points, counts, indices, matrix, resolution) -> float:
     """The longest edge of the faces (``counts``, ``indices``) over ``points`` (world space, (n, 3)), in pixels,
-    through ``matrix`` at ``resolution`` (as :func:`projected_lengths` measures them); 0 when no edge is on
-    screen."""
+    through ``matrix`` at ``resolution`` (as :func:`clip_lengths` measures them); 0 when no edge is on screen.
+    Each point is projected once; where every point is in front of the near plane, no edge needs clipping."""
     counts = np.asarray(counts, dtype=np.int64)
     indices = np.asarray(indices, dtype=np.int64)
     if len(indices) == 0:
         return 0.0
-    points = np.asarray(points, dtype=np.float64)
-    nxt = next_corner_of(counts, face_offsets_of(counts))
-    lengths = projected_lengths(points[indices], points[indices[nxt]], matrix, resolution)
+    clip = to_clip(points, matrix)
+    ends = indices[next_corner_of(counts, face_offsets_of(counts))]
+    if np.all(clip[:, 2] + clip[:, 3] > 0):
+        ndc = clip[:, :2] / clip[:, 3:4]
+        lengths = _on_screen_pixels(ndc[indices], ndc[ends], resolution)
+    else:
+        lengths = clip_lengths(clip[indices], clip[ends], resolution)
     return float(lengths.max(initial=0.0))
 
 
@@ -405,5 +421,5 @@ class LevelChooser:
 
 __all__ = ["CameraLevels", "DEFAULT_RESOLUTION", "LEVELS_ATTRIBUTE", "LevelChooser", "authored_level",
            "check_level", "check_resolution", "conformed_frustum", "longest_projected_edge", "nearest_level",
-           "projected_lengths",
+           "clip_lengths", "projected_lengths", "to_clip",
            "stage_resolution"]
