@@ -272,13 +272,17 @@ class CameraLevels:
 
     def longest_edge(self, prim, sp, options, level, placements) -> float:
         """The longest projected refined edge at ``level`` over ``placements`` ([(time, world matrix, clip
-        matrix)])."""
-        r = self.refinement(sp, options, level)
+        matrix)]). Level 0 is the control mesh as it is (holes included), with no refiner."""
+        if level == 0:
+            counts, indices = sp.mesh.face_vertex_counts, sp.mesh.face_vertex_indices
+        else:
+            r = self.refinement(sp, options, level)
+            counts, indices = r.counts, r.indices
         worst = 0.0
         for t, world, clip in placements:
-            pts = np.asarray(r.positions(sp.points_at(t))[0], dtype=np.float64)
+            pts = sp.points_at(t) if level == 0 else np.asarray(r.positions(sp.points_at(t))[0], dtype=np.float64)
             world_pts = pts @ world[:3, :3] + world[3, :3]
-            worst = max(worst, longest_projected_edge(world_pts, r.counts, r.indices, clip, self.resolution))
+            worst = max(worst, longest_projected_edge(world_pts, counts, indices, clip, self.resolution))
         return worst
 
     def placements(self, prim: Usd.Prim, sp: SubdivPrim):
