@@ -518,3 +518,20 @@ def test_lod_variants_ignore_scene_levels_and_refuse_max_levels(tmp_path):
     assert faces(Usd.Stage.Open(str(dst)), "/World/A/Geo/Mesh") == FACES_AT[2]
     with pytest.raises(SubdivInputError, match="lod_variants does not combine with max_levels"):
         refine_usd(src, str(dst), 1, lod_variants=[1, 2], max_levels=1)
+
+
+def test_camera_bake_takes_the_measured_tables_and_writes_what_given_levels_write(tmp_path):
+    """The bake's refiners take the tables the camera measured with (not built again), and the layer holds the
+    same values as a bake given the chosen levels."""
+    src = scene_camera(tmp_path / "scene.usda")
+    kw = dict(camera="/World/Cam", pixel_error=12.0, resolution=RES)
+    p = plan(src, 6, **kw)
+    measured = [t for t in p.tables if t is not None]
+    assert measured and all(t.levels == lv for t, lv in zip(p.tables, p.levels) if t is not None)
+    chosen = {path: level for path, (level, _) in p.level_sources.items()}
+    refine_usd(src, str(tmp_path / "cam.usda"), 6, **kw)
+    refine_usd(src, str(tmp_path / "given.usda"), 6, mesh_levels=chosen)
+    a, b = Usd.Stage.Open(str(tmp_path / "cam.usda")), Usd.Stage.Open(str(tmp_path / "given.usda"))
+    for path in chosen:
+        for name in ("points", "faceVertexIndices"):
+            assert a.GetPrimAtPath(path).GetAttribute(name).Get() == b.GetPrimAtPath(path).GetAttribute(name).Get()

@@ -33,6 +33,9 @@ from .refinement import MeshRefinement
 
 #: The attribute that sets the level of a mesh and of every mesh under a prim.
 LEVELS_ATTRIBUTE = "subdiv:levels"
+#: Bytes of tables a camera keeps from its measurements for the bake (the chosen level's, mesh by mesh in the
+#: plan's order), so that the bake does not build them again; beyond it the bake builds its own.
+KEPT_TABLES_BYTES = 256 * 2**20
 #: The resolution a camera's pixel error is measured at when the stage has no render settings.
 DEFAULT_RESOLUTION = (1920, 1080)
 _INT_TYPES = {Sdf.ValueTypeNames.Int, Sdf.ValueTypeNames.UInt, Sdf.ValueTypeNames.Int64,
@@ -239,6 +242,8 @@ class CameraLevels:
         self._camera_times = _xform_times(prim, own=True)
         self._frustums: dict = {}
         self._refined: OrderedDict = OrderedDict()  # (id(sp), level) -> MeshRefinement, a few kept
+        self.kept: dict = {}  # (id(control mesh), chosen level) -> hierarchy measured there (tables)
+        self.kept_bytes = 0
 
     def times(self, prim: Usd.Prim, sp: SubdivPrim) -> list:
         """The times a mesh is measured at (see the class)."""
@@ -356,8 +361,26 @@ class CameraLevels:
             level -= 1
         if level not in found:  # the cap, reached from below: not measured there
             return level, f"{found[level - 1]:.3g} px at level {level - 1}; the cap"
+        self._keep(sp, options, level)
         e = found[level]
         return level, f"{e:.3g} px" + ("" if e <= px else " at the cap")
+
+    def _keep(self, sp: SubdivPrim, options, level: int) -> None:
+        """Keep the tables the mesh was measured with at its chosen level for the bake (:meth:`tables`), while
+        all kept ones fit :data:`KEPT_TABLES_BYTES`."""
+        key = (id(sp.mesh), level)
+        found = self._refined.get((id(sp), level))
+        if key in self.kept or found is None:
+            return
+        size = found.refiner.table_bytes()
+        if self.kept_bytes + size <= KEPT_TABLES_BYTES:
+            self.kept[key] = found.refiner.hierarchy
+            self.kept_bytes += size
+
+    def tables(self, sp: SubdivPrim, level: int):
+        """The hierarchy a mesh with ``sp``'s control mesh was measured with at ``level`` (its chosen level),
+        kept for the bake's refiner to take whole (``make_refiner(reuse=)``), or None."""
+        return self.kept.get((id(sp.mesh), level))
 
 
 class LevelChooser:
@@ -423,7 +446,6 @@ class LevelChooser:
         return level, source
 
 
-__all__ = ["CameraLevels", "DEFAULT_RESOLUTION", "LEVELS_ATTRIBUTE", "LevelChooser", "authored_level",
-           "check_level", "check_resolution", "conformed_frustum", "longest_projected_edge", "nearest_level",
-           "clip_lengths", "projected_lengths", "to_clip",
-           "stage_resolution"]
+__all__ = ["CameraLevels", "DEFAULT_RESOLUTION", "KEPT_TABLES_BYTES", "LEVELS_ATTRIBUTE", "LevelChooser",
+           "authored_level", "check_level", "check_resolution", "clip_lengths", "conformed_frustum",
+           "longest_projected_edge", "nearest_level", "projected_lengths", "to_clip"]

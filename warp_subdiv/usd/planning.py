@@ -57,6 +57,8 @@ class Plan:
     # options starts from its analysis instead of analysing again (make_refiner's reuse), and drops it then
     analyses: list = field(default_factory=list, repr=False)
     levels: list = field(default_factory=list)  # the level of each of prims (warp_subdiv.usd.levels)
+    # the tables a camera measured each of prims with at its level (or None): the bake's refiner takes them whole
+    tables: list = field(default_factory=list, repr=False)
     # composed mesh path -> (level, where it came from: "levels", "subdiv:levels on /path", a camera ...)
     level_sources: dict = field(default_factory=dict)
 
@@ -175,6 +177,7 @@ def plan(
         out.prims.append(sp)
         out.keys.append(key)
         out.levels.append(scene.levels[key])
+        out.tables.append(chooser.camera.tables(sp, scene.levels[key]) if chooser.camera is not None else None)
         out.options.append(options)
         out.analyses.append(control)
         out.warnings.extend(f"{sp.path}: {w}" for w in sp.warnings)

@@ -116,8 +116,9 @@ class Bake:
         the plan's level-0 analysis, where one fits (:func:`~warp_subdiv.usd.make_refiner`)."""
         p = self.plan
         analysis, level = p.analyses[i], p.levels[i]
-        reuse = self.shipped + ((analysis.hierarchy,) if analysis is not None else ())
+        reuse = self.shipped + (p.tables[i],) + ((analysis.hierarchy,) if analysis is not None else ())
         refiner = make_refiner(sp, level, options=p.options[i], device=self.device, reuse=reuse)
+        p.tables[i] = None  # used (or built again): not kept for the rest of the bake
         if analysis is not None and level > 0 and not sp.topologies:
             p.analyses[i] = None  # used: not kept for the rest of the bake
         return refiner
