@@ -326,6 +326,9 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
         raise SubdivInputError(f"chunk_frames must be an integer >= 1, got {chunk_frames!r}",
                                option="chunk_frames", value=chunk_frames)
     threads = th.check_threads(threads)
+    if run.get("lod_variants") is not None:
+        raise SubdivInputError("lod_variants does not combine with a distributed bake (workers, scheduler)",
+                               option=("lod_variants", "workers"))
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     check_output_path(output_path)
