@@ -1,6 +1,8 @@
-"""Per-mesh levels of a USD bake: ``subdiv:levels`` on a mesh or an ancestor (instanced prototypes too), the run's
-default and ``max_levels``, levels from a camera's pixel error (checked by refining and projecting through
-usd-core's own frustum), and the errors of bad levels, cameras and pixel errors."""
+"""Per-mesh levels of a USD bake: ``subdiv:levels`` on a mesh or an ancestor (instanced prototypes and variants
+too), the run's default and ``max_levels``, levels from a camera's pixel error (checked by refining and projecting
+through usd-core's own frustum; animated cameras, off-screen meshes, instances, chunks and distributed bakes), LOD
+variants that compose to each level, ``tessellate --camera``, and the errors of bad levels, cameras, pixel errors
+and LOD lists."""
 import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom
