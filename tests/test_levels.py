@@ -537,3 +537,20 @@ def test_camera_bake_takes_the_measured_tables_and_writes_what_given_levels_writ
     for path in chosen:
         for name in ("points", "faceVertexIndices"):
             assert a.GetPrimAtPath(path).GetAttribute(name).Get() == b.GetPrimAtPath(path).GetAttribute(name).Get()
+
+
+def test_info_and_refine_show_camera_levels(tmp_path, capsys):
+    src = scene_camera(tmp_path / "scene.usda")
+    levels, _ = camera_levels(src, levels=4, pixel_error=12.0)
+    assert cli.main(["info", src, "--levels", "4", "--camera", "/World/Cam", "--pixel-error", "12",
+                     "--resolution", "640x480"]) == 0
+    text = capsys.readouterr().out.split("levels (each mesh read")[1]
+    assert f"  /World/Near/Cube: {levels['/World/Near/Cube']} (camera /World/Cam (" in text
+    assert "  /World/Behind/Cube: 0 (camera /World/Cam (off-screen; at most --levels))" in text
+    assert cli.main(["refine", src, "-o", str(tmp_path / "o.usda"), "--levels", "4", "--camera", "/World/Cam",
+                     "--pixel-error", "12", "--resolution", "640x480"]) == 0
+    out = capsys.readouterr().out
+    assert "4 levels on" in out and "(per mesh: see the level column)" in out
+    header = next(line for line in out.splitlines() if "faces in" in line).split()
+    row = next(line for line in out.splitlines() if line.strip().startswith("/World/Near/Cube")).split()
+    assert row[header.index("level")] == str(levels["/World/Near/Cube"])

@@ -173,6 +173,11 @@ def _add_info(sub) -> None:
                      help="predict sizes for levels 1..N (default 4); USD: the level of meshes without a "
                           "subdiv:levels (each mesh's level is shown with where it comes from)")
     cmd.add_argument("--max-levels", type=int, default=None, metavar="N", help="USD: as for refine")
+    cmd.add_argument("--camera", default=None, metavar="PRIM",
+                     help="USD: show the levels refine --camera would choose (with --pixel-error)")
+    cmd.add_argument("--pixel-error", type=float, default=None, metavar="PX", help="with --camera: as for refine")
+    cmd.add_argument("--resolution", default=None, metavar="WxH", help="with --camera: as for refine")
+    cmd.add_argument("--offscreen-level", type=int, default=None, metavar="N", help="with --camera: as for refine")
     cmd.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path")
 
 
@@ -524,6 +529,10 @@ def _info(args) -> int:
     kind = _check_input(args.input)
     if args.levels < 0:
         raise UsageError(f"--levels must be >= 0, got {args.levels}")
+    if kind == "obj" and any(v is not None for v in (args.max_levels, args.camera, args.pixel_error,
+                                                     args.resolution, args.offscreen_level)):
+        raise UsageError("--max-levels, --camera, --pixel-error, --resolution and --offscreen-level apply to USD "
+                         "input only")
     if kind == "obj":
         _quiet_warp()
         from .io.obj import read_obj
@@ -544,7 +553,9 @@ def _info(args) -> int:
 
     from .usd import estimate_prim, make_refiner, plan
 
-    p = plan(args.input, args.levels, prims=args.prim, require_meshes=False, max_levels=args.max_levels)
+    p = plan(args.input, args.levels, prims=args.prim, require_meshes=False, max_levels=args.max_levels,
+             camera=args.camera, pixel_error=args.pixel_error, resolution=args.resolution,
+             offscreen_level=args.offscreen_level)
     stage = p.stage
     times = ""
     if stage.HasAuthoredTimeCodeRange():
