@@ -42,9 +42,11 @@ def evaluate(refiner, points, normal_control=None):
     return function(refiner, "evaluate", normal_control)(points)
 
 
-def limit_points(refiner, refined):
-    """``refiner.limit_points`` of a JAX array of last-level data (N, d) or (N,), differentiable."""
-    return function(refiner, "limit_points")(refined)
+def limit_points(refiner, refined, normal_control=None):
+    """``refiner.limit_points`` of a JAX array of last-level data (N, d) or (N,), differentiable.
+    ``normal_control`` as there (None: on for width 3; False for data that is not a position, colours say), for
+    the values and the gradient alike."""
+    return function(refiner, "limit_points", normal_control)(refined)
 
 
 def limit_normals(refiner, refined):
@@ -55,9 +57,14 @@ def limit_normals(refiner, refined):
 
 def function(refiner, kind: str = "evaluate", normal_control=None):
     """The differentiable JAX function of ``refiner`` for ``kind`` ("evaluate", "limit_points" or
-    "limit_normals"), made once per refiner, kind and ``normal_control`` (usable under ``jax.jit``)."""
+    "limit_normals"), made once per refiner, kind and ``normal_control`` (usable under ``jax.jit``).
+    ``normal_control`` (evaluate and limit_points) as :meth:`Refiner.evaluate` / :meth:`Refiner.limit_points`
+    take it; limit normals take none (refused)."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    if kind == "limit_normals" and normal_control is not None:
+        raise SubdivInputError("limit_normals takes no normal_control (evaluate and limit_points do)",
+                               option="normal_control", value=normal_control)
     key = ("jax", kind, None if normal_control is None else bool(normal_control))
     cache = G.adjoint(refiner).adapter_functions  # kept with the refiner's gradient state
     with _lock:
@@ -92,7 +99,7 @@ def _checked_input(refiner, kind: str, normal_control, x) -> tuple:
     rows, what = ((refiner.base_num_vertices, "vertex data") if kind == "evaluate" else
                   (refiner.num_vertices, "refined points"))
     width, one_d = shaped_rows(x.shape, x.dtype.name, rows, what, positions=kind == "limit_normals")
-    if kind == "evaluate":
+    if kind != "limit_normals":
         normal_control_for(normal_control, width)
     return (x[:, None] if one_d else x), one_d
 
@@ -122,7 +129,7 @@ def _make(refiner, kind: str, normal_control):
         if kind == "evaluate":
             out = refiner.evaluate(x, normal_control=nc_of(x.shape[1]))
         elif kind == "limit_points":
-            out = refiner.limit_points(x)
+            out = refiner.limit_points(x, normal_control=nc_of(x.shape[1]))
         else:
             out = refiner.limit_normals(x)
         return np.asarray(out, dtype=dtype)
@@ -134,7 +141,7 @@ def _make(refiner, kind: str, normal_control):
             if kind == "evaluate":
                 y = adj.forward(xw, nc_of(width))
             elif kind == "limit_points":
-                y = adj.limit_points_forward(xw)
+                y = adj.limit_points_forward(xw, nc_of(width))
             else:
                 y = adj.limit_normals_forward(xw)
             return wp.to_jax(y).reshape(out_rows(True), width)
@@ -147,7 +154,7 @@ def _make(refiner, kind: str, normal_control):
         if kind == "evaluate":
             out = refiner.evaluate_vjp(g, normal_control=nc_of(g.shape[1]))
         elif kind == "limit_points":
-            out = refiner.limit_points_vjp(g)
+            out = refiner.limit_points_vjp(g, normal_control=nc_of(g.shape[1]))
         else:
             out = refiner.limit_normals_vjp(np.asarray(x), g)
         return np.asarray(out, dtype=dtype)
@@ -160,7 +167,7 @@ def _make(refiner, kind: str, normal_control):
             if kind == "evaluate":
                 y = adj.backward(gw, nc_of(width))
             elif kind == "limit_points":
-                y = adj.limit_points_backward(gw)
+                y = adj.limit_points_backward(gw, nc_of(width))
             else:
                 y = adj.limit_normals_backward(to_warp(x), gw)
             return wp.to_jax(y).reshape(out_rows(False), width)

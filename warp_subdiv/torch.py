@@ -34,9 +34,11 @@ def evaluate(refiner, points: torch.Tensor, normal_control=None) -> torch.Tensor
     return _apply(refiner, "evaluate", normal_control, points)
 
 
-def limit_points(refiner, refined: torch.Tensor) -> torch.Tensor:
-    """``refiner.limit_points`` of a tensor of last-level data (N, d) or (N,), differentiable."""
-    return _apply(refiner, "limit_points", None, refined)
+def limit_points(refiner, refined: torch.Tensor, normal_control=None) -> torch.Tensor:
+    """``refiner.limit_points`` of a tensor of last-level data (N, d) or (N,), differentiable. ``normal_control``
+    as there (None: on for width 3; False for data that is not a position, colours say), for the values and
+    the gradient alike."""
+    return _apply(refiner, "limit_points", normal_control, refined)
 
 
 def limit_normals(refiner, refined: torch.Tensor) -> torch.Tensor:
@@ -55,7 +57,7 @@ def _apply(refiner, kind, normal_control, x: torch.Tensor) -> torch.Tensor:
                   (refiner.num_vertices, "refined points"))
     width, one_d = shaped_rows(x.shape, str(x.dtype).removeprefix("torch."), rows, what,
                                positions=kind == "limit_normals")
-    if kind == "evaluate":
+    if kind != "limit_normals":
         normal_control_for(normal_control, width)
     if one_d:
         x = x[:, None]
@@ -87,7 +89,7 @@ class _Refine(torch.autograd.Function):
         if kind == "evaluate":
             y = adj.forward(xw, nc)
         elif kind == "limit_points":
-            y = adj.limit_points_forward(xw)
+            y = adj.limit_points_forward(xw, nc)
         else:
             y = adj.limit_normals_forward(xw)
         ctx.refiner, ctx.kind, ctx.nc = refiner, kind, nc
@@ -104,7 +106,7 @@ class _Refine(torch.autograd.Function):
             y = adj.backward(gw, ctx.nc)
             rows = ctx.refiner.base_num_vertices
         elif ctx.kind == "limit_points":
-            y = adj.limit_points_backward(gw)
+            y = adj.limit_points_backward(gw, ctx.nc)
             rows = ctx.refiner.num_vertices
         else:
             (x,) = ctx.saved_tensors

@@ -205,16 +205,18 @@ class Adjoint:
         return out
 
     # ---------------------------------------------------------------------------------------- limits
-    def limit_points_forward(self, x: wp.array) -> wp.array:
-        """Limit values of the last level's data ``x`` (kernel view); width-3 data takes normal control in the
-        extra step where the masks are read one level deeper (as :meth:`Refiner.limit_points`)."""
+    def limit_points_forward(self, x: wp.array, normal_control=None) -> wp.array:
+        """Limit values of the last level's data ``x`` (kernel view). Where the masks are read one level deeper
+        the extra step applies prescribed normals as :meth:`Refiner.limit_points` does: ``normal_control`` None
+        on width 3 only, False never (data that is not a position), True to width 3 (refused on other widths)."""
         check_data(self, x)
+        width = self.width(x)
+        normal_control = normal_control_for(normal_control, width)
         source, deeper = self.refiner.limit_source()
         sa = source.adjoint
         run = self.launcher
-        width = self.width(x)
         if deeper:
-            x = sa._last_step_forward(x, width == 3)
+            x = sa._last_step_forward(x, normal_control)
         masks = source.evaluator.limit_masks()
         full = sa.empty(masks.num_vertices, width)
         limit_positions(masks, x, full, run)
@@ -222,16 +224,18 @@ class Adjoint:
         wp.copy(out, full, count=self.refiner.num_vertices)
         return out
 
-    def limit_points_backward(self, grad: wp.array) -> wp.array:
-        """The gradient with respect to the last level's data of a gradient of :meth:`limit_points_forward`."""
+    def limit_points_backward(self, grad: wp.array, normal_control=None) -> wp.array:
+        """The gradient with respect to the last level's data of a gradient of :meth:`limit_points_forward` with
+        the same ``normal_control``."""
         check_data(self, grad)
+        width = self.width(grad)
+        normal_control = normal_control_for(normal_control, width)
         source, deeper = self.refiner.limit_source()
         sa = source.adjoint
         rec = sa.tables.limit(self.refiner.num_vertices)
-        width = self.width(grad)
         g = sa.empty(source.num_vertices, width)
         apply(rec.position, grad, g, self.launcher)
-        return sa._last_step_backward(g, width == 3) if deeper else g
+        return sa._last_step_backward(g, normal_control) if deeper else g
 
     def _prescribed(self):
         h = self.hierarchy
