@@ -355,6 +355,63 @@ def test_limit_points_gradients_take_the_normal_control_switch(case):
         assert err.value.option == "normal_control"
 
 
+@pytest.mark.parametrize("case", ["cc-boundary-flatness-normals", "loop-boundary-normal"])
+def test_limit_normals_gradients_take_the_normal_control_switch(case):
+    """limit_normals_vjp, gradients.limit_normals (the wp.Tape path, also through Refiner.limit_normals(on_device))
+    and the recorded Refiner.evaluate_with_limits(on_device) take normal_control as Refiner.limit_normals does:
+    positions refined with normal_control=False get no prescribed normal, neither substituted nor applied in the
+    extra step where the masks are read one level deeper; None and True get both. Forward values equal the
+    numpy path's with the same switch; the gradients are the derivative (central differences, from the refined
+    points and from the control points) and the tape's equal the VJPs (the gradient paths used to apply
+    prescribed normals whatever the switch: limit normals off by up to 0.81 on the first mesh)."""
+    r = refiner(case)
+    assert r.limit_reads_deeper()
+    rng = np.random.default_rng(17)
+    p = _points(r, seed=3)
+    g = rng.standard_normal((r.num_vertices, 3))
+    d = rng.standard_normal((r.num_vertices, 3))
+    dp = rng.standard_normal(p.shape)
+    gw = wp.array(g, dtype=wp.vec3d)
+    normals, vjps = {}, {}
+    for nc in (False, None, True):
+        x = r.evaluate(p, normal_control=nc)
+        want = normals[nc] = r.limit_normals(x, normal_control=nc)
+        vjp = vjps[nc] = r.limit_normals_vjp(x, g, normal_control=nc)
+        fd = _fd(lambda y: r.limit_normals(y, normal_control=nc), x, g, d, h=1e-7)
+        assert np.sum(vjp * d) == pytest.approx(fd, rel=1e-5, abs=1e-6)
+        chain = r.evaluate_vjp(vjp, normal_control=nc)
+        fd = _fd(lambda q: r.limit_normals(r.evaluate(q, normal_control=nc), normal_control=nc), p, g, dp,
+                 h=1e-7)
+        assert np.sum(chain * dp) == pytest.approx(fd, rel=1e-5, abs=1e-6)
+
+        for through_refiner in (False, True):
+            refined = wp.array(x, dtype=wp.vec3d, requires_grad=True)
+            loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+            with wp.Tape() as tape:
+                if through_refiner:
+                    lim = r.limit_normals(refined, normal_control=nc, on_device=True)
+                else:
+                    lim = G.limit_normals(r, refined, normal_control=nc)
+                wp.launch(_dot_loss, dim=r.num_vertices, inputs=[lim, gw, loss])
+            tape.backward(loss)
+            np.testing.assert_allclose(lim.numpy(), want, rtol=0, atol=1e-13)
+            np.testing.assert_array_equal(refined.grad.numpy(), vjp)
+
+        pts = wp.array(p, dtype=wp.vec3d, requires_grad=True)
+        loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+        with wp.Tape() as tape:
+            res = r.evaluate_with_limits(pts, normal_control=nc, on_device=True)
+            wp.launch(_dot_loss, dim=r.num_vertices, inputs=[res.limit_normals, gw, loss])
+        tape.backward(loss)
+        one_pass = r.evaluate_with_limits(p, normal_control=nc)
+        np.testing.assert_allclose(res.limit_normals.numpy(), one_pass.limit_normals, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(res.limit_points.numpy(), one_pass.limit_points, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(pts.grad.numpy(), chain, rtol=0, atol=1e-12)
+    assert np.abs(normals[False] - normals[None]).max() > 1e-2  # the switch matters on this mesh
+    assert np.abs(vjps[False] - vjps[None]).max() > 1e-4
+    np.testing.assert_array_equal(normals[None], normals[True])
+
+
 def test_recorded_evaluate_device_writes_into_out():
     """evaluate_device(requires_grad=True, out=buf) writes the result into buf (vec3 or (N, 3)) and returns it,
     recorded: its gradient flows back through buf.grad (out used to be ignored: a fresh array came back and buf

@@ -108,12 +108,14 @@ class _GradientMethods:
 
         return gradients.limit_points_vjp(self, grad, normal_control)
 
-    def limit_normals_vjp(self, refined_points, grad) -> np.ndarray:
+    def limit_normals_vjp(self, refined_points, grad, *, normal_control=None) -> np.ndarray:
         """Gradient with respect to ``refined_points`` of ``grad``, a gradient of :meth:`limit_normals`' result
-        (the true derivative of the unit normals)."""
+        with the same ``normal_control`` (the true derivative of the unit normals; None: prescribed normals
+        substituted, their rows pass none; False: positions refined without normal control). See
+        :func:`warp_subdiv.gradients.limit_normals_vjp`."""
         from . import gradients
 
-        return gradients.limit_normals_vjp(self, refined_points, grad)
+        return gradients.limit_normals_vjp(self, refined_points, grad, normal_control)
 
 
 class _FaceVaryingMethods:
@@ -325,10 +327,11 @@ class Refiner(_Views, _GradientMethods, _FaceVaryingMethods):
         sectors' unit normals (exact where there is one sector, e.g. on a boundary). ``refined_points`` and
         ``on_device`` as in :meth:`limit_points`; ``normal_control=False``: the normals of positions refined
         without normal control (``evaluate(points, normal_control=False)``): computed everywhere, prescribed
-        normals neither applied in an extra step nor reported.
+        normals neither applied in an extra step nor reported (recorded with the same switch: its backward is
+        :meth:`limit_normals_vjp`'s).
         """
         if on_device and (recorded := self._recorded(refined_points)):
-            return recorded.limit_normals(self, refined_points)
+            return recorded.limit_normals(self, refined_points, normal_control=normal_control)
         points, _ = self._rows_data(refined_points, self.num_vertices, "refined points")
         if points.shape[1] != 3:
             raise SubdivInputError(f"limit normals take (N, 3) positions, got {tuple(np.shape(points))}",

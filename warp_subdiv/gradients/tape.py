@@ -48,10 +48,12 @@ def limit_points_vjp(refiner, grad, normal_control=None) -> np.ndarray:
     return _shaped(adj.to_host(adj.limit_points_backward(adj.to_device(g), normal_control)), grad)
 
 
-def limit_normals_vjp(refiner, refined_points, grad) -> np.ndarray:
+def limit_normals_vjp(refiner, refined_points, grad, normal_control=None) -> np.ndarray:
     """The gradient with respect to the refined positions (N, 3) of ``grad`` (N, 3), a gradient of
-    ``refiner.limit_normals(refined_points)``: the true derivative of the normalised normals (rows of vertices
-    with a prescribed normal pass none)."""
+    ``refiner.limit_normals(refined_points, normal_control=normal_control)``: the true derivative of the
+    normalised normals. ``normal_control`` as there: None (or True) substitutes the prescribed normals (their
+    rows pass no gradient) and applies them in the extra step where the masks are read one level deeper; False
+    (positions refined without normal control) does neither."""
     x = _host_rows(refiner, refined_points, refiner.num_vertices, "refined points")
     g = _host_rows(refiner, grad, refiner.num_vertices, "gradient")
     for name, a in (("refined points", x), ("gradient", g)):
@@ -59,7 +61,7 @@ def limit_normals_vjp(refiner, refined_points, grad) -> np.ndarray:
             raise SubdivInputError(f"limit normals take (N, 3) {name}, got {a.shape}", element="data",
                                    value=a.shape)
     adj = adjoint(refiner)
-    return adj.to_host(adj.limit_normals_backward(adj.to_device(x), adj.to_device(g)))
+    return adj.to_host(adj.limit_normals_backward(adj.to_device(x), adj.to_device(g), normal_control))
 
 
 def _active_tape():
@@ -203,21 +205,24 @@ def limit_points(refiner, refined: wp.array, requires_grad=None, *, normal_contr
     return out
 
 
-def limit_normals(refiner, refined: wp.array, requires_grad=None) -> wp.array:
+def limit_normals(refiner, refined: wp.array, requires_grad=None, *, normal_control=None) -> wp.array:
     """Unit limit normals of a Warp array of the last level's positions (vec3 (N,) or (N, 3)), recorded on an
-    active tape (the backward recomputes the tangents from ``refined`` as it is then); see
-    :meth:`Refiner.limit_normals`."""
+    active tape (the backward recomputes the tangents from ``refined`` as it is then); ``normal_control`` as in
+    :meth:`Refiner.limit_normals` (None: on; pass False for positions refined without normal control: no
+    prescribed normal substituted nor applied in the extra step), for the forward and the recorded backward
+    alike."""
     adj = adjoint(refiner)
     N = refiner.num_vertices
     x = _user_array(refiner, refined, N, "refined points")
     check_positions(x)
+    nc = bool(normal_control_for(normal_control, 3))
     rg = refined.requires_grad if requires_grad is None else bool(requires_grad)
     out, view = _result_like(adj, refined, N, 3, rg)
     with _NoTape():
-        wp.copy(view, adj.limit_normals_forward(x))
+        wp.copy(view, adj.limit_normals_forward(x, nc))
 
     def backward():
-        g = adj.limit_normals_backward(x, _grad_view(out, N))
+        g = adj.limit_normals_backward(x, _grad_view(out, N), nc)
         adj.launcher.rows(_kernels().add_rows, N, [g, _grad_view(refined, N)])
 
     _record(rg, [refined], out, backward)
@@ -229,9 +234,9 @@ def evaluate_with_limits(refiner, points: wp.array, normal_control=None, with_li
     """:meth:`Refiner.evaluate_with_limits` on the device, recorded: :func:`evaluate` of ``points``, then
     :func:`limit_points` and :func:`limit_normals` of its result (each a fresh array with a gradient where
     ``points`` requires one; under an active ``wp.Tape`` each backward is recorded). ``normal_control`` applies to
-    the refinement and the limit points' extra step alike. The same values as the evaluator's one pass, whose
-    shared buffers a tape cannot hold."""
+    the refinement, the limits' extra step and the limit normals' prescribed ones alike. The same values as the
+    evaluator's one pass, whose shared buffers a tape cannot hold."""
     refined = evaluate(refiner, points, normal_control)
     return Evaluated(refined,
                      limit_points(refiner, refined, normal_control=normal_control) if with_limit_points else None,
-                     limit_normals(refiner, refined) if with_limit_normals else None)
+                     limit_normals(refiner, refined, normal_control=normal_control) if with_limit_normals else None)
