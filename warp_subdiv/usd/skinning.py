@@ -1,0 +1,463 @@
+"""Meshes bound to a UsdSkel skeleton (skinned meshes, blend shapes): what the bake refines for them.
+
+A renderer subdivides a skinned mesh *after* skinning: at each time it deforms the control points (blend shapes,
+then linear-blend or dual-quaternion skinning, as ``skel:skinningMethod`` says) and refines the deformed cage.
+Refining the rest pose and skinning the refined mesh with interpolated weights is a different surface (weights do
+not commute with refinement). The bake offers three treatments, the run's ``skinning`` option:
+
+* ``"bake"`` (the default): at every time the pose can change (the samples of the animation's joint transforms
+  and blend-shape weights, of the mesh's points and joint influences, and of the transforms between the skeleton
+  and the mesh, as ``frames`` selects them) the control points are deformed by usd-core's UsdSkel itself
+  (:class:`pxr.UsdSkel.BlendShapeQuery`, :meth:`pxr.UsdSkel.SkinningQuery.ComputeSkinnedPoints`), brought from
+  the skeleton's space into the mesh's own (as :func:`pxr.UsdSkel.BakeSkinning` does) and refined with the
+  topology built once. The refined mesh no longer binds the skeleton (:func:`write_skinning` blocks its joint
+  influences, blend shapes and skeleton binding), so nothing skins it twice; the skeleton and its animation stay
+  for whatever else they drive.
+* ``"keep"``: the rest pose is refined and the refined mesh stays bound: each joint's weight column is refined
+  like vertex data, the largest ``k`` weights of each refined vertex are kept and renormalised (``k``: the
+  input's elementSize, or ``max_influences``), blend-shape offsets are refined (refinement is linear, so they are
+  exact) and reach the refined vertices they move. An approximation of what a renderer draws: the bake warns with
+  the largest deviation from the baked surface over the sampled frames.
+* ``"none"``: the rest pose is refined and the binding dropped, with a warning.
+
+:class:`Skinning` is a run's UsdSkel state; its :meth:`~Skinning.attach` turns a mesh as read
+(:class:`~warp_subdiv.io.usd_read.SubdivPrim`) into a :class:`SkinnedPrim` whose ``points_at`` gives the deformed
+points, so that every path of the bake (threads refining ahead, batches, the distributed bake's frame chunks)
+refines them without knowing about skeletons.
+"""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdSkel, Vt
+
+from ..errors import SubdivInputError
+from ..io.usd_read import SubdivPrim
+from ..io.usd_scene import skinned
+from ..io.usd_stage import DEFAULT, times_for_frames
+
+T = Sdf.ValueTypeNames
+
+#: The treatments of skinned meshes (the bake's ``skinning`` option).
+SKINNING_MODES = ("bake", "keep", "none")
+
+#: The joint-influence primvars of UsdSkelBindingAPI (read by the skinning, never refined as plain primvars).
+INFLUENCE_PRIMVARS = ("primvars:skel:jointIndices", "primvars:skel:jointWeights")
+
+#: Weight sums farther than this from one are reported (UsdSkel skins with the weights as they are).
+WEIGHT_SUM_TOLERANCE = 1e-4
+
+#: Skinned control points kept for a second request (a worker refining ahead asks first, the writer then).
+_CACHE_BYTES = 256 << 20
+
+
+def check_skinning(value) -> str:
+    """``value`` if it is one of :data:`SKINNING_MODES`, else a SubdivInputError naming the option."""
+    if value not in SKINNING_MODES:
+        raise SubdivInputError(f"skinning must be one of {', '.join(SKINNING_MODES)}, got {value!r}",
+                               option="skinning", value=value)
+    return value
+
+
+def check_max_influences(value):
+    """``value`` if it is None or an integer >= 1."""
+    if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1):
+        raise SubdivInputError(f"max_influences must be an integer >= 1, got {value!r}", option="max_influences",
+                               value=value)
+    return value
+
+
+def is_bound(prim: Usd.Prim) -> bool:
+    """Whether a mesh takes part in UsdSkel: the binding API applied, or joint influences or blend shapes
+    authored on it. Such a mesh is skinned by the skeleton it (or an ancestor) binds, so two of them with equal
+    attributes may still deform apart (:func:`~warp_subdiv.io.usd_scene.input_fingerprint` keeps them apart)."""
+    return skinned(prim)
+
+
+@dataclass
+class Influences:
+    """The joint influences of a mesh as authored and checked: ``indices`` and ``weights`` (points or 1, k)
+    for vertex or constant interpolation, ``joints`` the joint order they index (the mesh's ``skel:joints``, else
+    the skeleton's)."""
+
+    indices: np.ndarray
+    weights: np.ndarray
+    interpolation: str
+    joints: list
+
+
+@dataclass
+class SkinBinding:
+    """How one mesh is skinned: its skeleton, the UsdSkel queries, the treatment and what it needs."""
+
+    mode: str
+    skeleton: Usd.Prim | None
+    skel_query: object = None  # UsdSkel.SkeletonQuery
+    skinning_query: object = None  # UsdSkel.SkinningQuery
+    blend_query: object = None  # UsdSkel.BlendShapeQuery, or None without blend shapes
+    animation: Usd.Prim | None = None
+    influences: Influences | None = None
+    method: str = "classicLinear"
+    times: list = field(default_factory=list)  # the selected times the pose may change at
+    lock: object = field(default_factory=threading.Lock, repr=False)
+    cache: dict = field(default_factory=dict, repr=False)  # time -> skinned control points (float32)
+
+
+@dataclass
+class SkinnedPrim(SubdivPrim):
+    """A mesh bound to a skeleton, as the bake refines it: with ``skinning="bake"`` its points at a time are the
+    control points as UsdSkel deforms them there, in the mesh's own space, and its :attr:`point_times` are the
+    times the pose may change; with "keep" and "none" they are the rest points, as read."""
+
+    skin: SkinBinding | None = None
+
+    def points_at(self, time) -> np.ndarray:
+        if self.skin is None or self.skin.mode != "bake":
+            return super().points_at(time)
+        return self._check_rows(skinned_points(self, time), "points", time)
+
+
+class Skinning:
+    """A run's UsdSkel state (one :class:`pxr.UsdSkel.Cache` per stage, populated on first use) and treatment
+    (``mode``, one of :data:`SKINNING_MODES`) of the meshes bound to a skeleton."""
+
+    def __init__(self, mode: str = "bake", frames=None, max_influences=None):
+        self.mode = check_skinning(mode)
+        self.frames = frames
+        self.max_influences = check_max_influences(max_influences)
+        self._caches: dict = {}  # id(stage) -> (stage, UsdSkel.Cache)
+        self._lock = threading.Lock()
+
+    def cache_of(self, stage: Usd.Stage):
+        with self._lock:
+            held = self._caches.get(id(stage))
+            if held is None or held[0] is not stage:
+                cache = UsdSkel.Cache()
+                for prim in stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
+                    if prim.IsA(UsdSkel.Root):
+                        cache.Populate(UsdSkel.Root(prim), Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
+                held = self._caches[id(stage)] = (stage, cache)
+            return held[1]
+
+    def attach(self, sp: SubdivPrim | None) -> SubdivPrim | None:
+        """The mesh ``sp`` as the bake refines it: itself when no skeleton deforms it, else a :class:`SkinnedPrim`
+        (see the module docstring). Its joint influences leave its primvars (they are the skinning's); a binding
+        UsdSkel ignores (no SkelRoot above the mesh, influences without a skeleton) is dropped with a warning.
+        Errors name the prim and attribute: an animation that is not a SkelAnimation or whose arrays do not fit
+        its joints, joint indices outside the joints, elementSizes that differ, blend shapes that do not fit."""
+        if sp is None or not is_bound(sp.prim):
+            return sp
+        prim = sp.prim
+        kept = [pv for pv in sp.primvars if not pv.name.startswith("primvars:skel:")]
+        dropped = [(n, r) for n, r in sp.dropped if not n.startswith("primvars:skel:")]
+        out = SkinnedPrim(**{f.name: getattr(sp, f.name) for f in fields(SubdivPrim)})
+        out.primvars, out.dropped, out.warnings = kept, dropped, list(sp.warnings)
+        skeleton = UsdSkel.BindingAPI(prim).GetInheritedSkeleton()
+        if not skeleton:
+            out.skin = SkinBinding("none", None)
+            out.warnings.append("joint influences or blend shapes without a bound skeleton (skel:skeleton): UsdSkel "
+                                "does not deform this mesh; they are dropped and its points refined as they are")
+            return out
+        if not UsdSkel.Root.Find(prim):
+            out.skin = SkinBinding("none", skeleton.GetPrim())
+            out.warnings.append(f"bound to {skeleton.GetPath()} but not under a SkelRoot: UsdSkel does not deform "
+                                "this mesh; the binding is dropped and its points refined as they are")
+            return out
+        if sp.topologies:
+            raise SubdivInputError(f"{sp.path}: faceVertexCounts / faceVertexIndices change over time on a mesh "
+                                   f"bound to {skeleton.GetPath()}; UsdSkel skins a fixed set of points")
+        if self.mode == "bake" and (prim.IsInstanceProxy() or prim.IsInPrototype()):
+            raise SubdivInputError(
+                f"{sp.path}: a skinned mesh inside an instance: each instance may be posed by its own animation, so "
+                "baking it would take the instance apart; bake with skinning keep (the refined prototype stays "
+                "skinned) or none, or make the instance not instanceable", option="skinning", value="bake")
+        cache = self.cache_of(prim.GetStage())
+        binding = self._binding(out, skeleton, cache)
+        out.skin = binding
+        if self.mode == "none":
+            out.warnings.append(f"skinning none: the rest pose is refined and the binding to {skeleton.GetPath()} is "
+                                "dropped; the refined mesh does not deform")
+        elif self.mode == "bake":
+            out.point_times = binding.times
+        return out
+
+    def _binding(self, sp: SkinnedPrim, skeleton, cache) -> SkinBinding:
+        """The checked binding of ``sp`` to ``skeleton``; its times of change when baking."""
+        prim, path = sp.prim, sp.path
+        skel_query = cache.GetSkelQuery(skeleton)
+        if not skel_query:
+            raise SubdivInputError(f"{skeleton.GetPath()}: not a valid Skeleton (joints / bindTransforms / "
+                                   f"restTransforms do not fit), bound by {path}")
+        skel_joints = list(skel_query.GetJointOrder())
+        animation = _animation_of(skeleton.GetPrim(), path)
+        if animation is None and not skeleton.GetRestTransformsAttr().HasAuthoredValue():
+            raise SubdivInputError(f"{skeleton.GetPath()}: no skel:animationSource and no restTransforms: UsdSkel "
+                                   f"has no pose for the skeleton that {path} is bound to")
+        query = cache.GetSkinningQuery(prim)
+        binding = SkinBinding(self.mode, skeleton.GetPrim(), skel_query=skel_query, skinning_query=query,
+                              animation=animation)
+        if query is None or not query:
+            raise SubdivInputError(f"{path}: bound to {skeleton.GetPath()} but UsdSkel finds no valid skinning "
+                                   "(primvars:skel:jointIndices / jointWeights or skel:blendShapes)")
+        binding.method = str(query.GetSkinningMethod() or "classicLinear")
+        n = len(sp.points_default)
+        if query.HasJointInfluences() or _authored(prim, "primvars:skel:jointIndices"):
+            binding.influences = _influences(prim, path, n, skel_joints)
+            _check_weight_sums(sp, binding.influences)
+        if query.HasBlendShapes() or _authored(prim, "skel:blendShapes"):
+            binding.blend_query = _blend_shapes(prim, path, n, animation)
+        if self.mode == "bake":
+            binding.times = times_for_frames(_pose_times(prim, skeleton.GetPrim(), animation, binding), self.frames)
+        return binding
+
+
+def _authored(prim, name) -> bool:
+    attr = prim.GetAttribute(name)
+    return bool(attr) and attr.HasAuthoredValue()
+
+
+def _animation_of(skeleton: Usd.Prim, path: str):
+    """The SkelAnimation posing ``skeleton`` (its inherited skel:animationSource), None when none is bound;
+    SubdivInputError when the relationship names something else."""
+    api = UsdSkel.BindingAPI(skeleton)
+    source = api.GetInheritedAnimationSource()
+    if source and UsdSkel.IsSkelAnimationPrim(source):
+        return source
+    rel = api.GetAnimationSourceRel()
+    targets = rel.GetTargets() if rel else []
+    if targets:
+        raise SubdivInputError(f"{skeleton.GetPath()}: skel:animationSource targets {targets[0]}, which is not a "
+                               f"SkelAnimation (the skeleton {path} is bound to)")
+    return None
+
+
+def _primvar_rows(prim, name, path, points: int):
+    """(values (rows, elementSize), interpolation) of joint-influence primvar ``name``, checked."""
+    pv = UsdGeom.Primvar(prim.GetAttribute(name))
+    values = pv.Get() if pv else None
+    if values is None:
+        raise SubdivInputError(f"{path}: {name} has no value (a skinned mesh needs jointIndices and jointWeights)")
+    if pv.GetAttr().GetNumTimeSamples() > 0:
+        raise SubdivInputError(f"{path}: {name} is time-sampled; UsdSkel reads joint influences once")
+    interp = str(pv.GetInterpolation())
+    es = pv.GetElementSize() or 1
+    arr = np.asarray(values).reshape(-1)
+    rows = 1 if interp == "constant" else points
+    if interp not in ("constant", "vertex"):
+        raise SubdivInputError(f"{path}: {name} has {interp} interpolation; joint influences are vertex or constant")
+    if len(arr) != rows * es:
+        raise SubdivInputError(f"{path}: {name} has {len(arr)} values; with elementSize {es} and {interp} "
+                               f"interpolation it needs {rows * es} ({rows} x {es})")
+    return arr.reshape(rows, es), interp
+
+
+def _influences(prim, path, points: int, skel_joints: list) -> Influences:
+    """The joint influences of ``prim``, checked against each other, its points and its joints."""
+    idx, interp = _primvar_rows(prim, "primvars:skel:jointIndices", path, points)
+    weights, w_interp = _primvar_rows(prim, "primvars:skel:jointWeights", path, points)
+    if idx.shape[1] != weights.shape[1] or interp != w_interp:
+        raise SubdivInputError(f"{path}: primvars:skel:jointIndices (elementSize {idx.shape[1]}, {interp}) and "
+                               f"primvars:skel:jointWeights (elementSize {weights.shape[1]}, {w_interp}) differ")
+    joints_attr = prim.GetAttribute("skel:joints")
+    joints = list(joints_attr.Get()) if joints_attr and joints_attr.HasAuthoredValue() else skel_joints
+    missing = [j for j in joints if j not in skel_joints]
+    if missing:
+        raise SubdivInputError(f"{path}: skel:joints names {missing[0]!r}, which is not a joint of the skeleton")
+    bad = np.flatnonzero((idx.reshape(-1) < 0) | (idx.reshape(-1) >= len(joints)))
+    if len(bad):
+        raise SubdivInputError(f"{path}: primvars:skel:jointIndices[{bad[0]}] = {idx.reshape(-1)[bad[0]]} is not one "
+                               f"of the {len(joints)} joints", element="vertex", index=int(bad[0]),
+                               value=int(idx.reshape(-1)[bad[0]]))
+    bad = np.flatnonzero(~np.isfinite(weights.reshape(-1)) | (weights.reshape(-1) < 0))
+    if len(bad):
+        raise SubdivInputError(f"{path}: primvars:skel:jointWeights[{bad[0]}] = {weights.reshape(-1)[bad[0]]:g} is "
+                               "not a finite weight >= 0", element="vertex", index=int(bad[0]))
+    return Influences(idx.astype(np.int64), weights.astype(np.float64), interp, joints)
+
+
+def _check_weight_sums(sp, influences: Influences) -> None:
+    """Warn where weights do not sum to one: UsdSkel skins with them as they are (the bake draws what it draws)."""
+    sums = influences.weights.sum(axis=1)
+    off = np.abs(sums - 1.0)
+    if off.max() > WEIGHT_SUM_TOLERANCE:
+        worst = int(np.argmax(off))
+        count = int(np.count_nonzero(off > WEIGHT_SUM_TOLERANCE))
+        sp.warnings.append(f"primvars:skel:jointWeights do not sum to one at {count} of {len(sums)} points (point "
+                           f"{worst}: {sums[worst]:g}); UsdSkel skins with them as they are, and so does the bake "
+                           "(skinning keep normalises them)")
+
+
+def _blend_shapes(prim, path, points: int, animation):
+    """The UsdSkel.BlendShapeQuery of ``prim``, its targets checked (each a BlendShape whose offsets fit its
+    point indices and the mesh's points)."""
+    api = UsdSkel.BindingAPI(prim)
+    names = list(api.GetBlendShapesAttr().Get() or [])
+    targets = api.GetBlendShapeTargetsRel().GetTargets()
+    if len(names) != len(targets):
+        raise SubdivInputError(f"{path}: skel:blendShapes names {len(names)} shapes, skel:blendShapeTargets "
+                               f"{len(targets)}")
+    for name, target in zip(names, targets):
+        shape = UsdSkel.BlendShape(prim.GetStage().GetPrimAtPath(target))
+        if not shape:
+            raise SubdivInputError(f"{path}: skel:blendShapeTargets names {target}, which is not a BlendShape")
+        offsets = shape.GetOffsetsAttr().Get()
+        ids = shape.GetPointIndicesAttr().Get()
+        n = len(offsets or [])
+        if ids is not None and len(ids):
+            ids = np.asarray(ids)
+            if len(ids) != n:
+                raise SubdivInputError(f"{target}: offsets has {n} entries for {len(ids)} pointIndices (blend shape "
+                                       f"{name!r} of {path})")
+            bad = np.flatnonzero((ids < 0) | (ids >= points))
+            if len(bad):
+                raise SubdivInputError(f"{target}: pointIndices[{bad[0]}] = {ids[bad[0]]} is not a point of {path} "
+                                       f"(it has {points})")
+        elif n != points:
+            raise SubdivInputError(f"{target}: offsets has {n} entries without pointIndices; {path} has {points} "
+                                   "points")
+    return UsdSkel.BlendShapeQuery(api)
+
+
+def _xform_times(prim: Usd.Prim, stop: Sdf.Path) -> set:
+    """Time samples of the transforms of ``prim`` and its ancestors below ``stop`` (their common ancestor with
+    the other prim: above it, transforms cancel)."""
+    out: set = set()
+    while prim and prim.GetPath() != stop and not prim.IsPseudoRoot():
+        if prim.IsA(UsdGeom.Xformable):
+            out.update(UsdGeom.Xformable(prim).GetTimeSamples())
+        prim = prim.GetParent()
+    return out
+
+
+def _pose_times(prim, skeleton, animation, binding: SkinBinding) -> list:
+    """Every time the deformed points of ``prim`` may change at: the animation's joint transforms and blend-shape
+    weights, the mesh's points and influences, the transforms between skeleton and mesh."""
+    times = set(prim.GetAttribute("points").GetTimeSamples())
+    if animation is not None:
+        anim = binding.skel_query.GetAnimQuery()
+        times.update(anim.GetJointTransformTimeSamples())
+        times.update(anim.GetBlendShapeWeightTimeSamples())
+    common = prim.GetPath().GetCommonPrefix(skeleton.GetPath())
+    times |= _xform_times(prim, common) | _xform_times(skeleton, common)
+    for name in ("primvars:skel:geomBindTransform", "skel:skinningMethod"):
+        attr = prim.GetAttribute(name)
+        if attr:
+            times.update(attr.GetTimeSamples())
+    return sorted(float(t) for t in times)
+
+
+def _check_animation(binding: SkinBinding, time) -> None:
+    """UsdSkel poses a skeleton whose animation arrays do not fit its joints as its rest pose, with only a
+    warning on the console: refuse instead, naming the animation and attribute."""
+    anim = binding.animation
+    if anim is None:
+        return
+    joints = UsdSkel.Animation(anim).GetJointsAttr().Get()
+    shapes = UsdSkel.Animation(anim).GetBlendShapesAttr().Get()
+    when = "" if time == DEFAULT else f" at time {time:g}"
+    for name, expected in (("translations", joints), ("rotations", joints), ("scales", joints),
+                           ("blendShapeWeights", shapes)):
+        value = anim.GetAttribute(name).Get(time)
+        if value is not None and len(value) != len(expected or []):
+            what = "joints" if name != "blendShapeWeights" else "blendShapes"
+            raise SubdivInputError(f"{anim.GetPath()}: {name}{when} has {len(value)} entries for {len(expected or [])} "
+                                   f"{what}", element=name, value=len(value))
+
+
+def _matrix(m) -> np.ndarray:
+    return np.array(m, dtype=np.float64).reshape(4, 4)
+
+
+def skinned_points(sp: SkinnedPrim, time) -> np.ndarray:
+    """The control points of ``sp`` at ``time`` as UsdSkel deforms them (blend shapes, then joints), in the
+    mesh's own space (float64 (n, 3)). The points UsdSkel skins are in the skeleton's space; like
+    :func:`pxr.UsdSkel.BakeSkinning`, they are brought into the mesh's by the skeleton's local-to-world transform
+    and the inverse of the mesh's. Kept for a second request of the same time (refining ahead, then writing)."""
+    skin = sp.skin
+    key = "default" if time == DEFAULT else float(time)
+    with skin.lock:
+        held = skin.cache.pop(key, None)
+        if held is not None:
+            return held.astype(np.float64)
+        out = _deform(sp, time)
+        if sum(a.nbytes for a in skin.cache.values()) + out.nbytes // 2 <= _CACHE_BYTES:
+            skin.cache[key] = out.astype(np.float32)
+        return out
+
+
+def _deform(sp: SkinnedPrim, time) -> np.ndarray:
+    skin, prim = sp.skin, sp.prim
+    when = "" if time == DEFAULT else f" at time {time:g}"
+    points = prim.GetAttribute("points").Get(time)
+    if points is None or len(points) != len(sp.points_default):
+        points = Vt.Vec3fArray.FromNumpy(np.asarray(sp.points_default, dtype=np.float32))
+    _check_animation(skin, time)
+    if skin.blend_query is not None:
+        anim = skin.skel_query.GetAnimQuery()
+        weights = anim.ComputeBlendShapeWeights(time) if anim else None
+        if weights is not None and len(weights):
+            mapper = skin.skinning_query.GetBlendShapeMapper()
+            if mapper is not None and not mapper.IsNull():
+                weights = mapper.Remap(weights)
+            query = skin.blend_query
+            sub, shapes, subs = query.ComputeSubShapeWeights(weights)
+            if not query.ComputeDeformedPoints(sub, shapes, subs, query.ComputeBlendShapePointIndices(),
+                                               query.ComputeSubShapePointOffsets(), points):
+                raise SubdivInputError(f"{sp.path}: UsdSkel could not apply the blend shapes{when}")
+    if skin.influences is None:
+        return np.asarray(points, dtype=np.float64)  # blend shapes only: the mesh's own space
+    xforms = skin.skel_query.ComputeSkinningTransforms(time)
+    if xforms is None or not skin.skinning_query.ComputeSkinnedPoints(xforms, points, time):
+        raise SubdivInputError(f"{sp.path}: UsdSkel could not skin the points{when} (skeleton "
+                               f"{skin.skeleton.GetPath()})")
+    to_local = (_matrix(UsdGeom.Imageable(skin.skeleton).ComputeLocalToWorldTransform(time))
+                @ np.linalg.inv(_matrix(UsdGeom.Imageable(prim).ComputeLocalToWorldTransform(time))))
+    pts = np.asarray(points, dtype=np.float64)
+    return pts @ to_local[:3, :3] + to_local[3, :3]
+
+
+#: What binds a mesh to a skeleton on the refined prim: blocked (attributes) or emptied (relationships) where the
+#: binding is dropped.
+BINDING_ATTRIBUTES = ("primvars:skel:jointIndices", "primvars:skel:jointWeights", "primvars:skel:geomBindTransform",
+                      "skel:joints", "skel:blendShapes")
+BINDING_RELATIONSHIPS = ("skel:skeleton", "skel:animationSource", "skel:blendShapeTargets")
+
+
+def write_skinning(sp, layer, prim_spec, refinement, warnings: list) -> None:
+    """What the refined mesh of ``sp`` says about skinning, in its spec ``prim_spec`` of the output ``layer``:
+    nothing for a mesh no skeleton deforms; the binding dropped ("bake", "none": joint influences and blend shapes
+    blocked, the skeleton relationships emptied, so that nothing deforms the refined mesh again); with "keep", the
+    refined binding (:func:`write_kept_binding`)."""
+    skin = getattr(sp, "skin", None)
+    if skin is None:
+        return
+    if skin.mode == "keep" and skin.skeleton is not None:
+        from .skinning_keep import write_kept_binding
+
+        write_kept_binding(sp, layer, prim_spec, refinement, warnings)
+        return
+    drop_binding(sp, layer, prim_spec)
+
+
+def drop_binding(sp, layer, prim_spec) -> None:
+    """Block the joint influences and blend shapes of ``sp`` on its refined prim and empty its skeleton
+    relationships (an authored empty target list: the inherited skel:skeleton of a SkelRoot no longer reaches
+    it)."""
+    src = sp.prim
+    for name in BINDING_ATTRIBUTES:
+        attr = src.GetAttribute(name)
+        if attr and attr.HasAuthoredValue():
+            layer.block(prim_spec, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
+            if name.startswith("primvars:") and src.HasAttribute(name + ":indices"):
+                layer.block(prim_spec, name + ":indices", T.IntArray)
+    for name in BINDING_RELATIONSHIPS:
+        if name == "skel:skeleton" or src.HasRelationship(name):
+            rel = (prim_spec.relationships[name] if name in prim_spec.relationships
+                   else Sdf.RelationshipSpec(prim_spec, name, custom=False))
+            rel.targetPathList.ClearEditsAndMakeExplicit()
+
+
+__all__ = ["SKINNING_MODES", "INFLUENCE_PRIMVARS", "SkinBinding", "SkinnedPrim", "Skinning", "Influences",
+           "check_skinning", "check_max_influences", "is_bound", "skinned_points", "write_skinning", "drop_binding"]
