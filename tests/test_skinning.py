@@ -1,0 +1,227 @@
+"""Skinned meshes and blend shapes (UsdSkel): the bake refines what a renderer draws, against usd-core's own
+skinning (UsdSkel.BakeSkinning) at every frame; bad bindings are refused by name."""
+import importlib.util
+import os
+import sys
+
+import numpy as np
+import pytest
+from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
+
+import warp_subdiv as ws
+from warp_subdiv.errors import SubdivInputError
+from warp_subdiv.io.usd_read import read_mesh
+from warp_subdiv.usd import refine_usd
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SCENES_DIR = os.path.join(ROOT, "scenes")
+CHARACTER = "/World/Character"
+MESHES = ("Leg", "Foot")
+
+
+def scenes():
+    name = "make_scenes_for_skinning"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, os.path.join(SCENES_DIR, "make_scenes.py"))
+        sys.modules[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules[name])
+    return sys.modules[name]
+
+
+def character(tmp_path, name="character.usda", **kw) -> str:
+    kw.setdefault("frames", 4)
+    return scenes().write_skinned_character(str(tmp_path / name), **kw)
+
+
+def mesh_paths(stage):
+    return [p.GetPath() for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+
+
+def world_points(prim, t) -> np.ndarray:
+    m = np.array(UsdGeom.Imageable(prim).ComputeLocalToWorldTransform(t))
+    pts = np.asarray(prim.GetAttribute("points").Get(t), dtype=np.float64)
+    return pts @ m[:3, :3] + m[3, :3]
+
+
+def usdskel_baked(src: str):
+    """The input as UsdSkel.BakeSkinning poses it (in the session layer of a stage of its own)."""
+    stage = Usd.Stage.Open(src)
+    stage.SetEditTarget(stage.GetSessionLayer())
+    assert UsdSkel.BakeSkinning(UsdSkel.Root(stage.GetPrimAtPath(CHARACTER)),
+                                Gf.Interval(stage.GetStartTimeCode(), stage.GetEndTimeCode()))
+    return stage
+
+
+def reference_refined(src_stage, baked_stage, path, t, levels) -> np.ndarray:
+    """refine(UsdSkel's deformed control points at ``t``) in world space, OpenSubdiv's vertex order."""
+    sp = read_mesh(src_stage.GetPrimAtPath(path))
+    pts = world_points(baked_stage.GetPrimAtPath(path), t)
+    return ws.Refiner(sp.mesh, levels, device="cpu").evaluate(pts)
+
+
+CASES = {
+    "lbs": dict(method="classicLinear", blend_shapes=False, geom_bind_transform=False, rigid=False),
+    "lbs-blend-bind-rigid-xform": dict(method="classicLinear", animated_xform=True),
+    "dqs": dict(method="dualQuaternion", blend_shapes=False, rigid=False),
+    "dqs-blend-rigid-xform": dict(method="dualQuaternion", geom_bind_transform=False, animated_xform=True),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_bake_is_the_refinement_of_usdskel_points_at_every_frame(tmp_path, case):
+    """Linear-blend and dual-quaternion skinning, with and without blend shapes and a geomBindTransform, rigid
+    (constant) influences, under an animated Xform: at every frame the baked mesh is, in world space, the
+    refinement of the control points UsdSkel.BakeSkinning computes (for a rigid mesh it bakes a transform)."""
+    levels = 1
+    src = character(tmp_path, **CASES[case])
+    out = str(tmp_path / "out.usda")
+    result = refine_usd(src, out, levels, device="cpu", vertex_order="opensubdiv")
+    assert not [w for w in result.warnings if "skel" in w], result.warnings
+    source, baked, refined = Usd.Stage.Open(src), usdskel_baked(src), Usd.Stage.Open(out)
+    paths = mesh_paths(source)
+    assert len(paths) == (1 if "rigid" not in case else 2)
+    for path in paths:
+        prim = refined.GetPrimAtPath(path)
+        times = prim.GetAttribute("points").GetTimeSamples()
+        assert times == [1.0, 2.0, 3.0, 4.0]
+        for t in times:
+            got = world_points(prim, t)
+            expected = reference_refined(source, baked, path, t, levels)
+            np.testing.assert_allclose(got, expected, atol=2e-6, err_msg=f"{path} at {t}")
+            extent = np.asarray(prim.GetAttribute("extent").Get(t))
+            local = np.asarray(prim.GetAttribute("points").Get(t))
+            np.testing.assert_array_equal(extent, [local.min(0), local.max(0)])
+        # the pose moves: frames differ
+        assert np.abs(world_points(prim, 4.0) - world_points(prim, 1.0)).max() > 0.1
+    # nothing skins the refined meshes again; the skeleton and its animation stay
+    cache = UsdSkel.Cache()
+    root = UsdSkel.Root(refined.GetPrimAtPath(CHARACTER))
+    cache.Populate(root, Usd.TraverseInstanceProxies())
+    assert all(len(b.GetSkinningTargets()) == 0 for b in cache.ComputeSkelBindings(root, Usd.TraverseInstanceProxies()))
+    assert refined.GetPrimAtPath(CHARACTER + "/Skel/Anim").IsA(UsdSkel.Animation)
+    for path in paths:
+        prim = refined.GetPrimAtPath(path)
+        assert not UsdSkel.BindingAPI(prim).GetInheritedSkeleton()
+        for name in ("primvars:skel:jointIndices", "primvars:skel:jointWeights"):
+            assert prim.GetAttribute(name).Get() is None
+
+
+def test_default_time_is_usdskel_pose_there_and_frames_select_samples(tmp_path):
+    """The default value is the pose UsdSkel gives at the default time (the rest pose for an animation without
+    defaults: without a geomBindTransform, the rest points); ``frames`` selects the samples baked."""
+    src = character(tmp_path, method="classicLinear", rigid=False, geom_bind_transform=False)
+    out = str(tmp_path / "out.usda")
+    refine_usd(src, out, 1, device="cpu", vertex_order="opensubdiv", frames=(2, 3))
+    refined, source = Usd.Stage.Open(out), Usd.Stage.Open(src)
+    path = CHARACTER + "/Leg"
+    prim = refined.GetPrimAtPath(path)
+    assert prim.GetAttribute("points").GetTimeSamples() == [2.0, 3.0]
+    sp = read_mesh(source.GetPrimAtPath(path))
+    rest = ws.Refiner(sp.mesh, 1, device="cpu").evaluate(sp.points_default)
+    np.testing.assert_allclose(np.asarray(prim.GetAttribute("points").Get()), rest, atol=1e-6)
+
+
+def test_skinning_none_refines_the_rest_pose_and_drops_the_binding(tmp_path):
+    src = character(tmp_path)
+    out = str(tmp_path / "out.usda")
+    result = refine_usd(src, out, 1, device="cpu", vertex_order="opensubdiv", skinning="none")
+    assert any("skinning none" in w and "/Leg" in w for w in result.warnings)
+    refined, source = Usd.Stage.Open(out), Usd.Stage.Open(src)
+    prim = refined.GetPrimAtPath(CHARACTER + "/Leg")
+    assert prim.GetAttribute("points").GetTimeSamples() == []
+    sp = read_mesh(source.GetPrimAtPath(CHARACTER + "/Leg"))
+    rest = ws.Refiner(sp.mesh, 1, device="cpu").evaluate(sp.points_default)
+    np.testing.assert_allclose(np.asarray(prim.GetAttribute("points").Get()), rest, atol=1e-6)
+    assert not UsdSkel.BindingAPI(prim).GetInheritedSkeleton()
+    assert prim.GetAttribute("skel:blendShapes").Get() is None
+
+
+def test_the_character_scene_is_what_make_scenes_writes(tmp_path):
+    path = scenes().write_skinned_character(str(tmp_path / "skinned_character.usda"))
+    with open(os.path.join(SCENES_DIR, "skinned_character.usda")) as fh:
+        assert open(path).read() == fh.read()
+
+
+def _edited(tmp_path, edit, **kw):
+    src = character(tmp_path, **kw)
+    stage = Usd.Stage.Open(src)
+    edit(stage)
+    stage.GetRootLayer().Save()
+    return src
+
+
+def _refuse(src, tmp_path, match, **kw):
+    with pytest.raises(SubdivInputError, match=match):
+        refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu", **kw)
+    assert not os.path.exists(tmp_path / "out.usda")
+
+
+def test_joint_index_out_of_range_is_refused(tmp_path):
+    def edit(stage):
+        attr = stage.GetPrimAtPath(CHARACTER + "/Leg").GetAttribute("primvars:skel:jointIndices")
+        idx = list(attr.Get())
+        idx[5] = 7
+        attr.Set(Vt.IntArray(idx))
+    _refuse(_edited(tmp_path, edit), tmp_path,
+            r"/World/Character/Leg: primvars:skel:jointIndices\[5\] = 7 is not one of the 2 joints")
+
+
+def test_element_size_mismatch_is_refused(tmp_path):
+    def edit(stage):
+        UsdGeom.Primvar(stage.GetPrimAtPath(CHARACTER + "/Leg").GetAttribute("primvars:skel:jointWeights")
+                        ).SetElementSize(4)
+    _refuse(_edited(tmp_path, edit), tmp_path, r"/World/Character/Leg: primvars:skel:jointWeights has 40 values; "
+                                               r"with elementSize 4")
+
+
+def test_animation_that_is_not_a_skel_animation_is_refused(tmp_path):
+    def edit(stage):
+        UsdGeom.Xform.Define(stage, "/World/NotAnAnimation")
+        UsdSkel.BindingAPI(stage.GetPrimAtPath(CHARACTER + "/Skel")).GetAnimationSourceRel().SetTargets(
+            ["/World/NotAnAnimation"])
+    _refuse(_edited(tmp_path, edit), tmp_path, r"/World/Character/Skel: skel:animationSource targets "
+                                               r"/World/NotAnAnimation, which is not a SkelAnimation")
+
+
+def test_animation_arrays_that_do_not_fit_the_joints_are_refused(tmp_path):
+    """UsdSkel would pose such a frame as the rest pose with a console warning only."""
+    def edit(stage):
+        stage.GetPrimAtPath(CHARACTER + "/Skel/Anim").GetAttribute("translations").Set(
+            Vt.Vec3fArray([Gf.Vec3f(0, 0, 0)]), 3.0)
+    _refuse(_edited(tmp_path, edit), tmp_path,
+            r"/World/Character/Skel/Anim: translations at time 3 has 1 entries for 2 joints")
+
+
+def test_skeleton_without_animation_or_rest_pose_is_refused(tmp_path):
+    def edit(stage):
+        skel = stage.GetPrimAtPath(CHARACTER + "/Skel")
+        UsdSkel.BindingAPI(skel).GetAnimationSourceRel().ClearTargets(True)
+        skel.GetAttribute("restTransforms").Clear()
+    _refuse(_edited(tmp_path, edit), tmp_path, r"/World/Character/Skel: no skel:animationSource and no "
+                                               r"restTransforms")
+
+
+def test_weights_that_do_not_sum_to_one_are_reported(tmp_path):
+    def edit(stage):
+        attr = stage.GetPrimAtPath(CHARACTER + "/Leg").GetAttribute("primvars:skel:jointWeights")
+        attr.Set(Vt.FloatArray([2 * w for w in attr.Get()]))
+    src = _edited(tmp_path, edit)
+    result = refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
+    assert any("/World/Character/Leg: primvars:skel:jointWeights do not sum to one at 20 of 20 points" in w
+               for w in result.warnings), result.warnings
+
+
+def test_bad_skinning_option_is_refused(tmp_path):
+    _refuse(character(tmp_path), tmp_path, r"skinning must be one of bake, keep, none", skinning="bend")
+    _refuse(character(tmp_path), tmp_path, r"max_influences must be an integer >= 1", skinning="keep",
+            max_influences=0)
+
+
+def test_influences_without_a_skeleton_are_dropped_with_a_warning(tmp_path):
+    def edit(stage):
+        UsdSkel.BindingAPI(stage.GetPrimAtPath(CHARACTER + "/Leg")).GetSkeletonRel().ClearTargets(True)
+    src = _edited(tmp_path, edit, rigid=False)
+    result = refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
+    assert any("/World/Character/Leg: joint influences or blend shapes without a bound skeleton" in w
+               for w in result.warnings), result.warnings
+    assert not any("cannot be interpolated" in w for w in result.warnings)
