@@ -34,7 +34,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdSkel, Vt
 
 from ..errors import SubdivInputError
-from ..io.usd_read import SubdivPrim
+from ..io.usd_read import SubdivPrim, read_mesh
 from ..io.usd_scene import skinned
 from ..io.usd_stage import DEFAULT, times_for_frames
 
@@ -121,25 +121,30 @@ class SkinnedPrim(SubdivPrim):
 
 class Skinning:
     """A run's UsdSkel state (one :class:`pxr.UsdSkel.Cache` per stage, populated on first use) and treatment
-    (``mode``, one of :data:`SKINNING_MODES`) of the meshes bound to a skeleton."""
+    (``mode``, one of :data:`SKINNING_MODES`) of the meshes bound to a skeleton. ``frames``: the bake's time
+    range; ``max_influences``: joints per refined vertex with "keep"; ``pose_instances``: pose skinned meshes
+    inside instances (a preview draws each) instead of refusing to bake them."""
 
-    def __init__(self, mode: str = "bake", frames=None, max_influences=None):
+    def __init__(self, mode: str = "bake", frames=None, max_influences=None, *, pose_instances: bool = False):
         self.mode = check_skinning(mode)
+        self.pose_instances = pose_instances  # pose meshes inside instances (a preview) rather than refuse them
         self.frames = frames
         self.max_influences = check_max_influences(max_influences)
-        self._caches: dict = {}  # id(stage) -> (stage, UsdSkel.Cache)
+        self._caches: dict = {}  # id(stage) -> (stage, UsdSkel.Cache, the SkelRoots populated)
         self._lock = threading.Lock()
 
-    def cache_of(self, stage: Usd.Stage):
+    def cache_of(self, prim: Usd.Prim):
+        """The UsdSkel.Cache of ``prim``'s stage, populated for the SkelRoot above ``prim`` (each root once)."""
+        stage, root = prim.GetStage(), UsdSkel.Root.Find(prim)
         with self._lock:
             held = self._caches.get(id(stage))
             if held is None or held[0] is not stage:
-                cache = UsdSkel.Cache()
-                for prim in stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
-                    if prim.IsA(UsdSkel.Root):
-                        cache.Populate(UsdSkel.Root(prim), Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
-                held = self._caches[id(stage)] = (stage, cache)
-            return held[1]
+                held = self._caches[id(stage)] = (stage, UsdSkel.Cache(), set())
+            _, cache, populated = held
+            if root.GetPath() not in populated:
+                cache.Populate(root, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
+                populated.add(root.GetPath())
+            return cache
 
     def attach(self, sp: SubdivPrim | None) -> SubdivPrim | None:
         """The mesh ``sp`` as the bake refines it: itself when no skeleton deforms it, else a :class:`SkinnedPrim`
@@ -168,12 +173,12 @@ class Skinning:
         if sp.topologies:
             raise SubdivInputError(f"{sp.path}: faceVertexCounts / faceVertexIndices change over time on a mesh "
                                    f"bound to {skeleton.GetPath()}; UsdSkel skins a fixed set of points")
-        if self.mode == "bake" and (prim.IsInstanceProxy() or prim.IsInPrototype()):
+        if self.mode == "bake" and not self.pose_instances and (prim.IsInstanceProxy() or prim.IsInPrototype()):
             raise SubdivInputError(
                 f"{sp.path}: a skinned mesh inside an instance: each instance may be posed by its own animation, so "
                 "baking it would take the instance apart; bake with skinning keep (the refined prototype stays "
                 "skinned) or none, or make the instance not instanceable", option="skinning", value="bake")
-        cache = self.cache_of(prim.GetStage())
+        cache = self.cache_of(prim)
         binding = self._binding(out, skeleton, cache)
         out.skin = binding
         if self.mode == "none":
@@ -418,6 +423,39 @@ def _deform(sp: SkinnedPrim, time) -> np.ndarray:
     return pts @ to_local[:3, :3] + to_local[3, :3]
 
 
+def posed_points(prim: Usd.Prim, time, skinning: Skinning | None = None):
+    """The points of mesh ``prim`` at ``time`` as UsdSkel poses them (float64 (n, 3), in the mesh's space), or
+    None when no skeleton deforms it: what ``render`` draws for a skinned mesh. ``skinning``: the
+    :class:`Skinning` to reuse (its UsdSkel caches), else a new one."""
+    if not is_bound(prim):
+        return None
+    sp = (skinning or Skinning(pose_instances=True)).attach(read_mesh(prim, scheme="catmull-clark", force=True))
+    if sp is None or getattr(sp, "skin", None) is None or sp.skin.mode != "bake":
+        return None
+    return sp.points_at(time)
+
+
+def describe_skinning(sp) -> str | None:
+    """One line on how mesh ``sp`` (as planned) is skinned, or None when no skeleton deforms it (``info``)."""
+    skin = getattr(sp, "skin", None)
+    if skin is None or skin.skeleton is None:
+        return None
+    parts = [f"bound to {skin.skeleton.GetPath()} ({len(skin.skel_query.GetJointOrder())} joints"
+             + (f", animation {skin.animation.GetPath()}" if skin.animation is not None else ", rest pose") + ")"]
+    if skin.influences is not None:
+        inf = skin.influences
+        parts.append(f"{inf.weights.shape[1]} {inf.interpolation} influences, {skin.method}")
+    if skin.blend_query is not None:
+        parts.append(f"{skin.blend_query.GetNumBlendShapes()} blend shapes")
+    if skin.mode == "bake":
+        times = skin.times
+        parts.append("baked at " + (f"{len(times)} times ({times[0]:g} to {times[-1]:g})" if times
+                                    else "the default time only"))
+    else:
+        parts.append(f"skinning {skin.mode}: the rest pose refined")
+    return "; ".join(parts)
+
+
 #: What binds a mesh to a skeleton on the refined prim: blocked (attributes) or emptied (relationships) where the
 #: binding is dropped.
 BINDING_ATTRIBUTES = ("primvars:skel:jointIndices", "primvars:skel:jointWeights", "primvars:skel:geomBindTransform",
@@ -460,4 +498,5 @@ def drop_binding(sp, layer, prim_spec) -> None:
 
 
 __all__ = ["SKINNING_MODES", "INFLUENCE_PRIMVARS", "SkinBinding", "SkinnedPrim", "Skinning", "Influences",
-           "check_skinning", "check_max_influences", "is_bound", "skinned_points", "write_skinning", "drop_binding"]
+           "check_skinning", "check_max_influences", "is_bound", "skinned_points", "write_skinning", "drop_binding",
+           "describe_skinning", "posed_points"]
