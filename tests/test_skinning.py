@@ -225,3 +225,76 @@ def test_influences_without_a_skeleton_are_dropped_with_a_warning(tmp_path):
     assert any("/World/Character/Leg: joint influences or blend shapes without a bound skeleton" in w
                for w in result.warnings), result.warnings
     assert not any("cannot be interpolated" in w for w in result.warnings)
+
+
+def _validation_errors(stage):
+    from pxr import UsdValidation
+
+    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    return [e.GetMessage() for e in UsdValidation.ValidationContext(validators).Validate(stage)]
+
+
+def test_keep_writes_a_valid_binding_whose_deviation_is_reported(tmp_path):
+    """keep: UsdValidation is clean, UsdSkel skins the output, weights sum to one with the input's elementSize,
+    the rest pose refines exactly, blend-shape offsets are the refinement of the input's, and the largest deviation
+    reported is the one UsdSkel's own bake of the output shows against the baked surface (and it is small)."""
+    levels = 2
+    src = character(tmp_path)
+    kept, baked = str(tmp_path / "kept.usda"), str(tmp_path / "baked.usda")
+    result = refine_usd(src, kept, levels, device="cpu", vertex_order="opensubdiv", skinning="keep")
+    refine_usd(src, baked, levels, device="cpu", vertex_order="opensubdiv")
+    notes = [w for w in result.warnings if "skinning keep" in w]
+    assert len(notes) == 1 and notes[0].startswith("/World/Character/Leg: ")
+    reported = float(notes[0].split("largest deviation ")[1].split(" ")[0])
+    out, source = Usd.Stage.Open(kept), Usd.Stage.Open(src)
+    assert _validation_errors(out) == []
+    leg = out.GetPrimAtPath(CHARACTER + "/Leg")
+    weights = UsdGeom.Primvar(leg.GetAttribute("primvars:skel:jointWeights"))
+    indices = UsdGeom.Primvar(leg.GetAttribute("primvars:skel:jointIndices"))
+    assert weights.GetElementSize() == indices.GetElementSize() == 2
+    assert weights.GetInterpolation() == indices.GetInterpolation() == "vertex"
+    w = np.asarray(weights.Get()).reshape(-1, 2)
+    assert len(w) == len(leg.GetAttribute("points").Get())
+    np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-6)
+    assert np.all(np.diff(w, axis=1) <= 0)  # largest first
+    sp = read_mesh(source.GetPrimAtPath(CHARACTER + "/Leg"))
+    refiner = ws.Refiner(sp.mesh, levels, device="cpu")
+    np.testing.assert_allclose(np.asarray(leg.GetAttribute("points").Get()), refiner.evaluate(sp.points_default),
+                               atol=1e-6)
+    # the blend shape's refined offsets: exactly the refinement of the input's (zero where they reach nothing)
+    shape_in = UsdSkel.BlendShape(source.GetPrimAtPath(CHARACTER + "/Leg/bulge"))
+    dense = np.zeros((sp.mesh.num_vertices, 3))
+    dense[np.asarray(shape_in.GetPointIndicesAttr().Get())] = np.asarray(shape_in.GetOffsetsAttr().Get())
+    expected = refiner.evaluate(dense, normal_control=False)
+    shape_out = UsdSkel.BlendShape(out.GetPrimAtPath(CHARACTER + "/Leg/bulge"))
+    got = np.zeros_like(expected)
+    got[np.asarray(shape_out.GetPointIndicesAttr().Get())] = np.asarray(shape_out.GetOffsetsAttr().Get())
+    np.testing.assert_allclose(got, expected, atol=1e-7)
+    assert 0 < len(shape_out.GetPointIndicesAttr().Get()) < len(expected)
+    # UsdSkel's own skinning of the output against the baked surface: the deviation reported
+    skinned = usdskel_baked(kept)
+    reference = Usd.Stage.Open(baked)
+    worst = 0.0
+    for t in range(1, 5):
+        for name in MESHES:
+            path = f"{CHARACTER}/{name}"
+            d = np.linalg.norm(world_points(skinned.GetPrimAtPath(path), t)
+                               - world_points(reference.GetPrimAtPath(path), t), axis=1).max()
+            if name == "Foot":
+                assert d < 1e-5  # rigid influences commute with refinement
+            worst = max(worst, d)
+    assert worst == pytest.approx(reported, rel=2e-2)
+    assert 0.01 < reported < 0.2  # bounded on the test character (under 10% of its 2-unit leg, knee bent 90°)
+
+
+def test_keep_max_influences(tmp_path):
+    src = character(tmp_path, blend_shapes=False, rigid=False)
+    out = str(tmp_path / "kept.usda")
+    refine_usd(src, out, 1, device="cpu", skinning="keep", max_influences=1)
+    stage = Usd.Stage.Open(out)
+    leg = stage.GetPrimAtPath(CHARACTER + "/Leg")
+    weights = UsdGeom.Primvar(leg.GetAttribute("primvars:skel:jointWeights"))
+    assert weights.GetElementSize() == 1
+    np.testing.assert_array_equal(np.asarray(weights.Get()), 1.0)
+    assert set(np.asarray(leg.GetAttribute("primvars:skel:jointIndices").Get())) == {0, 1}
+    assert _validation_errors(stage) == []

@@ -101,6 +101,8 @@ class SkinBinding:
     influences: Influences | None = None
     method: str = "classicLinear"
     times: list = field(default_factory=list)  # the selected times the pose may change at
+    max_influences: int | None = None  # "keep": joints per refined vertex (None: the input's elementSize)
+    kept: tuple | None = None  # "keep": the refined (joint indices, weights) written
     lock: object = field(default_factory=threading.Lock, repr=False)
     cache: dict = field(default_factory=dict, repr=False)  # time -> skinned control points (float32)
 
@@ -213,8 +215,8 @@ class Skinning:
             _check_weight_sums(sp, binding.influences)
         if query.HasBlendShapes() or _authored(prim, "skel:blendShapes"):
             binding.blend_query = _blend_shapes(prim, path, n, animation)
-        if self.mode == "bake":
-            binding.times = times_for_frames(_pose_times(prim, skeleton.GetPrim(), animation, binding), self.frames)
+        binding.times = times_for_frames(_pose_times(prim, skeleton.GetPrim(), animation, binding), self.frames)
+        binding.max_influences = self.max_influences
         return binding
 
 
@@ -375,26 +377,30 @@ def _matrix(m) -> np.ndarray:
     return np.array(m, dtype=np.float64).reshape(4, 4)
 
 
-def skinned_points(sp: SkinnedPrim, time) -> np.ndarray:
-    """The control points of ``sp`` at ``time`` as UsdSkel deforms them (blend shapes, then joints), in the
-    mesh's own space (float64 (n, 3)). The points UsdSkel skins are in the skeleton's space; like
-    :func:`pxr.UsdSkel.BakeSkinning`, they are brought into the mesh's by the skeleton's local-to-world transform
-    and the inverse of the mesh's. Kept for a second request of the same time (refining ahead, then writing)."""
+def skinned_points(sp: SkinnedPrim, time, space: str = "mesh") -> np.ndarray:
+    """The control points of ``sp`` at ``time`` as UsdSkel deforms them (blend shapes, then joints), float64
+    (n, 3), in the mesh's own space (``space="mesh"``) or the skeleton's (``"skeleton"``, where UsdSkel skins).
+    UsdSkel skins in the skeleton's space; like :func:`pxr.UsdSkel.BakeSkinning`, the bake brings the points into
+    the mesh's by the skeleton's local-to-world transform and the inverse of the mesh's. The mesh's points are kept
+    for a second request of the same time (refining ahead, then writing)."""
     skin = sp.skin
+    if space != "mesh":
+        return _skin(sp, blended_points(sp, time), time)
     key = "default" if time == DEFAULT else float(time)
     with skin.lock:
         held = skin.cache.pop(key, None)
         if held is not None:
             return held.astype(np.float64)
-        out = _deform(sp, time)
+        out = _to_mesh_space(sp, _skin(sp, blended_points(sp, time), time), time)
         if sum(a.nbytes for a in skin.cache.values()) + out.nbytes // 2 <= _CACHE_BYTES:
             skin.cache[key] = out.astype(np.float32)
         return out
 
 
-def _deform(sp: SkinnedPrim, time) -> np.ndarray:
+def blended_points(sp: SkinnedPrim, time):
+    """The mesh's points at ``time`` with its blend shapes applied by UsdSkel (a Vt.Vec3fArray, the mesh's
+    space)."""
     skin, prim = sp.skin, sp.prim
-    when = "" if time == DEFAULT else f" at time {time:g}"
     points = prim.GetAttribute("points").Get(time)
     if points is None or len(points) != len(sp.points_default):
         points = Vt.Vec3fArray.FromNumpy(np.asarray(sp.points_default, dtype=np.float32))
@@ -410,16 +416,30 @@ def _deform(sp: SkinnedPrim, time) -> np.ndarray:
             sub, shapes, subs = query.ComputeSubShapeWeights(weights)
             if not query.ComputeDeformedPoints(sub, shapes, subs, query.ComputeBlendShapePointIndices(),
                                                query.ComputeSubShapePointOffsets(), points):
+                when = "" if time == DEFAULT else f" at time {time:g}"
                 raise SubdivInputError(f"{sp.path}: UsdSkel could not apply the blend shapes{when}")
+    return points
+
+
+def _skin(sp: SkinnedPrim, points, time):
+    """``points`` (a Vt.Vec3fArray) skinned by UsdSkel at ``time`` (the skeleton's space); unchanged (the mesh's
+    space) for a mesh with blend shapes only."""
+    skin = sp.skin
     if skin.influences is None:
-        return np.asarray(points, dtype=np.float64)  # blend shapes only: the mesh's own space
+        return np.asarray(points, dtype=np.float64)
     xforms = skin.skel_query.ComputeSkinningTransforms(time)
     if xforms is None or not skin.skinning_query.ComputeSkinnedPoints(xforms, points, time):
+        when = "" if time == DEFAULT else f" at time {time:g}"
         raise SubdivInputError(f"{sp.path}: UsdSkel could not skin the points{when} (skeleton "
                                f"{skin.skeleton.GetPath()})")
-    to_local = (_matrix(UsdGeom.Imageable(skin.skeleton).ComputeLocalToWorldTransform(time))
-                @ np.linalg.inv(_matrix(UsdGeom.Imageable(prim).ComputeLocalToWorldTransform(time))))
-    pts = np.asarray(points, dtype=np.float64)
+    return np.asarray(points, dtype=np.float64)
+
+
+def _to_mesh_space(sp: SkinnedPrim, pts: np.ndarray, time) -> np.ndarray:
+    if sp.skin.influences is None:
+        return pts  # blend shapes only: already in the mesh's space
+    to_local = (_matrix(UsdGeom.Imageable(sp.skin.skeleton).ComputeLocalToWorldTransform(time))
+                @ np.linalg.inv(_matrix(UsdGeom.Imageable(sp.prim).ComputeLocalToWorldTransform(time))))
     return pts @ to_local[:3, :3] + to_local[3, :3]
 
 
@@ -498,5 +518,5 @@ def drop_binding(sp, layer, prim_spec) -> None:
 
 
 __all__ = ["SKINNING_MODES", "INFLUENCE_PRIMVARS", "SkinBinding", "SkinnedPrim", "Skinning", "Influences",
-           "check_skinning", "check_max_influences", "is_bound", "skinned_points", "write_skinning", "drop_binding",
-           "describe_skinning", "posed_points"]
+           "check_skinning", "check_max_influences", "is_bound", "skinned_points", "blended_points",
+           "write_skinning", "drop_binding", "describe_skinning", "posed_points"]
