@@ -10,7 +10,8 @@ not commute with refinement). The bake offers three treatments, the run's ``skin
   and the mesh, as ``frames`` selects them) the control points are deformed by usd-core's UsdSkel itself
   (:class:`pxr.UsdSkel.BlendShapeQuery`, :meth:`pxr.UsdSkel.SkinningQuery.ComputeSkinnedPoints`), brought from
   the skeleton's space into the mesh's own (as :func:`pxr.UsdSkel.BakeSkinning` does) and refined with the
-  topology built once. The refined mesh no longer binds the skeleton (:func:`write_skinning` blocks its joint
+  topology built once. The refined mesh no longer binds the skeleton
+  (:func:`~warp_subdiv.usd.skinning_output.write_skinning` blocks its joint
   influences, blend shapes and skeleton binding), so nothing skins it twice; the skeleton and its animation stay
   for whatever else they drive.
 * ``"keep"``: the rest pose is refined and the refined mesh stays bound: each joint's weight column is refined
@@ -476,47 +477,6 @@ def describe_skinning(sp) -> str | None:
     return "; ".join(parts)
 
 
-#: What binds a mesh to a skeleton on the refined prim: blocked (attributes) or emptied (relationships) where the
-#: binding is dropped.
-BINDING_ATTRIBUTES = ("primvars:skel:jointIndices", "primvars:skel:jointWeights", "primvars:skel:geomBindTransform",
-                      "skel:joints", "skel:blendShapes")
-BINDING_RELATIONSHIPS = ("skel:skeleton", "skel:animationSource", "skel:blendShapeTargets")
-
-
-def write_skinning(sp, layer, prim_spec, refinement, warnings: list) -> None:
-    """What the refined mesh of ``sp`` says about skinning, in its spec ``prim_spec`` of the output ``layer``:
-    nothing for a mesh no skeleton deforms; the binding dropped ("bake", "none": joint influences and blend shapes
-    blocked, the skeleton relationships emptied, so that nothing deforms the refined mesh again); with "keep", the
-    refined binding (:func:`write_kept_binding`)."""
-    skin = getattr(sp, "skin", None)
-    if skin is None:
-        return
-    if skin.mode == "keep" and skin.skeleton is not None:
-        from .skinning_keep import write_kept_binding
-
-        write_kept_binding(sp, layer, prim_spec, refinement, warnings)
-        return
-    drop_binding(sp, layer, prim_spec)
-
-
-def drop_binding(sp, layer, prim_spec) -> None:
-    """Block the joint influences and blend shapes of ``sp`` on its refined prim and empty its skeleton
-    relationships (an authored empty target list: the inherited skel:skeleton of a SkelRoot no longer reaches
-    it)."""
-    src = sp.prim
-    for name in BINDING_ATTRIBUTES:
-        attr = src.GetAttribute(name)
-        if attr and attr.HasAuthoredValue():
-            layer.block(prim_spec, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
-            if name.startswith("primvars:") and src.HasAttribute(name + ":indices"):
-                layer.block(prim_spec, name + ":indices", T.IntArray)
-    for name in BINDING_RELATIONSHIPS:
-        if name == "skel:skeleton" or src.HasRelationship(name):
-            rel = (prim_spec.relationships[name] if name in prim_spec.relationships
-                   else Sdf.RelationshipSpec(prim_spec, name, custom=False))
-            rel.targetPathList.ClearEditsAndMakeExplicit()
-
-
 __all__ = ["SKINNING_MODES", "INFLUENCE_PRIMVARS", "SkinBinding", "SkinnedPrim", "Skinning", "Influences",
            "check_skinning", "check_max_influences", "is_bound", "skinned_points", "blended_points",
-           "write_skinning", "drop_binding", "describe_skinning", "posed_points"]
+           "describe_skinning", "posed_points"]

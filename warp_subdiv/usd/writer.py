@@ -11,7 +11,7 @@ from ..io.usd_stage import DEFAULT
 from ..io.usd_write import extent_of, int_array, vec3f_array
 from .planning import PrimReport
 from .primvars import default_or_sample, drop_attribute, write_primvars
-from .skinning import write_skinning
+from .skinning_output import write_skinning
 from .subsets import write_subsets
 
 T = Sdf.ValueTypeNames

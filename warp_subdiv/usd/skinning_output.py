@@ -1,4 +1,8 @@
-"""``skinning="keep"``: the refined mesh stays bound to its skeleton (:func:`write_kept_binding`).
+"""What the refined mesh of a skinned mesh says about skinning (:func:`write_skinning`): with ``skinning="bake"``
+or ``"none"`` its binding dropped (:func:`drop_binding`), with ``"keep"`` the refined binding
+(:func:`write_kept_binding`).
+
+``skinning="keep"``: the refined mesh stays bound to its skeleton.
 
 Per refined vertex, the joint weights are the refinement of the control vertices' weights: each joint's weight
 column is refined like vertex data (the rules the points are refined with, limit values with ``limit``), then the
@@ -22,6 +26,7 @@ from pxr import Gf, Sdf, UsdSkel, Vt
 from ..io.usd_stage import DEFAULT
 from ..io.usd_write import vec3f_array
 from .primvars import limit_values
+from .skinning import blended_points, skinned_points
 
 T = Sdf.ValueTypeNames
 
@@ -29,6 +34,45 @@ T = Sdf.ValueTypeNames
 COLUMNS_AT_ONCE = 64
 #: The most frames the deviation of a kept binding is measured at.
 DEVIATION_FRAMES = 32
+
+
+#: What binds a mesh to a skeleton on the refined prim: blocked (attributes) or emptied (relationships) where the
+#: binding is dropped.
+BINDING_ATTRIBUTES = ("primvars:skel:jointIndices", "primvars:skel:jointWeights", "primvars:skel:geomBindTransform",
+                      "skel:joints", "skel:blendShapes")
+BINDING_RELATIONSHIPS = ("skel:skeleton", "skel:animationSource", "skel:blendShapeTargets")
+
+
+def write_skinning(sp, layer, prim_spec, refinement, warnings: list) -> None:
+    """What the refined mesh of ``sp`` says about skinning, in its spec ``prim_spec`` of the output ``layer``:
+    nothing for a mesh no skeleton deforms; the binding dropped ("bake", "none": joint influences and blend shapes
+    blocked, the skeleton relationships emptied, so that nothing deforms the refined mesh again); with "keep", the
+    refined binding (:func:`write_kept_binding`)."""
+    skin = getattr(sp, "skin", None)
+    if skin is None:
+        return
+    if skin.mode == "keep" and skin.skeleton is not None:
+        write_kept_binding(sp, layer, prim_spec, refinement, warnings)
+        return
+    drop_binding(sp, layer, prim_spec)
+
+
+def drop_binding(sp, layer, prim_spec) -> None:
+    """Block the joint influences and blend shapes of ``sp`` on its refined prim and empty its skeleton
+    relationships (an authored empty target list: the inherited skel:skeleton of a SkelRoot no longer reaches
+    it)."""
+    src = sp.prim
+    for name in BINDING_ATTRIBUTES:
+        attr = src.GetAttribute(name)
+        if attr and attr.HasAuthoredValue():
+            layer.block(prim_spec, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform)
+            if name.startswith("primvars:") and src.HasAttribute(name + ":indices"):
+                layer.block(prim_spec, name + ":indices", T.IntArray)
+    for name in BINDING_RELATIONSHIPS:
+        if name == "skel:skeleton" or src.HasRelationship(name):
+            rel = (prim_spec.relationships[name] if name in prim_spec.relationships
+                   else Sdf.RelationshipSpec(prim_spec, name, custom=False))
+            rel.targetPathList.ClearEditsAndMakeExplicit()
 
 
 def refine_vertex_data(refinement, rows: np.ndarray, limit: bool) -> np.ndarray:
@@ -162,8 +206,6 @@ def kept_deviation(sp, refinement):
     """(largest distance, time, the mesh's size) between the baked surface (the refined skinned cage) and UsdSkel's
     skinning of the refined mesh with the kept binding, over the sampled frames; None for a mesh without varying
     joint influences (blend shapes and rigid influences commute with refinement)."""
-    from .skinning import blended_points, skinned_points
-
     skin = sp.skin
     kept = getattr(skin, "kept", None)
     if kept is None:
@@ -191,5 +233,5 @@ def kept_deviation(sp, refinement):
     return worst, at, size or 1.0
 
 
-__all__ = ["refine_vertex_data", "refined_influences", "write_kept_binding", "kept_deviation", "COLUMNS_AT_ONCE",
-           "DEVIATION_FRAMES"]
+__all__ = ["BINDING_ATTRIBUTES", "BINDING_RELATIONSHIPS", "write_skinning", "drop_binding", "refine_vertex_data",
+           "refined_influences", "write_kept_binding", "kept_deviation", "COLUMNS_AT_ONCE", "DEVIATION_FRAMES"]
