@@ -298,3 +298,49 @@ def test_keep_max_influences(tmp_path):
     np.testing.assert_array_equal(np.asarray(weights.Get()), 1.0)
     assert set(np.asarray(leg.GetAttribute("primvars:skel:jointIndices").Get())) == {0, 1}
     assert _validation_errors(stage) == []
+
+
+def _same_points(a: str, b: str, times):
+    sa, sb = Usd.Stage.Open(a), Usd.Stage.Open(b)
+    for name in MESHES:
+        pa, pb = sa.GetPrimAtPath(f"{CHARACTER}/{name}"), sb.GetPrimAtPath(f"{CHARACTER}/{name}")
+        for t in [Usd.TimeCode.Default()] + list(times):
+            for attr in ("points", "extent"):
+                np.testing.assert_array_equal(np.asarray(pa.GetAttribute(attr).Get(t)),
+                                              np.asarray(pb.GetAttribute(attr).Get(t)), err_msg=f"{name} {attr} {t}")
+        assert not UsdSkel.BindingAPI(pb).GetInheritedSkeleton()
+
+
+def test_frame_chunks_of_a_skinned_bake_stitch_to_the_single_bake(tmp_path):
+    """`refine --frames A:B` chunks of a skinned bake (a farm's, or a distributed bake's frame tasks) stitch
+    to the single-process bake."""
+    from warp_subdiv.usd import stitch
+
+    src = character(tmp_path, frames=6)
+    single = str(tmp_path / "single.usda")
+    refine_usd(src, single, 1, device="cpu")
+    chunks = []
+    for k, frames in enumerate([(None, 3), (3, None)]):
+        chunks.append(str(tmp_path / f"chunk{k}.usdc"))
+        refine_usd(src, chunks[-1], 1, device="cpu", frames=frames)
+    stitch(chunks, str(tmp_path / "stitched.usda"))
+    _same_points(single, str(tmp_path / "stitched.usda"), range(1, 7))
+    other = str(tmp_path / "other.usdc")
+    refine_usd(src, other, 1, device="cpu", frames=(3, None), skinning="none")
+    with pytest.raises(SubdivInputError, match=r"skinning differs"):
+        stitch([chunks[0], other], str(tmp_path / "nope.usda"))
+
+
+def test_distributed_bake_of_a_skinned_character(tmp_path):
+    """The distributed bake splits a skinned mesh's frames across workers, each deforming its own frames."""
+    from conftest import dask_client
+    from warp_subdiv.usd import bake
+
+    src = character(tmp_path, frames=6)
+    single = str(tmp_path / "single.usda")
+    refine_usd(src, single, 1, device="cpu")
+    out = str(tmp_path / "dist.usda")
+    with dask_client(n_workers=2, processes=False) as client:
+        result = bake(src, out, 1, chunk_frames=2, client=client, device="cpu")
+    assert [r.samples for r in result.reports] == [6, 6]
+    _same_points(single, out, range(1, 7))
