@@ -344,3 +344,45 @@ def test_distributed_bake_of_a_skinned_character(tmp_path):
         result = bake(src, out, 1, chunk_frames=2, client=client, device="cpu")
     assert [r.samples for r in result.reports] == [6, 6]
     _same_points(single, out, range(1, 7))
+
+
+def crowd(tmp_path) -> str:
+    """Two instanceable references to the character asset."""
+    from pxr import Sdf
+
+    asset = character(tmp_path, name="asset.usda")
+    layer = Sdf.Layer.CreateNew(str(tmp_path / "crowd.usda"))
+    stage = Usd.Stage.Open(layer)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    for i in range(2):
+        prim = UsdGeom.Xform.Define(stage, f"/Crowd/C{i}")
+        prim.AddTranslateOp().Set(Gf.Vec3d(3.0 * i, 0, 0))
+        prim.GetPrim().GetReferences().AddReference(asset, "/World")
+        prim.GetPrim().SetInstanceable(True)
+    layer.Save()
+    return layer.realPath
+
+
+def test_skinned_meshes_inside_instances(tmp_path):
+    """Inside instances, bake is refused (each instance may be posed by its own animation: baking would take
+    the instances apart); keep refines the prototype once, which every instance still skins, and none too."""
+    src = crowd(tmp_path)
+    _refuse(src, tmp_path, r"/Crowd/C0/Character/Leg: a skinned mesh inside an instance: .* skinning keep")
+    for mode in ("keep", "none"):
+        out = str(tmp_path / f"{mode}.usda")
+        result = refine_usd(src, out, 1, device="cpu", skinning=mode)
+        assert len(result.reports) == 2  # one prototype's leg and foot
+        stage = Usd.Stage.Open(out)
+        for i in range(2):
+            assert stage.GetPrimAtPath(f"/Crowd/C{i}").IsInstance()
+            leg = stage.GetPrimAtPath(f"/Crowd/C{i}/Character/Leg")
+            assert len(leg.GetAttribute("points").Get()) == 74
+            root = UsdSkel.Root(stage.GetPrimAtPath(f"/Crowd/C{i}/Character"))
+            cache = UsdSkel.Cache()
+            cache.Populate(root, Usd.TraverseInstanceProxies())
+            query = cache.GetSkinningQuery(leg)
+            if mode == "keep":
+                assert query.HasJointInfluences() and query.HasBlendShapes()
+                assert len(leg.GetAttribute("primvars:skel:jointWeights").Get()) == 2 * 74
+            else:
+                assert not UsdSkel.BindingAPI(leg).GetInheritedSkeleton()
