@@ -386,3 +386,23 @@ def test_skinned_meshes_inside_instances(tmp_path):
                 assert len(leg.GetAttribute("primvars:skel:jointWeights").Get()) == 2 * 74
             else:
                 assert not UsdSkel.BindingAPI(leg).GetInheritedSkeleton()
+
+
+def test_tessellate_bakes_the_skinned_pose(tmp_path):
+    """tessellate: at every frame, the tessellation of the control points UsdSkel poses there; binding dropped."""
+    from warp_subdiv.usd.tessellate import tessellate_file
+
+    src = character(tmp_path, rigid=False)
+    out = str(tmp_path / "tess.usda")
+    tessellate_file(src, out, rate=2, rules="opensubdiv")
+    stage, baked, source = Usd.Stage.Open(out), usdskel_baked(src), Usd.Stage.Open(src)
+    path = CHARACTER + "/Leg"
+    prim = stage.GetPrimAtPath(path)
+    assert prim.GetAttribute("points").GetTimeSamples() == [1.0, 2.0, 3.0, 4.0]
+    sp = read_mesh(source.GetPrimAtPath(path))
+    for t in (2.0, 4.0):
+        posed = np.asarray(baked.GetPrimAtPath(path).GetAttribute("points").Get(t), dtype=np.float64)
+        expected = ws.LimitSurface(ws.Mesh(posed, sp.mesh.face_vertex_counts, sp.mesh.face_vertex_indices),
+                                   rules="opensubdiv").tessellate(rate=2).points
+        np.testing.assert_allclose(np.asarray(prim.GetAttribute("points").Get(t)), expected, atol=2e-6)
+    assert not UsdSkel.BindingAPI(prim).GetInheritedSkeleton()
