@@ -406,3 +406,38 @@ def test_tessellate_bakes_the_skinned_pose(tmp_path):
                                    rules="opensubdiv").tessellate(rate=2).points
         np.testing.assert_allclose(np.asarray(prim.GetAttribute("points").Get(t)), expected, atol=2e-6)
     assert not UsdSkel.BindingAPI(prim).GetInheritedSkeleton()
+
+
+def test_render_draws_the_skinned_pose(tmp_path):
+    """render --time of the input (refined for the preview) draws what the bake wrote at that time, not the rest
+    pose."""
+    from warp_subdiv.render import render_file
+
+    src = character(tmp_path)
+    baked, rest = str(tmp_path / "baked.usda"), str(tmp_path / "rest.usda")
+    refine_usd(src, baked, 1, device="cpu")
+    refine_usd(src, rest, 1, device="cpu", skinning="none")
+    kw = dict(size=(96, 72), samples=1, device="cpu", view=(-60.0, 20.0), time=4.0)
+    img_in = render_file(src, str(tmp_path / "in.png"), levels=1, **kw).astype(np.float64)
+    img_baked = render_file(baked, str(tmp_path / "baked.png"), **kw).astype(np.float64)
+    img_rest = render_file(rest, str(tmp_path / "rest.png"), **kw).astype(np.float64)
+    assert np.abs(img_in - img_baked).mean() < 0.01 * np.abs(img_in - img_rest).mean()
+
+
+def test_cli_skinning_and_info(tmp_path, capsys):
+    from warp_subdiv.cli import main
+
+    src = character(tmp_path)
+    assert main(["info", src, "--levels", "1"]) == 0
+    text = capsys.readouterr().out
+    assert ("skinned: bound to /World/Character/Skel (2 joints, animation /World/Character/Skel/Anim); 2 vertex "
+            "influences, dualQuaternion; 1 blend shapes; baked at 4 times (1 to 4)") in text
+    assert "1 constant influences" in text
+    out = str(tmp_path / "out.usda")
+    assert main(["refine", src, "-o", out, "--levels", "1", "--skinning", "keep", "--max-influences", "1",
+                 "--device", "cpu", "--quiet"]) == 0
+    assert "skinning keep" in capsys.readouterr().err
+    stage = Usd.Stage.Open(out)
+    leg = stage.GetPrimAtPath(CHARACTER + "/Leg")
+    assert UsdGeom.Primvar(leg.GetAttribute("primvars:skel:jointWeights")).GetElementSize() == 1
+    assert main(["refine", src, "-o", out, "--levels", "1", "--skinning", "bend", "--quiet"]) == 2
