@@ -538,6 +538,7 @@ def _demo_primvars(stage, mesh, spec):
 # -- a skinned character -------------------------------------------------------------------------------------
 
 SKINNED = "skinned_character"  # the scene of write_skinned_character (not in SCENES: its points are posed)
+SKINNED_VIEW = ("-20", "10")  # its preview's azimuth and elevation
 
 
 def _tube(rings: int, length: float, half: float, z0: float = 0.0):
@@ -667,6 +668,13 @@ def render_previews(root: str) -> None:
         cli.main(["render", target, "-o", os.path.join(root, "docs", scene.name + ".png"), "--size", "640x360",
                   "--view", f"{scene.view[0]:g}", f"{scene.view[1]:g}", "--samples", "3", "--device", "cpu"]
                  + (["--cage", src] if code == 0 else []))
+    # the skinned character, baked (its pose at every frame) and drawn at its last frame (no cage: the control
+    # mesh as stored is the rest pose)
+    src = os.path.join(HERE, SKINNED + ".usda")
+    refined = os.path.join(out_dir, f"{SKINNED}_L3.usda")
+    cli.main(["refine", src, "-o", refined, "--levels", "3", "--device", "cpu", "--quiet"])
+    cli.main(["render", refined, "-o", os.path.join(root, "docs", SKINNED + ".png"), "--size", "640x360",
+              "--view", *SKINNED_VIEW, "--time", "24", "--samples", "3", "--device", "cpu"])
 
 
 if __name__ == "__main__":
