@@ -441,3 +441,44 @@ def test_cli_skinning_and_info(tmp_path, capsys):
     leg = stage.GetPrimAtPath(CHARACTER + "/Leg")
     assert UsdGeom.Primvar(leg.GetAttribute("primvars:skel:jointWeights")).GetElementSize() == 1
     assert main(["refine", src, "-o", out, "--levels", "1", "--skinning", "bend", "--quiet"]) == 2
+
+
+def test_limit_points_and_normals_per_sample_batched_or_not(tmp_path):
+    """--limit --normals: limit points and normals of the posed cage at every frame; small meshes evaluated in a
+    batch write what they write alone."""
+    src = character(tmp_path, rigid=False, geom_bind_transform=False)
+    outs = [str(tmp_path / f"out{b}.usda") for b in (0, 1)]
+    for batch, out in zip((False, True), outs):
+        refine_usd(src, out, 1, device="cpu", vertex_order="opensubdiv", limit=True, normals=True, batch=batch)
+    stages = [Usd.Stage.Open(o) for o in outs]
+    baked, source = usdskel_baked(src), Usd.Stage.Open(src)
+    path = CHARACTER + "/Leg"
+    sp = read_mesh(source.GetPrimAtPath(path))
+    refiner = ws.Refiner(sp.mesh, 1, device="cpu")
+    for t in (1.0, 3.0):
+        posed = np.asarray(baked.GetPrimAtPath(path).GetAttribute("points").Get(t), dtype=np.float64)
+        res = refiner.evaluate_with_limits(posed, limit_points=True, limit_normals=True)
+        prims = [s.GetPrimAtPath(path) for s in stages]
+        np.testing.assert_allclose(np.asarray(prims[0].GetAttribute("points").Get(t)), res.limit_points, atol=2e-6)
+        np.testing.assert_allclose(np.asarray(prims[0].GetAttribute("normals").Get(t)), res.limit_normals, atol=2e-5)
+        for name in ("points", "normals", "extent"):
+            np.testing.assert_array_equal(np.asarray(prims[0].GetAttribute(name).Get(t)),
+                                          np.asarray(prims[1].GetAttribute(name).Get(t)))
+    assert stages[0].GetPrimAtPath(path).GetAttribute("normals").GetTimeSamples() == [1.0, 2.0, 3.0, 4.0]
+
+
+def test_binding_api_without_influences_is_a_plain_mesh(tmp_path):
+    """Exporters apply SkelBindingAPI widely: a mesh under the SkelRoot with it but neither joint influences nor
+    blend shapes is not deformed by UsdSkel, and is refined as any mesh, without a word."""
+    def edit(stage):
+        src = stage.GetPrimAtPath(CHARACTER + "/Foot")
+        prop = UsdGeom.Mesh.Define(stage, CHARACTER + "/Prop")
+        for name in ("points", "faceVertexCounts", "faceVertexIndices"):
+            prop.GetPrim().GetAttribute(name).Set(src.GetAttribute(name).Get())
+        UsdSkel.BindingAPI.Apply(prop.GetPrim())
+    src = _edited(tmp_path, edit)
+    result = refine_usd(src, str(tmp_path / "out.usda"), 1, device="cpu")
+    assert not [w for w in result.warnings if "Prop" in w], result.warnings
+    stage = Usd.Stage.Open(str(tmp_path / "out.usda"))
+    assert stage.GetPrimAtPath(CHARACTER + "/Prop").GetAttribute("points").GetTimeSamples() == []
+    assert len(stage.GetPrimAtPath(CHARACTER + "/Prop").GetAttribute("points").Get()) == 26

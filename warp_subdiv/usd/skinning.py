@@ -158,6 +158,8 @@ class Skinning:
         if sp is None or not is_bound(sp.prim):
             return sp
         prim = sp.prim
+        if not any(_authored(prim, name) for name in INFLUENCE_PRIMVARS + ("skel:blendShapes",)):
+            return sp  # the binding API without joint influences or blend shapes: UsdSkel deforms nothing
         kept = [pv for pv in sp.primvars if not pv.name.startswith("primvars:skel:")]
         dropped = [(n, r) for n, r in sp.dropped if not n.startswith("primvars:skel:")]
         out = SkinnedPrim(**{f.name: getattr(sp, f.name) for f in fields(SubdivPrim)})
@@ -206,16 +208,16 @@ class Skinning:
         query = cache.GetSkinningQuery(prim)
         binding = SkinBinding(self.mode, skeleton.GetPrim(), skel_query=skel_query, skinning_query=query,
                               animation=animation)
+        n = len(sp.points_default)
+        if _authored(prim, "primvars:skel:jointIndices") or _authored(prim, "primvars:skel:jointWeights"):
+            binding.influences = _influences(prim, path, n, skel_joints)
+            _check_weight_sums(sp, binding.influences)
+        if _authored(prim, "skel:blendShapes"):
+            binding.blend_query = _blend_shapes(prim, path, n, animation)
         if query is None or not query:
             raise SubdivInputError(f"{path}: bound to {skeleton.GetPath()} but UsdSkel finds no valid skinning "
                                    "(primvars:skel:jointIndices / jointWeights or skel:blendShapes)")
         binding.method = str(query.GetSkinningMethod() or "classicLinear")
-        n = len(sp.points_default)
-        if query.HasJointInfluences() or _authored(prim, "primvars:skel:jointIndices"):
-            binding.influences = _influences(prim, path, n, skel_joints)
-            _check_weight_sums(sp, binding.influences)
-        if query.HasBlendShapes() or _authored(prim, "skel:blendShapes"):
-            binding.blend_query = _blend_shapes(prim, path, n, animation)
         binding.times = times_for_frames(_pose_times(prim, skeleton.GetPrim(), animation, binding), self.frames)
         binding.max_influences = self.max_influences
         return binding
