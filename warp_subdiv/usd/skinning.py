@@ -36,7 +36,7 @@ from pxr import Sdf, Usd, UsdGeom, UsdSkel, Vt
 
 from ..errors import SubdivInputError
 from ..io.usd_read import SubdivPrim, read_mesh
-from ..io.usd_scene import skinned
+from ..io.usd_scene import skinned as is_bound
 from ..io.usd_stage import DEFAULT, times_for_frames
 
 T = Sdf.ValueTypeNames
@@ -68,13 +68,6 @@ def check_max_influences(value):
         raise SubdivInputError(f"max_influences must be an integer >= 1, got {value!r}", option="max_influences",
                                value=value)
     return value
-
-
-def is_bound(prim: Usd.Prim) -> bool:
-    """Whether a mesh takes part in UsdSkel: the binding API applied, or joint influences or blend shapes
-    authored on it. Such a mesh is skinned by the skeleton it (or an ancestor) binds, so two of them with equal
-    attributes may still deform apart (:func:`~warp_subdiv.io.usd_scene.input_fingerprint` keeps them apart)."""
-    return skinned(prim)
 
 
 @dataclass
@@ -183,14 +176,14 @@ class Skinning:
                 f"{sp.path}: a skinned mesh inside an instance: each instance may be posed by its own animation, so "
                 "baking it would take the instance apart; bake with skinning keep (the refined prototype stays "
                 "skinned) or none, or make the instance not instanceable", option="skinning", value="bake")
-        cache = self.cache_of(prim)
-        binding = self._binding(out, skeleton, cache)
-        out.skin = binding
-        if self.mode == "none":
+        if self.mode == "none":  # the binding is dropped as it is, whatever it holds
+            out.skin = SkinBinding("none", skeleton.GetPrim())
             out.warnings.append(f"skinning none: the rest pose is refined and the binding to {skeleton.GetPath()} is "
                                 "dropped; the refined mesh does not deform")
-        elif self.mode == "bake":
-            out.point_times = binding.times
+            return out
+        out.skin = self._binding(out, skeleton, self.cache_of(prim))
+        if self.mode == "bake":
+            out.point_times = out.skin.times
         return out
 
     def _binding(self, sp: SkinnedPrim, skeleton, cache) -> SkinBinding:
@@ -461,8 +454,8 @@ def posed_points(prim: Usd.Prim, time, skinning: Skinning | None = None):
 def describe_skinning(sp) -> str | None:
     """One line on how mesh ``sp`` (as planned) is skinned, or None when no skeleton deforms it (``info``)."""
     skin = getattr(sp, "skin", None)
-    if skin is None or skin.skeleton is None:
-        return None
+    if skin is None or skin.skel_query is None:
+        return None if skin is None or skin.skeleton is None else f"skinning none: bound to {skin.skeleton.GetPath()}"
     parts = [f"bound to {skin.skeleton.GetPath()} ({len(skin.skel_query.GetJointOrder())} joints"
              + (f", animation {skin.animation.GetPath()}" if skin.animation is not None else ", rest pose") + ")"]
     if skin.influences is not None:
@@ -480,5 +473,5 @@ def describe_skinning(sp) -> str | None:
 
 
 __all__ = ["SKINNING_MODES", "INFLUENCE_PRIMVARS", "SkinBinding", "SkinnedPrim", "Skinning", "Influences",
-           "check_skinning", "check_max_influences", "is_bound", "skinned_points", "blended_points",
+           "check_skinning", "check_max_influences", "skinned_points", "blended_points",
            "describe_skinning", "posed_points"]
