@@ -1,6 +1,7 @@
 """A skinned bake against UsdSkel's own bake plus our refine of its points, in one run.
 
     python bench/bench_skinning.py [--rings 64] [--around 32] [--frames 100] [--levels 2] [--reps 3] [--json OUT]
+                                   [--quick]
 
 Generates a character (``make_scene``): a Catmull-Clark tube of ``--rings`` x ``--around`` quads (a leg, open at
 both ends) bound to a three-joint chain (hip, knee, ankle) with four influences per point (elementSize 4), two
@@ -153,7 +154,10 @@ def main(argv=None) -> int:
     ap.add_argument("--levels", type=int, default=2)
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--quick", action="store_true", help="a tiny configuration (the smoke test's)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.rings, args.around, args.frames, args.levels, args.reps = 8, 8, 5, 1, 1
     from benchutil import quiet_warp
 
     quiet_warp()
