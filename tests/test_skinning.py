@@ -215,6 +215,7 @@ def test_bad_skinning_option_is_refused(tmp_path):
     _refuse(character(tmp_path), tmp_path, r"skinning must be one of bake, keep, none", skinning="bend")
     _refuse(character(tmp_path), tmp_path, r"max_influences must be an integer >= 1", skinning="keep",
             max_influences=0)
+    _refuse(character(tmp_path), tmp_path, r"max_influences applies to skinning keep", max_influences=2)
 
 
 def test_influences_without_a_skeleton_are_dropped_with_a_warning(tmp_path):

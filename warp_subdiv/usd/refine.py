@@ -257,7 +257,7 @@ def _check_run(input_path, output_path, levels, vertex_order, skinning="bake", m
     """The run's arguments that the plan does not check: errors before the input is read."""
     check_vertex_order(vertex_order)
     check_skinning(skinning)
-    check_max_influences(max_influences)
+    check_max_influences(max_influences, skinning)
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
         raise SubdivInputError(f"levels must be an integer >= 0, got {levels!r}", option="levels", value=levels)
     if not os.path.exists(input_path):

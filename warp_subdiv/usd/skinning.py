@@ -62,11 +62,14 @@ def check_skinning(value) -> str:
     return value
 
 
-def check_max_influences(value):
-    """``value`` if it is None or an integer >= 1."""
+def check_max_influences(value, mode: str = "keep"):
+    """``value`` if it is None or an integer >= 1 and ``mode`` (the run's skinning) is "keep", which it sizes."""
     if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1):
         raise SubdivInputError(f"max_influences must be an integer >= 1, got {value!r}", option="max_influences",
                                value=value)
+    if value is not None and mode != "keep":
+        raise SubdivInputError(f"max_influences applies to skinning keep (the refined joint influences), not to "
+                               f"skinning {mode}", option="max_influences", value=value)
     return value
 
 
@@ -125,7 +128,7 @@ class Skinning:
         self.mode = check_skinning(mode)
         self.pose_instances = pose_instances  # pose meshes inside instances (a preview) rather than refuse them
         self.frames = frames
-        self.max_influences = check_max_influences(max_influences)
+        self.max_influences = check_max_influences(max_influences, self.mode)
         self._caches: dict = {}  # id(stage) -> (stage, UsdSkel.Cache, the SkelRoots populated)
         self._lock = threading.Lock()
 
