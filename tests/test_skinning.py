@@ -483,3 +483,19 @@ def test_binding_api_without_influences_is_a_plain_mesh(tmp_path):
     stage = Usd.Stage.Open(str(tmp_path / "out.usda"))
     assert stage.GetPrimAtPath(CHARACTER + "/Prop").GetAttribute("points").GetTimeSamples() == []
     assert len(stage.GetPrimAtPath(CHARACTER + "/Prop").GetAttribute("points").Get()) == 26
+
+
+def test_deformed_points_kept_for_a_second_request_are_bounded(tmp_path, monkeypatch):
+    """A second request of a time (the writer after a worker) gets the same points, kept or computed again;
+    what is kept stays under CACHE_BYTES, the oldest times dropped first."""
+    from warp_subdiv.usd import skinning
+    from warp_subdiv.usd.planning import plan
+
+    p = plan(character(tmp_path, rigid=False, frames=6), 1, device="cpu")
+    sp = p.prims[0]
+    frame_bytes = sp.mesh.num_vertices * 3 * 4
+    monkeypatch.setattr(skinning, "CACHE_BYTES", 2 * frame_bytes)
+    first = {t: skinning.skinned_points(sp, t) for t in sp.point_times}
+    assert list(sp.skin.cache) == [5.0, 6.0]
+    for t in sp.point_times:
+        np.testing.assert_array_equal(skinning.skinned_points(sp, t), first[t])  # kept or computed again

@@ -50,8 +50,10 @@ INFLUENCE_PRIMVARS = ("primvars:skel:jointIndices", "primvars:skel:jointWeights"
 #: Weight sums farther than this from one are reported (UsdSkel skins with the weights as they are).
 WEIGHT_SUM_TOLERANCE = 1e-4
 
-#: Skinned control points kept for a second request (a worker refining ahead asks first, the writer then).
-_CACHE_BYTES = 256 << 20
+#: Skinned control points of one mesh kept for a second request (a worker refining ahead, or a batch of small
+#: meshes, asks first, the writer then), the oldest dropped first beyond this; the writer drops the rest once it
+#: has written the mesh (:func:`~warp_subdiv.usd.skinning_output.write_skinning`).
+CACHE_BYTES = 64 << 20
 
 
 def check_skinning(value) -> str:
@@ -380,8 +382,9 @@ def skinned_points(sp: SkinnedPrim, time, space: str = "mesh") -> np.ndarray:
     """The control points of ``sp`` at ``time`` as UsdSkel deforms them (blend shapes, then joints), float64
     (n, 3), in the mesh's own space (``space="mesh"``) or the skeleton's (``"skeleton"``, where UsdSkel skins).
     UsdSkel skins in the skeleton's space; like :func:`pxr.UsdSkel.BakeSkinning`, the bake brings the points into
-    the mesh's by the skeleton's local-to-world transform and the inverse of the mesh's. The mesh's points are kept
-    for a second request of the same time (refining ahead, then writing)."""
+    the mesh's by the skeleton's local-to-world transform and the inverse of the mesh's, and rounded to float32
+    (the points' type, and UsdSkel's), so that every request of a time gets the same values. The mesh's points are
+    kept for a second request of the same time (refining ahead, then writing)."""
     skin = sp.skin
     if space != "mesh":
         return _skin(sp, blended_points(sp, time), time)
@@ -390,10 +393,13 @@ def skinned_points(sp: SkinnedPrim, time, space: str = "mesh") -> np.ndarray:
         held = skin.cache.pop(key, None)
         if held is not None:
             return held.astype(np.float64)
-        out = _to_mesh_space(sp, _skin(sp, blended_points(sp, time), time), time)
-        if sum(a.nbytes for a in skin.cache.values()) + out.nbytes // 2 <= _CACHE_BYTES:
-            skin.cache[key] = out.astype(np.float32)
-        return out
+        kept = _to_mesh_space(sp, _skin(sp, blended_points(sp, time), time), time).astype(np.float32)
+        held_bytes = sum(a.nbytes for a in skin.cache.values())
+        while skin.cache and held_bytes + kept.nbytes > CACHE_BYTES:  # the oldest first (dicts keep their order)
+            held_bytes -= skin.cache.pop(next(iter(skin.cache))).nbytes
+        if kept.nbytes <= CACHE_BYTES:
+            skin.cache[key] = kept
+        return kept.astype(np.float64)
 
 
 def blended_points(sp: SkinnedPrim, time):
@@ -476,5 +482,5 @@ def describe_skinning(sp) -> str | None:
 
 
 __all__ = ["SKINNING_MODES", "INFLUENCE_PRIMVARS", "SkinBinding", "SkinnedPrim", "Skinning", "Influences",
-           "check_skinning", "check_max_influences", "skinned_points", "blended_points",
+           "check_skinning", "check_max_influences", "skinned_points", "blended_points", "CACHE_BYTES",
            "describe_skinning", "posed_points"]

@@ -51,6 +51,8 @@ def write_skinning(sp, layer, prim_spec, refinement, warnings: list) -> None:
     skin = getattr(sp, "skin", None)
     if skin is None:
         return
+    with skin.lock:
+        skin.cache.clear()  # its points are written: the deformed points kept for a second request are not needed
     if skin.mode == "keep" and skin.skeleton is not None:
         write_kept_binding(sp, layer, prim_spec, refinement, warnings)
         return
