@@ -199,7 +199,9 @@ class Skinning:
             raise SubdivInputError(f"{skeleton.GetPath()}: not a valid Skeleton (joints / bindTransforms / "
                                    f"restTransforms do not fit), bound by {path}")
         skel_joints = list(skel_query.GetJointOrder())
-        animation = _animation_of(skeleton.GetPrim(), path)
+        anim_query = skel_query.GetAnimQuery()
+        # the animation UsdSkel poses the skeleton with; where it finds none, why (a target that is not one)
+        animation = anim_query.GetPrim() if anim_query else _animation_of(skeleton.GetPrim(), path)
         if animation is None and not skeleton.GetRestTransformsAttr().HasAuthoredValue():
             raise SubdivInputError(f"{skeleton.GetPath()}: no skel:animationSource and no restTransforms: UsdSkel "
                                    f"has no pose for the skeleton that {path} is bound to")
