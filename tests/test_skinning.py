@@ -499,3 +499,35 @@ def test_deformed_points_kept_for_a_second_request_are_bounded(tmp_path, monkeyp
     assert list(sp.skin.cache) == [5.0, 6.0]
     for t in sp.point_times:
         np.testing.assert_array_equal(skinning.skinned_points(sp, t), first[t])  # kept or computed again
+
+
+def test_a_mesh_with_its_own_joint_order(tmp_path):
+    """skel:joints on the mesh (its own joint order, indices into it): bake and keep skin as with the skeleton's
+    order and the indices mapped."""
+    plain = character(tmp_path, name="plain.usda", rigid=False)
+
+    def edit(stage):
+        leg = stage.GetPrimAtPath(CHARACTER + "/Leg")
+        UsdSkel.BindingAPI(leg).CreateJointsAttr(["hip/knee", "hip"])
+        attr = leg.GetAttribute("primvars:skel:jointIndices")
+        attr.Set(Vt.IntArray([1 - i for i in attr.Get()]))
+    reordered = _edited(tmp_path, edit, name="reordered.usda", rigid=False)
+    for mode in ("bake", "keep"):
+        outs = [str(tmp_path / f"{mode}_{k}.usda") for k in range(2)]
+        notes = [refine_usd(src, out, 1, device="cpu", skinning=mode).warnings for src, out in zip((plain, reordered),
+                                                                                                    outs)]
+        assert [n.split("deviation")[-1] for n in notes[0]] == [n.split("deviation")[-1] for n in notes[1]]
+        stages = [Usd.Stage.Open(o) for o in outs]
+        for t in (2.0, 4.0):
+            a, b = (np.asarray(s.GetPrimAtPath(CHARACTER + "/Leg").GetAttribute("points").Get(t)) for s in stages)
+            np.testing.assert_allclose(a, b, atol=1e-6)
+        if mode == "keep":  # the same weight per joint name at every refined vertex
+            dense = []
+            for stage, order in zip(stages, ([0, 1], [1, 0])):
+                leg = stage.GetPrimAtPath(CHARACTER + "/Leg")
+                idx = np.asarray(leg.GetAttribute("primvars:skel:jointIndices").Get()).reshape(-1, 2)
+                w = np.asarray(leg.GetAttribute("primvars:skel:jointWeights").Get()).reshape(-1, 2)
+                out = np.zeros((len(w), 2))
+                np.add.at(out, (np.repeat(np.arange(len(w)), 2), np.asarray(order)[idx.reshape(-1)]), w.reshape(-1))
+                dense.append(out)
+            np.testing.assert_allclose(dense[0], dense[1], atol=1e-7)
