@@ -32,7 +32,8 @@ FLAGS = {"levels": "--levels", "prims": "--prim", "scheme": "--scheme", "rules":
          "threads": "--threads", "workers": "--workers", "scheduler": "--scheduler", "chunk_frames": "--chunk-frames",
          "camera": "--camera", "view": "--view", "size": "--size", "time": "--time", "samples": "--samples",
          "rate": "--rate", "edge_length": "--edge-length", "depth": "--depth", "flatten": "--flatten",
-         "purpose": "--purpose", "all_variants": "--all-variants", "vertex_order": "--vertex-order"}
+         "purpose": "--purpose", "all_variants": "--all-variants", "vertex_order": "--vertex-order",
+         "skinning": "--skinning", "max_influences": "--max-influences"}
 
 
 class UsageError(SubdivInputError):
@@ -115,6 +116,13 @@ def _add_refine(sub) -> None:
                           "opensubdiv: OpenSubdiv's (and warp_subdiv.refine()'s) numbering; auto (default): "
                           "compact for meshes refined with the piecewise-smooth rules, opensubdiv for "
                           "rules=opensubdiv")
+    cmd.add_argument("--skinning", default="bake", choices=["bake", "keep", "none"],
+                     help="USD meshes bound to a UsdSkel skeleton: bake (default: at every time the pose changes, "
+                          "the control points as UsdSkel deforms them, refined, the binding dropped: what a "
+                          "renderer draws), keep (the rest pose refined and the binding refined with it, an "
+                          "approximation, with a warning) or none (the rest pose refined, the binding dropped)")
+    cmd.add_argument("--max-influences", type=int, default=None, metavar="N",
+                     help="with --skinning keep: joints per refined vertex (default: the input's elementSize)")
     cmd.add_argument("--semi-sharp-as-sharp", action="store_true",
                      help="make semi-sharp creases and corners (0 < sharpness < 10) infinitely sharp, with a warning "
                           "(default: they are refined as semi-sharp, with OpenSubdiv's semantics)")
@@ -386,6 +394,7 @@ def _refine_usd(args, max_memory, progress) -> int:
                max_memory=max_memory, flatten=args.flatten, semi_sharp="sharp" if args.semi_sharp_as_sharp else "keep",
                progress=progress)
     run["vertex_order"] = args.vertex_order  # always passed: every chunk of a distributed bake numbers alike
+    run.update(skinning=args.skinning, max_influences=args.max_influences)
     if args.all_variants:
         if args.workers or args.scheduler:
             raise UsageError("--all-variants does not combine with --workers or --scheduler")
@@ -503,6 +512,7 @@ def _info(args) -> int:
     from pxr import UsdGeom
 
     from .usd import estimate_prim, make_refiner, plan
+    from .usd.skinning import describe_skinning
 
     p = plan(args.input, args.levels, prims=args.prim, require_meshes=False)
     stage = p.stage
@@ -531,6 +541,9 @@ def _info(args) -> int:
                 for pv in sp.primvars))
         for name, reason in sp.dropped:
             print(f"  not refinable: {name} ({reason})")
+        skinned = describe_skinning(sp)
+        if skinned:
+            print(f"  skinned: {skinned}")
         for w in sp.warnings:
             print(f"  note: {w}")
         control = make_refiner(sp, 0, options=options, reuse=(getattr(analysis, "hierarchy", None),))

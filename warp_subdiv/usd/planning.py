@@ -23,6 +23,7 @@ from ..refiner import Refiner
 from ..runtime import phases as _phases
 from ..runtime import threads as _threads
 from ..runtime.estimate import Estimate, MemoryGuardError, estimate, total_bytes
+from .skinning import Skinning
 
 
 @dataclass
@@ -95,6 +96,8 @@ def plan(
     device=None,
     all_variants: bool = False,
     shipped=(),
+    skinning: str = "bake",
+    max_influences: int | None = None,
 ) -> Plan:
     """Open ``input_path`` and read every subdivision mesh at or under ``prims``; predict output sizes.
 
@@ -106,16 +109,18 @@ def plan(
 
     Every control mesh is analysed with the run's options (``make_refiner(sp, 0)``, kept in
     :attr:`Plan.analyses`), so bad tags, options or devices fail here, before any refinement. ``shipped``:
-    hierarchies built elsewhere (see :func:`~warp_subdiv.usd.refine_usd`) that the analysis starts from."""
+    hierarchies built elsewhere (see :func:`~warp_subdiv.usd.refine_usd`) that the analysis starts from.
+    ``skinning``, ``max_influences``: what becomes of meshes bound to a skeleton (:mod:`~warp_subdiv.usd.skinning`)."""
     scheme, rules, boundary, precision = _run_options(scheme, rules, boundary, precision)
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     stage = open_stage(input_path)
     force = bool(prims) and scheme is not None  # an explicit scheme on named prims: polygonal meshes too
+    skin = Skinning(skinning, frames, max_influences)
 
     def read(prim):
-        return read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme or "auto", rules=rules,
-                         boundary=boundary, force=force)
+        return skin.attach(read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme or "auto",
+                                     rules=rules, boundary=boundary, force=force))
 
     scene = read_scene(stage, prims, read=read, all_variants=all_variants, where=input_path)
     out = Plan(input_path, stage, [], [], scene=scene)

@@ -53,6 +53,7 @@ from .order import check_vertex_order
 from .output_layout import layout
 from .planning import Plan, make_refiner, plan
 from .record import layer_record
+from .skinning import check_max_influences, check_skinning
 from .refinement import MeshRefinement
 from .writer import PrimWriter
 
@@ -181,6 +182,8 @@ def refine_usd(
     samples_only: bool = False,
     batch: bool = True,
     shipped=(),
+    skinning: str = "bake",
+    max_influences: int | None = None,
 ) -> Result:
     """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) ``levels`` times and
     write the layer ``output_path`` (.usd, .usda or .usdc) that sublayers the input and overrides them.
@@ -217,15 +220,17 @@ def refine_usd(
     fits starts from it (:meth:`~warp_subdiv.tables.Hierarchy.fits`), and such a mesh is not batched.
     """
     start = _time.perf_counter()
-    _check_run(input_path, output_path, levels, vertex_order)
+    _check_run(input_path, output_path, levels, vertex_order, skinning, max_influences)
     check_flatten(flatten, all_variants)
     p = plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
              precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit,
-             device=device, all_variants=all_variants, shipped=shipped)
+             device=device, all_variants=all_variants, shipped=shipped, skinning=skinning,
+             max_influences=max_influences)
     out_abs = check_output_path(output_path, p.stage)
     check_memory(p.estimates, max_memory, levels)
     custom = layer_record(p, levels, limit=limit, normals=normals, semi_sharp=semi_sharp, vertex_order=vertex_order,
-                          all_variants=all_variants, flatten=flatten, frames=frames)
+                          all_variants=all_variants, flatten=flatten, frames=frames,
+                          skinning=skinning, max_influences=max_influences)
     layer = OutputLayer(out_abs, p.stage, custom)
     bake = None
     try:
@@ -248,9 +253,11 @@ def refine_usd(
                   total_bytes(p.estimates, bake.ahead.concurrent))
 
 
-def _check_run(input_path, output_path, levels, vertex_order) -> None:
+def _check_run(input_path, output_path, levels, vertex_order, skinning="bake", max_influences=None) -> None:
     """The run's arguments that the plan does not check: errors before the input is read."""
     check_vertex_order(vertex_order)
+    check_skinning(skinning)
+    check_max_influences(max_influences, skinning)
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
         raise SubdivInputError(f"levels must be an integer >= 0, got {levels!r}", option="levels", value=levels)
     if not os.path.exists(input_path):
