@@ -514,7 +514,9 @@ def _info(args) -> int:
     from .usd import estimate_prim, make_refiner, plan
     from .usd.skinning import describe_skinning
 
-    p = plan(args.input, args.levels, prims=args.prim, require_meshes=False)
+    # info never refuses a valid file: a skinned mesh that the default bake refuses (inside an instance) is
+    # described, with the treatments that apply
+    p = plan(args.input, args.levels, prims=args.prim, require_meshes=False, describe_instances=True)
     stage = p.stage
     times = ""
     if stage.HasAuthoredTimeCodeRange():

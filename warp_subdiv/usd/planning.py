@@ -98,6 +98,7 @@ def plan(
     shipped=(),
     skinning: str = "bake",
     max_influences: int | None = None,
+    describe_instances: bool = False,
 ) -> Plan:
     """Open ``input_path`` and read every subdivision mesh at or under ``prims``; predict output sizes.
 
@@ -110,13 +111,15 @@ def plan(
     Every control mesh is analysed with the run's options (``make_refiner(sp, 0)``, kept in
     :attr:`Plan.analyses`), so bad tags, options or devices fail here, before any refinement. ``shipped``:
     hierarchies built elsewhere (see :func:`~warp_subdiv.usd.refine_usd`) that the analysis starts from.
-    ``skinning``, ``max_influences``: what becomes of meshes bound to a skeleton (:mod:`~warp_subdiv.usd.skinning`)."""
+    ``skinning``, ``max_influences``: what becomes of meshes bound to a skeleton (:mod:`~warp_subdiv.usd.skinning`);
+    ``describe_instances`` (``info``): a skinned mesh inside an instance, which ``skinning="bake"`` refuses, is
+    planned with its rest pose and the reason (:attr:`~warp_subdiv.usd.skinning.SkinBinding.refused`) instead."""
     scheme, rules, boundary, precision = _run_options(scheme, rules, boundary, precision)
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     stage = open_stage(input_path)
     force = bool(prims) and scheme is not None  # an explicit scheme on named prims: polygonal meshes too
-    skin = Skinning(skinning, frames, max_influences)
+    skin = Skinning(skinning, frames, max_influences, describe_instances=describe_instances)
 
     def read(prim):
         return skin.attach(read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme or "auto",

@@ -10,7 +10,9 @@ not commute with refinement). The bake offers three treatments, the run's ``skin
   and the mesh, as ``frames`` selects them) the control points are deformed by usd-core's UsdSkel itself
   (:class:`pxr.UsdSkel.BlendShapeQuery`, :meth:`pxr.UsdSkel.SkinningQuery.ComputeSkinnedPoints`), brought from
   the skeleton's space into the mesh's own (as :func:`pxr.UsdSkel.BakeSkinning` does) and refined with the
-  topology built once. The refined mesh no longer binds the skeleton
+  topology built once. Authored ``velocities`` are the pose's, per second (:func:`pose_velocities`: differences
+  of the deformed points between the neighbouring times of the pose, scaled by the stage's timeCodesPerSecond);
+  authored ``accelerations`` are dropped with a warning. The refined mesh no longer binds the skeleton
   (:func:`~warp_subdiv.usd.skinning_output.write_skinning` blocks its joint
   influences, blend shapes and skeleton binding), so nothing skins it twice; the skeleton and its animation stay
   for whatever else they drive.
@@ -46,6 +48,9 @@ SKINNING_MODES = ("bake", "keep", "none")
 
 #: The joint-influence primvars of UsdSkelBindingAPI (read by the skinning, never refined as plain primvars).
 INFLUENCE_PRIMVARS = ("primvars:skel:jointIndices", "primvars:skel:jointWeights")
+
+#: Why a skinned mesh inside an instance is not baked (the error of ``skinning="bake"``, ``info``'s note).
+INSTANCE_REFUSAL = "each instance may be posed by its own animation, so baking it would take the instance apart"
 
 #: Weight sums farther than this from one are reported (UsdSkel skins with the weights as they are).
 WEIGHT_SUM_TOLERANCE = 1e-4
@@ -100,6 +105,9 @@ class SkinBinding:
     influences: Influences | None = None
     method: str = "classicLinear"
     times: list = field(default_factory=list)  # the selected times the pose may change at
+    all_times: list = field(default_factory=list)  # every time the pose may change at (velocities' neighbours)
+    time_codes_per_second: float = 24.0  # the stage's (velocities are per second)
+    refused: str | None = None  # why "bake" does not apply (info describes such a mesh instead of refusing it)
     max_influences: int | None = None  # "keep": joints per refined vertex (None: the input's elementSize)
     kept: tuple | None = None  # "keep": the refined (joint indices, weights) written
     lock: object = field(default_factory=threading.Lock, repr=False)
@@ -114,21 +122,35 @@ class SkinnedPrim(SubdivPrim):
 
     skin: SkinBinding | None = None
 
+    @property
+    def baked(self) -> bool:
+        """Whether this mesh's pose is baked (``skinning="bake"``, not refused)."""
+        return self.skin is not None and self.skin.mode == "bake" and self.skin.refused is None
+
     def points_at(self, time) -> np.ndarray:
-        if self.skin is None or self.skin.mode != "bake":
+        if not self.baked:
             return super().points_at(time)
         return self._check_rows(skinned_points(self, time), "points", time)
+
+    def vector_array_at(self, name: str, time) -> np.ndarray:
+        """Velocities of a baked pose are the pose's (:func:`pose_velocities`); else as authored."""
+        if not self.baked or name != "velocities":
+            return super().vector_array_at(name, time)
+        return self._check_rows(pose_velocities(self, time), name, time)
 
 
 class Skinning:
     """A run's UsdSkel state (one :class:`pxr.UsdSkel.Cache` per stage, populated on first use) and treatment
     (``mode``, one of :data:`SKINNING_MODES`) of the meshes bound to a skeleton. ``frames``: the bake's time
     range; ``max_influences``: joints per refined vertex with "keep"; ``pose_instances``: pose skinned meshes
-    inside instances (a preview draws each) instead of refusing to bake them."""
+    inside instances (a preview draws each) instead of refusing to bake them; ``describe_instances``: read their
+    binding and say why "bake" is refused there (:attr:`SkinBinding.refused`, ``info``) instead of raising."""
 
-    def __init__(self, mode: str = "bake", frames=None, max_influences=None, *, pose_instances: bool = False):
+    def __init__(self, mode: str = "bake", frames=None, max_influences=None, *, pose_instances: bool = False,
+                 describe_instances: bool = False):
         self.mode = check_skinning(mode)
         self.pose_instances = pose_instances  # pose meshes inside instances (a preview) rather than refuse them
+        self.describe_instances = describe_instances  # describe (info) rather than refuse them
         self.frames = frames
         self.max_influences = check_max_influences(max_influences, self.mode)
         self._caches: dict = {}  # id(stage) -> (stage, UsdSkel.Cache, the SkelRoots populated)
@@ -158,10 +180,11 @@ class Skinning:
         prim = sp.prim
         if not any(_authored(prim, name) for name in INFLUENCE_PRIMVARS + ("skel:blendShapes",)):
             return sp  # the binding API without joint influences or blend shapes: UsdSkel deforms nothing
-        kept = [pv for pv in sp.primvars if not pv.name.startswith("primvars:skel:")]
-        dropped = [(n, r) for n, r in sp.dropped if not n.startswith("primvars:skel:")]
+        kept = [pv for pv in sp.primvars if pv.name not in INFLUENCE_PRIMVARS]
+        dropped = [(n, r) for n, r in sp.dropped if n not in INFLUENCE_PRIMVARS]
         out = SkinnedPrim(**{f.name: getattr(sp, f.name) for f in fields(SubdivPrim)})
         out.primvars, out.dropped, out.warnings = kept, dropped, list(sp.warnings)
+        out.point_arrays, out.stand_in_defaults = dict(sp.point_arrays), set(sp.stand_in_defaults)
         skeleton = UsdSkel.BindingAPI(prim).GetInheritedSkeleton()
         if not skeleton:
             out.skin = SkinBinding("none", None)
@@ -176,19 +199,24 @@ class Skinning:
         if sp.topologies:
             raise SubdivInputError(f"{sp.path}: faceVertexCounts / faceVertexIndices change over time on a mesh "
                                    f"bound to {skeleton.GetPath()}; UsdSkel skins a fixed set of points")
+        refused = None
         if self.mode == "bake" and not self.pose_instances and (prim.IsInstanceProxy() or prim.IsInPrototype()):
-            raise SubdivInputError(
-                f"{sp.path}: a skinned mesh inside an instance: each instance may be posed by its own animation, so "
-                "baking it would take the instance apart; bake with skinning keep (the refined prototype stays "
-                "skinned) or none, or make the instance not instanceable", option="skinning", value="bake")
+            if not self.describe_instances:
+                raise SubdivInputError(
+                    f"{sp.path}: a skinned mesh inside an instance: {INSTANCE_REFUSAL}; bake with skinning keep (the "
+                    "refined prototype stays skinned) or none, or make the instance not instanceable",
+                    option="skinning", value="bake")
+            refused = (f"bake refused inside an instance ({INSTANCE_REFUSAL}): use keep (the refined prototype stays "
+                       "skinned) or none, or make the instance not instanceable")
         if self.mode == "none":  # the binding is dropped as it is, whatever it holds
             out.skin = SkinBinding("none", skeleton.GetPrim())
             out.warnings.append(f"skinning none: the rest pose is refined and the binding to {skeleton.GetPath()} is "
                                 "dropped; the refined mesh does not deform")
             return out
         out.skin = self._binding(out, skeleton, self.cache_of(prim))
-        if self.mode == "bake":
-            out.point_times = out.skin.times
+        out.skin.refused = refused
+        if out.baked:
+            _bake_point_arrays(out)
         return out
 
     def _binding(self, sp: SkinnedPrim, skeleton, cache) -> SkinBinding:
@@ -218,9 +246,25 @@ class Skinning:
             raise SubdivInputError(f"{path}: bound to {skeleton.GetPath()} but UsdSkel finds no valid skinning "
                                    "(primvars:skel:jointIndices / jointWeights or skel:blendShapes)")
         binding.method = str(query.GetSkinningMethod() or "classicLinear")
-        binding.times = times_for_frames(_pose_times(prim, skeleton.GetPrim(), animation, binding), self.frames)
+        binding.all_times = _pose_times(prim, skeleton.GetPrim(), animation, binding)
+        binding.times = times_for_frames(binding.all_times, self.frames)
+        binding.time_codes_per_second = float(prim.GetStage().GetTimeCodesPerSecond())
         binding.max_influences = self.max_influences
         return binding
+
+
+def _bake_point_arrays(sp: SkinnedPrim) -> None:
+    """A baked pose's points are sampled at its times; authored velocities become the pose's, written at the
+    same times (:func:`pose_velocities`); authored accelerations, the input's and not the pose's, are dropped
+    (blocked, with a warning)."""
+    sp.point_times = sp.skin.times
+    if "velocities" in sp.point_arrays:
+        sp.point_arrays["velocities"] = list(sp.skin.times)
+        sp.stand_in_defaults.discard("velocities")
+    if sp.point_arrays.pop("accelerations", None) is not None:
+        sp.stand_in_defaults.discard("accelerations")
+        sp.dropped.append(("accelerations", "authored accelerations of a skinned mesh are not those of its baked "
+                                            "pose; its velocities are the pose's"))
 
 
 def _authored(prim, name) -> bool:
@@ -246,7 +290,7 @@ def _animation_of(skeleton: Usd.Prim, path: str):
 def _primvar_rows(prim, name, path, points: int):
     """(values (rows, elementSize), interpolation) of joint-influence primvar ``name``, checked."""
     pv = UsdGeom.Primvar(prim.GetAttribute(name))
-    values = pv.Get() if pv else None
+    values = pv.ComputeFlattened() if pv else None  # indexed or not, as UsdSkel reads them
     if values is None:
         raise SubdivInputError(f"{path}: {name} has no value (a skinned mesh needs jointIndices and jointWeights)")
     if pv.GetAttr().GetNumTimeSamples() > 0:
@@ -272,7 +316,8 @@ def _influences(prim, path, points: int, skel_joints: list) -> Influences:
                                f"primvars:skel:jointWeights (elementSize {weights.shape[1]}, {w_interp}) differ")
     joints_attr = prim.GetAttribute("skel:joints")
     joints = list(joints_attr.Get()) if joints_attr and joints_attr.HasAuthoredValue() else skel_joints
-    missing = [j for j in joints if j not in skel_joints]
+    known = set(skel_joints)
+    missing = [j for j in joints if j not in known]
     if missing:
         raise SubdivInputError(f"{path}: skel:joints names {missing[0]!r}, which is not a joint of the skeleton")
     bad = np.flatnonzero((idx.reshape(-1) < 0) | (idx.reshape(-1) >= len(joints)))
@@ -450,6 +495,28 @@ def _to_mesh_space(sp: SkinnedPrim, pts: np.ndarray, time) -> np.ndarray:
     return pts @ to_local[:3, :3] + to_local[3, :3]
 
 
+def pose_velocities(sp: SkinnedPrim, time) -> np.ndarray:
+    """The velocities of the baked pose of ``sp`` at ``time`` (float64 (n, 3), the mesh's space, per second as
+    USD's are): the difference of the deformed control points at the neighbouring times the pose changes at
+    (every one, not only the selected: a range of frames baked alone writes what the whole bake writes), over
+    the time between them, times the stage's timeCodesPerSecond. At a time the pose changes at, the central
+    difference of the two around it (one-sided at the first and last); between two, the slope of the line USD
+    interpolates there; zero at the default time (a pose at no time) and for a pose that never changes.
+    Refinement is linear: the refined velocities are the refinement of these."""
+    skin = sp.skin
+    times = np.asarray(skin.all_times, dtype=np.float64)
+    if time == DEFAULT or len(times) < 2:
+        return np.zeros((len(sp.points_default), 3))
+    t = float(time)
+    below, above = np.searchsorted(times, t, side="left"), np.searchsorted(times, t, side="right")
+    before = times[below - 1] if below > 0 else t
+    after = times[above] if above < len(times) else t
+    if after == before:
+        return np.zeros((len(sp.points_default), 3))
+    scale = skin.time_codes_per_second / (after - before)
+    return (skinned_points(sp, after) - skinned_points(sp, before)) * scale
+
+
 def posed_points(prim: Usd.Prim, time, skinning: Skinning | None = None):
     """The points of mesh ``prim`` at ``time`` as UsdSkel poses them (float64 (n, 3), in the mesh's space), or
     None when no skeleton deforms it: what ``render`` draws for a skinned mesh. ``skinning``: the
@@ -463,7 +530,9 @@ def posed_points(prim: Usd.Prim, time, skinning: Skinning | None = None):
 
 
 def describe_skinning(sp) -> str | None:
-    """One line on how mesh ``sp`` (as planned) is skinned, or None when no skeleton deforms it (``info``)."""
+    """One line on how mesh ``sp`` (as planned) is skinned, or None when no skeleton deforms it (``info``): what
+    it is bound to, the times its pose changes at, and what the run's treatment does with it; where "bake" is
+    refused (inside an instance), why, and the treatments that apply."""
     skin = getattr(sp, "skin", None)
     if skin is None or skin.skel_query is None:
         return None if skin is None or skin.skeleton is None else f"skinning none: bound to {skin.skeleton.GetPath()}"
@@ -474,15 +543,17 @@ def describe_skinning(sp) -> str | None:
         parts.append(f"{inf.weights.shape[1]} {inf.interpolation} influences, {skin.method}")
     if skin.blend_query is not None:
         parts.append(f"{skin.blend_query.GetNumBlendShapes()} blend shapes")
-    if skin.mode == "bake":
-        times = skin.times
-        parts.append("baked at " + (f"{len(times)} times ({times[0]:g} to {times[-1]:g})" if times
-                                    else "the default time only"))
+    times = skin.times
+    when = f"{len(times)} times ({times[0]:g} to {times[-1]:g})" if times else "the default time only"
+    if skin.refused is not None:
+        parts.append(f"posed at {when}; skinning {skin.refused}")
+    elif skin.mode == "bake":
+        parts.append("baked at " + when)
     else:
-        parts.append(f"skinning {skin.mode}: the rest pose refined")
+        parts.append(f"posed at {when}; skinning {skin.mode}: the rest pose refined")
     return "; ".join(parts)
 
 
 __all__ = ["SKINNING_MODES", "INFLUENCE_PRIMVARS", "SkinBinding", "SkinnedPrim", "Skinning", "Influences",
            "check_skinning", "check_max_influences", "skinned_points", "blended_points", "CACHE_BYTES",
-           "describe_skinning", "posed_points"]
+           "describe_skinning", "posed_points", "pose_velocities", "INSTANCE_REFUSAL"]
