@@ -12,6 +12,11 @@ any topology and are inherited as they are, and so is ``geomBindTransform``. Ble
 their inbetweens, and normal offsets) are refined like points: refinement is linear, so a shape's refined offsets
 are exactly the refinement's response to it; its ``pointIndices`` become the refined points those offsets reach.
 
+With ``limit``, the refined points are the limit points of the rest pose, and the weights and blend-shape offsets
+are limit values too (the same limit masks): the rest pose and the blend shapes stay exact. No normals are written
+on a mesh that stays skinned (:data:`KEPT_NORMALS`): renderers do not skin a ``normals`` attribute alike, and
+rest-pose normals on posed points shade wrongly wherever they are used as they are.
+
 Skinning the refined mesh with interpolated weights is not what a renderer draws for the input (it refines the
 skinned cage; weights do not commute with refinement): the bake warns once per mesh with the largest deviation
 between the two, measured with UsdSkel's own skinning on both sides, over the sampled frames
@@ -42,6 +47,18 @@ BINDING_ATTRIBUTES = ("primvars:skel:jointIndices", "primvars:skel:jointWeights"
                       "skel:joints", "skel:blendShapes")
 BINDING_RELATIONSHIPS = ("skel:skeleton", "skel:animationSource", "skel:blendShapeTargets")
 
+#: Why ``normals`` asks for none on a mesh whose refined binding is kept (the run's warning).
+KEPT_NORMALS = ("skinning keep: no limit normals written, the refined mesh stays skinned: renderers treat the normals "
+                "of a skinned mesh differently (Hydra recomputes them after skinning, UsdSkel.BakeSkinning skins them "
+                "by linear blending, others draw them as they are), and normals of the rest pose on posed points "
+                "shade wrongly; skinning bake writes the limit normals of every pose")
+
+
+def stays_skinned(sp) -> bool:
+    """Whether the refined mesh of ``sp`` stays bound to its skeleton (``skinning="keep"``)."""
+    skin = getattr(sp, "skin", None)
+    return skin is not None and skin.mode == "keep" and skin.skeleton is not None
+
 
 def write_skinning(sp, layer, prim_spec, refinement, warnings: list) -> None:
     """What the refined mesh of ``sp`` says about skinning, in its spec ``prim_spec`` of the output ``layer``:
@@ -53,7 +70,7 @@ def write_skinning(sp, layer, prim_spec, refinement, warnings: list) -> None:
         return
     with skin.lock:
         skin.cache.clear()  # its points are written: the deformed points kept for a second request are not needed
-    if skin.mode == "keep" and skin.skeleton is not None:
+    if stays_skinned(sp):
         write_kept_binding(sp, layer, prim_spec, refinement, warnings)
         return
     drop_binding(sp, layer, prim_spec)
@@ -194,14 +211,14 @@ def _write_blend_shapes(sp, layer, prim_spec, refinement, limit: bool) -> None:
             layer.set(out, vec3f_array(values[reached]))
 
 
-def _mesh_order(skin, xforms):
-    """The skinning transforms (skeleton order) in the mesh's joint order (its skel:joints, else unchanged)."""
+def _mesh_order(skin):
+    """The skeleton's joint of each of the mesh's joints (its skel:joints), or None where the orders agree."""
     skel_joints = list(skin.skel_query.GetJointOrder())
     joints = skin.influences.joints
     if joints == skel_joints:
-        return xforms
+        return None
     where = {j: i for i, j in enumerate(skel_joints)}
-    return Vt.Matrix4dArray([xforms[where[j]] for j in joints])
+    return np.array([where[j] for j in joints], dtype=np.int64)
 
 
 def kept_deviation(sp, refinement):
@@ -219,13 +236,16 @@ def kept_deviation(sp, refinement):
         times = [times[i] for i in np.linspace(0, len(times) - 1, DEVIATION_FRAMES).round().astype(int)]
     flat_idx = Vt.IntArray.FromNumpy(idx.reshape(-1))
     flat_w = Vt.FloatArray.FromNumpy(w.reshape(-1))
+    order = _mesh_order(skin)
     worst, at, size = 0.0, times[0], 0.0
     for t in times:
         baked, _ = refinement.positions(skinned_points(sp, t, space="skeleton"))
         blended = blended_points(sp, t)
         refined, _ = refinement.positions(blended)
         pts = Vt.Vec3fArray.FromNumpy(np.asarray(refined, dtype=np.float32))
-        xforms = _mesh_order(skin, skin.skel_query.ComputeSkinningTransforms(t))
+        xforms = skin.skel_query.ComputeSkinningTransforms(t)
+        if order is not None:  # the skeleton's transforms in the mesh's joint order
+            xforms = Vt.Matrix4dArray.FromNumpy(np.asarray(xforms)[order])
         bind = skin.skinning_query.GetGeomBindTransform(t) or Gf.Matrix4d(1)
         UsdSkel.SkinPoints(skin.method, bind, xforms, flat_idx, flat_w, k, pts)
         dist = float(np.max(np.linalg.norm(np.asarray(pts, dtype=np.float64) - baked, axis=1)))
@@ -235,5 +255,6 @@ def kept_deviation(sp, refinement):
     return worst, at, size or 1.0
 
 
-__all__ = ["BINDING_ATTRIBUTES", "BINDING_RELATIONSHIPS", "write_skinning", "drop_binding", "refine_vertex_data",
+__all__ = ["KEPT_NORMALS", "stays_skinned",
+           "BINDING_ATTRIBUTES", "BINDING_RELATIONSHIPS", "write_skinning", "drop_binding", "refine_vertex_data",
            "refined_influences", "write_kept_binding", "kept_deviation", "COLUMNS_AT_ONCE", "DEVIATION_FRAMES"]

@@ -11,7 +11,7 @@ from ..io.usd_stage import DEFAULT
 from ..io.usd_write import extent_of, int_array, vec3f_array
 from .planning import PrimReport
 from .primvars import default_or_sample, drop_attribute, write_primvars
-from .skinning_output import write_skinning
+from .skinning_output import KEPT_NORMALS, stays_skinned, write_skinning
 from .subsets import write_subsets
 
 T = Sdf.ValueTypeNames
@@ -80,9 +80,11 @@ class PrimWriter:
             attr = sp.prim.GetAttribute(name)
             layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform, custom=True)
         normals_spec = None
-        if bake.normals and sp.scheme != "bilinear":
+        if bake.normals and sp.scheme != "bilinear" and not stays_skinned(sp):
             normals_spec = layer.attr(prim, "normals", T.Normal3fArray)
             normals_spec.SetInfo("interpolation", "vertex")
+        elif bake.normals and sp.scheme != "bilinear":
+            bake.warnings.append(f"{sp.path}: {KEPT_NORMALS}")
         elif bake.normals:
             bake.warnings.append(f"{sp.path}: a bilinear mesh has no limit normals; none written")
         for name in sp.authored_normals:
