@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
 
 import warp_subdiv as ws
 from warp_subdiv.errors import SubdivInputError
@@ -46,6 +46,8 @@ def world_points(prim, t) -> np.ndarray:
 def usdskel_baked(src: str):
     """The input as UsdSkel.BakeSkinning poses it (in the session layer of a stage of its own)."""
     stage = Usd.Stage.Open(src)
+    # the session layer's times are scaled to the root layer's by their timeCodesPerSecond: the same, unscaled
+    stage.GetSessionLayer().timeCodesPerSecond = stage.GetRootLayer().timeCodesPerSecond
     stage.SetEditTarget(stage.GetSessionLayer())
     assert UsdSkel.BakeSkinning(UsdSkel.Root(stage.GetPrimAtPath(CHARACTER)),
                                 Gf.Interval(stage.GetStartTimeCode(), stage.GetEndTimeCode()))
@@ -349,8 +351,6 @@ def test_distributed_bake_of_a_skinned_character(tmp_path):
 
 def crowd(tmp_path) -> str:
     """Two instanceable references to the character asset."""
-    from pxr import Sdf
-
     asset = character(tmp_path, name="asset.usda")
     layer = Sdf.Layer.CreateNew(str(tmp_path / "crowd.usda"))
     stage = Usd.Stage.Open(layer)
@@ -531,3 +531,169 @@ def test_a_mesh_with_its_own_joint_order(tmp_path):
                 np.add.at(out, (np.repeat(np.arange(len(w)), 2), np.asarray(order)[idx.reshape(-1)]), w.reshape(-1))
                 dense.append(out)
             np.testing.assert_allclose(dense[0], dense[1], atol=1e-7)
+
+
+def test_info_describes_skinned_meshes_inside_instances(tmp_path, capsys):
+    """info never refuses a valid file: a skinned mesh inside an instance, which the default bake refuses, is
+    described (joints, animation, the times its pose changes at) with the treatments that apply."""
+    from warp_subdiv.cli import main
+
+    assert main(["info", crowd(tmp_path), "--levels", "1"]) == 0
+    text = capsys.readouterr().out
+    lines = [line for line in text.splitlines() if line.startswith("  skinned: ")]
+    assert len(lines) == 2, text  # the prototype's leg and foot, once each
+    assert "(2 joints, animation " in lines[0] and "2 vertex influences, dualQuaternion; 1 blend shapes" in lines[0]
+    for line in lines:
+        assert line.endswith("; posed at 4 times (1 to 4); skinning bake refused inside an instance (each instance "
+                             "may be posed by its own animation, so baking it would take the instance apart): use "
+                             "keep (the refined prototype stays skinned) or none, or make the instance not "
+                             "instanceable"), line
+    assert "time: static points" in text  # predicted as keep and none refine it: the rest pose
+
+
+def test_keep_with_limit_writes_rest_limit_data_and_no_normals(tmp_path):
+    """keep with limit: the rest pose's limit points, the limit values of each joint's weight column and of the
+    blend-shape offsets (so rest pose and blend shapes stay exact), the deviation measured against the baked limit
+    surface; normals asked for are not written on a mesh that stays skinned (renderers treat them differently),
+    with a warning, and the input's authored normals are blocked."""
+    from warp_subdiv.usd.skinning_output import KEPT_NORMALS
+
+    levels = 1
+
+    def edit(stage):  # authored normals on the control mesh: they must not reach the refined one
+        leg = stage.GetPrimAtPath(CHARACTER + "/Leg")
+        UsdGeom.Mesh(leg).CreateNormalsAttr(Vt.Vec3fArray([Gf.Vec3f(0, 0, 1)] * 20))
+    src = _edited(tmp_path, edit)
+    kept, baked = str(tmp_path / "kept.usda"), str(tmp_path / "baked.usda")
+    result = refine_usd(src, kept, levels, device="cpu", vertex_order="opensubdiv", skinning="keep", limit=True,
+                        normals=True)
+    refine_usd(src, baked, levels, device="cpu", vertex_order="opensubdiv", limit=True)
+    assert f"{CHARACTER}/Leg: {KEPT_NORMALS}" in result.warnings
+    out, source = Usd.Stage.Open(kept), Usd.Stage.Open(src)
+    assert _validation_errors(out) == []
+    leg = out.GetPrimAtPath(CHARACTER + "/Leg")
+    assert leg.GetAttribute("normals").Get() is None
+    sp = read_mesh(source.GetPrimAtPath(CHARACTER + "/Leg"))
+    refiner = ws.Refiner(sp.mesh, levels, device="cpu")
+
+    def limit_of(rows):
+        return refiner.evaluate_with_limits(np.asarray(rows, dtype=np.float64), limit_points=True).limit_points
+
+    np.testing.assert_allclose(np.asarray(leg.GetAttribute("points").Get()), limit_of(sp.points_default), atol=1e-6)
+    # weights: the limit of each joint's column (two joints, two influences: none dropped), per joint
+    idx_in = np.asarray(source.GetPrimAtPath(CHARACTER + "/Leg").GetAttribute("primvars:skel:jointIndices").Get())
+    w_in = np.asarray(source.GetPrimAtPath(CHARACTER + "/Leg").GetAttribute("primvars:skel:jointWeights").Get())
+    columns = np.zeros((sp.mesh.num_vertices, 2))
+    np.add.at(columns, (np.repeat(np.arange(sp.mesh.num_vertices), 2), idx_in), w_in)
+    expected = np.stack([limit_of(np.repeat(columns[:, j:j + 1], 3, axis=1))[:, 0] for j in range(2)], axis=1)
+    idx = np.asarray(leg.GetAttribute("primvars:skel:jointIndices").Get()).reshape(-1, 2)
+    w = np.asarray(leg.GetAttribute("primvars:skel:jointWeights").Get()).reshape(-1, 2)
+    got = np.zeros_like(expected)
+    np.add.at(got, (np.repeat(np.arange(len(w)), 2), idx.reshape(-1)), w.reshape(-1))
+    np.testing.assert_allclose(got, expected / expected.sum(axis=1, keepdims=True), atol=1e-6)
+    # the blend shape's offsets: the limit of the input's
+    shape_in = UsdSkel.BlendShape(source.GetPrimAtPath(CHARACTER + "/Leg/bulge"))
+    dense = np.zeros((sp.mesh.num_vertices, 3))
+    dense[np.asarray(shape_in.GetPointIndicesAttr().Get())] = np.asarray(shape_in.GetOffsetsAttr().Get())
+    shape_out = UsdSkel.BlendShape(out.GetPrimAtPath(CHARACTER + "/Leg/bulge"))
+    offsets = np.zeros((len(w), 3))
+    offsets[np.asarray(shape_out.GetPointIndicesAttr().Get())] = np.asarray(shape_out.GetOffsetsAttr().Get())
+    np.testing.assert_allclose(offsets, limit_of(dense), atol=1e-7)
+    # the deviation reported: UsdSkel's skinning of the kept limit data against the baked limit surface
+    note = next(n for n in result.warnings if "largest deviation" in n)
+    reported = float(note.split("largest deviation ")[1].split(" ")[0])
+    skinned, reference = usdskel_baked(kept), Usd.Stage.Open(baked)
+    worst = max(np.linalg.norm(world_points(skinned.GetPrimAtPath(CHARACTER + "/Leg"), t)
+                               - world_points(reference.GetPrimAtPath(CHARACTER + "/Leg"), t), axis=1).max()
+                for t in range(1, 5))
+    assert worst == pytest.approx(reported, rel=2e-2) and 0.01 < reported < 0.3
+
+
+def _with_velocities(tmp_path, name="moving.usda", tcps=30.0):
+    """The character (its leg only, deformed; 6 frames) with rest-space velocities and accelerations authored on
+    the leg, as an exporter might leave them, and ``tcps`` time codes per second."""
+    def edit(stage):
+        stage.SetTimeCodesPerSecond(tcps)
+        leg = UsdGeom.Mesh(stage.GetPrimAtPath(CHARACTER + "/Leg"))
+        leg.CreateVelocitiesAttr(Vt.Vec3fArray([Gf.Vec3f(1, 2, 3)] * 20))
+        leg.CreateAccelerationsAttr(Vt.Vec3fArray([Gf.Vec3f(0, 0, -9.8)] * 20))
+    return _edited(tmp_path, edit, name=name, rigid=False, frames=6)
+
+
+def test_bake_writes_the_velocities_of_the_pose(tmp_path):
+    """bake: authored velocities (the rest pose's) become the baked pose's: at each frame the refinement of the
+    central difference of UsdSkel's deformed points around it (one-sided at the ends), per second (the stage's
+    timeCodesPerSecond); zero at the default time; accelerations are dropped with a warning. A range of frames
+    baked alone writes the velocities the whole bake writes (its neighbours lie outside the range)."""
+    levels, tcps = 1, 30.0
+    src = _with_velocities(tmp_path, tcps=tcps)
+    out, chunk = str(tmp_path / "out.usda"), str(tmp_path / "chunk.usda")
+    result = refine_usd(src, out, levels, device="cpu", vertex_order="opensubdiv")
+    refine_usd(src, chunk, levels, device="cpu", vertex_order="opensubdiv", frames=(4, None))
+    assert any(w.startswith(f"{CHARACTER}/Leg: accelerations dropped (") for w in result.warnings), result.warnings
+    source, baked, refined = Usd.Stage.Open(src), usdskel_baked(src), Usd.Stage.Open(out)
+    leg = refined.GetPrimAtPath(CHARACTER + "/Leg")
+    assert leg.GetAttribute("accelerations").Get(3.0) is None
+    velocities = leg.GetAttribute("velocities")
+    assert velocities.GetTimeSamples() == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+    sp = read_mesh(source.GetPrimAtPath(CHARACTER + "/Leg"))
+    refiner = ws.Refiner(sp.mesh, levels, device="cpu")
+
+    def posed(t):
+        return np.asarray(baked.GetPrimAtPath(CHARACTER + "/Leg").GetAttribute("points").Get(t), dtype=np.float64)
+
+    for t, (a, b) in {1.0: (1, 2), 3.0: (2, 4), 6.0: (5, 6)}.items():
+        expected = refiner.evaluate((posed(b) - posed(a)) * tcps / (b - a))
+        np.testing.assert_allclose(np.asarray(velocities.Get(t)), expected, atol=2e-4 * np.abs(expected).max(),
+                                   err_msg=f"at {t}")
+        assert np.abs(expected).max() > 0.5  # the pose moves
+    np.testing.assert_array_equal(np.asarray(velocities.Get()), 0.0)
+    chunk_stage = Usd.Stage.Open(chunk)
+    part = chunk_stage.GetPrimAtPath(CHARACTER + "/Leg").GetAttribute("velocities")
+    for t in (4.0, 5.0, 6.0):
+        np.testing.assert_array_equal(np.asarray(part.Get(t)), np.asarray(velocities.Get(t)))
+
+
+def test_keep_and_none_refine_authored_velocities_as_they_are(tmp_path):
+    """keep and none refine the rest pose, whose authored velocities (and accelerations) are refined as read."""
+    src = _with_velocities(tmp_path)
+    for mode in ("keep", "none"):
+        out = str(tmp_path / f"{mode}.usda")
+        refine_usd(src, out, 1, device="cpu", skinning=mode)
+        stage = Usd.Stage.Open(out)
+        leg = stage.GetPrimAtPath(CHARACTER + "/Leg")
+        np.testing.assert_allclose(np.asarray(leg.GetAttribute("velocities").Get()), [[1, 2, 3]] * 74, atol=1e-6)
+        np.testing.assert_allclose(np.asarray(leg.GetAttribute("accelerations").Get()), [[0, 0, -9.8]] * 74,
+                                   atol=1e-5)
+
+
+def test_indexed_influences_and_other_skel_primvars(tmp_path):
+    """Indexed joint weights are read flattened, as UsdSkel reads them (bake and keep write what the plain
+    character writes); a primvar of the skel: namespace that is not a joint influence is refined as any primvar,
+    not left at the control mesh's size."""
+    plain = character(tmp_path, name="plain.usda", rigid=False)
+
+    def edit(stage):
+        leg = stage.GetPrimAtPath(CHARACTER + "/Leg")
+        pv = UsdGeom.Primvar(leg.GetAttribute("primvars:skel:jointWeights"))
+        rows, which = np.unique(np.asarray(pv.Get()).reshape(-1, 2), axis=0, return_inverse=True)
+        assert len(rows) < 20
+        pv.Set(Vt.FloatArray.FromNumpy(rows.reshape(-1).astype(np.float32)))
+        pv.SetIndices(Vt.IntArray.FromNumpy(which.reshape(-1).astype(np.int32)))
+        extra = UsdGeom.PrimvarsAPI(leg).CreatePrimvar("skel:extra", Sdf.ValueTypeNames.FloatArray, "vertex")
+        extra.Set(Vt.FloatArray.FromNumpy(np.arange(20, dtype=np.float32)))
+    indexed = _edited(tmp_path, edit, name="indexed.usda", rigid=False)
+    for mode in ("bake", "keep"):
+        stages = []
+        for src in (plain, indexed):
+            out = str(tmp_path / f"{mode}_{os.path.basename(src)}")
+            refine_usd(src, out, 1, device="cpu", skinning=mode)
+            stages.append(Usd.Stage.Open(out))
+        legs = [s.GetPrimAtPath(CHARACTER + "/Leg") for s in stages]
+        for t in (2.0, 4.0):
+            np.testing.assert_array_equal(*(np.asarray(leg.GetAttribute("points").Get(t)) for leg in legs))
+        if mode == "keep":
+            for name in ("primvars:skel:jointIndices", "primvars:skel:jointWeights"):
+                np.testing.assert_array_equal(*(np.asarray(leg.GetAttribute(name).Get()) for leg in legs))
+            assert legs[1].GetAttribute("primvars:skel:jointWeights:indices").Get() is None
+        assert len(legs[1].GetAttribute("primvars:skel:extra").Get()) == 74
