@@ -542,7 +542,8 @@ def test_info_describes_skinned_meshes_inside_instances(tmp_path, capsys):
     text = capsys.readouterr().out
     lines = [line for line in text.splitlines() if line.startswith("  skinned: ")]
     assert len(lines) == 2, text  # the prototype's leg and foot, once each
-    assert "(2 joints, animation " in lines[0] and "2 vertex influences, dualQuaternion; 1 blend shapes" in lines[0]
+    assert lines[0].startswith("  skinned: bound to /Crowd/C0/Character/Skel (2 joints, animation "
+                               "/Crowd/C0/Character/Skel/Anim); 2 vertex influences, dualQuaternion; 1 blend shapes")
     for line in lines:
         assert line.endswith("; posed at 4 times (1 to 4); skinning bake refused inside an instance (each instance "
                              "may be posed by its own animation, so baking it would take the instance apart): use "
@@ -697,3 +698,22 @@ def test_indexed_influences_and_other_skel_primvars(tmp_path):
                 np.testing.assert_array_equal(*(np.asarray(leg.GetAttribute(name).Get()) for leg in legs))
             assert legs[1].GetAttribute("primvars:skel:jointWeights:indices").Get() is None
         assert len(legs[1].GetAttribute("primvars:skel:extra").Get()) == 74
+
+
+def test_tessellate_writes_the_velocities_of_the_pose(tmp_path):
+    """tessellate bakes the pose as refine does: its velocities are the tessellation's of the pose's velocities,
+    so (the tessellation being linear in the points with OpenSubdiv's rules) the central difference of the
+    tessellated points per second; accelerations are dropped."""
+    from warp_subdiv.usd.tessellate import tessellate_file
+
+    tcps = 30.0
+    src = _with_velocities(tmp_path, tcps=tcps)
+    out = str(tmp_path / "tess.usda")
+    tessellate_file(src, out, rate=1, rules="opensubdiv", prims=[CHARACTER + "/Leg"], frames="2:4")
+    stage = Usd.Stage.Open(out)
+    leg = stage.GetPrimAtPath(CHARACTER + "/Leg")
+    points, velocities = leg.GetAttribute("points"), leg.GetAttribute("velocities")
+    assert velocities.GetTimeSamples() == points.GetTimeSamples() == [2.0, 3.0, 4.0]
+    expected = (np.asarray(points.Get(4.0), dtype=np.float64) - np.asarray(points.Get(2.0))) * tcps / 2
+    np.testing.assert_allclose(np.asarray(velocities.Get(3.0)), expected, atol=2e-4 * np.abs(expected).max())
+    assert leg.GetAttribute("accelerations").Get(3.0) is None

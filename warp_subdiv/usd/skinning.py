@@ -529,6 +529,19 @@ def posed_points(prim: Usd.Prim, time, skinning: Skinning | None = None):
     return sp.points_at(time)
 
 
+def _seen_from(prim: Usd.Prim, near: Usd.Prim) -> Sdf.Path:
+    """The path of ``prim`` as seen through the instance that ``near`` (an instance proxy) is in: UsdSkel gives
+    the prototype's prims inside instances (/__Prototype_1/...), the bake names the instance's."""
+    path = prim.GetPath()
+    if not prim.IsInPrototype() or not near.IsInstanceProxy():
+        return path
+    instance = near
+    while instance and not instance.IsInstance():
+        instance = instance.GetParent()
+    prototype = instance.GetPrototype().GetPath() if instance else None
+    return path.ReplacePrefix(prototype, instance.GetPath()) if prototype and path.HasPrefix(prototype) else path
+
+
 def describe_skinning(sp) -> str | None:
     """One line on how mesh ``sp`` (as planned) is skinned, or None when no skeleton deforms it (``info``): what
     it is bound to, the times its pose changes at, and what the run's treatment does with it; where "bake" is
@@ -537,7 +550,8 @@ def describe_skinning(sp) -> str | None:
     if skin is None or skin.skel_query is None:
         return None if skin is None or skin.skeleton is None else f"skinning none: bound to {skin.skeleton.GetPath()}"
     parts = [f"bound to {skin.skeleton.GetPath()} ({len(skin.skel_query.GetJointOrder())} joints"
-             + (f", animation {skin.animation.GetPath()}" if skin.animation is not None else ", rest pose") + ")"]
+             + (f", animation {_seen_from(skin.animation, skin.skeleton)}" if skin.animation is not None
+                else ", rest pose") + ")"]
     if skin.influences is not None:
         inf = skin.influences
         parts.append(f"{inf.weights.shape[1]} {inf.interpolation} influences, {skin.method}")
