@@ -535,12 +535,121 @@ def _demo_primvars(stage, mesh, spec):
     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
 
 
+# -- a skinned character -------------------------------------------------------------------------------------
+
+SKINNED = "skinned_character"  # the scene of write_skinned_character (not in SCENES: its points are posed)
+SKINNED_VIEW = ("-20", "10")  # its preview's azimuth and elevation
+
+
+def _tube(rings: int, length: float, half: float, z0: float = 0.0):
+    """A closed box tube along z: ``rings`` square rings of 4 points, quads between them and both ends capped."""
+    square = [(-1, -1), (1, -1), (1, 1), (-1, 1)]
+    pts = np.array([(half * x, half * y, z0 + length * r / (rings - 1)) for r in range(rings) for x, y in square])
+    faces = [[r * 4 + k, r * 4 + (k + 1) % 4, r * 4 + (k + 1) % 4 + 4, r * 4 + k + 4]
+             for r in range(rings - 1) for k in range(4)]
+    last = (rings - 1) * 4
+    faces += [[3, 2, 1, 0], [last, last + 1, last + 2, last + 3]]
+    return pts, faces
+
+
+def write_skinned_character(path: str, *, method: str = "dualQuaternion", blend_shapes: bool = True,
+                            geom_bind_transform: bool = True, rigid: bool = True, animated_xform: bool = False,
+                            frames: int = 24) -> str:
+    """A small skinned character: a Catmull-Clark leg (a capped tube of 5 rings) bound to a two-joint skeleton
+    (hip, knee; two influences per point blending across the knee) with ``method`` skinning ("classicLinear" or
+    "dualQuaternion"), a SkelAnimation over ``frames`` frames (the hip turns and slides, the knee bends 90
+    degrees), and with ``blend_shapes`` a "bulge" shape on the knee ring whose weight rises from 0 to 1; with
+    ``geom_bind_transform`` a geomBindTransform; with ``rigid`` a foot box bound rigidly to the knee (constant
+    influences); with ``animated_xform`` the leg and foot under an Xform whose translation is animated. The tests
+    vary these; scenes/skinned_character.usda is the default."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    stage = Usd.Stage.Open(layer)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    layer.documentation = ("warp-subdiv scene skinned_character: a skinned, blend-shaped leg and a rigidly bound "
+                           "foot. Written by scenes/make_scenes.py.")
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(frames)
+    UsdSkel.Root.Define(stage, "/World/Character")
+    skel = UsdSkel.Skeleton.Define(stage, "/World/Character/Skel")
+    joints = ["hip", "hip/knee"]
+    skel.CreateJointsAttr(joints)
+    knee = Gf.Matrix4d(1).SetTranslate(Gf.Vec3d(0, 0, 1))
+    skel.CreateBindTransformsAttr(Vt.Matrix4dArray([Gf.Matrix4d(1), knee]))
+    skel.CreateRestTransformsAttr(Vt.Matrix4dArray([Gf.Matrix4d(1), knee]))
+    anim = UsdSkel.Animation.Define(stage, "/World/Character/Skel/Anim")
+    anim.CreateJointsAttr(joints)
+    translations, rotations = anim.CreateTranslationsAttr(), anim.CreateRotationsAttr()
+    anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1, 1, 1)] * 2))
+    if blend_shapes:
+        anim.CreateBlendShapesAttr(["bulge"])
+        shape_weights = anim.CreateBlendShapeWeightsAttr()
+    for f in range(1, frames + 1):
+        u = (f - 1) / (frames - 1)
+        bend = math.radians(90.0 * u)
+        turn = 0.2 * bend
+        translations.Set(Vt.Vec3fArray([Gf.Vec3f(0.1 * (f - 1), 0, 0), Gf.Vec3f(0, 0, 1)]), f)
+        rotations.Set(Vt.QuatfArray([Gf.Quatf(math.cos(turn), Gf.Vec3f(0, 0, math.sin(turn))),
+                                     Gf.Quatf(math.cos(bend / 2), Gf.Vec3f(math.sin(bend / 2), 0, 0))]), f)
+        if blend_shapes:
+            shape_weights.Set(Vt.FloatArray([u]), f)
+    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+    parent = "/World/Character"
+    if animated_xform:
+        offset = UsdGeom.Xform.Define(stage, "/World/Character/Offset").AddTranslateOp()
+        for f in range(1, frames + 1):
+            offset.Set(Gf.Vec3d(0, 0.3 * (f - 1), 0), f)
+        parent += "/Offset"
+
+    def bound_mesh(name, pts, faces, color):
+        mesh = UsdGeom.Mesh.Define(stage, f"{parent}/{name}")
+        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray([len(f) for f in faces]))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray([i for f in faces for i in f]))
+        mesh.CreateSubdivisionSchemeAttr("catmullClark")
+        mesh.CreateDisplayColorAttr(Vt.Vec3fArray([Gf.Vec3f(*color)]))
+        binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+        binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+        if method != "classicLinear":
+            binding.CreateSkinningMethodAttr(method)
+        return mesh, binding
+
+    pts, faces = _tube(5, 2.0, 0.25)
+    leg, binding = bound_mesh("Leg", pts, faces, (0.8, 0.6, 0.5))
+    knee_weight = np.clip(pts[:, 2] - 0.5, 0.0, 1.0)
+    binding.CreateJointIndicesPrimvar(False, 2).Set(Vt.IntArray([0, 1] * len(pts)))
+    binding.CreateJointWeightsPrimvar(False, 2).Set(
+        Vt.FloatArray([float(w) for k in knee_weight for w in (1.0 - k, k)]))
+    if geom_bind_transform:
+        binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1).SetTranslate(Gf.Vec3d(0.05, 0, 0)))
+    if blend_shapes:
+        shape = UsdSkel.BlendShape.Define(stage, leg.GetPath().AppendChild("bulge"))
+        ring = [8, 9, 10, 11]  # the knee ring, pushed out sideways
+        shape.CreatePointIndicesAttr(Vt.IntArray(ring))
+        shape.CreateOffsetsAttr(Vt.Vec3fArray.FromNumpy((pts[ring] * [1.0, 1.0, 0.0]).astype(np.float32)))
+        binding.CreateBlendShapesAttr(["bulge"])
+        binding.CreateBlendShapeTargetsRel().SetTargets([shape.GetPath()])
+    if rigid:
+        foot_pts, foot_faces = _tube(2, 0.3, 0.3, z0=2.0)
+        _, foot = bound_mesh("Foot", foot_pts, foot_faces, (0.4, 0.5, 0.8))
+        foot.CreateJointIndicesPrimvar(True, 1).Set(Vt.IntArray([1]))
+        foot.CreateJointWeightsPrimvar(True, 1).Set(Vt.FloatArray([1.0]))
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(layer.ExportToString())
+    return path
+
+
 def write_all(folder: str = HERE) -> list:
     paths = []
     for scene in SCENES.values():
         path = os.path.join(folder, scene.name + ".usda")
         write_scene(scene, path)
         paths.append(path)
+    paths.append(write_skinned_character(os.path.join(folder, SKINNED + ".usda")))
     return paths
 
 
@@ -559,6 +668,13 @@ def render_previews(root: str) -> None:
         cli.main(["render", target, "-o", os.path.join(root, "docs", scene.name + ".png"), "--size", "640x360",
                   "--view", f"{scene.view[0]:g}", f"{scene.view[1]:g}", "--samples", "3", "--device", "cpu"]
                  + (["--cage", src] if code == 0 else []))
+    # the skinned character, baked (its pose at every frame) and drawn at its last frame (no cage: the control
+    # mesh as stored is the rest pose)
+    src = os.path.join(HERE, SKINNED + ".usda")
+    refined = os.path.join(out_dir, f"{SKINNED}_L3.usda")
+    cli.main(["refine", src, "-o", refined, "--levels", "3", "--device", "cpu", "--quiet"])
+    cli.main(["render", refined, "-o", os.path.join(root, "docs", SKINNED + ".png"), "--size", "640x360",
+              "--view", *SKINNED_VIEW, "--time", "24", "--samples", "3", "--device", "cpu"])
 
 
 if __name__ == "__main__":

@@ -111,6 +111,26 @@ def test_points_of_wrong_shape(shape):
         ws.Mesh(pts, GRID_COUNTS, GRID_IDX)
 
 
+@pytest.mark.parametrize("bad", [True, np.True_, "1", 1j])
+def test_points_that_are_not_numbers(bad):
+    """Bools, strings and complex numbers, which numpy would turn into coordinates without a word, are refused
+    naming the vertex, in a list or as an array's dtype."""
+    pts = GRID_PTS.tolist()
+    pts[4][2] = bad
+    with pytest.raises(SubdivInputError, match=r"points must hold real numbers, got .* \(vertex 4\)") as err:
+        ws.Mesh(pts, GRID_COUNTS, GRID_IDX)
+    assert (err.value.option, err.value.element, err.value.index) == ("points", "vertex", 4)
+    with pytest.raises(SubdivInputError, match="points must hold real numbers"):
+        ws.Mesh(GRID_PTS.astype(bool), GRID_COUNTS, GRID_IDX)
+    with pytest.raises(SubdivInputError, match=r"normals must hold real numbers, got .* \(normal 0\)"):
+        grid(normals=([1], [[0.0, bad, 1.0]]))
+
+
+def test_ragged_points():
+    with pytest.raises(SubdivInputError, match="points must be an array of real numbers"):
+        ws.Mesh([[0, 0, 0], [1, 0]] * 3, GRID_COUNTS, GRID_IDX)
+
+
 # --------------------------------------------------------------------------------------------------------
 # tags
 

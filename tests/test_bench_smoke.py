@@ -8,7 +8,8 @@ import pytest
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-@pytest.mark.parametrize("script", ["bench_core.py", "bench_peers.py", "bench_gpu.py", "bench_batch.py"])
+@pytest.mark.parametrize("script", ["bench_core.py", "bench_peers.py", "bench_gpu.py", "bench_batch.py",
+                                    "bench_skinning.py"])
 def test_benchmark_quick_mode_runs(script, tmp_path):
     """Each script's --quick mode runs to the end, prints a Markdown table and writes its JSON (bench_gpu.py on
     CUDA where present, else on the CPU)."""

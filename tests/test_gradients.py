@@ -285,6 +285,133 @@ def test_active_tape_records_without_the_requires_grad_flag(case):
     np.testing.assert_array_equal(off.numpy(), x)
 
 
+def _limit_transpose(r, g, normal_control):
+    """matrix("limit").T @ g of (N, 3) gradients, as (n, 3), with normal control unless ``normal_control`` is
+    False (None: on for width 3)."""
+    if normal_control is not False:
+        return (r.matrix("limit", normal_control=True).T @ g.reshape(-1)).reshape(-1, 3)
+    return r.matrix("limit").T @ g
+
+
+@pytest.mark.parametrize("case", ["cc-boundary-flatness-normals", "loop-boundary-normal"])
+def test_limit_points_gradients_take_the_normal_control_switch(case):
+    """limit_points_vjp, gradients.limit_points (the wp.Tape path, also through Refiner.limit_points(on_device))
+    and gradients.evaluate_with_limits take normal_control as Refiner.limit_points does: three-column data that
+    is not a position (colours) with normal_control=False gets none in the extra step where the masks are read
+    one level deeper, positions (None, True) do. Forward values equal Refiner.limit_points' with the same
+    switch; the gradients are the derivative (central differences) and, composed with evaluate_vjp,
+    matrix("limit").T @ g of that switch (the gradient paths used to treat every width-3 array as positions)."""
+    r = refiner(case)
+    assert r.limit_reads_deeper()
+    rng = np.random.default_rng(13)
+    colours = rng.random((r.base_num_vertices, 3))
+    x = r.evaluate(colours, normal_control=False)
+    g = rng.standard_normal((r.num_vertices, 3))
+    d = rng.standard_normal(x.shape)
+    gw = wp.array(g, dtype=wp.vec3d)
+    vjps = {}
+    for nc in (False, None, True):
+        vjp = vjps[nc] = r.limit_points_vjp(g, normal_control=nc)
+        fd = _fd(lambda y: r.limit_points(y, normal_control=nc), x, g, d)
+        assert np.sum(vjp * d) == pytest.approx(fd, rel=1e-7, abs=1e-7)
+        np.testing.assert_allclose(r.evaluate_vjp(vjp, normal_control=nc), _limit_transpose(r, g, nc),
+                                   rtol=0, atol=1e-12)
+
+        refined = wp.array(x, dtype=wp.vec3d, requires_grad=True)
+        loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+        with wp.Tape() as tape:
+            lim = G.limit_points(r, refined, normal_control=nc)
+            wp.launch(_dot_loss, dim=r.num_vertices, inputs=[lim, gw, loss])
+        tape.backward(loss)
+        np.testing.assert_allclose(lim.numpy(), r.limit_points(x, normal_control=nc), rtol=0, atol=1e-13)
+        np.testing.assert_array_equal(refined.grad.numpy(), vjp)
+
+        pts = wp.array(colours, dtype=wp.vec3d, requires_grad=True)  # control data -> limit, on the tape
+        loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+        with wp.Tape() as tape:
+            out = r.evaluate_device(pts, normal_control=nc is not False)
+            lim = r.limit_points(out, normal_control=nc, on_device=True)
+            wp.launch(_dot_loss, dim=r.num_vertices, inputs=[lim, gw, loss])
+        tape.backward(loss)
+        plain = r.limit_points(r.evaluate(colours, normal_control=nc), normal_control=nc)
+        np.testing.assert_allclose(lim.numpy(), plain, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(pts.grad.numpy(), _limit_transpose(r, g, nc), rtol=0, atol=1e-12)
+
+        pts = wp.array(colours, dtype=wp.vec3d, requires_grad=True)
+        loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+        with wp.Tape() as tape:
+            res = G.evaluate_with_limits(r, pts, nc, with_limit_normals=False)
+            wp.launch(_dot_loss, dim=r.num_vertices, inputs=[res.limit_points, gw, loss])
+        tape.backward(loss)
+        one_pass = r.evaluate_with_limits(colours, normal_control=nc, limit_normals=False)
+        np.testing.assert_allclose(res.limit_points.numpy(), one_pass.limit_points, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(pts.grad.numpy(), _limit_transpose(r, g, nc), rtol=0, atol=1e-12)
+    assert np.abs(vjps[False] - vjps[None]).max() > 1e-4  # the switch matters on this mesh
+    np.testing.assert_array_equal(vjps[None], vjps[True])
+    for call in (lambda: r.limit_points_vjp(g[:, :2], normal_control=True),
+                 lambda: G.limit_points(r, wp.array(x[:, :2], dtype=wp.float64), normal_control=True)):
+        with pytest.raises(ws.SubdivInputError) as err:
+            call()
+        assert err.value.option == "normal_control"
+
+
+@pytest.mark.parametrize("case", ["cc-boundary-flatness-normals", "loop-boundary-normal"])
+def test_limit_normals_gradients_take_the_normal_control_switch(case):
+    """limit_normals_vjp, gradients.limit_normals (the wp.Tape path, also through Refiner.limit_normals(on_device))
+    and the recorded Refiner.evaluate_with_limits(on_device) take normal_control as Refiner.limit_normals does:
+    positions refined with normal_control=False get no prescribed normal, neither substituted nor applied in the
+    extra step where the masks are read one level deeper; None and True get both. Forward values equal the
+    numpy path's with the same switch; the gradients are the derivative (central differences, from the refined
+    points and from the control points) and the tape's equal the VJPs (the gradient paths used to apply
+    prescribed normals whatever the switch: limit normals off by up to 0.81 on the first mesh)."""
+    r = refiner(case)
+    assert r.limit_reads_deeper()
+    rng = np.random.default_rng(17)
+    p = _points(r, seed=3)
+    g = rng.standard_normal((r.num_vertices, 3))
+    d = rng.standard_normal((r.num_vertices, 3))
+    dp = rng.standard_normal(p.shape)
+    gw = wp.array(g, dtype=wp.vec3d)
+    normals, vjps = {}, {}
+    for nc in (False, None, True):
+        x = r.evaluate(p, normal_control=nc)
+        want = normals[nc] = r.limit_normals(x, normal_control=nc)
+        vjp = vjps[nc] = r.limit_normals_vjp(x, g, normal_control=nc)
+        fd = _fd(lambda y: r.limit_normals(y, normal_control=nc), x, g, d, h=1e-7)
+        assert np.sum(vjp * d) == pytest.approx(fd, rel=1e-5, abs=1e-6)
+        chain = r.evaluate_vjp(vjp, normal_control=nc)
+        fd = _fd(lambda q: r.limit_normals(r.evaluate(q, normal_control=nc), normal_control=nc), p, g, dp,
+                 h=1e-7)
+        assert np.sum(chain * dp) == pytest.approx(fd, rel=1e-5, abs=1e-6)
+
+        for through_refiner in (False, True):
+            refined = wp.array(x, dtype=wp.vec3d, requires_grad=True)
+            loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+            with wp.Tape() as tape:
+                if through_refiner:
+                    lim = r.limit_normals(refined, normal_control=nc, on_device=True)
+                else:
+                    lim = G.limit_normals(r, refined, normal_control=nc)
+                wp.launch(_dot_loss, dim=r.num_vertices, inputs=[lim, gw, loss])
+            tape.backward(loss)
+            np.testing.assert_allclose(lim.numpy(), want, rtol=0, atol=1e-13)
+            np.testing.assert_array_equal(refined.grad.numpy(), vjp)
+
+        pts = wp.array(p, dtype=wp.vec3d, requires_grad=True)
+        loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+        with wp.Tape() as tape:
+            res = r.evaluate_with_limits(pts, normal_control=nc, on_device=True)
+            wp.launch(_dot_loss, dim=r.num_vertices, inputs=[res.limit_normals, gw, loss])
+        tape.backward(loss)
+        one_pass = r.evaluate_with_limits(p, normal_control=nc)
+        np.testing.assert_allclose(res.limit_normals.numpy(), one_pass.limit_normals, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(res.limit_points.numpy(), one_pass.limit_points, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(pts.grad.numpy(), chain, rtol=0, atol=1e-12)
+    assert np.abs(normals[False] - normals[None]).max() > 1e-2  # the switch matters on this mesh
+    assert np.abs(vjps[False] - vjps[None]).max() > 1e-4
+    np.testing.assert_array_equal(normals[None], normals[True])
+
+
 def test_recorded_evaluate_device_writes_into_out():
     """evaluate_device(requires_grad=True, out=buf) writes the result into buf (vec3 or (N, 3)) and returns it,
     recorded: its gradient flows back through buf.grad (out used to be ignored: a fresh array came back and buf

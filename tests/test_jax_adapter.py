@@ -95,6 +95,74 @@ def test_jit_matches_eager(x64):
     np.testing.assert_allclose(np.asarray(jitted[1]), np.asarray(eager[1]), atol=1e-13)
 
 
+def test_limit_points_take_the_normal_control_switch(x64):
+    """wsj.limit_points(normal_control=) as Refiner.limit_points: three-column data that is not a position
+    (colours) with normal_control=False gets no normal control in the extra step where the masks are read one
+    level deeper, eagerly (zero-copy) and under jit (callbacks); values equal the refiner's with the same
+    switch, gradients its limit_points_vjp, and the whole chain from the control data matrix("limit").T @ g.
+    Each switch value has its own cached function (a function made for one used to serve the other)."""
+    r = _refiner()
+    assert r.limit_reads_deeper()
+    rng = np.random.default_rng(5)
+    colours = rng.random((r.base_num_vertices, 3))
+    x = r.evaluate(colours, normal_control=False)
+    g = rng.standard_normal((r.num_vertices, 3))
+    full = {False: r.matrix("limit").T @ g,
+            None: (r.matrix("limit", normal_control=True).T @ g.reshape(-1)).reshape(-1, 3)}
+    assert wsj.function(r, "limit_points", False) is not wsj.function(r, "limit_points")
+    for nc in (None, False):
+        def loss(q, nc=nc):
+            return jnp.sum(g * wsj.limit_points(r, q, normal_control=nc))
+
+        def chain(c, nc=nc):
+            return jnp.sum(g * wsj.limit_points(r, wsj.evaluate(r, c, normal_control=nc), normal_control=nc))
+
+        want = r.limit_points(x, normal_control=nc)
+        np.testing.assert_allclose(np.asarray(wsj.limit_points(r, jnp.asarray(x), normal_control=nc)), want,
+                                   rtol=0, atol=1e-13)
+        for run in (lambda f: f, jax.jit):
+            np.testing.assert_allclose(np.asarray(run(jax.grad(loss))(jnp.asarray(x))),
+                                       r.limit_points_vjp(g, normal_control=nc), rtol=0, atol=1e-13)
+            np.testing.assert_allclose(np.asarray(run(jax.grad(chain))(jnp.asarray(colours))), full[nc],
+                                       rtol=0, atol=1e-12)
+    assert np.abs(r.limit_points(x, normal_control=False) - r.limit_points(x)).max() > 1e-3
+    with pytest.raises(ws.SubdivInputError) as err:
+        wsj.limit_points(r, jnp.ones((r.num_vertices, 2)), normal_control=True)
+    assert err.value.option == "normal_control"
+
+
+def test_limit_normals_take_the_normal_control_switch(x64):
+    """wsj.limit_normals(normal_control=) as Refiner.limit_normals: positions refined with normal_control=False
+    get no prescribed normal (neither substituted nor applied in the extra step where the masks are read one
+    level deeper), eagerly (zero-copy) and under jit (callbacks); values equal the refiner's with the same
+    switch, gradients its limit_normals_vjp, and the whole chain from the control points evaluate_vjp of that
+    (the adapter used to apply prescribed normals whatever the switch). Each switch value has its own cached
+    function."""
+    r = _refiner()
+    assert r.limit_reads_deeper()
+    rng = np.random.default_rng(9)
+    p = _points(r, seed=4)
+    g = rng.standard_normal((r.num_vertices, 3))
+    assert wsj.function(r, "limit_normals", False) is not wsj.function(r, "limit_normals")
+    for nc in (None, False):
+        def loss(q, nc=nc):
+            return jnp.sum(g * wsj.limit_normals(r, q, normal_control=nc))
+
+        def chain(c, nc=nc):
+            return jnp.sum(g * wsj.limit_normals(r, wsj.evaluate(r, c, normal_control=nc), normal_control=nc))
+
+        x = r.evaluate(p, normal_control=nc)
+        vjp = r.limit_normals_vjp(x, g, normal_control=nc)
+        for run in (lambda f: f, jax.jit):
+            y = run(lambda q, nc=nc: wsj.limit_normals(r, q, normal_control=nc))(jnp.asarray(x))
+            np.testing.assert_allclose(np.asarray(y), r.limit_normals(x, normal_control=nc), rtol=0, atol=1e-13)
+            np.testing.assert_allclose(np.asarray(run(jax.grad(loss))(jnp.asarray(x))), vjp, rtol=0, atol=1e-13)
+            np.testing.assert_allclose(np.asarray(run(jax.grad(chain))(jnp.asarray(p))),
+                                       r.evaluate_vjp(vjp, normal_control=nc), rtol=0, atol=1e-12)
+    x = r.evaluate(p, normal_control=False)
+    assert np.abs(r.limit_normals(x, normal_control=False) - r.limit_normals(x)).max() > 1e-2
+
+
 def test_float32_default_and_casting():
     """A float32 refiner takes JAX's default float32 arrays (and casts float64 ones); the result is float32 and
     equals refiner.evaluate; 1-D data gives 1-D results."""

@@ -47,6 +47,63 @@ def test_gradients_match_numpy_vjps():
     assert wst.evaluate(r, one).shape == (r.num_vertices,)
 
 
+def test_limit_points_take_the_normal_control_switch():
+    """wst.limit_points(normal_control=) as Refiner.limit_points: three-column data that is not a position
+    (colours) with normal_control=False gets no normal control in the extra step where the masks are read one
+    level deeper; values equal the refiner's with the same switch, gradients its limit_points_vjp, and the whole
+    chain from the control data matrix("limit").T @ g (the adapter used to treat every width-3 tensor as
+    positions)."""
+    r = _refiner()
+    assert r.limit_reads_deeper()
+    rng = np.random.default_rng(5)
+    colours = rng.random((r.base_num_vertices, 3))
+    x = r.evaluate(colours, normal_control=False)
+    g = rng.standard_normal((r.num_vertices, 3))
+    full = {False: r.matrix("limit").T @ g,
+            None: (r.matrix("limit", normal_control=True).T @ g.reshape(-1)).reshape(-1, 3)}
+    for nc in (None, False):
+        xt = torch.tensor(x, requires_grad=True)
+        y = wst.limit_points(r, xt, normal_control=nc)
+        np.testing.assert_allclose(y.detach().numpy(), r.limit_points(x, normal_control=nc), rtol=0, atol=1e-13)
+        (torch.tensor(g) * y).sum().backward()
+        np.testing.assert_allclose(xt.grad.numpy(), r.limit_points_vjp(g, normal_control=nc), rtol=0, atol=1e-13)
+        c = torch.tensor(colours, requires_grad=True)
+        y = wst.limit_points(r, wst.evaluate(r, c, normal_control=nc), normal_control=nc)
+        (torch.tensor(g) * y).sum().backward()
+        np.testing.assert_allclose(c.grad.numpy(), full[nc], rtol=0, atol=1e-12)
+    assert np.abs(r.limit_points(x, normal_control=False) - r.limit_points(x)).max() > 1e-3
+    with pytest.raises(ws.SubdivInputError) as err:
+        wst.limit_points(r, torch.ones((r.num_vertices, 2)), normal_control=True)
+    assert err.value.option == "normal_control"
+
+
+def test_limit_normals_take_the_normal_control_switch():
+    """wst.limit_normals(normal_control=) as Refiner.limit_normals: positions refined with normal_control=False
+    get no prescribed normal (neither substituted nor applied in the extra step where the masks are read one
+    level deeper); values equal the refiner's with the same switch, gradients its limit_normals_vjp, and the
+    whole chain from the control points evaluate_vjp of that (the adapter used to apply prescribed normals
+    whatever the switch)."""
+    r = _refiner()
+    assert r.limit_reads_deeper()
+    rng = np.random.default_rng(9)
+    p = _points(r, seed=4)
+    g = rng.standard_normal((r.num_vertices, 3))
+    for nc in (None, False):
+        x = r.evaluate(p, normal_control=nc)
+        vjp = r.limit_normals_vjp(x, g, normal_control=nc)
+        xt = torch.tensor(x, requires_grad=True)
+        y = wst.limit_normals(r, xt, normal_control=nc)
+        np.testing.assert_allclose(y.detach().numpy(), r.limit_normals(x, normal_control=nc), rtol=0, atol=1e-13)
+        (torch.tensor(g) * y).sum().backward()
+        np.testing.assert_allclose(xt.grad.numpy(), vjp, rtol=0, atol=1e-13)
+        c = torch.tensor(p, requires_grad=True)
+        y = wst.limit_normals(r, wst.evaluate(r, c, normal_control=nc), normal_control=nc)
+        (torch.tensor(g) * y).sum().backward()
+        np.testing.assert_allclose(c.grad.numpy(), r.evaluate_vjp(vjp, normal_control=nc), rtol=0, atol=1e-12)
+    x = r.evaluate(p, normal_control=False)
+    assert np.abs(r.limit_normals(x, normal_control=False) - r.limit_normals(x)).max() > 1e-2
+
+
 def test_gradcheck_float64():
     """torch.autograd.gradcheck (central differences in float64) of the three functions on a level-1 mesh."""
     r = _refiner(levels=1)

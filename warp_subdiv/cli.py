@@ -34,7 +34,8 @@ FLAGS = {"levels": "--levels", "prims": "--prim", "scheme": "--scheme", "rules":
          "rate": "--rate", "edge_length": "--edge-length", "depth": "--depth", "flatten": "--flatten",
          "purpose": "--purpose", "all_variants": "--all-variants", "vertex_order": "--vertex-order",
          "max_levels": "--max-levels", "pixel_error": "--pixel-error", "resolution": "--resolution",
-         "offscreen_level": "--offscreen-level", "lod_variants": "--lod-variants"}
+         "offscreen_level": "--offscreen-level", "lod_variants": "--lod-variants",
+         "skinning": "--skinning", "max_influences": "--max-influences"}
 
 
 class UsageError(SubdivInputError):
@@ -134,6 +135,13 @@ def _add_refine(sub) -> None:
                           "opensubdiv: OpenSubdiv's (and warp_subdiv.refine()'s) numbering; auto (default): "
                           "compact for meshes refined with the piecewise-smooth rules, opensubdiv for "
                           "rules=opensubdiv")
+    cmd.add_argument("--skinning", default="bake", choices=["bake", "keep", "none"],
+                     help="USD meshes bound to a UsdSkel skeleton: bake (default: at every time the pose changes, "
+                          "the control points as UsdSkel deforms them, refined, the binding dropped: what a "
+                          "renderer draws), keep (the rest pose refined and the binding refined with it, an "
+                          "approximation, with a warning) or none (the rest pose refined, the binding dropped)")
+    cmd.add_argument("--max-influences", type=int, default=None, metavar="N",
+                     help="with --skinning keep: joints per refined vertex (default: the input's elementSize)")
     cmd.add_argument("--semi-sharp-as-sharp", action="store_true",
                      help="make semi-sharp creases and corners (0 < sharpness < 10) infinitely sharp, with a warning "
                           "(default: they are refined as semi-sharp, with OpenSubdiv's semantics)")
@@ -425,6 +433,7 @@ def _refine_usd(args, max_memory, progress) -> int:
     levels = dict(max_levels=args.max_levels, camera=args.camera, pixel_error=args.pixel_error,
                   resolution=args.resolution, offscreen_level=args.offscreen_level, lod_variants=args.lod_variants)
     run.update((k, v) for k, v in levels.items() if v is not None)
+    run.update(skinning=args.skinning, max_influences=args.max_influences)
     if args.all_variants:
         if args.workers or args.scheduler:
             raise UsageError("--all-variants does not combine with --workers or --scheduler")
@@ -552,10 +561,13 @@ def _info(args) -> int:
     from pxr import UsdGeom
 
     from .usd import estimate_prim, make_refiner, plan
+    from .usd.skinning import describe_skinning
 
-    p = plan(args.input, args.levels, prims=args.prim, require_meshes=False, max_levels=args.max_levels,
-             camera=args.camera, pixel_error=args.pixel_error, resolution=args.resolution,
-             offscreen_level=args.offscreen_level)
+    # info never refuses a valid file: a skinned mesh that the default bake refuses (inside an instance) is
+    # described, with the treatments that apply
+    p = plan(args.input, args.levels, prims=args.prim, require_meshes=False, describe_instances=True,
+             max_levels=args.max_levels, camera=args.camera, pixel_error=args.pixel_error,
+             resolution=args.resolution, offscreen_level=args.offscreen_level)
     stage = p.stage
     times = ""
     if stage.HasAuthoredTimeCodeRange():
@@ -584,6 +596,9 @@ def _info(args) -> int:
                 for pv in sp.primvars))
         for name, reason in sp.dropped:
             print(f"  not refinable: {name} ({reason})")
+        skinned = describe_skinning(sp)
+        if skinned:
+            print(f"  skinned: {skinned}")
         for w in sp.warnings:
             print(f"  note: {w}")
         control = make_refiner(sp, 0, options=options, reuse=(getattr(analysis, "hierarchy", None),))

@@ -42,20 +42,26 @@ def evaluate(refiner, points, normal_control=None):
     return function(refiner, "evaluate", normal_control)(points)
 
 
-def limit_points(refiner, refined):
-    """``refiner.limit_points`` of a JAX array of last-level data (N, d) or (N,), differentiable."""
-    return function(refiner, "limit_points")(refined)
+def limit_points(refiner, refined, normal_control=None):
+    """``refiner.limit_points`` of a JAX array of last-level data (N, d) or (N,), differentiable.
+    ``normal_control`` as there (None: on for width 3; False for data that is not a position, colours say), for
+    the values and the gradient alike."""
+    return function(refiner, "limit_points", normal_control)(refined)
 
 
-def limit_normals(refiner, refined):
+def limit_normals(refiner, refined, normal_control=None):
     """``refiner.limit_normals`` of a JAX array of last-level positions (N, 3), differentiable (the true
-    derivative of the unit normals)."""
-    return function(refiner, "limit_normals")(refined)
+    derivative of the unit normals). ``normal_control`` as there (None: prescribed normals substituted and
+    applied in the extra step; False for positions refined without normal control), for the values and the
+    gradient alike."""
+    return function(refiner, "limit_normals", normal_control)(refined)
 
 
 def function(refiner, kind: str = "evaluate", normal_control=None):
     """The differentiable JAX function of ``refiner`` for ``kind`` ("evaluate", "limit_points" or
-    "limit_normals"), made once per refiner, kind and ``normal_control`` (usable under ``jax.jit``)."""
+    "limit_normals"), made once per refiner, kind and ``normal_control`` (usable under ``jax.jit``).
+    ``normal_control`` as :meth:`Refiner.evaluate` / :meth:`Refiner.limit_points` / :meth:`Refiner.limit_normals`
+    take it."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
     key = ("jax", kind, None if normal_control is None else bool(normal_control))
@@ -92,8 +98,7 @@ def _checked_input(refiner, kind: str, normal_control, x) -> tuple:
     rows, what = ((refiner.base_num_vertices, "vertex data") if kind == "evaluate" else
                   (refiner.num_vertices, "refined points"))
     width, one_d = shaped_rows(x.shape, x.dtype.name, rows, what, positions=kind == "limit_normals")
-    if kind == "evaluate":
-        normal_control_for(normal_control, width)
+    normal_control_for(normal_control, width)
     return (x[:, None] if one_d else x), one_d
 
 
@@ -122,9 +127,9 @@ def _make(refiner, kind: str, normal_control):
         if kind == "evaluate":
             out = refiner.evaluate(x, normal_control=nc_of(x.shape[1]))
         elif kind == "limit_points":
-            out = refiner.limit_points(x)
+            out = refiner.limit_points(x, normal_control=nc_of(x.shape[1]))
         else:
-            out = refiner.limit_normals(x)
+            out = refiner.limit_normals(x, normal_control=nc_of(x.shape[1]))
         return np.asarray(out, dtype=dtype)
 
     def forward(x):
@@ -134,9 +139,9 @@ def _make(refiner, kind: str, normal_control):
             if kind == "evaluate":
                 y = adj.forward(xw, nc_of(width))
             elif kind == "limit_points":
-                y = adj.limit_points_forward(xw)
+                y = adj.limit_points_forward(xw, nc_of(width))
             else:
-                y = adj.limit_normals_forward(xw)
+                y = adj.limit_normals_forward(xw, nc_of(width))
             return wp.to_jax(y).reshape(out_rows(True), width)
         shape = jax.ShapeDtypeStruct((out_rows(True), width), dtype)
         return jax.pure_callback(host_forward, shape, x, vmap_method="sequential")
@@ -147,9 +152,9 @@ def _make(refiner, kind: str, normal_control):
         if kind == "evaluate":
             out = refiner.evaluate_vjp(g, normal_control=nc_of(g.shape[1]))
         elif kind == "limit_points":
-            out = refiner.limit_points_vjp(g)
+            out = refiner.limit_points_vjp(g, normal_control=nc_of(g.shape[1]))
         else:
-            out = refiner.limit_normals_vjp(np.asarray(x), g)
+            out = refiner.limit_normals_vjp(np.asarray(x), g, normal_control=nc_of(g.shape[1]))
         return np.asarray(out, dtype=dtype)
 
     def backward(x, g):
@@ -160,9 +165,9 @@ def _make(refiner, kind: str, normal_control):
             if kind == "evaluate":
                 y = adj.backward(gw, nc_of(width))
             elif kind == "limit_points":
-                y = adj.limit_points_backward(gw)
+                y = adj.limit_points_backward(gw, nc_of(width))
             else:
-                y = adj.limit_normals_backward(to_warp(x), gw)
+                y = adj.limit_normals_backward(to_warp(x), gw, nc_of(width))
             return wp.to_jax(y).reshape(out_rows(False), width)
         shape = jax.ShapeDtypeStruct((out_rows(False), width), dtype)
         args = (jnp.zeros((0,), dtype) if x is None else x, g)

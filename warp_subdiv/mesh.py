@@ -288,9 +288,29 @@ def check_rows(data, rows: int, what: str, *, at_least: bool = False, bound: flo
     return arr
 
 
+def _refuse_coordinates_that_are_not_numbers(values, option: str, element: str) -> None:
+    """Refuse rows of coordinates (points, prescribed normals) holding a bool, a string or a complex number,
+    which numpy would turn into a coordinate without a word, naming the row."""
+    found = first_non_number(values)
+    if found is None:
+        return
+    index, item = found
+    try:
+        row = index // 3 if np.shape(values)[-1:] == (3,) else None
+    except ValueError:  # ragged rows: no row to name
+        row = None
+    where = f" ({element} {row})" if row is not None else ""
+    raise SubdivInputError(f"{option} must hold real numbers, got {item!r}{where}: a bool, a string or a complex "
+                           "number is not a coordinate", option=option, element=element, index=row, value=item)
+
+
 def _checked_points(points) -> np.ndarray:
     """The control points as finite float64 (n, 3)."""
-    pts = np.asarray(points, dtype=np.float64)
+    _refuse_coordinates_that_are_not_numbers(points, "points", "vertex")
+    try:
+        pts = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SubdivInputError("points must be an array of real numbers of shape (n, 3)", option="points") from None
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise SubdivInputError(f"points must have shape (n, 3), got {pts.shape}", option="points")
     bad = np.flatnonzero(~np.all(np.isfinite(pts), axis=1))
@@ -382,6 +402,7 @@ def _checked_normals(normals, num_vertices: int):
     given_ids = ids
     ids = _int_array(ids, "normals vertex ids", option="normals")
     _check_vertex_ids(ids, num_vertices, "normals vertex ids", "vertex", option="normals", given=given_ids)
+    _refuse_coordinates_that_are_not_numbers(vecs, "normals", "normal")
     vecs = np.asarray(vecs, dtype=np.float64)
     if vecs.shape != (len(ids), 3):
         raise SubdivInputError(

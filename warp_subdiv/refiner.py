@@ -100,18 +100,22 @@ class _GradientMethods:
 
         return gradients.evaluate_vjp(self, grad, normal_control)
 
-    def limit_points_vjp(self, grad) -> np.ndarray:
-        """Gradient with respect to the refined data of ``grad``, a gradient of :meth:`limit_points`' result."""
+    def limit_points_vjp(self, grad, *, normal_control=None) -> np.ndarray:
+        """Gradient with respect to the refined data of ``grad``, a gradient of :meth:`limit_points`' result with
+        the same ``normal_control`` (None: on for width 3; False for data that is not a position). See
+        :func:`warp_subdiv.gradients.limit_points_vjp`."""
         from . import gradients
 
-        return gradients.limit_points_vjp(self, grad)
+        return gradients.limit_points_vjp(self, grad, normal_control)
 
-    def limit_normals_vjp(self, refined_points, grad) -> np.ndarray:
+    def limit_normals_vjp(self, refined_points, grad, *, normal_control=None) -> np.ndarray:
         """Gradient with respect to ``refined_points`` of ``grad``, a gradient of :meth:`limit_normals`' result
-        (the true derivative of the unit normals)."""
+        with the same ``normal_control`` (the true derivative of the unit normals; None: prescribed normals
+        substituted, their rows pass none; False: positions refined without normal control). See
+        :func:`warp_subdiv.gradients.limit_normals_vjp`."""
         from . import gradients
 
-        return gradients.limit_normals_vjp(self, refined_points, grad)
+        return gradients.limit_normals_vjp(self, refined_points, grad, normal_control)
 
 
 class _FaceVaryingMethods:
@@ -304,9 +308,10 @@ class Refiner(_Views, _GradientMethods, _FaceVaryingMethods):
         ``normal_control=False`` (pass it for data that is not a position, colours say: then the result is
         ``matrix("limit") @ data`` of the control data). ``refined_points`` may be a device array (as
         :meth:`evaluate_device` takes; its own result is read where it lies, with no copy); ``on_device``: return
-        a device array (a view of a shared buffer, valid until the next call; recorded as by evaluate_device)."""
+        a device array (a view of a shared buffer, valid until the next call; recorded as by evaluate_device,
+        its backward with the same ``normal_control``: :meth:`limit_points_vjp`)."""
         if on_device and (recorded := self._recorded(refined_points)):
-            return recorded.limit_points(self, refined_points)
+            return recorded.limit_points(self, refined_points, normal_control=normal_control)
         points, one_d = self._rows_data(refined_points, self.num_vertices, "refined points")
         normal_control = normal_control_for(normal_control, points.shape[1])
         source, deeper = self._guarded_limit_source()
@@ -322,10 +327,11 @@ class Refiner(_Views, _GradientMethods, _FaceVaryingMethods):
         sectors' unit normals (exact where there is one sector, e.g. on a boundary). ``refined_points`` and
         ``on_device`` as in :meth:`limit_points`; ``normal_control=False``: the normals of positions refined
         without normal control (``evaluate(points, normal_control=False)``): computed everywhere, prescribed
-        normals neither applied in an extra step nor reported.
+        normals neither applied in an extra step nor reported (recorded with the same switch: its backward is
+        :meth:`limit_normals_vjp`'s).
         """
         if on_device and (recorded := self._recorded(refined_points)):
-            return recorded.limit_normals(self, refined_points)
+            return recorded.limit_normals(self, refined_points, normal_control=normal_control)
         points, _ = self._rows_data(refined_points, self.num_vertices, "refined points")
         if points.shape[1] != 3:
             raise SubdivInputError(f"limit normals take (N, 3) positions, got {tuple(np.shape(points))}",

@@ -351,7 +351,11 @@ def _local_mesh(prim, t, levels, device):
     indices = mesh.GetFaceVertexIndicesAttr().Get(t)
     if pts is None or counts is None or indices is None or len(counts) == 0:
         return None
-    pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
+    from .io.usd_stage import DEFAULT
+    from .usd.skinning import posed_points
+
+    posed = posed_points(prim, DEFAULT if t.IsDefault() else t.GetValue())  # a skinned mesh: as UsdSkel poses it
+    pts = np.asarray(pts if posed is None else posed, dtype=np.float64).reshape(-1, 3)
     counts = np.asarray(counts, dtype=np.int64)
     indices = np.asarray(indices, dtype=np.int64)
     valid, why = UsdGeom.Mesh.ValidateTopology(mesh.GetFaceVertexIndicesAttr().Get(t),
@@ -397,7 +401,9 @@ def _refined(prim, t, levels, device):
     from .io.usd_read import read_mesh
     from .io.usd_stage import DEFAULT
 
-    sp = read_mesh(prim)
+    from .usd.skinning import Skinning
+
+    sp = Skinning(pose_instances=True).attach(read_mesh(prim))  # a skinned mesh: its points as UsdSkel poses them
     time = DEFAULT if t.IsDefault() else t.GetValue()
     pts = sp.points_at(time)
     sp = sp.with_topology(sp.topology_index(time))  # the control mesh at that time (topology may change)

@@ -34,15 +34,18 @@ def evaluate(refiner, points: torch.Tensor, normal_control=None) -> torch.Tensor
     return _apply(refiner, "evaluate", normal_control, points)
 
 
-def limit_points(refiner, refined: torch.Tensor) -> torch.Tensor:
-    """``refiner.limit_points`` of a tensor of last-level data (N, d) or (N,), differentiable."""
-    return _apply(refiner, "limit_points", None, refined)
+def limit_points(refiner, refined: torch.Tensor, normal_control=None) -> torch.Tensor:
+    """``refiner.limit_points`` of a tensor of last-level data (N, d) or (N,), differentiable. ``normal_control``
+    as there (None: on for width 3; False for data that is not a position, colours say), for the values and
+    the gradient alike."""
+    return _apply(refiner, "limit_points", normal_control, refined)
 
 
-def limit_normals(refiner, refined: torch.Tensor) -> torch.Tensor:
+def limit_normals(refiner, refined: torch.Tensor, normal_control=None) -> torch.Tensor:
     """``refiner.limit_normals`` of a tensor of last-level positions (N, 3), differentiable (the true derivative
-    of the unit normals)."""
-    return _apply(refiner, "limit_normals", None, refined)
+    of the unit normals). ``normal_control`` as there (None: prescribed normals substituted and applied in the
+    extra step; False for positions refined without normal control), for the values and the gradient alike."""
+    return _apply(refiner, "limit_normals", normal_control, refined)
 
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
@@ -55,8 +58,7 @@ def _apply(refiner, kind, normal_control, x: torch.Tensor) -> torch.Tensor:
                   (refiner.num_vertices, "refined points"))
     width, one_d = shaped_rows(x.shape, str(x.dtype).removeprefix("torch."), rows, what,
                                positions=kind == "limit_normals")
-    if kind == "evaluate":
-        normal_control_for(normal_control, width)
+    normal_control_for(normal_control, width)
     if one_d:
         x = x[:, None]
     device = wp.device_to_torch(refiner.device)
@@ -87,9 +89,9 @@ class _Refine(torch.autograd.Function):
         if kind == "evaluate":
             y = adj.forward(xw, nc)
         elif kind == "limit_points":
-            y = adj.limit_points_forward(xw)
+            y = adj.limit_points_forward(xw, nc)
         else:
-            y = adj.limit_normals_forward(xw)
+            y = adj.limit_normals_forward(xw, nc)
         ctx.refiner, ctx.kind, ctx.nc = refiner, kind, nc
         if kind == "limit_normals":
             ctx.save_for_backward(x)
@@ -104,10 +106,10 @@ class _Refine(torch.autograd.Function):
             y = adj.backward(gw, ctx.nc)
             rows = ctx.refiner.base_num_vertices
         elif ctx.kind == "limit_points":
-            y = adj.limit_points_backward(gw)
+            y = adj.limit_points_backward(gw, ctx.nc)
             rows = ctx.refiner.num_vertices
         else:
             (x,) = ctx.saved_tensors
-            y = adj.limit_normals_backward(_to_warp(x), gw)
+            y = adj.limit_normals_backward(_to_warp(x), gw, ctx.nc)
             rows = ctx.refiner.num_vertices
         return _to_torch(y, rows, width), None, None, None

@@ -205,16 +205,18 @@ class Adjoint:
         return out
 
     # ---------------------------------------------------------------------------------------- limits
-    def limit_points_forward(self, x: wp.array) -> wp.array:
-        """Limit values of the last level's data ``x`` (kernel view); width-3 data takes normal control in the
-        extra step where the masks are read one level deeper (as :meth:`Refiner.limit_points`)."""
+    def limit_points_forward(self, x: wp.array, normal_control=None) -> wp.array:
+        """Limit values of the last level's data ``x`` (kernel view). Where the masks are read one level deeper
+        the extra step applies prescribed normals as :meth:`Refiner.limit_points` does: ``normal_control`` None
+        on width 3 only, False never (data that is not a position), True to width 3 (refused on other widths)."""
         check_data(self, x)
+        width = self.width(x)
+        normal_control = normal_control_for(normal_control, width)
         source, deeper = self.refiner.limit_source()
         sa = source.adjoint
         run = self.launcher
-        width = self.width(x)
         if deeper:
-            x = sa._last_step_forward(x, width == 3)
+            x = sa._last_step_forward(x, normal_control)
         masks = source.evaluator.limit_masks()
         full = sa.empty(masks.num_vertices, width)
         limit_positions(masks, x, full, run)
@@ -222,40 +224,48 @@ class Adjoint:
         wp.copy(out, full, count=self.refiner.num_vertices)
         return out
 
-    def limit_points_backward(self, grad: wp.array) -> wp.array:
-        """The gradient with respect to the last level's data of a gradient of :meth:`limit_points_forward`."""
+    def limit_points_backward(self, grad: wp.array, normal_control=None) -> wp.array:
+        """The gradient with respect to the last level's data of a gradient of :meth:`limit_points_forward` with
+        the same ``normal_control``."""
         check_data(self, grad)
+        width = self.width(grad)
+        normal_control = normal_control_for(normal_control, width)
         source, deeper = self.refiner.limit_source()
         sa = source.adjoint
         rec = sa.tables.limit(self.refiner.num_vertices)
-        width = self.width(grad)
         g = sa.empty(source.num_vertices, width)
         apply(rec.position, grad, g, self.launcher)
-        return sa._last_step_backward(g, width == 3) if deeper else g
+        return sa._last_step_backward(g, normal_control) if deeper else g
 
-    def _prescribed(self):
+    def _prescribed(self, normal_control: bool = True):
+        """Ids (of this level's vertices) and vectors of the prescribed normals that replace computed limit normals
+        of positions refined with ``normal_control`` (none where it is off, in the options or for these)."""
         h = self.hierarchy
         ids = np.asarray(h.normal_vertices, np.int64)
-        if self.refiner.options.normal_strength <= 0:
+        if self.refiner.options.normal_strength <= 0 or not normal_control:
             ids = ids[:0]
         return ids[ids < self.refiner.num_vertices], h.normal_vectors
 
-    def limit_normals_forward(self, x: wp.array) -> wp.array:
-        """Unit limit normals of the last level's positions ``x`` (vec3), as :meth:`Refiner.limit_normals`."""
+    def limit_normals_forward(self, x: wp.array, normal_control=None) -> wp.array:
+        """Unit limit normals of the last level's positions ``x`` (vec3), as :meth:`Refiner.limit_normals` with
+        the same ``normal_control``: None or True substitute the prescribed normals (as given) and apply them in
+        the extra step where the masks are read one level deeper; False (positions refined without normal
+        control) does neither: computed normals everywhere."""
         check_data(self, x)
         check_positions(x)
+        normal_control = normal_control_for(normal_control, 3)
         source, deeper = self.refiner.limit_source()
         sa = source.adjoint
         run = self.launcher
         if deeper:
-            x = sa._last_step_forward(x, True)
+            x = sa._last_step_forward(x, normal_control)
         masks = source.evaluator.limit_masks()
         tu, tv = sa.empty(masks.num_tangents, 3), sa.empty(masks.num_tangents, 3)
         full = sa.empty(masks.num_vertices, 3)
         limit_normals(masks, x, tu, tv, full, run)
         h = sa.hierarchy
-        if len(h.normal_vertices) and self.refiner.options.normal_strength > 0:  # prescribed: as given
-            ids = np.asarray(h.normal_vertices, np.int32)
+        if normal_control and len(h.normal_vertices) and self.refiner.options.normal_strength > 0:
+            ids = np.asarray(h.normal_vertices, np.int32)  # prescribed: as given
             values = np.asarray(h.normal_vectors, dtype=self.scalar_np).reshape(-1, 3)
             wp.launch(_kernels().scatter_rows, dim=len(ids),
                       inputs=[wp.array(ids, device=self.device), wp.array(values, dtype=self.vec, device=self.device),
@@ -264,18 +274,20 @@ class Adjoint:
         wp.copy(out, full, count=self.refiner.num_vertices)
         return out
 
-    def limit_normals_backward(self, x: wp.array, grad: wp.array) -> wp.array:
+    def limit_normals_backward(self, x: wp.array, grad: wp.array, normal_control=None) -> wp.array:
         """The gradient with respect to the last level's positions ``x`` of a gradient ``grad`` of the limit
-        normals (vec3 arrays); recomputes the tangents from ``x``."""
+        normals (vec3 arrays) of :meth:`limit_normals_forward` with the same ``normal_control``; recomputes the
+        tangents from ``x``."""
         check_data(self, x, grad)
         check_positions(x)
         check_positions(grad)
+        normal_control = normal_control_for(normal_control, 3)
         source, deeper = self.refiner.limit_source()
         sa = source.adjoint
         run = self.launcher
         k = _kernels()
         N = self.refiner.num_vertices
-        xs = sa._last_step_forward(x, True) if deeper else x
+        xs = sa._last_step_forward(x, normal_control) if deeper else x
         masks = source.evaluator.limit_masks()
         rec = sa.tables.limit(N)
         T = rec.num_tangents
@@ -283,7 +295,7 @@ class Adjoint:
         apply(masks.tangent_u, xs, tu, run)
         apply(masks.tangent_v, xs, tv, run)
         g = grad
-        ids, _ = self._prescribed()
+        ids, _ = self._prescribed(normal_control)
         if len(ids):  # prescribed normals are constants
             g = self.empty(N, 3)
             wp.copy(g, grad)
@@ -293,4 +305,4 @@ class Adjoint:
         run.rows(k.vertex_normals_adjoint, N, [rec.vertex_offsets, tu, tv, g, self.vec(), T, guv])
         gx = sa.empty(source.num_vertices, 3)
         apply(rec.tangents, guv, gx, run)
-        return sa._last_step_backward(gx, True) if deeper else gx
+        return sa._last_step_backward(gx, normal_control) if deeper else gx

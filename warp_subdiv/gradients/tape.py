@@ -38,18 +38,22 @@ def evaluate_vjp(refiner, grad, normal_control=None) -> np.ndarray:
     return _shaped(adj.to_host(adj.backward(adj.to_device(g), bool(normal_control))), grad)
 
 
-def limit_points_vjp(refiner, grad) -> np.ndarray:
-    """The gradient with respect to the refined data of ``grad``, a gradient of ``refiner.limit_points(data)``
-    (same shape as the data; width-3 data is treated as positions, as there)."""
+def limit_points_vjp(refiner, grad, normal_control=None) -> np.ndarray:
+    """The gradient with respect to the refined data of ``grad``, a gradient of
+    ``refiner.limit_points(data, normal_control=normal_control)`` (same shape as the data). ``normal_control`` as
+    there: None treats width-3 data as positions (prescribed normals in the extra step where the masks are read
+    one level deeper), False never (data that is not a position)."""
     g = _host_rows(refiner, grad, refiner.num_vertices, "gradient")
     adj = adjoint(refiner)
-    return _shaped(adj.to_host(adj.limit_points_backward(adj.to_device(g))), grad)
+    return _shaped(adj.to_host(adj.limit_points_backward(adj.to_device(g), normal_control)), grad)
 
 
-def limit_normals_vjp(refiner, refined_points, grad) -> np.ndarray:
+def limit_normals_vjp(refiner, refined_points, grad, normal_control=None) -> np.ndarray:
     """The gradient with respect to the refined positions (N, 3) of ``grad`` (N, 3), a gradient of
-    ``refiner.limit_normals(refined_points)``: the true derivative of the normalised normals (rows of vertices
-    with a prescribed normal pass none)."""
+    ``refiner.limit_normals(refined_points, normal_control=normal_control)``: the true derivative of the
+    normalised normals. ``normal_control`` as there: None (or True) substitutes the prescribed normals (their
+    rows pass no gradient) and applies them in the extra step where the masks are read one level deeper; False
+    (positions refined without normal control) does neither."""
     x = _host_rows(refiner, refined_points, refiner.num_vertices, "refined points")
     g = _host_rows(refiner, grad, refiner.num_vertices, "gradient")
     for name, a in (("refined points", x), ("gradient", g)):
@@ -57,7 +61,7 @@ def limit_normals_vjp(refiner, refined_points, grad) -> np.ndarray:
             raise SubdivInputError(f"limit normals take (N, 3) {name}, got {a.shape}", element="data",
                                    value=a.shape)
     adj = adjoint(refiner)
-    return adj.to_host(adj.limit_normals_backward(adj.to_device(x), adj.to_device(g)))
+    return adj.to_host(adj.limit_normals_backward(adj.to_device(x), adj.to_device(g), normal_control))
 
 
 def _active_tape():
@@ -179,40 +183,46 @@ def evaluate(refiner, points: wp.array, normal_control=None, requires_grad=None,
     return out
 
 
-def limit_points(refiner, refined: wp.array, requires_grad=None) -> wp.array:
+def limit_points(refiner, refined: wp.array, requires_grad=None, *, normal_control=None) -> wp.array:
     """Limit values of a Warp array of the last level's data (as :func:`evaluate` takes data), recorded on an
-    active tape; see :meth:`Refiner.limit_points`."""
+    active tape; ``normal_control`` as in :meth:`Refiner.limit_points` (None: on for width 3; pass False for
+    data that is not a position), for the forward and the recorded backward alike."""
     adj = adjoint(refiner)
     N = refiner.num_vertices
     x = _user_array(refiner, refined, N, "refined points")
+    width = adj.width(x)
+    nc = bool(normal_control_for(normal_control, width))
     rg = refined.requires_grad if requires_grad is None else bool(requires_grad)
-    out, view = _result_like(adj, refined, N, adj.width(x), rg)
+    out, view = _result_like(adj, refined, N, width, rg)
     with _NoTape():
-        wp.copy(view, adj.limit_points_forward(x))
+        wp.copy(view, adj.limit_points_forward(x, nc))
 
     def backward():
-        g = adj.limit_points_backward(_grad_view(out, N))
+        g = adj.limit_points_backward(_grad_view(out, N), nc)
         adj.launcher.rows(_kernels().add_rows, N, [g, _grad_view(refined, N)])
 
     _record(rg, [refined], out, backward)
     return out
 
 
-def limit_normals(refiner, refined: wp.array, requires_grad=None) -> wp.array:
+def limit_normals(refiner, refined: wp.array, requires_grad=None, *, normal_control=None) -> wp.array:
     """Unit limit normals of a Warp array of the last level's positions (vec3 (N,) or (N, 3)), recorded on an
-    active tape (the backward recomputes the tangents from ``refined`` as it is then); see
-    :meth:`Refiner.limit_normals`."""
+    active tape (the backward recomputes the tangents from ``refined`` as it is then); ``normal_control`` as in
+    :meth:`Refiner.limit_normals` (None: on; pass False for positions refined without normal control: no
+    prescribed normal substituted nor applied in the extra step), for the forward and the recorded backward
+    alike."""
     adj = adjoint(refiner)
     N = refiner.num_vertices
     x = _user_array(refiner, refined, N, "refined points")
     check_positions(x)
+    nc = bool(normal_control_for(normal_control, 3))
     rg = refined.requires_grad if requires_grad is None else bool(requires_grad)
     out, view = _result_like(adj, refined, N, 3, rg)
     with _NoTape():
-        wp.copy(view, adj.limit_normals_forward(x))
+        wp.copy(view, adj.limit_normals_forward(x, nc))
 
     def backward():
-        g = adj.limit_normals_backward(x, _grad_view(out, N))
+        g = adj.limit_normals_backward(x, _grad_view(out, N), nc)
         adj.launcher.rows(_kernels().add_rows, N, [g, _grad_view(refined, N)])
 
     _record(rg, [refined], out, backward)
@@ -223,8 +233,10 @@ def evaluate_with_limits(refiner, points: wp.array, normal_control=None, with_li
                          with_limit_normals: bool = True) -> Evaluated:
     """:meth:`Refiner.evaluate_with_limits` on the device, recorded: :func:`evaluate` of ``points``, then
     :func:`limit_points` and :func:`limit_normals` of its result (each a fresh array with a gradient where
-    ``points`` requires one; under an active ``wp.Tape`` each backward is recorded). The same values as the
+    ``points`` requires one; under an active ``wp.Tape`` each backward is recorded). ``normal_control`` applies to
+    the refinement, the limits' extra step and the limit normals' prescribed ones alike. The same values as the
     evaluator's one pass, whose shared buffers a tape cannot hold."""
     refined = evaluate(refiner, points, normal_control)
-    return Evaluated(refined, limit_points(refiner, refined) if with_limit_points else None,
-                     limit_normals(refiner, refined) if with_limit_normals else None)
+    return Evaluated(refined,
+                     limit_points(refiner, refined, normal_control=normal_control) if with_limit_points else None,
+                     limit_normals(refiner, refined, normal_control=normal_control) if with_limit_normals else None)

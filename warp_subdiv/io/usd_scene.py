@@ -10,7 +10,7 @@ import re
 from dataclasses import dataclass, field
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom
+from pxr import Sdf, Usd, UsdGeom, UsdSkel
 
 from .usd_stage import DEFAULT, check_roots
 
@@ -32,13 +32,26 @@ def _value_bytes(value) -> bytes:
     return repr(value).encode()
 
 
+def skinned(prim: Usd.Prim) -> bool:
+    """Whether a mesh takes part in UsdSkel: the binding API applied, or joint influences or blend shapes
+    authored on it."""
+    if prim.HasAPI(UsdSkel.BindingAPI):
+        return True
+    names = ("primvars:skel:jointIndices", "primvars:skel:jointWeights", "skel:blendShapes")
+    return any(prim.GetAttribute(n).HasAuthoredValue() for n in names if prim.HasAttribute(n))
+
+
 def input_fingerprint(prim: Usd.Prim) -> str:
     """A digest of everything a mesh refines from, as composed: the values (default and every time sample)
     and the interpolation / elementSize of every authored attribute of the mesh and of its children (face
     subsets), by name relative to the mesh, except transforms, visibility and purpose. Meshes with equal
-    digests refine to the same data, wherever they sit and however they compose."""
+    digests refine to the same data, wherever they sit and however they compose. A mesh bound to a UsdSkel
+    skeleton is deformed by what binds it and by the transforms between it and the skeleton: its path goes into
+    its digest, so that it is never taken for another."""
     h = hashlib.sha1()
     root = prim.GetPath()
+    if skinned(prim):
+        h.update(f"skinned {root}".encode())
     for p in Usd.PrimRange(prim, Usd.TraverseInstanceProxies(Usd.PrimAllPrimsPredicate)):
         h.update(f"<{p.GetPath().MakeRelativePath(root)}:{p.GetTypeName()}>".encode())
         for attr in p.GetAttributes():
@@ -404,4 +417,4 @@ def read_scene(stage: Usd.Stage, prim_paths=None, *, read, all_variants: bool = 
     return scene
 
 
-__all__ = ["SITE", "Occurrence", "Scene", "Site", "SiteRef", "input_fingerprint", "read_scene"]
+__all__ = ["SITE", "Occurrence", "Scene", "Site", "SiteRef", "input_fingerprint", "read_scene", "skinned"]

@@ -131,9 +131,10 @@ def _read_points(sp: SubdivPrim, query, t):
     """The control points of ``sp`` at ``t`` as :meth:`SubdivPrim.points_at` reads them (float64 (n, 3)), read
     through an attribute query and without its checks (the batch's evaluation checks finite values and their
     bound); None where they do not fit the mesh or points_at would refuse them. Results are found by these
-    points' bytes (:func:`points_key`), so points read otherwise are merely not found."""
+    points' bytes (:func:`points_key`), so points read otherwise are merely not found. A skinned mesh's points
+    (:class:`~warp_subdiv.usd.skinning.SkinnedPrim`) are its own ``points_at``'s: its pose, not the attribute."""
     try:
-        if t == DEFAULT:
+        if t == DEFAULT or getattr(sp, "skin", None) is not None:
             return sp.points_at(t)
         value = query.Get(t)
     except SubdivInputError:

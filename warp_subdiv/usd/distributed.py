@@ -209,7 +209,7 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
 
 def _plan_keywords(run: dict) -> dict:
     keep = ("scheme", "rules", "boundary", "precision", "frames", "semi_sharp", "normals", "limit", "device",
-            "all_variants") + LEVEL_KEYWORDS
+            "all_variants", "skinning", "max_influences") + LEVEL_KEYWORDS
     return {k: run[k] for k in keep if k in run}
 
 

@@ -24,6 +24,7 @@ from ..runtime import phases as _phases
 from ..runtime import threads as _threads
 from ..runtime.estimate import Estimate, MemoryGuardError, estimate, total_bytes
 from .levels import LevelChooser
+from .skinning import Skinning
 
 
 @dataclass
@@ -114,6 +115,9 @@ def plan(
     offscreen_level: int | None = None,
     mesh_levels=None,
     scene_levels: bool = True,
+    skinning: str = "bake",
+    max_influences: int | None = None,
+    describe_instances: bool = False,
 ) -> Plan:
     """Open ``input_path`` and read every subdivision mesh at or under ``prims``; predict output sizes.
 
@@ -131,7 +135,10 @@ def plan(
     :class:`~warp_subdiv.usd.levels.LevelChooser`: its ``subdiv:levels`` or an ancestor's, else ``levels``;
     with ``camera`` and ``pixel_error`` (``resolution``, ``offscreen_level``) the smallest level whose refined
     edges project small enough, up to that; ``max_levels`` caps them all; ``mesh_levels`` ({composed path:
-    level}) wins over all of them; ``scene_levels=False`` reads no ``subdiv:levels``."""
+    level}) wins over all of them; ``scene_levels=False`` reads no ``subdiv:levels``.
+    ``skinning``, ``max_influences``: what becomes of meshes bound to a skeleton (:mod:`~warp_subdiv.usd.skinning`);
+    ``describe_instances`` (``info``): a skinned mesh inside an instance, which ``skinning="bake"`` refuses, is
+    planned with its rest pose and the reason (:attr:`~warp_subdiv.usd.skinning.SkinBinding.refused`) instead."""
     scheme, rules, boundary, precision = _run_options(scheme, rules, boundary, precision)
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
@@ -140,10 +147,11 @@ def plan(
                            resolution=resolution, offscreen_level=offscreen_level, frames=frames, device=device,
                            mesh_levels=mesh_levels, scene_levels=scene_levels)
     force = bool(prims) and scheme is not None  # an explicit scheme on named prims: polygonal meshes too
+    skin = Skinning(skinning, frames, max_influences, describe_instances=describe_instances)
 
     def read(prim):
-        return read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme or "auto", rules=rules,
-                         boundary=boundary, force=force)
+        return skin.attach(read_mesh(prim, frames=frames, semi_sharp=semi_sharp, scheme=scheme or "auto",
+                                     rules=rules, boundary=boundary, force=force))
 
     options_of: dict = {}
 

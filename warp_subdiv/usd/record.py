@@ -25,6 +25,7 @@ RESULT_KEYS = {
     "precisions": "precision", "vertexOrders": "vertex order", "semiSharp": "semi-sharp", "limitPoints": "limit",
     "normals": "normals", "allVariants": "all variants", "meshOptions": "the meshes' refinement options",
     "meshLevels": "the meshes' levels", "lodVariants": "lod variants",
+    "skinning": "skinning",
 }
 
 
@@ -41,7 +42,8 @@ def options_digest(p: Plan, vertex_order: str) -> str:
 
 
 def layer_record(p: Plan, levels: int, *, limit: bool, normals: bool, semi_sharp: str, vertex_order: str,
-                 all_variants: bool, flatten: bool, frames=None, lod_variants=None) -> dict:
+                 all_variants: bool, flatten: bool, frames=None, skinning: str = "bake",
+                 max_influences=None, lod_variants=None) -> dict:
     """The ``customLayerData`` of a layer that refines the meshes of plan ``p``: ``{"warpSubdiv": {...}}``
     (the version, the input's file name, the frames where given, and the keys of :data:`RESULT_KEYS`).
 
@@ -59,6 +61,8 @@ def layer_record(p: Plan, levels: int, *, limit: bool, normals: bool, semi_sharp
         "allVariants": bool(all_variants), "meshOptions": options_digest(p, vertex_order),
         "flattened": bool(flatten),
         "meshLevels": {path: int(level) for path, (level, _) in sorted(p.level_sources.items())},
+        # what became of meshes bound to a skeleton (a keep's influence count too)
+        "skinning": str(skinning) + ("" if max_influences is None else f":{int(max_influences)}"),
     }
     if frames is not None:
         record["frames"] = format_frames(frames)

@@ -54,6 +54,7 @@ from .output_layout import layout
 from .lod import check_lod_run, declare_variant_set, lod_path, variant_name
 from .planning import Plan, make_refiner, plan
 from .record import layer_record
+from .skinning import check_max_influences, check_skinning
 from .refinement import MeshRefinement
 from .writer import PrimWriter
 
@@ -199,6 +200,8 @@ def refine_usd(
     offscreen_level: int | None = None,
     mesh_levels=None,
     lod_variants=None,
+    skinning: str = "bake",
+    max_influences: int | None = None,
 ) -> Result:
     """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) and write the layer
     ``output_path`` (.usd, .usda or .usdc) that sublayers the input and overrides them.
@@ -247,7 +250,7 @@ def refine_usd(
     fits starts from it (:meth:`~warp_subdiv.tables.Hierarchy.fits`), and such a mesh is not batched.
     """
     start = _time.perf_counter()
-    _check_run(input_path, output_path, levels, vertex_order)
+    _check_run(input_path, output_path, levels, vertex_order, skinning, max_influences)
     check_flatten(flatten, all_variants)
     if lod_variants is not None:
         lod_variants = check_lod_run(lod_variants, camera=camera, max_levels=max_levels, all_variants=all_variants,
@@ -257,11 +260,13 @@ def refine_usd(
              precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit,
              device=device, all_variants=all_variants, shipped=shipped, max_levels=max_levels, camera=camera,
              pixel_error=pixel_error, resolution=resolution, offscreen_level=offscreen_level,
-             mesh_levels=mesh_levels, scene_levels=lod_variants is None)
+             mesh_levels=mesh_levels, scene_levels=lod_variants is None,
+             skinning=skinning, max_influences=max_influences)
     out_abs = check_output_path(output_path, p.stage)
     check_memory(p.estimates, max_memory, p.max_level)
     custom = layer_record(p, levels, limit=limit, normals=normals, semi_sharp=semi_sharp, vertex_order=vertex_order,
-                          all_variants=all_variants, flatten=flatten, frames=frames, lod_variants=lod_variants)
+                          all_variants=all_variants, flatten=flatten, frames=frames,
+                          skinning=skinning, max_influences=max_influences, lod_variants=lod_variants)
     layer = OutputLayer(out_abs, p.stage, custom)
     bake = None
     try:
@@ -284,9 +289,11 @@ def refine_usd(
                   total_bytes(p.estimates, bake.ahead.concurrent))
 
 
-def _check_run(input_path, output_path, levels, vertex_order) -> None:
+def _check_run(input_path, output_path, levels, vertex_order, skinning="bake", max_influences=None) -> None:
     """The run's arguments that the plan does not check: errors before the input is read."""
     check_vertex_order(vertex_order)
+    check_skinning(skinning)
+    check_max_influences(max_influences, skinning)
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
         raise SubdivInputError(f"levels must be an integer >= 0, got {levels!r}", option="levels", value=levels)
     if not os.path.exists(input_path):

@@ -120,7 +120,9 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     Uniform primvars and face subsets follow their control faces, edge subsets hold the output edges on their
     control edges (:class:`TessellationMaps`), vertex and face-varying primvars are evaluated on the limit
     surface, varying ones linearly (:func:`_write_primvars`), those that cannot be interpolated are blocked
-    with a warning (:func:`_block_control_attributes`); the tessellation's control face and face-varying
+    with a warning (:func:`_block_control_attributes`); a mesh bound to a UsdSkel skeleton is tessellated as
+    UsdSkel poses it at every time its pose changes, and its binding dropped (refine's ``skinning="bake"``,
+    :mod:`warp_subdiv.usd.skinning`); the tessellation's control face and face-varying
     (u, v) are written as ``primvars:tessellation:baseFace`` (uniform) and ``primvars:tessellation:uv``
     (faceVarying).
 
@@ -157,8 +159,12 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     out_abs = check_output_path(output_path, stage)
     chosen = parse_frames(frames)
 
+    from .skinning import Skinning
+
+    skinning = Skinning("bake", chosen)  # a skinned mesh: tessellated as UsdSkel poses it at each time
+
     def read(prim):
-        return read_mesh(prim, scheme=scheme, rules=rules, boundary=boundary, frames=chosen)
+        return skinning.attach(read_mesh(prim, scheme=scheme, rules=rules, boundary=boundary, frames=chosen))
 
     rates_of: dict = {}  # digest of a mesh's camera rates -> the rates
     level = context = None
@@ -263,8 +269,11 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
     linear = sp.scheme == "bilinear"
     if linear:  # bilinear patches (quads; a polygon's quad sub-faces, as bilinear refinement splits it)
         options = options.replace(linear=True)
+    mesh = sp.mesh
+    if getattr(sp, "skin", None) is not None and sp.skin.mode == "bake":
+        mesh = _with_points(mesh, sp.points_at(DEFAULT))  # a skinned mesh: as UsdSkel poses it at the default time
     try:
-        surface = _surface(sp.mesh, options, depth, device)
+        surface = _surface(mesh, options, depth, device)
         t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
     except SubdivInputError as exc:
         raise sp.error(exc) from None
@@ -289,6 +298,10 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
 
     _write_samples(sp, layer, prim, t, surface, surface_at, linear)
     _block_control_attributes(sp, layer, prim, warnings_)
+    if getattr(sp, "skin", None) is not None:
+        from .skinning_output import drop_binding
+
+        drop_binding(sp, layer, prim)  # its pose is baked: nothing skins it again
     _write_primvars(sp, layer, prim, t, warnings_, surface, DEFAULT)
     _write_subsets(sp, target, layer, t, surface, warnings_)
     base = layer.attr(prim, "primvars:tessellation:baseFace", T.IntArray, custom=False)

@@ -11,6 +11,7 @@ from ..io.usd_stage import DEFAULT
 from ..io.usd_write import extent_of, int_array, vec3f_array
 from .planning import PrimReport
 from .primvars import default_or_sample, drop_attribute, write_primvars
+from .skinning_output import KEPT_NORMALS, stays_skinned, write_skinning
 from .subsets import write_subsets
 
 T = Sdf.ValueTypeNames
@@ -59,6 +60,7 @@ class PrimWriter:
             write_primvars(spg, self.layer, self.prim, refinement, fvar_mode, bake.warnings, bake.limit, times_of,
                            self.dropped)
             write_subsets(spg, self.target, self.layer, refinement, bake.warnings, times_of, self.dropped)
+            write_skinning(spg, self.layer, self.prim, refinement, bake.warnings)  # a skeleton's binding
             if group == sp.default_topology or not self.varying:
                 report = PrimReport(sp.path, sp.scheme, sp.rules if sp.scheme != "bilinear" else "-",
                                     spg.mesh.num_faces, len(refinement.counts), spg.mesh.num_vertices,
@@ -79,9 +81,11 @@ class PrimWriter:
             attr = sp.prim.GetAttribute(name)
             layer.block(prim, name, attr.GetTypeName(), attr.GetVariability() == Sdf.VariabilityUniform, custom=True)
         normals_spec = None
-        if bake.normals and sp.scheme != "bilinear":
+        if bake.normals and sp.scheme != "bilinear" and not stays_skinned(sp):
             normals_spec = layer.attr(prim, "normals", T.Normal3fArray)
             normals_spec.SetInfo("interpolation", "vertex")
+        elif bake.normals and sp.scheme != "bilinear":
+            bake.warnings.append(f"{sp.path}: {KEPT_NORMALS}")
         elif bake.normals:
             bake.warnings.append(f"{sp.path}: a bilinear mesh has no limit normals; none written")
         for name in sp.authored_normals:
