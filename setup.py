@@ -28,7 +28,7 @@ sys.modules["warp_subdiv"] = parent
 import warp as wp
 wp.config.quiet = True
 from warp_subdiv.kernels import prebuilt
-prebuilt.build(os.path.join(lib, "warp_subdiv", "kernels", "prebuilt"))
+prebuilt.build(sys.argv[2])
 """
 
 
@@ -39,13 +39,15 @@ class BuildPyWithKernels(build_py):
         super().run()
         if getattr(self, "editable_mode", False) or os.environ.get("WARP_SUBDIV_PREBUILD", "1") == "0":
             return
+        out = os.path.join(self.build_lib, "warp_subdiv", "kernels", "prebuilt")
+        shutil.rmtree(out, ignore_errors=True)  # nothing left over from an earlier build in the same folder
         with tempfile.TemporaryDirectory(prefix="warp_subdiv_cache_") as cache:
             env = dict(os.environ, WARP_CACHE_PATH=cache, PYTHONDONTWRITEBYTECODE="1")
             try:
-                subprocess.run([sys.executable, "-c", _CHILD, os.path.abspath(self.build_lib)], env=env,
-                               check=True, timeout=1800)
+                subprocess.run([sys.executable, "-c", _CHILD, os.path.abspath(self.build_lib), os.path.abspath(out)],
+                               env=env, check=True, timeout=1800)
             except (OSError, subprocess.SubprocessError) as e:
-                shutil.rmtree(os.path.join(self.build_lib, "warp_subdiv", "kernels", "prebuilt"), ignore_errors=True)
+                shutil.rmtree(out, ignore_errors=True)
                 print(f"warp-subdiv: kernels not compiled ahead of time ({e}); they compile on first use",
                       file=sys.stderr)
 
