@@ -37,10 +37,10 @@ class BuildPyWithKernels(build_py):
 
     def run(self):
         super().run()
-        if getattr(self, "editable_mode", False) or os.environ.get("WARP_SUBDIV_PREBUILD", "1") == "0":
-            return
         out = os.path.join(self.build_lib, "warp_subdiv", "kernels", "prebuilt")
         shutil.rmtree(out, ignore_errors=True)  # nothing left over from an earlier build in the same folder
+        if getattr(self, "editable_mode", False) or os.environ.get("WARP_SUBDIV_PREBUILD", "1") == "0":
+            return
         with tempfile.TemporaryDirectory(prefix="warp_subdiv_cache_") as cache:
             env = dict(os.environ, WARP_CACHE_PATH=cache, PYTHONDONTWRITEBYTECODE="1")
             try:

@@ -1,6 +1,7 @@
 """First run against second run of the quick start after ``pip install .`` into a fresh virtual environment.
 
-    python bench/bench_first_run.py [--venv /tmp/fresh] [--reps 3] [--json out.json]
+    python bench/bench_first_run.py [--venv /tmp/fresh] [--reps 3] [--compile-reps 1] [--install-without]
+                                    [--json out.json]
 
 Creates a new virtual environment, installs this checkout into it (``pip install -q .``: the wheel build compiles
 the kernels ahead of time, warp_subdiv.kernels.prebuilt), then runs the README's quick-start command
@@ -61,6 +62,8 @@ def main(argv=None) -> int:
     ap.add_argument("--venv", help="where to create the virtual environment (default: a new temporary folder)")
     ap.add_argument("--reps", type=int, default=3, help="pairs of runs with shipped binaries (default 3)")
     ap.add_argument("--compile-reps", type=int, default=1, help="pairs of runs compiling on first use (default 1)")
+    ap.add_argument("--install-without", action="store_true",
+                    help="also time the install without the compile (WARP_SUBDIV_PREBUILD=0) into a second venv")
     ap.add_argument("--json", help="write the figures to this file")
     args = ap.parse_args(argv)
 
@@ -70,6 +73,12 @@ def main(argv=None) -> int:
     subprocess.run([sys.executable, "-m", "venv", venv], check=True)
     pip_env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     install_s = timed([os.path.join(venv, "bin", "pip"), "install", "-q", ROOT], env=pip_env, cwd=work)
+    plain_install_s = None
+    if args.install_without:
+        plain = os.path.join(work, "venv_plain")
+        subprocess.run([sys.executable, "-m", "venv", plain], check=True)
+        plain_install_s = timed([os.path.join(plain, "bin", "pip"), "install", "-q", ROOT],
+                                env=dict(pip_env, WARP_SUBDIV_PREBUILD="0"), cwd=work)
     site = subprocess.run([os.path.join(venv, "bin", "python"), "-c",
                            "import warp, warp_subdiv.kernels.prebuilt as p, json; "
                            "print(json.dumps([warp.config.version, (p.SHIPPED / p.MANIFEST).exists()]))"],
@@ -81,6 +90,8 @@ def main(argv=None) -> int:
 
     print(f"pip install -q . into a new venv: {install_s:.1f} s (Warp {warp_version}; "
           f"binaries shipped: {'yes' if shipped else 'no'})")
+    if plain_install_s is not None:
+        print(f"the same install without the compile (WARP_SUBDIV_PREBUILD=0): {plain_install_s:.1f} s")
     print("\n| kernels | first run s | second run s | first / second | modules compiled by the first run |")
     print("|---|---:|---:|---:|---:|")
     for name, r in rows:
@@ -92,8 +103,8 @@ def main(argv=None) -> int:
                   f"({min(ratios):.2f}-{max(ratios):.2f}, {len(ratios)} pairs)")
     if args.json:
         with open(args.json, "w") as fh:
-            json.dump({"install_s": install_s, "warp": warp_version, "shipped": shipped,
-                       "runs": [{"kernels": n, **r} for n, r in rows]}, fh, indent=1)
+            json.dump({"install_s": install_s, "install_without_compile_s": plain_install_s, "warp": warp_version,
+                       "shipped": shipped, "runs": [{"kernels": n, **r} for n, r in rows]}, fh, indent=1)
     shutil.rmtree(work, ignore_errors=True)  # the caches, the output and the default venv
     return 0
 

@@ -27,6 +27,7 @@ import json
 import os
 import shutil
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import warp as wp
@@ -79,21 +80,21 @@ def build(out_dir, cuda_archs=PTX_ARCHS, modules=MODULES, max_workers: int | Non
         binary = Path(m.load(cpu, block_dim=CPU_BLOCK_DIM).binary_path)
         ident = m.get_module_identifier(CPU_BLOCK_DIM)
         manifest["modules"][m.name]["cpu"] = _copy_target(out_dir, ident, binary, binary.parent / f"{ident}.meta")
-    with tempfile.TemporaryDirectory(prefix="warp_subdiv_ptx_") as scratch:
-        for arch in cuda_archs:
-            for m in warp_modules:
+    with tempfile.TemporaryDirectory(prefix="warp_subdiv_ptx_") as scratch, \
+            ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        for arch in cuda_archs:  # the modules compiled at once, as Warp's force_load does
+            jobs = {m.name: pool.submit(_build_ptx, out_dir, m, arch, scratch) for m in warp_modules}
+            for name, job in jobs.items():
                 try:
-                    target = _build_ptx(out_dir, m, arch, scratch)
+                    manifest["modules"][name][f"sm{arch}"] = job.result()
                 except Exception as e:  # noqa: BLE001 (no NVRTC, or no PTX for it: CUDA compiles at run time)
-                    print(f"warp-subdiv: no PTX for sm_{arch} of {m.name}: {e}")
-                    break
-                manifest["modules"][m.name][f"sm{arch}"] = target
+                    print(f"warp-subdiv: no PTX for sm_{arch} of {name}: {e}")
     (out_dir / MANIFEST).write_text(json.dumps(manifest, indent=1, sort_keys=True))
     return manifest
 
 
 def _build_ptx(out_dir: Path, module, arch: int, scratch: str) -> dict:
-    work = Path(scratch) / f"ptx{arch}"
+    work = Path(scratch) / f"{module.name}_sm{arch}"
     (binary,) = wp.compile_aot_module(module, arch=arch, module_dir=work, use_ptx=True)
     ident = module.get_module_identifier(module.options["block_dim"])
     target = _copy_target(out_dir, ident, Path(binary), Path(binary).parent / f"{ident}.meta")
