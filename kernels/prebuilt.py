@@ -148,7 +148,7 @@ def find(module, device, directory=None) -> tuple[Path, Path, int | None] | None
             if _sha256(directory / name) != digest:
                 return None
         return directory / target["binary"], directory / target["meta"], target.get("arch")
-    except (OSError, KeyError, TypeError, AttributeError, ValueError):
+    except Exception:  # noqa: BLE001 (a malformed manifest, or a Warp without these calls: no binary fits)
         return None
 
 
@@ -161,9 +161,9 @@ def load(module, device, directory=None) -> bool:
     if found is None:
         return False
     binary, meta, arch = found
-    warp_module = wp.get_module(module.__name__)
-    device = wp.get_device(device)
     try:
+        warp_module = wp.get_module(module.__name__)
+        device = wp.get_device(device)
         warp_module.load(device, block_dim=_block_dim(warp_module, device), binary_path=binary, output_arch=arch,
                          meta_path=meta)
     except Exception:  # noqa: BLE001 (a binary Warp cannot load, whatever the reason: compiled instead)

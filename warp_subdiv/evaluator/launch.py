@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import inspect
 import threading
 
 import warp as wp
@@ -19,6 +20,8 @@ from ..runtime import threads as _threads
 
 _loaded: set = set()  # (device, kernel module name) pairs loaded in this process
 _load_lock = threading.Lock()
+#: Whether this Warp's force_load compiles several modules at once (its max_workers: not in every Warp accepted).
+_PARALLEL_LOADS = "max_workers" in inspect.signature(wp.force_load).parameters
 _ready: set = set()  # aliases of the devices whose evaluation kernels are loaded (a launcher's fast check)
 
 
@@ -51,9 +54,12 @@ def load_kernels(device, modules=None) -> None:
     with _load_lock:
         device = wp.get_device(device)
         missing = [m for m in modules if (key, m.__name__) not in _loaded and not prebuilt.load(m, device)]
-        if missing:
+        if missing and _PARALLEL_LOADS:
             wp.force_load(device=device, modules=[wp.get_module(m.__name__) for m in missing],
                           max_workers=min(len(missing), _threads.available_cores()))
+        elif missing:  # a Warp that loads one module at a time
+            for module in missing:
+                wp.load_module(module, device=device)
         _loaded.update((key, m.__name__) for m in modules)
 
 
