@@ -534,9 +534,10 @@ def render_soup(soup: Soup, camera: Camera, width: int, height: int, samples: in
     import warp as wp
 
     from .kernels import render as kr
-    from .evaluator import default_device
+    from .evaluator import default_device, load_kernels
 
     dev = wp.get_device(device if device is not None else default_device())
+    load_kernels(dev, (kr,))  # a shipped binary where it fits: no compile on a first run
     sw, sh = width * samples, height * samples
     if len(soup.corners):
         scale = float(np.max(np.ptp(np.concatenate([soup.corners, camera.eye[None]]), axis=0))) or 1.0

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import inspect
 import threading
 
 import warp as wp
@@ -19,6 +20,9 @@ from ..runtime import threads as _threads
 
 _loaded: set = set()  # (device, kernel module name) pairs loaded in this process
 _load_lock = threading.Lock()
+#: Whether this Warp's force_load compiles several modules at once (its max_workers: not in every Warp accepted).
+_PARALLEL_LOADS = "max_workers" in inspect.signature(wp.force_load).parameters
+_ready: set = set()  # aliases of the devices whose evaluation kernels are loaded (a launcher's fast check)
 
 
 def _kernels():
@@ -37,16 +41,26 @@ def evaluation_kernels() -> tuple:
 
 def load_kernels(device, modules=None) -> None:
     """Load kernel ``modules`` (default: :func:`evaluation_kernels`) on ``device``, each once per process and
-    device, before threads launch them: a module must not be compiled or loaded from two threads at once."""
+    device, before threads launch them: a module must not be compiled or loaded from two threads at once.
+
+    A module loads from the binary the package ships where it fits this machine and Warp
+    (:mod:`warp_subdiv.kernels.prebuilt`: no compile on a first run); the others compile, several at once."""
     key = str(device)
     modules = evaluation_kernels() if modules is None else tuple(modules)
     if all((key, m.__name__) in _loaded for m in modules):
         return
+    from ..kernels import prebuilt
+
     with _load_lock:
-        for module in modules:
-            if (key, module.__name__) not in _loaded:
+        device = wp.get_device(device)
+        missing = [m for m in modules if (key, m.__name__) not in _loaded and not prebuilt.load(m, device)]
+        if missing and _PARALLEL_LOADS:
+            wp.force_load(device=device, modules=[wp.get_module(m.__name__) for m in missing],
+                          max_workers=min(len(missing), _threads.available_cores()))
+        elif missing:  # a Warp that loads one module at a time
+            for module in missing:
                 wp.load_module(module, device=device)
-                _loaded.add((key, module.__name__))
+        _loaded.update((key, m.__name__) for m in modules)
 
 
 class Launcher:
@@ -57,8 +71,9 @@ class Launcher:
     def __init__(self, device, threads: int = 1):
         self.device = wp.get_device(device)
         self.threads = max(1, int(threads)) if self.device.is_cpu else 1
-        if self.threads > 1:
+        if self.device.alias not in _ready:  # before the first launch: shipped binaries, or compiled at once
             load_kernels(self.device)
+            _ready.add(self.device.alias)
 
     def __repr__(self):
         return f"Launcher({self.device}, threads={self.threads})"

@@ -62,8 +62,10 @@ class DeviceEvaluator:
         """One run of the evaluation kernel over the tree's nodes and patches with control ``points`` (a Warp
         vec3d array: the tree's points, or three columns of data carried through the same tree)."""
         from .. import kernels
+        from ..evaluator import load_kernels
 
         dev = self.device
+        load_kernels(dev, (kernels.limit,))  # a shipped binary where it fits: no compile on a first run
         a = self.arrays()
 
         def empty(rows, dtype):
