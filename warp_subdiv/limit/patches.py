@@ -42,6 +42,8 @@ from ..tables import Hierarchy
 from ..topology import Level
 from .bezier import regular_bezier
 from .end_caps import end_cap_nets
+from .exact_caps import ExactCaps, build_exact_caps
+from .exact_caps import link as link_exact_caps
 from .local_refinement import LocalLevel, child_faces, cut_out, refine_step, region_around
 from .regular import LevelLookups, phantom_points, regular_faces
 
@@ -94,6 +96,7 @@ class PatchTree:
     root_offsets: np.ndarray
     depth: int
     stats: dict = field(default_factory=dict)
+    exact: ExactCaps | None = None
 
     @property
     def num_nodes(self) -> int:
@@ -211,7 +214,8 @@ def build(mesh: Mesh, options: Options, depth: int, *, data: np.ndarray | None =
     root_count = np.where(direct, 1, sizes0)
     root_offsets = np.concatenate([[0], np.cumsum(root_count)]).astype(np.int64)
     nodes.new(int(root_offsets[-1]))
-    stats = {"levels": [], "end_caps": 0, "regular_base_faces": 0}
+    stats = {"levels": [], "end_caps": 0, "exact_end_caps": 0, "regular_base_faces": 0}
+    exact = None
     face_node = np.full(F0, -1, dtype=np.int64)
     face_node[direct] = root_offsets[:-1][direct]
     cur = LocalLevel(level0, base_points, face_node, normal_ids, normal_vectors, 0)
@@ -235,6 +239,8 @@ def build(mesh: Mesh, options: Options, depth: int, *, data: np.ndarray | None =
             nodes.set_patch(sub.face_node[sub_todo], patches.add_bezier(caps, END_CAP, cur.depth))
             stats["end_caps"] = len(caps)
             break
+        if cur.depth == depth - 1 and depth >= 2:  # the faces whose children are the end caps: exact caps' anchors
+            exact = build_exact_caps(sub, child, child_points, sub_todo, o)
         child_node = _child_nodes(nodes, sub, sub_todo, child, region_faces, root_offsets, sizes0, scheme)
         nxt = LocalLevel(child, child_points, child_node, sub.normal_ids, sub.normal_vectors, cur.depth + 1)
         todo = _classify(nodes, patches, nxt, np.flatnonzero(child_node >= 0), o, scheme)
@@ -246,8 +252,10 @@ def build(mesh: Mesh, options: Options, depth: int, *, data: np.ndarray | None =
     if len(left):
         raise AssertionError(f"{len(left)} patch tree nodes were left without a patch")
     points, index, basis, kind, plevel = patches.arrays()
+    exact = link_exact_caps(exact, node_child, node_patch, kind, END_CAP)
+    stats["exact_end_caps"] = 0 if exact is None else exact.num_caps
     return PatchTree(scheme, triangles, node_child, node_patch, points, index, basis, kind, plevel, root_offsets,
-                     depth, stats)
+                     depth, stats, exact)
 
 
 def _classify(nodes: _Nodes, patches: _Patches, local: LocalLevel, faces: np.ndarray, options: Options,

@@ -175,8 +175,13 @@ class LimitSurface:
         tree = limit_patches.build(self.mesh, self.options, self.depth, data=arr)
         if tree.num_nodes != self.tree.num_nodes or tree.num_patches != self.tree.num_patches:
             raise AssertionError("the data's patch tree differs from the surface's")
+        if (tree.exact is None) != (self.tree.exact is None) or (
+                tree.exact is not None and not np.array_equal(tree.exact.patches, self.tree.exact.patches)):
+            raise AssertionError("the data's exact end caps differ from the surface's")
         columns = tree.points[:, 3:]
-        return self._evaluator.evaluate_columns(columns, faces_a, u_a, v_a, derivatives, one_d).reshaped(shape)
+        ring = None if tree.exact is None else tree.exact.ring[..., 3:]
+        return self._evaluator.evaluate_columns(columns, faces_a, u_a, v_a, derivatives, one_d,
+                                                ring).reshaped(shape)
 
     def evaluate_face_varying(self, values, indices, faces, u, v, *, mode=FaceVaryingMode.CORNERS_PLUS1,
                               derivatives: int = 0) -> DataEvaluation:
