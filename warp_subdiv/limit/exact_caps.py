@@ -2,24 +2,25 @@
 
 Near a vertex whose structure no longer changes from level to level (its semi-sharp tags decayed), one
 refinement step is a fixed linear map: the control points of the vertex's two-ring (the vertices of the faces
-within two rings, in an order fixed by the topology) at level L + 1 are ``S`` times those of level L, and the
-three children of an end-cap face that do not touch the vertex are regular patches whose Bezier nets are fixed
-matrices ``B`` times the two-ring of their parent level. So the surface anywhere in the end cap is exact
-(Stam's evaluation): a query ``k`` levels below the cap (in the corner child at the vertex k times) lies in the
-regular child patch with net ``B S^k P`` (P: the cap level's two-ring). ``S`` and ``B`` are read off the
-library's own refinement step (:func:`~warp_subdiv.limit.local_refinement.refine_step`: its tables,
-flatness and crease rules) applied to unit vectors, and accepted only where the step reproduces the library's
-refined points and patches and is the same one level further down (so the rules, projections included, are
-exactly the library's).
+within two rings, in an order fixed by the topology) at level L + 1 are ``S`` times those of level L. A face
+at the vertex one level above the tree's depth (an *anchor*; its four children are the tree's end caps) has
+three children away from the vertex that still hold it among their control points, and their twelve children
+are regular patches whose Bezier nets are fixed matrices ``B`` times the anchor level's two-ring. So the
+surface anywhere in the end caps is exact (Stam's evaluation): a query in the anchor's corner child at the
+vertex k times over lies in a regular patch with net ``B S^k P`` (P: the anchor level's two-ring). ``S`` and
+``B`` are read off the library's own refinement step (:func:`~warp_subdiv.limit.local_refinement.refine_step`:
+its tables, flatness and crease rules) applied to unit vectors, and accepted only where they reproduce the
+library's refined points and patches and the step is the same one level further down (so the rules,
+projections included, are exactly the library's).
 
-Where it is used: end caps whose only irregular corner is a boundary or infinitely sharp crease vertex with a
-sector of other than 2 (Catmull-Clark) or 3 (Loop) faces, without prescribed normals near it. There the end
-caps miss the accuracy of the others (under OpenSubdiv's rules such a vertex from 5 Catmull-Clark or 7 Loop
-faces on has no tangent plane, so no polynomial cap can be close). The tree keeps the cap (its corner is the
-exact limit position, and the normal exactly at the vertex is the cap's); :func:`evaluate_exact` replaces the
-kernel's results at every other query inside the cap. Powers of ``S`` are taken by repeated squaring of
-``S - 1 l^T`` (``l``: the limit mask, ``S``'s left eigenvector of eigenvalue 1) applied to ``P - 1 l^T P``,
-so deep levels keep their relative precision.
+Where it is used: anchors whose only irregular corner is a boundary or infinitely sharp crease vertex with a
+sector of other than 2 (Catmull-Clark) or 3 (Loop) faces, without prescribed normals near it, in trees of depth
+2 or more. There the end caps miss the accuracy of the others (under OpenSubdiv's rules such a vertex from 5
+Catmull-Clark or 7 Loop faces on has no tangent plane, so no polynomial cap can be close). The tree keeps the
+end caps (the corner of the one at the vertex is the exact limit position, and the normal exactly at the
+vertex is the cap's); :func:`evaluate_exact` replaces the kernel's results at every other query inside them.
+Powers of ``S`` are taken by repeated squaring of ``S - 1 l^T`` (``l``: the limit mask, ``S``'s left
+eigenvector of eigenvalue 1) applied to ``P - 1 l^T P``, so deep levels keep their relative precision.
 """
 from __future__ import annotations
 
@@ -72,6 +73,7 @@ class ExactCaps:
 
     @property
     def num_caps(self) -> int:
+        """The number of end caps evaluated exactly."""
         return len(self.patches)
 
 
@@ -209,10 +211,9 @@ def _child_rings(level: Level, child: Level, start: np.ndarray, m: int, scheme: 
     return child_start, rings, ok
 
 
-def _grandchildren(level: Level, child: Level, caps: np.ndarray, corner: np.ndarray, scheme: str) -> np.ndarray:
-    """(C, 12) faces of ``child`` two levels below... see :func:`build_exact_caps`: the children (slot order) of
-    the children of ``caps`` (faces of ``level``) away from corner ``corner``."""
-    kids, _ = child_faces(level, caps, scheme)
+def _away_children(level: Level, faces: np.ndarray, corner: np.ndarray, scheme: str) -> np.ndarray:
+    """(F, 3) the children of ``faces`` (of ``level``) away from their corner ``corner``, in slot order."""
+    kids, _ = child_faces(level, faces, scheme)
     slots = np.array([[q for q in range(4) if q != j] for j in range(4)], dtype=np.int64)[corner]
     return np.take_along_axis(kids, slots, axis=1)
 
@@ -221,34 +222,34 @@ def build_exact_caps(sub: LocalLevel, child: Level, child_points: np.ndarray, fa
                      options: Options) -> ExactCaps | None:
     """The anchors among ``faces`` (faces of the cut-out ``sub`` at level d, one above the tree's depth, that
     the tree splits) whose only irregular corner is an extraordinary boundary or crease vertex, with the
-    tables that evaluate their end caps exactly; None if there are none. ``child``, ``child_points``: ``sub``
-    refined one step (the tree's step from d to its depth). End caps are linked to anchors by :func:`link`.
+    tables that evaluate their end anchors exactly; None if there are none. ``child``, ``child_points``: ``sub``
+    refined one step (the tree's step from d to its depth). End anchors are linked to anchors by :func:`link`.
 
     Two coloured steps (unit vectors of each vertex's two-ring carried as data columns, with the geometry in
     front) give the step matrix at levels d and d + 1 and the nets of the twelve regular grandchildren of each
-    cap at level d + 2 (the cap's three children away from the vertex still have the vertex among their
-    control points, so the tree would split them once more: their children are the regular patches)."""
+    anchor at level d + 2 (the anchor's three children away from the vertex still have the vertex among their
+    control points: their children are the regular patches)."""
     o = options
     scheme = o.scheme
     triangles = scheme != CATMULL_CLARK
     n = 3 if triangles else 4
     level = sub.level
-    caps = faces[sub.face_node[faces] >= 0]
-    if len(caps) == 0 or level.num_sectors == 0:
+    anchors = faces[sub.face_node[faces] >= 0]  # tree nodes (not n-gon base faces)
+    if len(anchors) == 0 or level.num_sectors == 0:
         return None
     regular_k = 3 if triangles else 2
     odd = np.zeros(level.num_vertices, bool)
     odd[level.sector_vertex[level.sector_k() != regular_k]] = True
     odd &= level.vert_class == CREASE
-    corners = face_corners(level, caps, n)
+    corners = face_corners(level, anchors, n)
     cv = level.corner_vert.astype(np.int64)[corners]
     hits = odd[cv]
     one = hits.sum(1) == 1
     if not one.any():
         return None
-    caps, corners, cv, hits = caps[one], corners[one], cv[one], hits[one]
-    cap_corner = np.argmax(hits, axis=1)
-    xs, cap_group = np.unique(cv[np.arange(len(caps)), cap_corner], return_inverse=True)
+    anchors, corners, cv, hits = anchors[one], corners[one], cv[one], hits[one]
+    anchor_corner = np.argmax(hits, axis=1)
+    xs, anchor_group = np.unique(cv[np.arange(len(anchors)), anchor_corner], return_inverse=True)
     # start corner of each vertex: a corner whose outgoing edge is a boundary or infinitely sharp (the first
     # face of a sector, counter-clockwise); the smallest such corner
     twin = _twin(level)
@@ -303,10 +304,6 @@ def build_exact_caps(sub: LocalLevel, child: Level, child_points: np.ndarray, fa
         return np.searchsorted(region_faces, f) * size1 + (h - f * size1)
 
     use &= region[child.corner_face(start1)]
-    geometry2 = sub1.points[:, :3]
-    colours_d = np.concatenate([np.zeros((len(geometry2), 3)), sub1.points[:, 3:5 + m]], axis=1)
-    colours_d1 = np.concatenate([np.zeros((len(geometry2), 3)), sub1.points[:, 5 + m:]], axis=1)
-    sub1.points = np.concatenate([geometry2, colours_d[:, 3:], colours_d1[:, 3:]], axis=1)
     child2, Y2 = refine_step(sub1, o)
     Y2_d = np.concatenate([Y2[:, :3], Y2[:, 3:5 + m]], axis=1)
     Y2_d1 = np.concatenate([Y2[:, :3], Y2[:, 5 + m:]], axis=1)
@@ -315,27 +312,27 @@ def build_exact_caps(sub: LocalLevel, child: Level, child_points: np.ndarray, fa
     use &= ok
     step1, own = _read(Y2_d1, rings2, tags[:, None], m)
     use &= np.all(own, axis=1) & (np.abs(step1 - step).max(axis=(1, 2)) <= CHECK_TOLERANCE)
-    # the twelve grandchildren of every cap: regular patches of level d + 2, nets on the level-d ring
-    cap_use = use[cap_group]
-    kids = _grandchildren(level, child, caps, cap_corner, scheme)          # (C, 3) faces of child
+    # the twelve grandchildren of every anchor: regular patches of level d + 2, nets on the level-d ring
+    anchor_use = use[anchor_group]
+    kids = _away_children(level, anchors, anchor_corner, scheme)                  # (C, 3) faces of child
     kids_cut = np.searchsorted(region_faces, kids)
-    inside = region[kids].all(1) & cap_use
+    inside = region[kids].all(1) & anchor_use
     kids_cut = np.where(inside[:, None], kids_cut, 0)
     grand, _ = child_faces(sub1.level, kids_cut.reshape(-1), scheme)        # (3C, 4) faces of child2
-    grand = grand[:, :4].reshape(len(caps), 12)
+    grand = grand[:, :4].reshape(len(anchors), 12)
     regular, ids, side_sharp = regular_faces(LevelLookups(child2, o, sub1.normal_ids), grand.reshape(-1), scheme)
-    own = _read(Y2_d, ids, tags[np.repeat(cap_group, 12)][:, None], m)[1]
-    cap_ok = inside & regular.reshape(len(caps), 12).all(1) & own.reshape(len(caps), -1).all(1)
+    own = _read(Y2_d, ids, tags[np.repeat(anchor_group, 12)][:, None], m)[1]
+    anchor_ok = inside & regular.reshape(len(anchors), 12).all(1) & own.reshape(len(anchors), -1).all(1)
     control = phantom_points(Y2_d[:, 3:3 + m], ids, side_sharp, scheme)
-    nets = regular_bezier(np.nan_to_num(control), scheme).reshape(len(caps), 12, -1, m)
+    nets = regular_bezier(np.nan_to_num(control), scheme).reshape(len(anchors), 12, -1, m)
     actual = regular_bezier(np.nan_to_num(phantom_points(Y2[:, :3], ids, side_sharp, scheme)), scheme)
-    predicted = np.einsum("cqgm,cmd->cqgd", nets, geometry[cap_group])
-    cap_ok &= np.abs(predicted - actual.reshape(predicted.shape)).max(axis=(1, 2, 3)) \
-        <= CHECK_TOLERANCE * size[cap_group]
-    keep = cap_ok & cap_use
+    predicted = np.einsum("cqgm,cmd->cqgd", nets, geometry[anchor_group])
+    anchor_ok &= np.abs(predicted - actual.reshape(predicted.shape)).max(axis=(1, 2, 3)) \
+        <= CHECK_TOLERANCE * size[anchor_group]
+    keep = anchor_ok & anchor_use
     if not keep.any():
         return None
-    groups, cap_group = np.unique(cap_group[keep], return_inverse=True)
+    groups, anchor_group = np.unique(anchor_group[keep], return_inverse=True)
     step, P = step[groups], P[groups]
     # the limit mask l (S^T l = l, l . 1 = 1): S^T - I with its first row replaced by the ones of the ring
     # (its rows sum to zero, so any one of them is redundant); padding solves to zero
@@ -346,8 +343,8 @@ def build_exact_caps(sub: LocalLevel, child: Level, child_points: np.ndarray, fa
     rhs[:, 0] = 1.0
     limit = np.linalg.solve(A, rhs[..., None])[..., 0]
     deflated = step - np.where(valid[:, :, None], 1.0, 0.0) * limit[:, None, :]
-    return ExactCaps(triangles, sub.face_node[caps[keep]].astype(np.int64), cap_group.astype(np.int64),
-                     cap_corner[keep].astype(np.int64), nets[keep], deflated, limit, P, valid.sum(1))
+    return ExactCaps(triangles, sub.face_node[anchors[keep]].astype(np.int64), anchor_group.astype(np.int64),
+                     anchor_corner[keep].astype(np.int64), nets[keep], deflated, limit, P, valid.sum(1))
 
 
 # ----------------------------------------------------------------------------------------- evaluation
