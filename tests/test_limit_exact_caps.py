@@ -21,7 +21,7 @@ from warp_subdiv.limit.patches import END_CAP, REGULAR
 from test_limit_surface import _peer
 
 
-def fan_mesh(n, triangles=False, rings=3, crease=False, seed=0):
+def fan_mesh(n, triangles=False, rings=2, crease=False, seed=0):
     """Vertex 0 with n faces (quads or triangles; each face's corner 0) and ``rings`` rings of faces around it,
     random heights: a boundary vertex spanning an angle below 2 pi, or with ``crease`` an interior vertex whose
     faces close around it, with infinitely sharp creases along two of its edges (sectors of 2 and n - 2 faces)."""

@@ -218,17 +218,41 @@ def _away_children(level: Level, faces: np.ndarray, corner: np.ndarray, scheme: 
     return np.take_along_axis(kids, slots, axis=1)
 
 
-def build_exact_caps(sub: LocalLevel, child: Level, child_points: np.ndarray, faces: np.ndarray,
-                     options: Options) -> ExactCaps | None:
+def _into_cut(level: Level, cut: Level, region_faces: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """The corners of a cut-out (:func:`~warp_subdiv.limit.local_refinement.cut_out` of the faces
+    ``region_faces``, which keeps their order and their corners' order) that are ``corners`` of ``level``."""
+    f = level.corner_face(corners)
+    return cut.face_starts()[np.searchsorted(region_faces, f)] + (corners - level.face_starts()[f])
+
+
+def _coloured_step(local: LocalLevel, seeds: np.ndarray, columns: np.ndarray, margin: int, options: Options):
+    """The faces within ``margin`` rings of ``seeds`` cut out of ``local`` carrying ``columns`` (geometry first),
+    refined one step: (the cut-out, its child level, the refined columns, a function taking corners of
+    ``local`` to the cut-out's (0 for those outside it) and whether they are inside)."""
+    region = region_around(local.level, seeds, margin)
+    region_faces = np.flatnonzero(region)
+    carried = LocalLevel(local.level, columns, local.face_node, local.normal_ids, local.normal_vectors, local.depth)
+    cut = cut_out(carried, region, options)
+    child, Y = refine_step(cut, options)
+
+    def into(corners):
+        inside = region[local.level.corner_face(corners)]
+        return np.where(inside, _into_cut(local.level, cut.level, region_faces, np.where(inside, corners, 0)), 0), \
+            inside
+
+    return cut, child, Y, into
+
+
+def build_exact_caps(sub: LocalLevel, faces: np.ndarray, options: Options, margin: int) -> ExactCaps | None:
     """The anchors among ``faces`` (faces of the cut-out ``sub`` at level d, one above the tree's depth, that
     the tree splits) whose only irregular corner is an extraordinary boundary or crease vertex, with the
-    tables that evaluate their end anchors exactly; None if there are none. ``child``, ``child_points``: ``sub``
-    refined one step (the tree's step from d to its depth). End anchors are linked to anchors by :func:`link`.
+    tables that evaluate their end caps exactly; None if there are none. End caps are linked to anchors by
+    :func:`link`.
 
-    Two coloured steps (unit vectors of each vertex's two-ring carried as data columns, with the geometry in
-    front) give the step matrix at levels d and d + 1 and the nets of the twelve regular grandchildren of each
-    anchor at level d + 2 (the anchor's three children away from the vertex still have the vertex among their
-    control points: their children are the regular patches)."""
+    Two coloured steps (unit vectors of each vertex's two-ring carried as data columns after the geometry,
+    on cut-outs of ``margin`` rings around the vertices) give the step matrix at levels d and d + 1 and the nets
+    of the twelve regular grandchildren of each anchor at level d + 2 (the anchor's three children away from
+    the vertex still have the vertex among their control points: their children are the regular patches)."""
     o = options
     scheme = o.scheme
     triangles = scheme != CATMULL_CLARK
@@ -242,14 +266,14 @@ def build_exact_caps(sub: LocalLevel, child: Level, child_points: np.ndarray, fa
     odd[level.sector_vertex[level.sector_k() != regular_k]] = True
     odd &= level.vert_class == CREASE
     corners = face_corners(level, anchors, n)
-    cv = level.corner_vert.astype(np.int64)[corners]
-    hits = odd[cv]
+    hits = odd[level.corner_vert.astype(np.int64)[corners]]
     one = hits.sum(1) == 1
     if not one.any():
         return None
-    anchors, corners, cv, hits = anchors[one], corners[one], cv[one], hits[one]
+    anchors, corners, hits = anchors[one], corners[one], hits[one]
     anchor_corner = np.argmax(hits, axis=1)
-    xs, anchor_group = np.unique(cv[np.arange(len(anchors)), anchor_corner], return_inverse=True)
+    at_vertex = corners[np.arange(len(anchors)), anchor_corner]     # each anchor's corner at its vertex
+    xs, anchor_group = np.unique(level.corner_vert.astype(np.int64)[at_vertex], return_inverse=True)
     # start corner of each vertex: a corner whose outgoing edge is a boundary or infinitely sharp (the first
     # face of a sector, counter-clockwise); the smallest such corner
     twin = _twin(level)
@@ -275,76 +299,78 @@ def build_exact_caps(sub: LocalLevel, child: Level, child_points: np.ndarray, fa
         return None
     m = rings.shape[1]
     tags = np.arange(1, len(xs) + 1, dtype=np.float64)
-    # level d -> d + 1 (the tree's own step, coloured): the step matrix, checked against the refined points
-    _, Y = refine_step(LocalLevel(level, _coloured(level.num_vertices, rings, use, m), sub.face_node,
-                                  sub.normal_ids, sub.normal_vectors, sub.depth), o)
-    start1, rings1, ok = _child_rings(level, child, start, m, scheme, use)
+    D = sub.points.shape[1]
+    # level d -> d + 1 on a cut-out around the vertices (all columns of the points, then the ring's colours):
+    # the step matrix, checked against the step's own refined geometry (normal control, which moves the
+    # geometry only, or rings reading beyond themselves show there)
+    colours = _coloured(level.num_vertices, rings, use, m)[:, 3:]
+    cut0, child1, Y1, into0 = _coloured_step(sub, level.corner_face(start[use]),
+                                             np.concatenate([sub.points, colours], axis=1), margin, o)
+    start0, inside = into0(start)
+    use &= inside
+    rings0, ok = _rings(cut0.level, start0, triangles, use)
+    use &= ok & (rings0.shape[1] == m)
+    rings0 = rings0 if rings0.shape[1] == m else np.full((len(xs), m), -1, dtype=np.int64)
+    P = np.where((rings0 >= 0)[..., None], cut0.points[np.maximum(rings0, 0), :D], 0.0)
+    Y1 = np.concatenate([Y1[:, :3], Y1[:, D:]], axis=1)            # geometry and colours
+    start1, rings1, ok = _child_rings(cut0.level, child1, start0, m, scheme, use)
     use &= ok
-    step, own = _read(Y, rings1, tags[:, None], m)
+    step, own = _read(Y1, rings1, tags[:, None], m)
     use &= np.all(own, axis=1)
-    P = np.where((rings >= 0)[..., None], sub.points[np.maximum(rings, 0)], 0.0)
     geometry = P[..., :3]
     size = 1.0 + np.abs(geometry).max(axis=(1, 2))
-    refined = np.where((rings1 >= 0)[..., None], child_points[np.maximum(rings1, 0), :3], 0.0)
+    refined = np.where((rings1 >= 0)[..., None], Y1[np.maximum(rings1, 0), :3], 0.0)
     use &= np.abs(np.einsum("gij,gjc->gic", step, geometry) - refined).max(axis=(1, 2)) <= CHECK_TOLERANCE * size
     if not use.any():
         return None
-    # level d + 1 -> d + 2 on a cut-out around the vertices: the geometry, the level-d colours (for the
-    # grandchildren's nets) and the level-(d + 1) colours (for the step one level down)
-    region = region_around(child, child.corner_face(start1[use]), 4)
-    region_faces = np.flatnonzero(region)
-    carried = np.concatenate([child_points[:, :3], Y[:, 3:], _coloured(child.num_vertices, rings1, use, m)[:, 3:]],
-                             axis=1)
-    sub1 = cut_out(LocalLevel(child, carried, np.full(child.num_faces, -1, dtype=np.int64), sub.normal_ids[:0],
-                              sub.normal_vectors[:0], sub.depth + 1), region, o)
-    size1 = child.face_size or n
-
-    def into_cut(h):
-        f = child.corner_face(h)
-        return np.searchsorted(region_faces, f) * size1 + (h - f * size1)
-
-    use &= region[child.corner_face(start1)]
-    child2, Y2 = refine_step(sub1, o)
-    Y2_d = np.concatenate([Y2[:, :3], Y2[:, 3:5 + m]], axis=1)
-    Y2_d1 = np.concatenate([Y2[:, :3], Y2[:, 5 + m:]], axis=1)
-    start1_cut = np.where(use, into_cut(np.where(use, start1, start1[np.argmax(use)])), 0)
-    _, rings2, ok = _child_rings(sub1.level, child2, start1_cut, m, scheme, use)
+    # level d + 1 -> d + 2, again on a cut-out: the geometry, the level-d colours (for the grandchildren's nets)
+    # and the level-(d + 1) colours (for the step one level down)
+    next_level = LocalLevel(child1, None, np.full(child1.num_faces, -1, dtype=np.int64), cut0.normal_ids,
+                            cut0.normal_vectors, sub.depth + 1)
+    columns = np.concatenate([Y1, _coloured(child1.num_vertices, rings1, use, m)[:, 3:]], axis=1)
+    anchor_use = use[anchor_group]
+    anchors0, inside = into0(at_vertex)
+    anchor_use &= inside
+    kids = _away_children(cut0.level, cut0.level.corner_face(anchors0), anchor_corner, scheme)  # faces of child1
+    cut1, child2, Y2, into1 = _coloured_step(next_level, child1.corner_face(start1[use]), columns, margin, o)
+    kids_corner, inside = into1(face_corners(child1, kids.reshape(-1), n)[:, 0])
+    anchor_use &= inside.reshape(-1, 3).all(1)
+    start1_cut, inside = into1(start1)
+    use &= inside
+    Y2_d, Y2_d1 = Y2[:, :3 + m + 2], np.concatenate([Y2[:, :3], Y2[:, 3 + m + 2:]], axis=1)
+    _, rings2, ok = _child_rings(cut1.level, child2, start1_cut, m, scheme, use)
     use &= ok
     step1, own = _read(Y2_d1, rings2, tags[:, None], m)
     use &= np.all(own, axis=1) & (np.abs(step1 - step).max(axis=(1, 2)) <= CHECK_TOLERANCE)
     # the twelve grandchildren of every anchor: regular patches of level d + 2, nets on the level-d ring
-    anchor_use = use[anchor_group]
-    kids = _away_children(level, anchors, anchor_corner, scheme)                  # (C, 3) faces of child
-    kids_cut = np.searchsorted(region_faces, kids)
-    inside = region[kids].all(1) & anchor_use
-    kids_cut = np.where(inside[:, None], kids_cut, 0)
-    grand, _ = child_faces(sub1.level, kids_cut.reshape(-1), scheme)        # (3C, 4) faces of child2
+    anchor_use &= use[anchor_group]
+    kids_cut = cut1.level.corner_face(kids_corner).reshape(-1, 3)
+    grand, _ = child_faces(cut1.level, kids_cut.reshape(-1), scheme)        # (3A, 4) faces of child2
     grand = grand[:, :4].reshape(len(anchors), 12)
-    regular, ids, side_sharp = regular_faces(LevelLookups(child2, o, sub1.normal_ids), grand.reshape(-1), scheme)
+    regular, ids, side_sharp = regular_faces(LevelLookups(child2, o, cut1.normal_ids[:0]), grand.reshape(-1), scheme)
     own = _read(Y2_d, ids, tags[np.repeat(anchor_group, 12)][:, None], m)[1]
-    anchor_ok = inside & regular.reshape(len(anchors), 12).all(1) & own.reshape(len(anchors), -1).all(1)
+    anchor_ok = anchor_use & regular.reshape(len(anchors), 12).all(1) & own.reshape(len(anchors), -1).all(1)
     control = phantom_points(Y2_d[:, 3:3 + m], ids, side_sharp, scheme)
     nets = regular_bezier(np.nan_to_num(control), scheme).reshape(len(anchors), 12, -1, m)
     actual = regular_bezier(np.nan_to_num(phantom_points(Y2[:, :3], ids, side_sharp, scheme)), scheme)
     predicted = np.einsum("cqgm,cmd->cqgd", nets, geometry[anchor_group])
     anchor_ok &= np.abs(predicted - actual.reshape(predicted.shape)).max(axis=(1, 2, 3)) \
         <= CHECK_TOLERANCE * size[anchor_group]
-    keep = anchor_ok & anchor_use
-    if not keep.any():
+    if not anchor_ok.any():
         return None
-    groups, anchor_group = np.unique(anchor_group[keep], return_inverse=True)
+    groups, anchor_group = np.unique(anchor_group[anchor_ok], return_inverse=True)
     step, P = step[groups], P[groups]
     # the limit mask l (S^T l = l, l . 1 = 1): S^T - I with its first row replaced by the ones of the ring
     # (its rows sum to zero, so any one of them is redundant); padding solves to zero
-    valid = rings[groups] >= 0
+    valid = rings0[groups] >= 0
     A = np.swapaxes(step, 1, 2) - np.eye(m)
     A[:, 0, :] = valid
     rhs = np.zeros((len(groups), m))
     rhs[:, 0] = 1.0
     limit = np.linalg.solve(A, rhs[..., None])[..., 0]
     deflated = step - np.where(valid[:, :, None], 1.0, 0.0) * limit[:, None, :]
-    return ExactCaps(triangles, sub.face_node[anchors[keep]].astype(np.int64), anchor_group.astype(np.int64),
-                     anchor_corner[keep].astype(np.int64), nets[keep], deflated, limit, P, valid.sum(1))
+    return ExactCaps(triangles, sub.face_node[anchors[anchor_ok]].astype(np.int64), anchor_group.astype(np.int64),
+                     anchor_corner[anchor_ok].astype(np.int64), nets[anchor_ok], deflated, limit, P, valid.sum(1))
 
 
 # ----------------------------------------------------------------------------------------- evaluation

@@ -240,7 +240,7 @@ def build(mesh: Mesh, options: Options, depth: int, *, data: np.ndarray | None =
             stats["end_caps"] = len(caps)
             break
         if cur.depth == depth - 1 and depth >= 2:  # the faces whose children are the end caps: exact caps' anchors
-            exact = build_exact_caps(sub, child, child_points, sub_todo, o)
+            exact = build_exact_caps(sub, sub_todo, o, MARGIN)
         child_node = _child_nodes(nodes, sub, sub_todo, child, region_faces, root_offsets, sizes0, scheme)
         nxt = LocalLevel(child, child_points, child_node, sub.normal_ids, sub.normal_vectors, cur.depth + 1)
         todo = _classify(nodes, patches, nxt, np.flatnonzero(child_node >= 0), o, scheme)
