@@ -20,7 +20,9 @@ How the limit surface over a base face is represented (docs/limit-surface.md, do
   deeper as ``Refiner.limit_points``), their exact tangent planes, and per corner and edge a derivative
   along the edge: the exact one at regular corners (B-spline / box-spline masks), else the derivative of the
   parabola through the exact limit points at the edge's ends and middle, projected onto the tangent plane
-  (:mod:`warp_subdiv.limit.end_caps`).
+  (:mod:`warp_subdiv.limit.end_caps`). At extraordinary boundary and crease vertices the end caps are evaluated
+  exactly instead, from the self-similar step of the vertex's two-ring (:mod:`warp_subdiv.limit.exact_caps`;
+  the tree's ``exact``).
 
 A face of the control mesh that is a hole (or that ``boundary="none"`` leaves out) is a hole leaf. This module
 holds the tree and its builder (:func:`build`).
@@ -82,6 +84,7 @@ class PatchTree:
     ``REGULAR`` or ``END_CAP``; ``patch_level`` (P,) int8: the level of the patch's face below its base face.
     Roots: base face f (a level-0 face) owns nodes ``root_offsets[f]`` .. ``root_offsets[f + 1] - 1``: one
     node, or its sub-faces (a Catmull-Clark n-gon: the level-1 quad at each corner, in corner order).
+    ``exact``: the end caps evaluated exactly (:class:`~warp_subdiv.limit.exact_caps.ExactCaps`), or None.
     """
 
     scheme: str

@@ -32,7 +32,8 @@ value mesh under OpenSubdiv's face-varying interpolation mode (as Bfr builds a f
 
 How it is computed and how exact it is: :mod:`warp_subdiv.limit.patches` (a tree of Bezier patches per face:
 exact polynomial patches wherever the surface is one, local refinement with the library's own rules and
-projections near irregular features down to ``depth`` levels, end caps below that). The tree is built once;
+projections near irregular features down to ``depth`` levels, end caps below that, evaluated exactly at
+extraordinary boundary and crease vertices: :mod:`warp_subdiv.limit.exact_caps`). The tree is built once;
 :meth:`LimitSurface.evaluate` runs one Warp kernel (:mod:`warp_subdiv.kernels.limit`) on the CPU or CUDA
 (:mod:`warp_subdiv.limit.device`). The faces' parameterisation and linear surfaces:
 :mod:`warp_subdiv.limit.parameterisation`; face-varying channels: :mod:`warp_subdiv.limit.face_varying`.
@@ -66,7 +67,8 @@ class LimitSurface:
     ``depth`` (>= 1): how many levels below a control face the surface near irregular features (extraordinary
     vertices, irregular creases and corners, semi-sharp tags, flatness and normal control, n-gons) is refined
     locally before end caps take over; the surface is exact everywhere except inside the end caps, which cover
-    the sub-faces of size 2^-depth at the irregular points (docs/limit-surface.md gives the error).
+    the sub-faces of size 2^-depth at the irregular points (docs/limit-surface.md gives the error; at
+    extraordinary boundary and crease vertices they are evaluated exactly too, for ``depth`` >= 2).
     ``device``: a Warp device for :meth:`evaluate` (None: CUDA when present, else the CPU). The patch tree is
     built in float64 and evaluated in float64 whatever the ``precision`` option says. With ``linear=True``
     (bilinear meshes) the surface is the linear interpolation inside each face (:attr:`linear`; no patch tree,
