@@ -201,14 +201,19 @@ def _read(Y: np.ndarray, ids: np.ndarray, tags: np.ndarray, m: int):
     return mat, own | (ids < 0)
 
 
-def _child_rings(level: Level, child: Level, start: np.ndarray, m: int, scheme: str, active: np.ndarray):
-    """The rings of the same vertices one level down (walked from the children of ``start``): (start corners,
-    rings, ok); ok is False where the ring's size changed."""
+def _child_rings(level: Level, child: Level, start: np.ndarray, sizes: np.ndarray, scheme: str,
+                 active: np.ndarray):
+    """The rings of the same vertices one level down (walked from the children of ``start``), ``sizes[g]``
+    vertices each (ok is False where the size changed): (start corners, rings padded to max(sizes), ok)."""
     child_start = child_corners(level, child, start, scheme)
-    rings, ok = _rings(child, child_start, scheme != CATMULL_CLARK, active)
-    if rings.shape[1] != m:
-        return child_start, np.full((len(start), m), -1, dtype=np.int64), np.zeros(len(start), bool)
-    return child_start, rings, ok
+    return (child_start,) + _fit(*_rings(child, child_start, scheme != CATMULL_CLARK, active), sizes)
+
+
+def _fit(rings: np.ndarray, ok: np.ndarray, sizes: np.ndarray):
+    """``rings`` padded (or cut) to max(``sizes``) columns, and ``ok`` where each has its size."""
+    ok = ok & ((rings >= 0).sum(1) == sizes)
+    m = int(sizes.max())
+    return np.pad(rings, ((0, 0), (0, max(m - rings.shape[1], 0))), constant_values=-1)[:, :m], ok
 
 
 def _away_children(level: Level, faces: np.ndarray, corner: np.ndarray, scheme: str) -> np.ndarray:
@@ -308,12 +313,12 @@ def build_exact_caps(sub: LocalLevel, faces: np.ndarray, options: Options, margi
                                              np.concatenate([sub.points, colours], axis=1), margin, o)
     start0, inside = into0(start)
     use &= inside
-    rings0, ok = _rings(cut0.level, start0, triangles, use)
-    use &= ok & (rings0.shape[1] == m)
-    rings0 = rings0 if rings0.shape[1] == m else np.full((len(xs), m), -1, dtype=np.int64)
+    rings0, ok = _fit(*_rings(cut0.level, start0, triangles, use), (rings >= 0).sum(1))
+    use &= ok
     P = np.where((rings0 >= 0)[..., None], cut0.points[np.maximum(rings0, 0), :D], 0.0)
     Y1 = np.concatenate([Y1[:, :3], Y1[:, D:]], axis=1)            # geometry and colours
-    start1, rings1, ok = _child_rings(cut0.level, child1, start0, m, scheme, use)
+    sizes = (rings0 >= 0).sum(1)
+    start1, rings1, ok = _child_rings(cut0.level, child1, start0, sizes, scheme, use)
     use &= ok
     step, own = _read(Y1, rings1, tags[:, None], m)
     use &= np.all(own, axis=1)
@@ -338,7 +343,7 @@ def build_exact_caps(sub: LocalLevel, faces: np.ndarray, options: Options, margi
     start1_cut, inside = into1(start1)
     use &= inside
     Y2_d, Y2_d1 = Y2[:, :3 + m + 2], np.concatenate([Y2[:, :3], Y2[:, 3 + m + 2:]], axis=1)
-    _, rings2, ok = _child_rings(cut1.level, child2, start1_cut, m, scheme, use)
+    _, rings2, ok = _child_rings(cut1.level, child2, start1_cut, sizes, scheme, use)
     use &= ok
     step1, own = _read(Y2_d1, rings2, tags[:, None], m)
     use &= np.all(own, axis=1) & (np.abs(step1 - step).max(axis=(1, 2)) <= CHECK_TOLERANCE)
