@@ -162,3 +162,27 @@ def test_exact_caps_against_bfr(n):
     for key in ("du", "dv"):
         rel = np.linalg.norm(getattr(ev, key) - b[key], axis=1) / np.linalg.norm(b[key], axis=1)
         assert rel.max() <= 1e-11, key
+
+
+def test_exact_caps_only_where_the_structure_repeats():
+    """A semi-sharp edge at the vertex whose sharpness outlives the tree's depth, or a prescribed normal at the
+    vertex, keeps the end caps; a sharpness that decays above the depth does not (and is exact there)."""
+    base = fan_mesh(6)
+    rng = np.random.default_rng(2)
+    f, u, v = cap_queries(np.arange(6), 7.2, 11.8, 10, rng, False)
+
+    def with_tags(**tags):
+        return ws.Mesh(base.points, base.face_vertex_counts, base.face_vertex_indices, **tags)
+
+    inner_edge = [[0, int(base.face_vertex_indices[3])]]  # to face 0's last corner: an edge inside the fan
+    for sharpness, exact in ((7.5, False), (3.0, True)):
+        mesh = with_tags(creases=inner_edge, crease_sharpness=[sharpness])
+        surface = ws.LimitSurface(mesh, scheme="catmull-clark", rules="opensubdiv", depth=8)
+        assert (surface.tree.stats["exact_end_caps"] > 0) == exact, sharpness
+        if exact:
+            fine = ws.LimitSurface(mesh, scheme="catmull-clark", rules="opensubdiv", depth=12)
+            assert_same_surface(surface.evaluate(f, u, v), fine.evaluate(f, u, v), np.abs(mesh.points).max())
+    normal = with_tags(normals=([0], [[0.0, 0.0, 1.0]]))
+    surface = ws.LimitSurface(normal, scheme="catmull-clark", rules="piecewise-smooth", depth=8)
+    assert surface.tree.stats["exact_end_caps"] == 0
+    assert np.isfinite(surface.evaluate(f, u, v).normals).all()

@@ -264,11 +264,16 @@ def build_exact_caps(sub: LocalLevel, faces: np.ndarray, options: Options, margi
     n = 3 if triangles else 4
     level = sub.level
     anchors = faces[sub.face_node[faces] >= 0]  # tree nodes (not n-gon base faces)
-    if len(anchors) == 0 or level.num_sectors == 0:
+    if len(anchors) == 0:
         return None
+    # extraordinary boundary and crease vertices: a sector of other than the regular number of faces, or (where
+    # the level keeps no sector, as after a semi-sharp tag decayed) a boundary vertex with another number
     regular_k = 3 if triangles else 2
     odd = np.zeros(level.num_vertices, bool)
     odd[level.sector_vertex[level.sector_k() != regular_k]] = True
+    boundary = np.zeros(level.num_vertices, bool)
+    boundary[level.edge_verts.astype(np.int64)[np.diff(level.edge_corner_offsets) == 1].reshape(-1)] = True
+    odd |= boundary & (np.diff(level.vert_corner_offsets) != regular_k)
     odd &= level.vert_class == CREASE
     corners = face_corners(level, anchors, n)
     hits = odd[level.corner_vert.astype(np.int64)[corners]]
