@@ -201,18 +201,17 @@ def _read(Y: np.ndarray, ids: np.ndarray, tags: np.ndarray, m: int):
     return mat, own | (ids < 0)
 
 
-def _child_rings(level: Level, child: Level, start: np.ndarray, sizes: np.ndarray, scheme: str,
+def _child_rings(level: Level, child: Level, start: np.ndarray, sizes: np.ndarray, m: int, scheme: str,
                  active: np.ndarray):
     """The rings of the same vertices one level down (walked from the children of ``start``), ``sizes[g]``
-    vertices each (ok is False where the size changed): (start corners, rings padded to max(sizes), ok)."""
+    vertices each (ok is False where the size changed): (start corners, rings padded to m columns, ok)."""
     child_start = child_corners(level, child, start, scheme)
-    return (child_start,) + _fit(*_rings(child, child_start, scheme != CATMULL_CLARK, active), sizes)
+    return (child_start,) + _fit(*_rings(child, child_start, scheme != CATMULL_CLARK, active), sizes, m)
 
 
-def _fit(rings: np.ndarray, ok: np.ndarray, sizes: np.ndarray):
-    """``rings`` padded (or cut) to max(``sizes``) columns, and ``ok`` where each has its size."""
+def _fit(rings: np.ndarray, ok: np.ndarray, sizes: np.ndarray, m: int):
+    """``rings`` padded (or cut) to ``m`` columns, and ``ok`` where each has its size ``sizes``."""
     ok = ok & ((rings >= 0).sum(1) == sizes)
-    m = int(sizes.max())
     return np.pad(rings, ((0, 0), (0, max(m - rings.shape[1], 0))), constant_values=-1)[:, :m], ok
 
 
@@ -318,12 +317,12 @@ def build_exact_caps(sub: LocalLevel, faces: np.ndarray, options: Options, margi
                                              np.concatenate([sub.points, colours], axis=1), margin, o)
     start0, inside = into0(start)
     use &= inside
-    rings0, ok = _fit(*_rings(cut0.level, start0, triangles, use), (rings >= 0).sum(1))
+    sizes = (rings >= 0).sum(1)
+    rings0, ok = _fit(*_rings(cut0.level, start0, triangles, use), sizes, m)
     use &= ok
     P = np.where((rings0 >= 0)[..., None], cut0.points[np.maximum(rings0, 0), :D], 0.0)
     Y1 = np.concatenate([Y1[:, :3], Y1[:, D:]], axis=1)            # geometry and colours
-    sizes = (rings0 >= 0).sum(1)
-    start1, rings1, ok = _child_rings(cut0.level, child1, start0, sizes, scheme, use)
+    start1, rings1, ok = _child_rings(cut0.level, child1, start0, sizes, m, scheme, use)
     use &= ok
     step, own = _read(Y1, rings1, tags[:, None], m)
     use &= np.all(own, axis=1)
@@ -348,7 +347,7 @@ def build_exact_caps(sub: LocalLevel, faces: np.ndarray, options: Options, margi
     start1_cut, inside = into1(start1)
     use &= inside
     Y2_d, Y2_d1 = Y2[:, :3 + m + 2], np.concatenate([Y2[:, :3], Y2[:, 3 + m + 2:]], axis=1)
-    _, rings2, ok = _child_rings(cut1.level, child2, start1_cut, sizes, scheme, use)
+    _, rings2, ok = _child_rings(cut1.level, child2, start1_cut, sizes, m, scheme, use)
     use &= ok
     step1, own = _read(Y2_d1, rings2, tags[:, None], m)
     use &= np.all(own, axis=1) & (np.abs(step1 - step).max(axis=(1, 2)) <= CHECK_TOLERANCE)
