@@ -7,7 +7,10 @@ index a + 4 b for the Bernstein polynomials B_a(s) B_b(t)) or quartic triangular
 the order of ``warp_subdiv.limit.bezier.TRI_BEZIER_INDEX``). Derivatives are returned
 with respect to the base face's (u, v): the descent's scale (2 per level; -2 in a triangle's middle child,
 whose frame is turned by 180 degrees) is applied on the way out. Kernels know nothing about subdivision rules.
-Each step is a function of its own (``_face_root``, ``_clamp_to_domain``, ``_descend``, then the patch's basis:
+Where ``exact`` is set, a query whose leaf patch has an entry in ``patch_exact`` (an end cap that the host
+evaluates exactly: ``warp_subdiv.limit.exact_caps``) also gets the patch's own (s, t) and the scales (js, jt) in
+``out_local``. Each step is a function of its own (``_face_root``, ``_clamp_to_domain``, ``_descend``, then the
+patch's basis:
 ``_box_spline_first``, ``_quartic_bezier_first``, ``_triangle_second`` or ``_quad_patch``); Warp inlines them, so
 the kernel runs the same operations in the same order as one body would.
 
@@ -512,6 +515,8 @@ def limit_evaluate(
     patch_index: wp.array2d(dtype=wp.int32),
     patch_basis: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3d),
+    patch_exact: wp.array(dtype=wp.int32),
+    exact: int,
     triangles: int,
     second: int,
     out_p: wp.array(dtype=wp.vec3d),
@@ -522,6 +527,7 @@ def limit_evaluate(
     out_dvv: wp.array(dtype=wp.vec3d),
     out_n: wp.array(dtype=wp.vec3d),
     out_patch: wp.array(dtype=wp.int32),
+    out_local: wp.array(dtype=wp.vec4d),
 ):
     i = wp.tid()
     zero = wp.float64(0.0)
@@ -542,6 +548,9 @@ def limit_evaluate(
     if leaf < 0 and patch >= 0:
         bezier = patch_basis[patch]
     out_patch[i] = patch
+    if exact != 0 and patch >= 0:
+        if patch_exact[patch] >= 0:  # a patch evaluated again on the host: its own (s, t) and the scales
+            out_local[i] = wp.vec4d(s, t, js, jt)
     if patch == HOLE:
         nan = wp.float64(wp.nan)
         q = wp.vec3d(nan, nan, nan)

@@ -12,7 +12,7 @@ from ..rules import limit_masks as M
 from ..tables import projections
 from ..topology import Level
 from .bezier import TRI_BEZIER_INDEX
-from .local_refinement import LocalLevel, child_faces, csr_apply, face_corners
+from .local_refinement import LocalLevel, child_corners, csr_apply, face_corners
 
 
 # ----------------------------------------------------------------------------------------- end caps
@@ -119,15 +119,9 @@ def end_cap_nets(sub: LocalLevel, child: Level, child_points: np.ndarray, faces:
     pos, pair_tu, pair_tv, pair_normals, voff = _limit_data(child, child_points, options)
     corners = face_corners(level, faces, n)
     c = level.corner_vert.astype(np.int64)[corners]  # vertex children keep their ids
-    # the child corner of each face corner: the corner child face holds the vertex child; its next and previous
-    # corners are the children of the face's edges at that corner
-    kids, _ = child_faces(level, faces, scheme)
-    child_corner = np.empty_like(corners)
-    for j in range(n):
-        f = kids[:, j]
-        cc = face_corners(child, f, n)
-        at = np.argmax(child.corner_vert.astype(np.int64)[cc] == c[:, j][:, None], axis=1)
-        child_corner[:, j] = cc[np.arange(len(f)), at]
+    # the child corner of each face corner; its next and previous corners are the children of the face's edges
+    # at that corner
+    child_corner = child_corners(level, child, corners.reshape(-1), scheme).reshape(corners.shape)
     ccv = child.corner_vert.astype(np.int64)
     mid_next = ccv[child.corner_next(child_corner)]
     mid_prev = ccv[child.corner_prev(child_corner)]

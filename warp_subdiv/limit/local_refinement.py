@@ -189,3 +189,18 @@ def child_faces(level: Level, faces: np.ndarray, scheme: str):
         j = np.arange(m)
         return starts[:, None] + j, j[None, :] < sizes[:, None]
     return 4 * faces[:, None] + np.arange(4), np.ones((len(faces), 4), bool)
+
+
+def child_corners(level: Level, child: Level, corners: np.ndarray, scheme: str) -> np.ndarray:
+    """The corner of ``child`` (``level`` refined one step) at the vertex of each of ``corners``: in the child
+    face at that corner, the corner holding the vertex's child (vertex children keep their ids)."""
+    corners = np.asarray(corners, dtype=np.int64)
+    faces = level.corner_face(corners)
+    j = corners - level.face_starts()[faces]
+    kids, _ = child_faces(level, faces, scheme)
+    kid = kids[np.arange(len(faces)), j]
+    n = 4 if scheme == CATMULL_CLARK else 3
+    cc = face_corners(child, kid, n)
+    at = np.argmax(child.corner_vert.astype(np.int64)[cc] == level.corner_vert.astype(np.int64)[corners][:, None],
+                   axis=1)
+    return cc[np.arange(len(kid)), at]

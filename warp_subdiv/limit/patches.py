@@ -20,7 +20,9 @@ How the limit surface over a base face is represented (docs/limit-surface.md, do
   deeper as ``Refiner.limit_points``), their exact tangent planes, and per corner and edge a derivative
   along the edge: the exact one at regular corners (B-spline / box-spline masks), else the derivative of the
   parabola through the exact limit points at the edge's ends and middle, projected onto the tangent plane
-  (:mod:`warp_subdiv.limit.end_caps`).
+  (:mod:`warp_subdiv.limit.end_caps`). At extraordinary boundary and crease vertices the end caps are evaluated
+  exactly instead, from the self-similar step of the vertex's two-ring (:mod:`warp_subdiv.limit.exact_caps`;
+  the tree's ``exact``).
 
 A face of the control mesh that is a hole (or that ``boundary="none"`` leaves out) is a hole leaf. This module
 holds the tree and its builder (:func:`build`).
@@ -42,6 +44,8 @@ from ..tables import Hierarchy
 from ..topology import Level
 from .bezier import regular_bezier
 from .end_caps import end_cap_nets
+from .exact_caps import ExactCaps, build_exact_caps
+from .exact_caps import link as link_exact_caps
 from .local_refinement import LocalLevel, child_faces, cut_out, refine_step, region_around
 from .regular import LevelLookups, phantom_points, regular_faces
 
@@ -80,6 +84,7 @@ class PatchTree:
     ``REGULAR`` or ``END_CAP``; ``patch_level`` (P,) int8: the level of the patch's face below its base face.
     Roots: base face f (a level-0 face) owns nodes ``root_offsets[f]`` .. ``root_offsets[f + 1] - 1``: one
     node, or its sub-faces (a Catmull-Clark n-gon: the level-1 quad at each corner, in corner order).
+    ``exact``: the end caps evaluated exactly (:class:`~warp_subdiv.limit.exact_caps.ExactCaps`), or None.
     """
 
     scheme: str
@@ -94,6 +99,7 @@ class PatchTree:
     root_offsets: np.ndarray
     depth: int
     stats: dict = field(default_factory=dict)
+    exact: ExactCaps | None = None
 
     @property
     def num_nodes(self) -> int:
@@ -211,7 +217,8 @@ def build(mesh: Mesh, options: Options, depth: int, *, data: np.ndarray | None =
     root_count = np.where(direct, 1, sizes0)
     root_offsets = np.concatenate([[0], np.cumsum(root_count)]).astype(np.int64)
     nodes.new(int(root_offsets[-1]))
-    stats = {"levels": [], "end_caps": 0, "regular_base_faces": 0}
+    stats = {"levels": [], "end_caps": 0, "exact_end_caps": 0, "regular_base_faces": 0}
+    exact = None
     face_node = np.full(F0, -1, dtype=np.int64)
     face_node[direct] = root_offsets[:-1][direct]
     cur = LocalLevel(level0, base_points, face_node, normal_ids, normal_vectors, 0)
@@ -235,6 +242,8 @@ def build(mesh: Mesh, options: Options, depth: int, *, data: np.ndarray | None =
             nodes.set_patch(sub.face_node[sub_todo], patches.add_bezier(caps, END_CAP, cur.depth))
             stats["end_caps"] = len(caps)
             break
+        if cur.depth == depth - 1 and depth >= 2:  # the faces whose children are the end caps: exact caps' anchors
+            exact = build_exact_caps(sub, sub_todo, o, MARGIN)
         child_node = _child_nodes(nodes, sub, sub_todo, child, region_faces, root_offsets, sizes0, scheme)
         nxt = LocalLevel(child, child_points, child_node, sub.normal_ids, sub.normal_vectors, cur.depth + 1)
         todo = _classify(nodes, patches, nxt, np.flatnonzero(child_node >= 0), o, scheme)
@@ -246,8 +255,10 @@ def build(mesh: Mesh, options: Options, depth: int, *, data: np.ndarray | None =
     if len(left):
         raise AssertionError(f"{len(left)} patch tree nodes were left without a patch")
     points, index, basis, kind, plevel = patches.arrays()
+    exact = link_exact_caps(exact, node_child, node_patch, kind, END_CAP)
+    stats["exact_end_caps"] = 0 if exact is None else exact.num_caps
     return PatchTree(scheme, triangles, node_child, node_patch, points, index, basis, kind, plevel, root_offsets,
-                     depth, stats)
+                     depth, stats, exact)
 
 
 def _classify(nodes: _Nodes, patches: _Patches, local: LocalLevel, faces: np.ndarray, options: Options,

@@ -32,7 +32,8 @@ value mesh under OpenSubdiv's face-varying interpolation mode (as Bfr builds a f
 
 How it is computed and how exact it is: :mod:`warp_subdiv.limit.patches` (a tree of Bezier patches per face:
 exact polynomial patches wherever the surface is one, local refinement with the library's own rules and
-projections near irregular features down to ``depth`` levels, end caps below that). The tree is built once;
+projections near irregular features down to ``depth`` levels, end caps below that, evaluated exactly at
+extraordinary boundary and crease vertices: :mod:`warp_subdiv.limit.exact_caps`). The tree is built once;
 :meth:`LimitSurface.evaluate` runs one Warp kernel (:mod:`warp_subdiv.kernels.limit`) on the CPU or CUDA
 (:mod:`warp_subdiv.limit.device`). The faces' parameterisation and linear surfaces:
 :mod:`warp_subdiv.limit.parameterisation`; face-varying channels: :mod:`warp_subdiv.limit.face_varying`.
@@ -66,7 +67,8 @@ class LimitSurface:
     ``depth`` (>= 1): how many levels below a control face the surface near irregular features (extraordinary
     vertices, irregular creases and corners, semi-sharp tags, flatness and normal control, n-gons) is refined
     locally before end caps take over; the surface is exact everywhere except inside the end caps, which cover
-    the sub-faces of size 2^-depth at the irregular points (docs/limit-surface.md gives the error).
+    the sub-faces of size 2^-depth at the irregular points (docs/limit-surface.md gives the error; at
+    extraordinary boundary and crease vertices they are evaluated exactly too, for ``depth`` >= 2).
     ``device``: a Warp device for :meth:`evaluate` (None: CUDA when present, else the CPU). The patch tree is
     built in float64 and evaluated in float64 whatever the ``precision`` option says. With ``linear=True``
     (bilinear meshes) the surface is the linear interpolation inside each face (:attr:`linear`; no patch tree,
@@ -175,8 +177,13 @@ class LimitSurface:
         tree = limit_patches.build(self.mesh, self.options, self.depth, data=arr)
         if tree.num_nodes != self.tree.num_nodes or tree.num_patches != self.tree.num_patches:
             raise AssertionError("the data's patch tree differs from the surface's")
+        if (tree.exact is None) != (self.tree.exact is None) or (
+                tree.exact is not None and not np.array_equal(tree.exact.patches, self.tree.exact.patches)):
+            raise AssertionError("the data's exact end caps differ from the surface's")
         columns = tree.points[:, 3:]
-        return self._evaluator.evaluate_columns(columns, faces_a, u_a, v_a, derivatives, one_d).reshaped(shape)
+        ring = None if tree.exact is None else tree.exact.ring[..., 3:]
+        return self._evaluator.evaluate_columns(columns, faces_a, u_a, v_a, derivatives, one_d,
+                                                ring).reshaped(shape)
 
     def evaluate_face_varying(self, values, indices, faces, u, v, *, mode=FaceVaryingMode.CORNERS_PLUS1,
                               derivatives: int = 0) -> DataEvaluation:
