@@ -411,9 +411,10 @@ def test_camera_levels_split_instances_by_distance(tmp_path):
 
 
 def composed_values(stage):
-    """{attribute path: composed default value} of every prim of ``stage`` (arrays as numpy)."""
+    """{attribute path: composed default value} of every prim of ``stage``, instance proxies too (arrays as
+    numpy)."""
     out = {}
-    for prim in stage.Traverse():
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
         for attr in prim.GetAttributes():
             value = attr.Get()
             out[str(attr.GetPath())] = np.asarray(value) if hasattr(value, "__len__") and not isinstance(
@@ -471,6 +472,25 @@ def test_lod_variants_of_meshes_authored_in_the_input(tmp_path, flatten):
         pts = np.asarray(prim.GetAttribute("points").Get(), dtype=np.float64)
         assert np.allclose(np.sort(pts, axis=0), np.sort(want.points, axis=0), atol=1e-6), level
         assert len(out.GetPrimAtPath("/World/Cube/top").GetAttribute("indices").Get()) == 2 * 4**level
+    assert_valid(src, dst)
+
+
+def test_lod_variants_flattened_with_instances_and_identical_meshes(tmp_path):
+    """--flatten on referenced meshes: the identical meshes flattened apart, the instances' mesh inside the
+    flattened prototype, each with its variants; every selection composes to the plain flattened bake."""
+    _, src = scene_assets(tmp_path)
+    dst = tmp_path / "lod.usda"
+    assert cli.main(["refine", src, "-o", str(dst), "--levels", "1", "--lod-variants", "0,2", "--flatten",
+                     "--quiet"]) == 0
+    assert Usd.Stage.Open(str(dst)).GetPrimAtPath("/World/I1").IsInstance()
+    for level in (0, 2):
+        path, found = with_selection(dst, level, tmp_path)
+        assert len(found) == 3  # /World/A and /World/B's meshes, the flattened prototype's
+        plain = tmp_path / f"plain{level}.usda"
+        refine_usd(src, str(plain), level, flatten=True, device="cpu")
+        assert_same_values(composed_values(Usd.Stage.Open(path)), composed_values(Usd.Stage.Open(str(plain))),
+                           level)
+        assert faces(Usd.Stage.Open(path), "/World/I2/Geo/Mesh") == FACES_AT[level]
     assert_valid(src, dst)
 
 

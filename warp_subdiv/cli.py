@@ -101,8 +101,9 @@ def _add_refine(sub) -> None:
                      help="with --camera: the level of meshes outside the camera's frustum (default 0)")
     cmd.add_argument("--lod-variants", default=None, metavar="L0,L1,...",
                      help="USD: write every refined mesh at each of these levels, inside the variants level<N> of a "
-                          "variant set subdivLOD (the last selected); the meshes must come through references, "
-                          "payloads or instances (a variant is weaker than the input's local opinions)")
+                          "variant set subdivLOD (the last selected); meshes defined in the input itself (whose "
+                          "local opinions a variant cannot beat) get them in a flattened output: --flatten, else "
+                          "flattened with a warning")
     cmd.add_argument("--prim", action="append", metavar="PATH",
                      help="refine only the meshes at or under this prim path (repeatable; USD only)")
     cmd.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],

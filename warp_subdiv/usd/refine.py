@@ -216,7 +216,11 @@ def refine_usd(
     ``lod_variants``: levels (a list, or "0,1,2"): every mesh is refined to each and written inside the variant
     ``level<N>`` of a variant set ``subdivLOD`` on its refined data, the last one selected
     (:mod:`warp_subdiv.usd.lod`); ``subdiv:levels`` does not apply then (the memory guard predicts every mesh at
-    the highest of the levels), and ``camera`` and ``max_levels`` are refused.
+    the highest of the levels), and ``camera`` and ``max_levels`` are refused. With ``flatten``, and whenever a
+    selected mesh is authored in the input's own layer stack (whose opinions no variant over it can beat; a
+    warning says so), the output is flattened: one bake per level, flattened, merged into one layer whose
+    meshes hold what differs between the levels in their variants
+    (:func:`~warp_subdiv.usd.lod.merge_levels`).
 
     Meshes inside instances are refined once per prototype and written once per distinct refined prototype,
     which the instances reference (they stay instances); meshes with identical inputs are refined once.
@@ -244,7 +248,8 @@ def refine_usd(
     faceVertexIndices is most of a short chunk's cost. The layer alone does not compose to the refined meshes,
     so only their scheme is checked to compose from it.
     ``flatten``: write one self-contained layer, the composed stage flattened (instead of a layer over the
-    input); it holds the selected variants only, and is refused with ``all_variants``.
+    input); it holds the selected variants only (but the ``subdivLOD`` variants of ``lod_variants``), and is
+    refused with ``all_variants``.
     ``shipped``: hierarchies built elsewhere (a distributed bake's topology task ships a mesh's tables to the
     tasks that refine its frames, :mod:`warp_subdiv.usd.distributed`): the refiner of a mesh that one of them
     fits starts from it (:meth:`~warp_subdiv.tables.Hierarchy.fits`), and such a mesh is not batched.
