@@ -494,6 +494,34 @@ def test_lod_variants_flattened_with_instances_and_identical_meshes(tmp_path):
     assert_valid(src, dst)
 
 
+def test_render_levels_read_subdiv_levels(tmp_path):
+    """render --levels N refines each mesh as refine does: /World/Group's subdiv:levels 2 for its cube, N for the
+    other, through an instance too; the preview has the baked output's triangles, corner for corner; without
+    levels the meshes are drawn as stored."""
+    from warp_subdiv.render import stage_soup
+
+    stage = new_stage(tmp_path / "scene.usda")
+    set_levels(UsdGeom.Xform.Define(stage, "/World/Group").GetPrim(), 2)
+    define_mesh(stage, "/World/Group/Cube", CUBE, CUBE_FACES)
+    define_mesh(stage, "/World/Plain", CUBE, CUBE_FACES)
+    stage.CreateClassPrim("/Proto")
+    define_mesh(stage, "/Proto/Cube", CUBE, CUBE_FACES)
+    inst = stage.DefinePrim("/World/Group/Inst")
+    inst.GetReferences().AddInternalReference("/Proto")
+    inst.SetInstanceable(True)
+    stage.Save()
+    src = str(tmp_path / "scene.usda")
+    dst = tmp_path / "out.usda"
+    refine_usd(src, str(dst), 1, device="cpu")
+    preview = stage_soup(Usd.Stage.Open(src), levels=1, device="cpu")
+    baked = stage_soup(Usd.Stage.Open(str(dst)))
+    assert len(preview.corners) == 3 * 2 * (2 * FACES_AT[2] + FACES_AT[1])  # quads drawn as two triangles
+    assert np.allclose(np.sort(preview.corners, axis=0), np.sort(baked.corners, axis=0), atol=1e-5)
+    assert len(stage_soup(Usd.Stage.Open(src)).corners) == 3 * 2 * 3 * FACES_AT[0]
+    assert cli.main(["render", src, "-o", str(tmp_path / "p.png"), "--levels", "1", "--size", "16x12",
+                     "--samples", "1", "--device", "cpu"]) == 0
+
+
 def camera_over_grid(path):
     """A 3 x 1 plate moving up each frame (1-12) under a camera that comes down from z = 12 to z = 3."""
     from test_distributed_outputs import animated_grid

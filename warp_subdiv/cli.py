@@ -205,8 +205,10 @@ def _add_render(sub) -> None:
     cmd.add_argument("--time", default=None,
                      help="time code to render (default: the stage's start time; without one, the first time "
                           "sample of points that have no default value)")
-    cmd.add_argument("--levels", type=int, default=0,
-                     help="refine subdivision meshes this many levels before rendering (default 0: as stored)")
+    cmd.add_argument("--levels", type=int, default=None,
+                     help="refine subdivision meshes before rendering, as refine does: each USD mesh to its "
+                          "subdiv:levels (or its nearest ancestor's), the others this many levels (default: "
+                          "as stored)")
     cmd.add_argument("--cage", default=None, metavar="FILE",
                      help="draw the control meshes of this USD file (e.g. the input of a refinement) as lines")
     cmd.add_argument("--samples", type=int, default=2, help="samples per pixel along each axis (default 2)")
@@ -697,7 +699,7 @@ def _render(args) -> int:
     view = check_view(args.view)
     if args.samples < 1 or args.samples > 8:
         raise UsageError(f"--samples must be 1 to 8, got {args.samples}")
-    if args.levels < 0:
+    if args.levels is not None and args.levels < 0:
         raise UsageError(f"--levels must be >= 0, got {args.levels}")
     if args.cage is not None:
         _check_input(args.cage)
