@@ -101,7 +101,7 @@ def merge_levels(flats: dict, levels) -> Sdf.Layer:
     is, so each selection composes to exactly that level's flattened bake. A differing attribute outside any
     mesh (an ancestor's ``extentsHint``) keeps the selected level's value."""
     merged = flats[levels[-1]]
-    owners: dict = {}  # mesh path -> [(path relative to the mesh, is a prim)]
+    owners: dict = {}  # mesh path -> [(path of a prim or attribute under it that moves, whether a prim)]
 
     def owner_of(path: Sdf.Path):
         prim = path.GetPrimPath()
@@ -127,19 +127,21 @@ def merge_levels(flats: dict, levels) -> Sdf.Layer:
                 return True
         return False
 
-    def visit(path: Sdf.Path) -> None:
+    paths: set = set()  # every prim and attribute of any level (a level may hold one the others lack)
+    for layer in flats.values():
+        layer.Traverse(Sdf.Path.absoluteRootPath,
+                       lambda path, layer=layer: paths.add(path) if path.IsPrimPath() or (
+                           path.IsPropertyPath() and layer.GetAttributeAtPath(path) is not None) else None)
+    for path in sorted(paths):
         if path.IsPrimPath():
             if any(flats[level].GetPrimAtPath(path) is None for level in levels):
                 mesh = owner_of(path.GetParentPath())
                 if mesh is not None:
                     owners.setdefault(mesh, []).append((path, True))
-        elif path.IsPropertyPath() and not path.IsTargetPath() and merged.GetAttributeAtPath(path) is not None:
-            if differs(path):
-                mesh = owner_of(path)
-                if mesh is not None:
-                    owners.setdefault(mesh, []).append((path, False))
-
-    merged.Traverse(Sdf.Path.absoluteRootPath, visit)
+        elif differs(path):
+            mesh = owner_of(path)
+            if mesh is not None:
+                owners.setdefault(mesh, []).append((path, False))
     for mesh, moved in owners.items():
         # a prim moved whole carries its attributes: drop those listed under it
         prims = [path for path, whole in moved if whole]
