@@ -410,14 +410,116 @@ def test_camera_levels_split_instances_by_distance(tmp_path):
     assert_valid(src, dst)
 
 
-def test_lod_variants_refuse_a_mesh_authored_in_the_input(tmp_path):
-    """A variant cannot override the input's local opinions: the run stops and writes nothing."""
-    stage = new_stage(tmp_path / "local.usda")
-    define_mesh(stage, "/World/Cube", CUBE, CUBE_FACES)
+def composed_values(stage):
+    """{attribute path: composed default value} of every prim of ``stage``, instance proxies too (arrays as
+    numpy)."""
+    out = {}
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        for attr in prim.GetAttributes():
+            value = attr.Get()
+            out[str(attr.GetPath())] = np.asarray(value) if hasattr(value, "__len__") and not isinstance(
+                value, str) else value
+    return out
+
+
+def assert_same_values(got, want, label):
+    assert sorted(got) == sorted(want), label
+    for path, value in want.items():
+        if isinstance(value, np.ndarray):
+            assert np.array_equal(got[path], value), (label, path)
+        else:
+            assert got[path] == value, (label, path)
+
+
+@pytest.mark.parametrize("flatten", [False, True])
+def test_lod_variants_of_meshes_authored_in_the_input(tmp_path, flatten):
+    """Meshes the input defines itself (concave_corner.usda: four plates, two rule sets, concave corners) get
+    their levels in a flattened output (flattened with a warning when flatten is not asked for): every selection
+    composes to exactly the plain flattened bake at that level (every attribute of every prim), whose refined
+    points are ws.refine's; a cube with a face subset and a face-varying primvar beside them too."""
+    import os
+
+    import shutil
+    src = str(tmp_path / "concave_corner.usda")
+    shutil.copy(os.path.join(os.path.dirname(__file__), "..", "scenes", "concave_corner.usda"), src)
+    stage = Usd.Stage.Open(src)
+    cube = define_mesh(stage, "/World/Cube", CUBE, CUBE_FACES)
+    UsdGeom.Subset.CreateGeomSubset(cube, "top", UsdGeom.Tokens.face, [1, 2])
+    uv = UsdGeom.PrimvarsAPI(cube).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                 UsdGeom.Tokens.faceVarying)
+    uv.Set([(i % 4 * 0.25, i // 4 * 0.1) for i in range(24)])
     stage.Save()
-    with pytest.raises(SubdivInputError, match="/World/Cube: composes to a faceVertexCounts of 6 faces"):
-        refine_usd(str(tmp_path / "local.usda"), str(tmp_path / "o.usda"), 1, lod_variants=[0, 1])
-    assert not (tmp_path / "o.usda").exists()
+    meshes = [str(p.GetPath()) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    dst = tmp_path / "lod.usda"
+    result = refine_usd(src, str(dst), 1, lod_variants=[0, 2, 1], flatten=flatten, device="cpu")
+    assert any("the output is flattened" in w for w in result.warnings) == (not flatten)
+    layer = Sdf.Layer.FindOrOpen(str(dst))
+    assert not layer.subLayerPaths  # self-contained
+    record = dict(layer.customLayerData)["warpSubdiv"]
+    assert record["flattened"] and list(record["lodVariants"]) == [0, 2, 1]
+    out = Usd.Stage.Open(str(dst))
+    assert all(out.GetPrimAtPath(m).GetVariantSet("subdivLOD").GetVariantSelection() == "level1" for m in meshes)
+    out.SetEditTarget(out.GetSessionLayer())  # selections in the session layer: the output stays as written
+    for level in (1, 0, 2):  # the selected one first
+        plain = tmp_path / f"plain{level}.usda"
+        refine_usd(src, str(plain), level, flatten=True, mesh_levels={m: level for m in meshes}, device="cpu")
+        for mesh in meshes:
+            out.GetPrimAtPath(mesh).GetVariantSet("subdivLOD").SetVariantSelection(f"level{level}")
+        assert_same_values(composed_values(out), composed_values(Usd.Stage.Open(str(plain))), level)
+        want = ws.refine(ws.Mesh(CUBE, [4] * 6, np.ravel(CUBE_FACES)), level, device="cpu")
+        prim = out.GetPrimAtPath("/World/Cube")
+        assert len(prim.GetAttribute("faceVertexCounts").Get()) == want.num_faces
+        pts = np.asarray(prim.GetAttribute("points").Get(), dtype=np.float64)
+        assert np.allclose(np.sort(pts, axis=0), np.sort(want.points, axis=0), atol=1e-6), level
+        assert len(out.GetPrimAtPath("/World/Cube/top").GetAttribute("indices").Get()) == 2 * 4**level
+    assert_valid(src, dst)
+
+
+def test_lod_variants_flattened_with_instances_and_identical_meshes(tmp_path):
+    """--flatten on referenced meshes: the identical meshes flattened apart, the instances' mesh inside the
+    flattened prototype, each with its variants; every selection composes to the plain flattened bake."""
+    _, src = scene_assets(tmp_path)
+    dst = tmp_path / "lod.usda"
+    assert cli.main(["refine", src, "-o", str(dst), "--levels", "1", "--lod-variants", "0,2", "--flatten",
+                     "--quiet"]) == 0
+    assert Usd.Stage.Open(str(dst)).GetPrimAtPath("/World/I1").IsInstance()
+    for level in (0, 2):
+        path, found = with_selection(dst, level, tmp_path)
+        assert len(found) == 3  # /World/A and /World/B's meshes, the flattened prototype's
+        plain = tmp_path / f"plain{level}.usda"
+        refine_usd(src, str(plain), level, flatten=True, device="cpu")
+        assert_same_values(composed_values(Usd.Stage.Open(path)), composed_values(Usd.Stage.Open(str(plain))),
+                           level)
+        assert faces(Usd.Stage.Open(path), "/World/I2/Geo/Mesh") == FACES_AT[level]
+    assert_valid(src, dst)
+
+
+def test_render_levels_read_subdiv_levels(tmp_path):
+    """render --levels N refines each mesh as refine does: /World/Group's subdiv:levels 2 for its cube, N for the
+    other, through an instance too; the preview has the baked output's triangles, corner for corner; without
+    levels the meshes are drawn as stored."""
+    from warp_subdiv.render import stage_soup
+
+    stage = new_stage(tmp_path / "scene.usda")
+    set_levels(UsdGeom.Xform.Define(stage, "/World/Group").GetPrim(), 2)
+    define_mesh(stage, "/World/Group/Cube", CUBE, CUBE_FACES)
+    define_mesh(stage, "/World/Plain", CUBE, CUBE_FACES)
+    stage.CreateClassPrim("/Proto")
+    define_mesh(stage, "/Proto/Cube", CUBE, CUBE_FACES)
+    inst = stage.DefinePrim("/World/Group/Inst")
+    inst.GetReferences().AddInternalReference("/Proto")
+    inst.SetInstanceable(True)
+    stage.Save()
+    src = str(tmp_path / "scene.usda")
+    dst = tmp_path / "out.usda"
+    refine_usd(src, str(dst), 1, device="cpu")
+    preview = stage_soup(Usd.Stage.Open(src), levels=1, device="cpu")
+    baked = stage_soup(Usd.Stage.Open(str(dst)))
+    assert len(preview.corners) == 3 * 2 * (2 * FACES_AT[2] + FACES_AT[1])  # quads drawn as two triangles
+    assert np.allclose(np.sort(preview.corners, axis=0), np.sort(baked.corners, axis=0), atol=1e-5)
+    assert len(stage_soup(Usd.Stage.Open(src)).corners) == 3 * 2 * 3 * FACES_AT[0]
+    assert cli.main(["render", src, "-o", str(tmp_path / "p.png"), "--levels", "1", "--size", "16x12",
+                     "--samples", "1", "--device", "cpu"]) == 0
 
 
 def camera_over_grid(path):

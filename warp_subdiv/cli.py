@@ -101,8 +101,9 @@ def _add_refine(sub) -> None:
                      help="with --camera: the level of meshes outside the camera's frustum (default 0)")
     cmd.add_argument("--lod-variants", default=None, metavar="L0,L1,...",
                      help="USD: write every refined mesh at each of these levels, inside the variants level<N> of a "
-                          "variant set subdivLOD (the last selected); the meshes must come through references, "
-                          "payloads or instances (a variant is weaker than the input's local opinions)")
+                          "variant set subdivLOD (the last selected); meshes defined in the input itself (whose "
+                          "local opinions a variant cannot beat) get them in a flattened output: --flatten, else "
+                          "flattened with a warning")
     cmd.add_argument("--prim", action="append", metavar="PATH",
                      help="refine only the meshes at or under this prim path (repeatable; USD only)")
     cmd.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
@@ -204,8 +205,10 @@ def _add_render(sub) -> None:
     cmd.add_argument("--time", default=None,
                      help="time code to render (default: the stage's start time; without one, the first time "
                           "sample of points that have no default value)")
-    cmd.add_argument("--levels", type=int, default=0,
-                     help="refine subdivision meshes this many levels before rendering (default 0: as stored)")
+    cmd.add_argument("--levels", type=int, default=None,
+                     help="refine subdivision meshes before rendering, as refine does: each USD mesh to its "
+                          "subdiv:levels (or its nearest ancestor's), the others this many levels (default: "
+                          "as stored)")
     cmd.add_argument("--cage", default=None, metavar="FILE",
                      help="draw the control meshes of this USD file (e.g. the input of a refinement) as lines")
     cmd.add_argument("--samples", type=int, default=2, help="samples per pixel along each axis (default 2)")
@@ -696,7 +699,7 @@ def _render(args) -> int:
     view = check_view(args.view)
     if args.samples < 1 or args.samples > 8:
         raise UsageError(f"--samples must be 1 to 8, got {args.samples}")
-    if args.levels < 0:
+    if args.levels is not None and args.levels < 0:
         raise UsageError(f"--levels must be >= 0, got {args.levels}")
     if args.cage is not None:
         _check_input(args.cage)

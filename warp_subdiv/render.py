@@ -314,10 +314,13 @@ def _placements(stage, prims, time, where: str, purposes) -> list:
     return out
 
 
-def stage_soup(stage, prims=None, time=None, levels: int = 0, device=None, purpose: str = "render") -> Soup:
+def stage_soup(stage, prims=None, time=None, levels: int | None = None, device=None,
+               purpose: str = "render") -> Soup:
     """Every visible mesh at or under ``prims`` of the default purpose or ``purpose`` as a world-space triangle
-    soup (subdivision meshes refined ``levels`` times first, each distinct mesh once: instances of one
-    prototype share it), PointInstancer prototypes once per instance (:func:`mesh_placements`)."""
+    soup (subdivision meshes refined first, each distinct mesh once per level: instances of one prototype share
+    it), PointInstancer prototypes once per instance (:func:`mesh_placements`). ``levels``: None draws the
+    meshes as stored; a level refines each subdivision mesh to the level ``refine`` gives it
+    (:func:`mesh_level`: its ``subdiv:levels`` or its nearest ancestor's, else ``levels``)."""
     from pxr import Usd, UsdGeom
 
     t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
@@ -326,9 +329,10 @@ def stage_soup(stage, prims=None, time=None, levels: int = 0, device=None, purpo
     for prim, matrix in mesh_placements(stage, prims, time, where="render", purpose=purpose):
         if UsdGeom.Imageable(prim).ComputeVisibility(t) == UsdGeom.Tokens.invisible:
             continue
-        key = str(prim.GetPrimInPrototype().GetPath() if prim.IsInstanceProxy() else prim.GetPath())
+        level = 0 if levels is None else mesh_level(prim, levels)
+        key = (str(prim.GetPrimInPrototype().GetPath() if prim.IsInstanceProxy() else prim.GetPath()), level)
         if key not in made:
-            made[key] = _local_mesh(prim, t, levels, device)
+            made[key] = _local_mesh(prim, t, level, device)
         local = made[key]
         if local is None:
             continue
@@ -337,6 +341,16 @@ def stage_soup(stage, prims=None, time=None, levels: int = 0, device=None, purpo
         normals = corner_normals(world, counts, indices) if normals is None else _world_normals(normals, matrix)
         parts.append(_soup(world, counts, indices, normals, colors))
     return Soup.join(parts)
+
+
+def mesh_level(prim, levels: int) -> int:
+    """The level ``refine`` gives mesh ``prim`` with ``--levels levels``: the ``subdiv:levels`` of the mesh or
+    its nearest ancestor (through an instance proxy to the instance and above), else ``levels``
+    (:func:`~warp_subdiv.usd.levels.nearest_level`), so that a preview shows what a bake writes."""
+    from .usd.levels import nearest_level
+
+    found = nearest_level(prim)
+    return levels if found is None else found[0]
 
 
 def _local_mesh(prim, t, levels, device):
@@ -688,10 +702,13 @@ def _nothing_to_render(path, stage, prims, time, purpose) -> SubdivInputError:
 
 
 def render_file(path: str, output: str, *, kind: str = "usd", prims=None, camera=None, view=(-60.0, 30.0),
-                size=(800, 600), time=None, levels: int = 0, cage=None, samples: int = 2, device=None,
+                size=(800, 600), time=None, levels: int | None = None, cage=None, samples: int = 2, device=None,
                 purpose: str = "render") -> np.ndarray:
     """Render ``path`` to the PNG ``output``; returns the image. Of a USD stage, the meshes of the default
-    purpose are drawn with those of ``purpose``, "render" (as a final frame) or "proxy" (:data:`PURPOSES`)."""
+    purpose are drawn with those of ``purpose``, "render" (as a final frame) or "proxy" (:data:`PURPOSES`).
+    ``levels``: None draws the meshes as stored; a level refines every subdivision mesh first, a USD mesh to
+    its ``subdiv:levels`` (or its nearest ancestor's) where one is authored, as ``refine`` does
+    (:func:`mesh_level`), an OBJ to ``levels``."""
     width, height = size
     aspect = width / height
     drawn_purposes(purpose)

@@ -51,7 +51,7 @@ from .ahead import Ahead
 from .batching import Batches
 from .order import check_vertex_order
 from .output_layout import layout
-from .lod import check_lod_run, declare_variant_set, lod_path, variant_name
+from .lod import check_lod_run, declare_variant_set, local_meshes, lod_path, merge_levels, variant_name
 from .planning import Plan, make_refiner, plan
 from .record import layer_record
 from .skinning import check_max_influences, check_skinning
@@ -216,7 +216,11 @@ def refine_usd(
     ``lod_variants``: levels (a list, or "0,1,2"): every mesh is refined to each and written inside the variant
     ``level<N>`` of a variant set ``subdivLOD`` on its refined data, the last one selected
     (:mod:`warp_subdiv.usd.lod`); ``subdiv:levels`` does not apply then (the memory guard predicts every mesh at
-    the highest of the levels), and ``camera`` and ``max_levels`` are refused.
+    the highest of the levels), and ``camera`` and ``max_levels`` are refused. With ``flatten``, and whenever a
+    selected mesh is authored in the input's own layer stack (whose opinions no variant over it can beat; a
+    warning says so), the output is flattened: one bake per level, flattened, merged into one layer whose
+    meshes hold what differs between the levels in their variants
+    (:func:`~warp_subdiv.usd.lod.merge_levels`).
 
     Meshes inside instances are refined once per prototype and written once per distinct refined prototype,
     which the instances reference (they stay instances); meshes with identical inputs are refined once.
@@ -244,7 +248,8 @@ def refine_usd(
     faceVertexIndices is most of a short chunk's cost. The layer alone does not compose to the refined meshes,
     so only their scheme is checked to compose from it.
     ``flatten``: write one self-contained layer, the composed stage flattened (instead of a layer over the
-    input); it holds the selected variants only, and is refused with ``all_variants``.
+    input); it holds the selected variants only (but the ``subdivLOD`` variants of ``lod_variants``), and is
+    refused with ``all_variants``.
     ``shipped``: hierarchies built elsewhere (a distributed bake's topology task ships a mesh's tables to the
     tasks that refine its frames, :mod:`warp_subdiv.usd.distributed`): the refiner of a mesh that one of them
     fits starts from it (:meth:`~warp_subdiv.tables.Hierarchy.fits`), and such a mesh is not batched.
@@ -254,7 +259,7 @@ def refine_usd(
     check_flatten(flatten, all_variants)
     if lod_variants is not None:
         lod_variants = check_lod_run(lod_variants, camera=camera, max_levels=max_levels, all_variants=all_variants,
-                                     flatten=flatten, mesh_levels=mesh_levels, samples_only=samples_only)
+                                     mesh_levels=mesh_levels, samples_only=samples_only)
         levels = max(lod_variants)  # the plan's (and the memory guard's) level of every mesh
     p = plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
              precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit,
@@ -264,21 +269,32 @@ def refine_usd(
              skinning=skinning, max_influences=max_influences)
     out_abs = check_output_path(output_path, p.stage)
     check_memory(p.estimates, max_memory, p.max_level)
+    local = local_meshes(p.stage, [o.composed for o in p.scene.top.meshes]) if lod_variants else []
+    if local and not flatten:  # variants cannot override the input's own opinions: flattened (warp_subdiv.usd.lod)
+        flatten = True
+        p.warnings.append(f"lod_variants: {len(local)} mesh(es) authored in the input itself ({local[0]}"
+                          f"{', ...' if len(local) > 1 else ''}) take their levels only in a flattened output: "
+                          "the output is flattened")
     custom = layer_record(p, levels, limit=limit, normals=normals, semi_sharp=semi_sharp, vertex_order=vertex_order,
                           all_variants=all_variants, flatten=flatten, frames=frames,
                           skinning=skinning, max_influences=max_influences, lod_variants=lod_variants)
     layer = OutputLayer(out_abs, p.stage, custom)
     bake = None
     try:
-        bake = Bake(p, layer, device=device, limit=limit, normals=normals, vertex_order=vertex_order,
-                    samples_only=samples_only, batch=batch, max_memory=max_memory, shipped=shipped,
-                    progress=progress, lod_variants=lod_variants)
-        reports, out_layout = bake.write()
-        # bounding-box hints above the refined meshes: recomputed for the refined surfaces
-        layer.override_extents_hints(p.stage, out_layout.hint_roots(p), frames)
+        settings = dict(device=device, limit=limit, normals=normals, vertex_order=vertex_order,
+                        samples_only=samples_only, batch=batch, max_memory=max_memory, shipped=shipped,
+                        progress=progress)
+        if lod_variants and flatten:
+            bake, reports, merged = _flattened_levels(p, layer, settings, lod_variants, frames)
+        else:
+            bake = Bake(p, layer, lod_variants=lod_variants, **settings)
+            reports, out_layout = bake.write()
+            # bounding-box hints above the refined meshes: recomputed for the refined surfaces
+            layer.override_extents_hints(p.stage, out_layout.hint_roots(p), frames)
+            merged = None
         if progress is not None:
             progress(1.0, "writing " + os.path.basename(out_abs))
-        layer.commit(flatten=flatten)
+        layer.commit(flatten=flatten, flattened=merged)
     except BaseException:
         layer.discard()
         raise
@@ -287,6 +303,28 @@ def refine_usd(
             bake.close()
     return Result(out_abs, reports, bake.warnings, _time.perf_counter() - start,
                   total_bytes(p.estimates, bake.ahead.concurrent))
+
+
+def _flattened_levels(p: Plan, layer: OutputLayer, settings: dict, levels, frames):
+    """LOD variants in a flattened output (:func:`~warp_subdiv.usd.lod.merge_levels`): one plain bake per level
+    into ``layer`` (refined, checked and flattened, then cleared for the next), the flattened layers merged.
+    Returns (the last bake, its reports, the merged layer); the bakes' warnings are gathered on the last."""
+    flats, warnings, bake, reports = {}, [], None, []
+    root = layer.layer.pseudoRoot
+    for level in levels:
+        for child in list(root.nameChildren):  # the previous level's bake
+            del root.nameChildren[child.name]
+        p.levels[:] = [level] * len(p.prims)
+        bake = Bake(p, layer, **settings)
+        try:
+            reports, out_layout = bake.write()
+            layer.override_extents_hints(p.stage, out_layout.hint_roots(p), frames)
+        finally:
+            bake.close()
+        warnings += [w for w in bake.warnings if w not in warnings]
+        flats[level] = layer.flatten()
+    bake.warnings = warnings
+    return bake, reports, merge_levels(flats, levels)
 
 
 def _check_run(input_path, output_path, levels, vertex_order, skinning="bake", max_influences=None) -> None:
