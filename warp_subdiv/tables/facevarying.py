@@ -25,7 +25,7 @@ import warnings
 import numpy as np
 
 from ..errors import NonManifoldWarning, SubdivInputError
-from ..mesh import INFINITE_SHARPNESS, Mesh, check_rows
+from ..mesh import INFINITE_SHARPNESS, Mesh, check_rows, faces_with_repeats
 from ..options import FaceVaryingMode, Scheme
 from ..topology import base_level, triangulate
 
@@ -63,18 +63,58 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str, scheme
     analysed (and its value mesh built) on its fan triangles (:func:`~warp_subdiv.topology.triangulate`),
     which is what the Loop refiner refines: vertices and values then follow the same faces.
     """
-    mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
-    scheme = Scheme.parse(scheme, "scheme")
-    idx = check_value_indices(indices, len(mesh.face_vertex_indices))
-    if scheme == Scheme.LOOP and not mesh.is_all(3):
-        mesh, idx = _fan_triangles(mesh, idx)
-    # vertex-level analysis of the control mesh (edges, fans, sharpness) with the geometry's options
-    level = base_level(mesh, "catmull-clark", boundary, "opensubdiv")
-    cv = mesh.face_vertex_indices.astype(np.int64)
-    pid, source, pair_vertex = _value_vertices(level, cv, idx)
-    nxt = mesh.edges.corner_next.astype(np.int64)
-    value_sharp = _sharp_values(level, mesh.num_vertices, cv, nxt, pid, pair_vertex, mode, boundary)
-    return _tagged_value_mesh(mesh, level, pid, nxt, pair_vertex, value_sharp, mode), source
+    tags = _ValueTags(mesh, indices, mode, boundary, scheme)
+    return tags.mesh(), tags.source
+
+
+class _ValueTags:
+    """What a value mesh is built from: the analysed mesh (the fan triangles of a polygon mesh under Loop), its
+    value-mesh vertex per face corner (``pid``), and per value-mesh vertex its source value index, its vertex
+    and its corner sharpness (the vertex mesh's, infinite for the values the mode makes sharp)."""
+
+    def __init__(self, mesh: Mesh, indices, mode: str, boundary: str, scheme: str, control_level=None):
+        self.mode = mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
+        scheme = Scheme.parse(scheme, "scheme")
+        idx = check_value_indices(indices, len(mesh.face_vertex_indices))
+        if scheme == Scheme.LOOP and not mesh.is_all(3):
+            mesh, idx = _fan_triangles(mesh, idx)
+        self.analysed = mesh
+        # vertex-level analysis of the control mesh (edges, fans, sharpness) with the geometry's options: the
+        # vertex refiner's own (``control_level``) where it has one; the rule set changes only its sectors
+        level = control_level
+        if level is None:
+            level = base_level(mesh, "catmull-clark", boundary, "opensubdiv")
+        self.level = level
+        cv = mesh.face_vertex_indices.astype(np.int64)
+        self.pid, self.source, self.pair_vertex = _value_vertices(level, cv, idx)
+        self.nxt = mesh.edges.corner_next.astype(np.int64)
+        value_sharp = _sharp_values(level, mesh.num_vertices, cv, self.nxt, self.pid, self.pair_vertex, mode,
+                                    boundary)
+        self.corner_sharp = np.maximum(level.vert_sharpness[self.pair_vertex],
+                                       np.where(value_sharp, INFINITE_SHARPNESS, 0.0))
+
+    def mesh(self, faces: np.ndarray | None = None) -> Mesh:
+        """The value mesh (of the control faces ``faces`` only, a bool mask, their values numbered in the
+        order of the whole value mesh's; None: every face)."""
+        return _tagged_value_mesh(self.analysed, self.level, self.pid, self.nxt, self.corner_sharp, self.mode,
+                                  faces)
+
+    def islands(self) -> np.ndarray:
+        """(F,) bool: the faces that are a value-mesh island of their own with every corner sharp (each of its
+        values used by no other face at its vertex, none of its vertices repeated, not a hole). Such a face
+        refines alone, as a single face with infinitely sharp corners and boundary edges: its refined values
+        depend on its own corner values only, and on the order of its value-mesh vertices (see
+        :class:`_Islands`)."""
+        mesh = self.analysed
+        span = np.bincount(self.pid, minlength=len(self.source))
+        lonely = (span[self.pid] == 1) & (self.corner_sharp[self.pid] >= INFINITE_SHARPNESS)
+        counts = mesh.face_vertex_counts
+        face_of = np.repeat(np.arange(len(counts)), counts)
+        island = np.bincount(face_of, weights=~lonely, minlength=len(counts)) == 0
+        island &= ~faces_with_repeats(counts, mesh.face_vertex_indices)
+        if self.level.face_hole is not None:
+            island &= ~self.level.face_hole
+        return island
 
 
 def _value_vertices(level, cv: np.ndarray, idx: np.ndarray):
@@ -160,27 +200,36 @@ def _sharp_values(level, nv: int, cv: np.ndarray, nxt: np.ndarray, pid: np.ndarr
     return value_sharp
 
 
-def _tagged_value_mesh(mesh: Mesh, level, pid: np.ndarray, nxt: np.ndarray, pair_vertex: np.ndarray,
-                       value_sharp: np.ndarray, mode: str) -> Mesh:
+def _tagged_value_mesh(mesh: Mesh, level, pid: np.ndarray, nxt: np.ndarray, corner_sharp: np.ndarray, mode: str,
+                       faces: np.ndarray | None = None) -> Mesh:
     """The value mesh: ``mesh``'s faces over the value-mesh vertices ``pid``, the vertex mesh's creases on the
-    corresponding value edges, its corners on all values, the sharp values as corners, its holes."""
-    npairs = len(pair_vertex)
+    corresponding value edges, ``corner_sharp`` on the values, its holes. ``faces`` (bool per face): only those
+    faces, over the values they use (renumbered in their order); None: every face."""
     counts = mesh.face_vertex_counts
     edge_of_corner = mesh.edges.corner_edge.astype(np.int64)
     crease_pairs = np.stack([pid, pid[nxt]], axis=1)
     crease_sharp = level.edge_sharpness[edge_of_corner]
-    keep = crease_sharp > 0
-    corner_ids = np.arange(npairs)
-    corner_sharp = np.maximum(level.vert_sharpness[pair_vertex], np.where(value_sharp, INFINITE_SHARPNESS, 0.0))
-    keep_c = corner_sharp > 0
-    holes = np.flatnonzero(level.face_hole) if level.face_hole is not None else None
     if mode == FaceVaryingMode.ALL:
         crease_sharp = np.full(len(crease_pairs), INFINITE_SHARPNESS)
-        keep = np.ones(len(crease_pairs), dtype=bool)
+    face_hole = level.face_hole
+    npairs = len(corner_sharp)
+    if faces is not None:
+        corner_in = np.repeat(faces, counts)
+        used = np.zeros(npairs, dtype=bool)
+        used[pid[corner_in]] = True
+        new_id = np.cumsum(used) - 1
+        counts, pid = counts[faces], new_id[pid[corner_in]]
+        crease_pairs, crease_sharp = new_id[crease_pairs[corner_in]], crease_sharp[corner_in]
+        corner_sharp = corner_sharp[used]
+        face_hole = face_hole[faces] if face_hole is not None else None
+        npairs = len(corner_sharp)
+    keep = crease_sharp > 0
+    keep_c = corner_sharp > 0
+    holes = np.flatnonzero(face_hole) if face_hole is not None else None
     return Mesh(
         np.zeros((npairs, 3)), counts, pid,
         creases=crease_pairs[keep], crease_sharpness=crease_sharp[keep],
-        corners=corner_ids[keep_c], corner_sharpness=corner_sharp[keep_c],
+        corners=np.flatnonzero(keep_c), corner_sharpness=corner_sharp[keep_c],
         holes=holes if holes is not None and len(holes) else None,
     )
 
@@ -231,35 +280,70 @@ class FaceVaryingChannel:
     which owns it: the value mesh refined with the vertex refiner's options and OpenSubdiv's rules.
 
     The owning refiner passes itself in (:meth:`Refiner.face_varying_channel`); the value mesh is refined by
-    a refiner of the same type, so this module needs no import of :mod:`warp_subdiv.refiner`."""
+    a refiner of the same type, so this module needs no import of :mod:`warp_subdiv.refiner`.
+
+    Faces that are value-mesh islands with sharp corners (:meth:`_ValueTags.islands`: UVs authored per face
+    corner, unindexed, make every face one) are not refined as part of the value mesh: each refines alone, so
+    all islands of a size and vertex order share one small refiner (:class:`_Islands`), evaluated on all their
+    values at once as columns; the rest of the value mesh gets a refiner of its own. The values are those of
+    the whole value mesh's refiner, bit for bit (the same stencil rows, in the same order); only their
+    numbering differs. :attr:`refiner` (the whole value mesh's refiner) is built when asked for."""
 
     def __init__(self, refiner, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
         self.mode = mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
-        mesh, self.source = value_mesh(refiner.mesh, indices, mode, refiner.boundary, refiner.scheme)
-        options = refiner.options.replace(rules="opensubdiv", boundary="edge-only", flatness=None,
-                                          loop_beta="loop", linear=(mode == FaceVaryingMode.ALL))
+        tags = _ValueTags(refiner.mesh, indices, mode, refiner.boundary, refiner.scheme, _control_level(refiner))
+        self.source = tags.source
+        self._options = refiner.options.replace(rules="opensubdiv", boundary="edge-only", flatness=None,
+                                                loop_beta="loop", linear=(mode == FaceVaryingMode.ALL))
+        self._factory, self._levels, self._device = type(refiner), refiner.levels, refiner.device
+        self.num_source_values = int(self.source.max()) + 1 if len(self.source) else 0
+        self._refiner = self._islands = None
+        island = tags.islands() if refiner.levels >= 1 else None
+        if island is not None and island.any():
+            self._islands = _Islands(self, tags, island)
+            self._tags = tags  # for the whole value mesh's refiner, if asked for
+        else:
+            self._refiner = self._refine(tags.mesh())
+
+    def _refine(self, mesh: Mesh):
+        """A refiner of a value mesh (of the owner's type, with the channel's options)."""
         with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
             warnings.simplefilter("ignore", NonManifoldWarning)
-            self.refiner = type(refiner)(mesh, refiner.levels, options=options, device=refiner.device)
-        self.num_source_values = int(self.source.max()) + 1 if len(self.source) else 0
+            return self._factory(mesh, self._levels, options=self._options, device=self._device)
 
-    def evaluate(self, values):
-        """(refined values (M, d), refined face-varying indices int32 aligned with the refined faces)."""
-        squeeze = np.ndim(values) == 1
+    @property
+    def refiner(self):
+        """The refiner of the whole value mesh (built on first use where the channel refines islands apart)."""
+        if self._refiner is None:
+            self._refiner = self._refine(self._tags.mesh())
+            self._tags = None
+        return self._refiner
+
+    def _checked(self, values):
         if np.ndim(values) in (1, 2) and len(values) < self.num_source_values:
             raise SubdivInputError(
                 f"face-varying indices refer to value {self.num_source_values - 1} but only {len(values)} values "
                 "were given", option="values", element="data", value=len(values),
             )
-        vals = check_rows(values, self.num_source_values, "face-varying values", at_least=True)
-        out = self.refiner.evaluate(vals[self.source], normal_control=False)
-        _, indices = self.refiner.topology()
+        return check_rows(values, self.num_source_values, "face-varying values", at_least=True)
+
+    def evaluate(self, values):
+        """(refined values (M, d), refined face-varying indices int32 aligned with the refined faces)."""
+        squeeze = np.ndim(values) == 1
+        vals = self._checked(values)
+        if self._islands is not None:
+            out, indices = self._islands.evaluate(vals)
+        else:
+            out = self.refiner.evaluate(vals[self.source], normal_control=False)
+            _, indices = self.refiner.topology()
         return (out[:, 0] if squeeze else out), indices
 
     def limit(self, values):
         """Limit values of the refined channel (OpenSubdiv's LimitFaceVarying): the limit masks of the value
         mesh, whose sharp values and seams are the channel's. Returns (values (M, d), indices)."""
-        refined, indices = self.evaluate(values)
+        squeeze = np.ndim(values) == 1
+        refined = self.refiner.evaluate(self._checked(values)[self.source], normal_control=False)
+        _, indices = self.refiner.topology()
         flat = refined[:, None] if refined.ndim == 1 else refined
         columns = []
         for c in range(0, flat.shape[1], 3):  # limit masks act on 3 columns at a time
@@ -267,4 +351,109 @@ class FaceVaryingChannel:
             block[:, :min(3, flat.shape[1] - c)] = flat[:, c:c + 3]
             columns.append(self.refiner.limit_points(block)[:, :min(3, flat.shape[1] - c)])
         out = np.concatenate(columns, axis=1)
-        return (out[:, 0] if refined.ndim == 1 else out), indices
+        return (out[:, 0] if squeeze else out), indices
+
+
+def _control_level(refiner):
+    """The vertex refiner's analysis of its control mesh where it is the one a channel's value mesh needs (a
+    Catmull-Clark refiner's, not linear: the same faces, edges, fans and sharpness), else None."""
+    h = getattr(refiner, "hierarchy", None)
+    level = getattr(h, "control_level", None)
+    options = refiner.options
+    if level is None or options.scheme != Scheme.CATMULL_CLARK or options.linear or h.mesh is not refiner.mesh:
+        return None
+    return level
+
+
+#: Refiners of single faces with sharp corners (:class:`_Islands`), by owner type, face size, vertex order,
+#: levels, options and device: the same few serve every channel of a bake.
+_ISLAND_REFINERS: dict = {}
+
+
+class _Islands:
+    """The islands of a :class:`FaceVaryingChannel` (faces whose values no other face uses, with sharp
+    corners) and the rest of its value mesh, refined apart and put back together in the value mesh's face
+    order.
+
+    An island's refined values depend on its corner values and on the order of its value-mesh vertices (which
+    fixes the order of the stencil rows' terms: the whole value mesh numbers values by vertex, so an island's
+    corners come in the order of their vertices' ids). Islands with the same size and that order share one
+    refiner of a single face numbered the same way, whose stencils are the island's in the whole value mesh;
+    it evaluates all their values at once, one island's values per group of columns."""
+
+    def __init__(self, channel: FaceVaryingChannel, tags: _ValueTags, island: np.ndarray):
+        mesh = tags.analysed
+        counts = mesh.face_vertex_counts.astype(np.int64)
+        levels = channel._levels
+        loop = channel._options.scheme == Scheme.LOOP
+        per_face = np.full(len(counts), 4 ** levels) if loop else counts * 4 ** (levels - 1)
+        if tags.level.face_hole is not None:
+            per_face[tags.level.face_hole] = 0  # a hole (of the value mesh: the analysis's) has no refined faces
+        self.size = 3 if loop else 4
+        first_out = np.concatenate([[0], np.cumsum(per_face)])
+        self.num_out_faces = int(first_out[-1])
+        rest = ~island
+        self.rest = self.rest_source = self.rest_rows = None
+        if rest.any():
+            used = np.zeros(len(tags.source), dtype=bool)
+            used[tags.pid[np.repeat(rest, counts)]] = True
+            self.rest = channel._refine(tags.mesh(rest))
+            self.rest_source = tags.source[used]
+            self.rest_rows = np.flatnonzero(np.repeat(rest, per_face))
+        offsets = first_out[:-1]
+        self.groups = []  # (refiner, value indices (K, n) in its vertex order, output faces (K, per face))
+        for n in np.unique(counts[island]):
+            faces = np.flatnonzero(island & (counts == n))
+            corners = mesh.face_offsets[faces][:, None] + np.arange(n)
+            ids = tags.pid[corners]  # (K, n): the islands' value-mesh vertices
+            order = np.argsort(ids, axis=1, kind="stable")
+            rank = np.argsort(order, axis=1, kind="stable")  # each corner's place among its face's values
+            key = (rank * n ** np.arange(n)).sum(axis=1)
+            keys, which = np.unique(key, return_inverse=True)
+            which = which.reshape(-1)
+            sorted_values = tags.source[np.take_along_axis(ids, order, axis=1)]
+            for g in range(len(keys)):
+                members = which == g
+                single = self._single_face(channel, rank[np.argmax(members)])
+                rows = offsets[faces[members]][:, None] + np.arange(int(per_face[faces[0]]))
+                self.groups.append((single, sorted_values[members], rows))
+
+    @staticmethod
+    def _single_face(channel: FaceVaryingChannel, rank: np.ndarray):
+        """The refiner of one face whose corners are value-mesh vertices ``rank`` (cached)."""
+        key = (channel._factory, tuple(int(r) for r in rank), channel._levels, channel._options,
+               str(channel._device))
+        single = _ISLAND_REFINERS.get(key)
+        if single is None:
+            n = len(rank)
+            mesh = Mesh(np.zeros((n, 3)), [n], rank, corners=np.arange(n),
+                        corner_sharpness=np.full(n, INFINITE_SHARPNESS))
+            single = channel._refine(mesh)
+            if len(_ISLAND_REFINERS) > 256:
+                _ISLAND_REFINERS.clear()
+            _ISLAND_REFINERS[key] = single
+        return single
+
+    def evaluate(self, vals: np.ndarray):
+        """(values (M, d), value index per refined face corner) of the channel's values ``vals`` (m, d)."""
+        d = vals.shape[1]
+        parts, offset = [], 0
+        indices = np.empty((self.num_out_faces, self.size), dtype=np.int64)
+        if self.rest is not None:
+            out = self.rest.evaluate(vals[self.rest_source], normal_control=False)
+            _, rest_indices = self.rest.topology()
+            indices[self.rest_rows] = np.asarray(rest_indices).reshape(-1, self.size)
+            parts.append(out)
+            offset = len(out)
+        for single, value_ids, rows in self.groups:
+            k, n = value_ids.shape
+            columns = vals[value_ids].transpose(1, 0, 2).reshape(n, k * d)  # island j: columns j d .. j d + d - 1
+            out = single.evaluate(columns, normal_control=False)
+            m = len(out)
+            parts.append(out.reshape(m, k, d).transpose(1, 0, 2).reshape(k * m, d))
+            _, own = single.topology()
+            own = np.asarray(own, dtype=np.int64).reshape(1, -1, self.size)
+            indices[rows] = (offset + m * np.arange(k))[:, None, None] + own
+            offset += k * m
+        kind = np.int32 if offset < 2**31 - 1 else np.int64
+        return np.concatenate(parts), indices.reshape(-1).astype(kind, copy=False)
