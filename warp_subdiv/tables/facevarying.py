@@ -401,7 +401,8 @@ class _Islands:
             self.rest_source = tags.source[used]
             self.rest_rows = np.flatnonzero(np.repeat(rest, per_face))
         offsets = first_out[:-1]
-        self.groups = []  # (refiner, value indices (K, n) in its vertex order, output faces (K, per face))
+        self.groups = []  # (refiner, value indices (n, K) in its vertex order, value starts (K,), its value order)
+        group_faces, value_count = [], np.zeros(len(counts), dtype=np.int64)
         for n in np.unique(counts[island]):
             faces = np.flatnonzero(island & (counts == n))
             corners = mesh.face_offsets[faces][:, None] + np.arange(n)
@@ -415,8 +416,36 @@ class _Islands:
             for g in range(len(keys)):
                 members = which == g
                 single = self._single_face(channel, rank[np.argmax(members)])
-                rows = offsets[faces[members]][:, None] + np.arange(int(per_face[faces[0]]))
-                self.groups.append((single, sorted_values[members], rows))
+                value_count[faces[members]] = single.num_vertices
+                group_faces.append(faces[members])
+                self.groups.append([single, np.ascontiguousarray(sorted_values[members].T)])
+        # values: the rest's, then each island's in face order, each numbered in the order its refined faces
+        # first use them; so where every face is an island they come in the order the refined faces use them
+        rest_values = 0 if self.rest is None else self.rest.num_vertices
+        value_start = rest_values + np.cumsum(value_count) - value_count
+        self.num_values = rest_values + int(value_count.sum())
+        kind = np.int32 if self.num_values < 2**31 - 1 else np.int64
+        indices = np.empty((self.num_out_faces, self.size), dtype=kind)
+        if self.rest is not None:
+            indices[self.rest_rows] = np.asarray(self.rest.topology()[1]).reshape(-1, self.size)
+        # the evaluation concatenates the rest's values and each group's (value i of island j of a group at
+        # i K + j: the single face's values for K columns), and takes them out in the channel's order
+        self.order = np.empty(self.num_values, dtype=np.int64)
+        self.order[:rest_values] = np.arange(rest_values)
+        block = rest_values
+        for (single, _), faces in zip(self.groups, group_faces):
+            own = np.asarray(single.topology()[1], dtype=np.int64)
+            _, first = np.unique(own, return_index=True)
+            old_id = np.argsort(first, kind="stable")  # the single face's values in the order of first use
+            new_id = np.empty_like(old_id)
+            new_id[old_id] = np.arange(len(old_id))
+            starts = value_start[faces]
+            rows = offsets[faces][:, None] + np.arange(len(own) // self.size)
+            indices[rows] = (starts[:, None] + new_id[own]).reshape(len(faces), -1, self.size)
+            k = len(faces)
+            self.order[starts[:, None] + np.arange(len(old_id))] = block + old_id * k + np.arange(k)[:, None]
+            block += k * len(old_id)
+        self.indices = indices.reshape(-1)
 
     @staticmethod
     def _single_face(channel: FaceVaryingChannel, rank: np.ndarray):
@@ -437,23 +466,12 @@ class _Islands:
     def evaluate(self, vals: np.ndarray):
         """(values (M, d), value index per refined face corner) of the channel's values ``vals`` (m, d)."""
         d = vals.shape[1]
-        parts, offset = [], 0
-        indices = np.empty((self.num_out_faces, self.size), dtype=np.int64)
+        blocks = []
         if self.rest is not None:
-            out = self.rest.evaluate(vals[self.rest_source], normal_control=False)
-            _, rest_indices = self.rest.topology()
-            indices[self.rest_rows] = np.asarray(rest_indices).reshape(-1, self.size)
-            parts.append(out)
-            offset = len(out)
-        for single, value_ids, rows in self.groups:
-            k, n = value_ids.shape
-            columns = vals[value_ids].transpose(1, 0, 2).reshape(n, k * d)  # island j: columns j d .. j d + d - 1
-            out = single.evaluate(columns, normal_control=False)
-            m = len(out)
-            parts.append(out.reshape(m, k, d).transpose(1, 0, 2).reshape(k * m, d))
-            _, own = single.topology()
-            own = np.asarray(own, dtype=np.int64).reshape(1, -1, self.size)
-            indices[rows] = (offset + m * np.arange(k))[:, None, None] + own
-            offset += k * m
-        kind = np.int32 if offset < 2**31 - 1 else np.int64
-        return np.concatenate(parts), indices.reshape(-1).astype(kind, copy=False)
+            blocks.append(self.rest.evaluate(np.take(vals, self.rest_source, axis=0), normal_control=False))
+        for single, value_ids in self.groups:
+            n, k = value_ids.shape
+            columns = np.take(vals, value_ids, axis=0).reshape(n, k * d)  # island j: columns j d .. j d + d - 1
+            blocks.append(single.evaluate(columns, normal_control=False).reshape(-1, d))
+        joined = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
+        return np.take(joined, self.order, axis=0), self.indices
