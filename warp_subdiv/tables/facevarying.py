@@ -305,6 +305,12 @@ class FaceVaryingChannel:
         else:
             self._refiner = self._refine(tags.mesh())
 
+    @property
+    def first_use_order(self) -> bool:
+        """Whether :meth:`evaluate`'s values come in the order its indices first use them, each used (where
+        every face is an island)."""
+        return self._islands is not None and self._islands.first_use_order
+
     def _refine(self, mesh: Mesh):
         """A refiner of a value mesh (of the owner's type, with the channel's options)."""
         with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
@@ -370,6 +376,28 @@ def _control_level(refiner):
 _ISLAND_REFINERS: dict = {}
 
 
+def _single_face(channel: FaceVaryingChannel, rank: np.ndarray):
+    """(refiner, number of values, its values in the order its refined faces first use them, its refined
+    corners' values in that numbering) of one face whose corners are value-mesh vertices ``rank``, with sharp
+    corners (cached: :data:`_ISLAND_REFINERS`)."""
+    key = (channel._factory, tuple(int(r) for r in rank), channel._levels, channel._options, str(channel._device))
+    single = _ISLAND_REFINERS.get(key)
+    if single is None:
+        n = len(rank)
+        refiner = channel._refine(Mesh(np.zeros((n, 3)), [n], rank, corners=np.arange(n),
+                                       corner_sharpness=np.full(n, INFINITE_SHARPNESS)))
+        own = np.asarray(refiner.topology()[1], dtype=np.int64)
+        _, first = np.unique(own, return_index=True)
+        old_id = np.argsort(first, kind="stable")
+        new_id = np.empty_like(old_id)
+        new_id[old_id] = np.arange(len(old_id))
+        single = (refiner, refiner.num_vertices, old_id, new_id[own])
+        if len(_ISLAND_REFINERS) > 256:
+            _ISLAND_REFINERS.clear()
+        _ISLAND_REFINERS[key] = single
+    return single
+
+
 class _Islands:
     """The islands of a :class:`FaceVaryingChannel` (faces whose values no other face uses, with sharp
     corners) and the rest of its value mesh, refined apart and put back together in the value mesh's face
@@ -400,68 +428,52 @@ class _Islands:
             self.rest = channel._refine(tags.mesh(rest))
             self.rest_source = tags.source[used]
             self.rest_rows = np.flatnonzero(np.repeat(rest, per_face))
-        offsets = first_out[:-1]
-        self.groups = []  # (refiner, value indices (n, K) in its vertex order, value starts (K,), its value order)
-        group_faces, value_count = [], np.zeros(len(counts), dtype=np.int64)
+        self.groups = []  # (refiner, value indices (n, K) in its vertex order)
+        group_faces, group_singles, value_count = [], [], np.zeros(len(counts), dtype=np.int64)
         for n in np.unique(counts[island]):
             faces = np.flatnonzero(island & (counts == n))
             corners = mesh.face_offsets[faces][:, None] + np.arange(n)
             ids = tags.pid[corners]  # (K, n): the islands' value-mesh vertices
             order = np.argsort(ids, axis=1, kind="stable")
             rank = np.argsort(order, axis=1, kind="stable")  # each corner's place among its face's values
-            key = (rank * n ** np.arange(n)).sum(axis=1)
-            keys, which = np.unique(key, return_inverse=True)
+            keys, first, which = np.unique((rank * n ** np.arange(n)).sum(axis=1), return_index=True,
+                                           return_inverse=True)
             which = which.reshape(-1)
             sorted_values = tags.source[np.take_along_axis(ids, order, axis=1)]
+            split = np.argsort(which, kind="stable")  # the faces of each vertex order, in face order
+            bounds = np.concatenate([[0], np.cumsum(np.bincount(which))])
             for g in range(len(keys)):
-                members = which == g
-                single = self._single_face(channel, rank[np.argmax(members)])
-                value_count[faces[members]] = single.num_vertices
+                members = split[bounds[g]:bounds[g + 1]]
+                single = _single_face(channel, rank[first[g]])
+                value_count[faces[members]] = single[1]
                 group_faces.append(faces[members])
-                self.groups.append([single, np.ascontiguousarray(sorted_values[members].T)])
+                group_singles.append(single)
+                self.groups.append((single[0], np.ascontiguousarray(sorted_values[members].T)))
         # values: the rest's, then each island's in face order, each numbered in the order its refined faces
         # first use them; so where every face is an island they come in the order the refined faces use them
         rest_values = 0 if self.rest is None else self.rest.num_vertices
         value_start = rest_values + np.cumsum(value_count) - value_count
         self.num_values = rest_values + int(value_count.sum())
+        self.first_use_order = self.rest is None
         kind = np.int32 if self.num_values < 2**31 - 1 else np.int64
-        indices = np.empty((self.num_out_faces, self.size), dtype=kind)
+        indices = np.empty(self.num_out_faces * self.size, dtype=kind)
         if self.rest is not None:
-            indices[self.rest_rows] = np.asarray(self.rest.topology()[1]).reshape(-1, self.size)
+            corner_rows = (self.rest_rows * self.size)[:, None] + np.arange(self.size)
+            indices[corner_rows.reshape(-1)] = self.rest.topology()[1]
         # the evaluation concatenates the rest's values and each group's (value i of island j of a group at
         # i K + j: the single face's values for K columns), and takes them out in the channel's order
         self.order = np.empty(self.num_values, dtype=np.int64)
         self.order[:rest_values] = np.arange(rest_values)
         block = rest_values
-        for (single, _), faces in zip(self.groups, group_faces):
-            own = np.asarray(single.topology()[1], dtype=np.int64)
-            _, first = np.unique(own, return_index=True)
-            old_id = np.argsort(first, kind="stable")  # the single face's values in the order of first use
-            new_id = np.empty_like(old_id)
-            new_id[old_id] = np.arange(len(old_id))
+        for faces, (_, m, old_id, own) in zip(group_faces, group_singles):
             starts = value_start[faces]
-            rows = offsets[faces][:, None] + np.arange(len(own) // self.size)
-            indices[rows] = (starts[:, None] + new_id[own]).reshape(len(faces), -1, self.size)
+            at = (first_out[faces] * self.size)[:, None] + np.arange(len(own))
+            indices[at.reshape(-1)] = (starts[:, None] + own).reshape(-1)
             k = len(faces)
-            self.order[starts[:, None] + np.arange(len(old_id))] = block + old_id * k + np.arange(k)[:, None]
-            block += k * len(old_id)
-        self.indices = indices.reshape(-1)
-
-    @staticmethod
-    def _single_face(channel: FaceVaryingChannel, rank: np.ndarray):
-        """The refiner of one face whose corners are value-mesh vertices ``rank`` (cached)."""
-        key = (channel._factory, tuple(int(r) for r in rank), channel._levels, channel._options,
-               str(channel._device))
-        single = _ISLAND_REFINERS.get(key)
-        if single is None:
-            n = len(rank)
-            mesh = Mesh(np.zeros((n, 3)), [n], rank, corners=np.arange(n),
-                        corner_sharpness=np.full(n, INFINITE_SHARPNESS))
-            single = channel._refine(mesh)
-            if len(_ISLAND_REFINERS) > 256:
-                _ISLAND_REFINERS.clear()
-            _ISLAND_REFINERS[key] = single
-        return single
+            self.order[(starts[:, None] + np.arange(m)).reshape(-1)] = (
+                block + old_id * k + np.arange(k)[:, None]).reshape(-1)
+            block += k * m
+        self.indices = indices
 
     def evaluate(self, vals: np.ndarray):
         """(values (M, d), value index per refined face corner) of the channel's values ``vals`` (m, d)."""

@@ -70,17 +70,6 @@ def appearance_order(indices: np.ndarray, num: int, keep: int = 0):
     return new_id, old_id
 
 
-def in_first_use_order(indices, num: int) -> bool:
-    """Whether ids 0 .. ``num`` - 1 are numbered in the order ``indices`` first uses them, each used: every
-    index at most one more than the largest before it, and the largest ``num`` - 1 (one running maximum, much
-    cheaper than :func:`appearance_order`)."""
-    indices = np.asarray(indices)
-    if len(indices) == 0 or num == 0 or indices[0] != 0:
-        return len(indices) == 0 and num == 0
-    running = np.maximum.accumulate(indices)
-    return int(running[-1]) == num - 1 and bool(np.all(indices[1:] <= running[:-1] + 1))
-
-
 def _rows(data, old_id):
     """Rows of ``data`` (refined, in the refiner's order) in the compact order; 1-D data stays 1-D. ``np.take``
     along the rows: a fancy index copies rows of a 2-D array several times slower."""
@@ -155,8 +144,6 @@ class OrderedRefiner:
 
     def _face_varying(self, values, indices):
         """Values numbered in the order the refined faces first use them; values no face uses are dropped."""
-        if in_first_use_order(indices, len(values)):  # (a channel of islands only comes so)
-            return values, np.asarray(indices, dtype=np.int32)
         new_id, old_id = appearance_order(indices, len(values))
         indices = np.asarray(indices)
         used = np.zeros(len(values), dtype=bool)
@@ -166,7 +153,11 @@ class OrderedRefiner:
     def evaluate_face_varying(self, values, indices, mode="corners-plus1"):
         fast = _fast_parts(self.refiner, values, indices, mode, self._fast_plan, rows=self.old_id)
         if fast is None:
-            return self._face_varying(*self.refiner.evaluate_face_varying(values, indices, mode=mode))
+            channel = self.refiner.face_varying_channel(indices, mode)
+            refined, at = channel.evaluate(values)
+            if channel.first_use_order:  # (a channel of islands only)
+                return refined, at.astype(np.int32, copy=False)
+            return self._face_varying(refined, at)
         # values away from the seams are the vertices' (ids below N): numbered as the vertices are (the rows
         # come in the compact order), so no second renumbering pass; the values near the seams follow (a vertex
         # only the faces near a seam use keeps a value that no corner uses). The indices are the compact
