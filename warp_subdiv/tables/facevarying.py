@@ -398,6 +398,14 @@ def _single_face(channel: FaceVaryingChannel, rank: np.ndarray):
     return single
 
 
+def _put(out: np.ndarray, starts: np.ndarray, width: int, rows: np.ndarray) -> None:
+    """``out[starts[i] + j] = rows[i, j]`` for j < ``width``: a slice where the runs follow each other."""
+    if len(starts) and starts[-1] - starts[0] == (len(starts) - 1) * width and np.all(np.diff(starts) == width):
+        out[starts[0]:starts[0] + rows.size] = rows.reshape(-1)
+    else:
+        out[(starts[:, None] + np.arange(width)).reshape(-1)] = rows.reshape(-1)
+
+
 class _Islands:
     """The islands of a :class:`FaceVaryingChannel` (faces whose values no other face uses, with sharp
     corners) and the rest of its value mesh, refined apart and put back together in the value mesh's face
@@ -428,33 +436,24 @@ class _Islands:
             self.rest = channel._refine(tags.mesh(rest))
             self.rest_source = tags.source[used]
             self.rest_rows = np.flatnonzero(np.repeat(rest, per_face))
-        self.groups = []  # (refiner, value indices (n, K) in its vertex order)
-        group_faces, group_singles, value_count = [], [], np.zeros(len(counts), dtype=np.int64)
+        self.groups = []  # (refiner, value indices (n, K) in its vertex order), by face size, then vertex order
+        rest_values = 0 if self.rest is None else self.rest.num_vertices
+        self.first_use_order = self.rest is None
+        sizes, value_count = [], np.zeros(len(counts), dtype=np.int64)
         for n in np.unique(counts[island]):
             faces = np.flatnonzero(island & (counts == n))
-            corners = mesh.face_offsets[faces][:, None] + np.arange(n)
-            ids = tags.pid[corners]  # (K, n): the islands' value-mesh vertices
+            ids = tags.pid[mesh.face_offsets[faces][:, None] + np.arange(n)]  # (K, n): their value-mesh vertices
             order = np.argsort(ids, axis=1, kind="stable")
             rank = np.argsort(order, axis=1, kind="stable")  # each corner's place among its face's values
-            keys, first, which = np.unique((rank * n ** np.arange(n)).sum(axis=1), return_index=True,
-                                           return_inverse=True)
-            which = which.reshape(-1)
-            sorted_values = tags.source[np.take_along_axis(ids, order, axis=1)]
-            split = np.argsort(which, kind="stable")  # the faces of each vertex order, in face order
-            bounds = np.concatenate([[0], np.cumsum(np.bincount(which))])
-            for g in range(len(keys)):
-                members = split[bounds[g]:bounds[g + 1]]
-                single = _single_face(channel, rank[first[g]])
-                value_count[faces[members]] = single[1]
-                group_faces.append(faces[members])
-                group_singles.append(single)
-                self.groups.append((single[0], np.ascontiguousarray(sorted_values[members].T)))
+            _, first, which = np.unique((rank * n ** np.arange(n)).sum(axis=1), return_index=True,
+                                        return_inverse=True)
+            singles = [_single_face(channel, rank[f]) for f in first]
+            value_count[faces] = singles[0][1]  # (every single face of a size has as many values)
+            sizes.append((faces, tags.source[np.take_along_axis(ids, order, axis=1)], which.reshape(-1), singles))
         # values: the rest's, then each island's in face order, each numbered in the order its refined faces
         # first use them; so where every face is an island they come in the order the refined faces use them
-        rest_values = 0 if self.rest is None else self.rest.num_vertices
         value_start = rest_values + np.cumsum(value_count) - value_count
         self.num_values = rest_values + int(value_count.sum())
-        self.first_use_order = self.rest is None
         kind = np.int32 if self.num_values < 2**31 - 1 else np.int64
         indices = np.empty(self.num_out_faces * self.size, dtype=kind)
         if self.rest is not None:
@@ -465,14 +464,23 @@ class _Islands:
         self.order = np.empty(self.num_values, dtype=np.int64)
         self.order[:rest_values] = np.arange(rest_values)
         block = rest_values
-        for faces, (_, m, old_id, own) in zip(group_faces, group_singles):
+        for faces, values, which, singles in sizes:
+            m, corners = singles[0][1], len(singles[0][3])
+            group_size = np.bincount(which, minlength=len(singles))
+            members = np.argsort(which, kind="stable")  # the islands of each group, in face order
+            group_first = np.cumsum(group_size) - group_size
+            place = np.empty(len(faces), dtype=np.int64)  # each island's place in its group
+            place[members] = np.arange(len(faces)) - np.repeat(group_first, group_size)
+            group_block = block + group_first * m
+            own = np.take(np.stack([s[3] for s in singles]), which, axis=0)  # (K, corners)
+            old_id = np.take(np.stack([s[2] for s in singles]), which, axis=0)  # (K, m)
             starts = value_start[faces]
-            at = (first_out[faces] * self.size)[:, None] + np.arange(len(own))
-            indices[at.reshape(-1)] = (starts[:, None] + own).reshape(-1)
-            k = len(faces)
-            self.order[(starts[:, None] + np.arange(m)).reshape(-1)] = (
-                block + old_id * k + np.arange(k)[:, None]).reshape(-1)
-            block += k * m
+            _put(indices, first_out[faces] * self.size, corners, starts[:, None] + own)
+            _put(self.order, starts, m, (group_block[which] + place)[:, None] + old_id * group_size[which][:, None])
+            for g, single in enumerate(singles):
+                chosen = members[group_first[g]:group_first[g] + group_size[g]]
+                self.groups.append((single[0], np.ascontiguousarray(values[chosen].T)))
+            block += len(faces) * m
         self.indices = indices
 
     def evaluate(self, vals: np.ndarray):
