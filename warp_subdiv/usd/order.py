@@ -278,7 +278,6 @@ def _fast_parts(refiner, values, indices, mode, cache: dict | None = None, rows=
     if np.ndim(values) in (1, 2) and len(values) <= int(idx.max()):
         raise SubdivInputError(f"face-varying indices refer to value {int(idx.max())} but only {len(values)} values "
                                "were given", option="values", element="data", value=len(values))
-    vals = check_rows(values, int(idx.max()) + 1, "face-varying values", at_least=True)
     if cache is None:
         plan = _fast_plan(refiner, idx, mode)
     else:
@@ -288,7 +287,8 @@ def _fast_parts(refiner, values, indices, mode, cache: dict | None = None, rows=
             cache.update(key=key, plan=_fast_plan(refiner, idx, mode))
         plan = cache["plan"]
     if plan is None:
-        return None
+        return None  # (the channel checks the values)
+    vals = check_rows(values, int(idx.max()) + 1, "face-varying values", at_least=True)
 
     parts = _FastParts()
     parts.plan, parts.squeeze = plan, squeeze
