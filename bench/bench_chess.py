@@ -1,6 +1,7 @@
 """A real asset's bake against usd-core's read + write floor: the OpenChessSet (or any USD file).
 
     python bench/bench_chess.py PATH/TO/chess_set.usda [--levels 2] [--reps 3] [--profile N] [--json OUT]
+                                [--lib EXPORTED_CHECKOUT]
 
 The asset is not in the repository. Get it from https://github.com/usd-wg/assets (folder
 ``full_assets/OpenChessSet``; e.g. ``git clone --depth 1 https://github.com/usd-wg/assets``, then pass
@@ -25,10 +26,13 @@ Ratios printed (the targets in brackets): bake / (read floor + write floor) [1.3
 refine phase (the vertex refinement) [1.5], the bake's read phase / the read floor [2]; each as the median of
 the reps' ratios and best against best.
 
-``--profile N``: afterwards, one more bake on one thread under cProfile; prints the N functions with the most
-own time and the N with the most cumulative time, and each phase's top functions (by cumulative time, for
-the functions that a phase's entry points call). ``--keep DIR``: write the outputs there (default: a temporary
-folder, removed).
+``--profile N``: afterwards, one more bake on one thread (every phase on this thread, so cProfile sees it all)
+under cProfile; prints the N functions with the most own time and the N with the most cumulative time (the
+phases' entry points: ``plan`` = read, ``make_refiner`` / ``Hierarchy`` = analyse, ``MeshRefinement.positions``
+= refine, ``MeshRefinement.face_varying`` = face-varying, ``OutputLayer.commit`` = write). ``--keep DIR``:
+write the outputs there (default: a temporary folder, removed). ``--lib DIR``: import ``warp_subdiv`` from DIR
+(e.g. ``git archive REV warp_subdiv kernels | tar -x -C DIR``), to compare a commit before and after on the
+same machine.
 """
 from __future__ import annotations
 
@@ -123,11 +127,18 @@ def main(argv=None) -> int:
     ap.add_argument("--no-one-thread", action="store_true", help="skip the one-thread bake")
     ap.add_argument("--profile", type=int, default=0, metavar="N", help="then profile a one-thread bake")
     ap.add_argument("--keep", help="folder for the outputs (default: a temporary one, removed)")
+    ap.add_argument("--lib", help="import warp_subdiv from this folder instead (e.g. an older commit exported "
+                                  "with git archive: a before/after comparison on the same machine)")
     ap.add_argument("--json")
     args = ap.parse_args(argv)
     if not os.path.exists(args.asset):
         print(f"bench_chess: {args.asset} not found; {ASSET_HINT}", file=sys.stderr)
         return 2
+    if args.lib:
+        sys.path.insert(0, os.path.abspath(args.lib))
+    import warp_subdiv
+
+    print(f"warp_subdiv from {os.path.dirname(os.path.abspath(warp_subdiv.__file__))}")
     from warp_subdiv.runtime.allocator import retain_freed_memory
 
     retained = retain_freed_memory()  # as the warp-subdiv command does
