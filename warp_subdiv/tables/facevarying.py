@@ -481,6 +481,7 @@ class _Islands:
                 chosen = members[group_first[g]:group_first[g] + group_size[g]]
                 self.groups.append((single[0], np.ascontiguousarray(values[chosen].T)))
             block += len(faces) * m
+        indices.flags.writeable = False  # (handed out by every evaluation, as a refiner's topology is)
         self.indices = indices
 
     def evaluate(self, vals: np.ndarray):
