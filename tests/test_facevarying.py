@@ -279,3 +279,20 @@ def test_unindexed_uvs_refine_islands_apart():
     whole = channel.refiner
     np.testing.assert_array_equal(_bits(values[at]), _bits(whole.evaluate(vals[channel.source], normal_control=False)[
         whole.topology()[1]]))
+
+
+def test_many_islands_evaluate_in_chunks_with_the_same_bits(monkeypatch):
+    """Islands beyond ISLANDS_PER_EVALUATION per vertex order are evaluated in padded chunks: the same bits."""
+    from warp_subdiv.tables import facevarying
+
+    mesh = load_mesh("grid3x3")
+    r = ws.Refiner(mesh, 2, device="cpu", precision="float64")
+    vals = np.random.default_rng(6).random((len(mesh.face_vertex_indices), 3))
+    full = r.face_varying_channel(islands(mesh), "corners-only").refiner  # the whole value mesh's refiner
+    source = r.face_varying_channel(islands(mesh), "corners-only").source
+    expected = full.evaluate(vals[source], normal_control=False)[full.topology()[1]]
+    monkeypatch.setattr(facevarying, "ISLANDS_PER_EVALUATION", 2)
+    chunked = facevarying.FaceVaryingChannel(r, islands(mesh), "corners-only")
+    assert max(v.shape[1] for _, v in chunked._islands.groups) > 2  # (some group is chunked)
+    values, at = chunked.evaluate(vals)
+    np.testing.assert_array_equal(_bits(values[at]), _bits(expected))

@@ -371,6 +371,10 @@ def _control_level(refiner):
     return level
 
 
+#: Islands evaluated at once by a single face's refiner (one column group each): its level buffers hold
+#: (values, islands x width) rows, so a larger group is evaluated in chunks of this many (a few MiB).
+ISLANDS_PER_EVALUATION = 8192
+
 #: Refiners of single faces with sharp corners (:class:`_Islands`), by owner type, face size, vertex order,
 #: levels, options and device: the same few serve every channel of a bake.
 _ISLAND_REFINERS: dict = {}
@@ -492,7 +496,21 @@ class _Islands:
             blocks.append(self.rest.evaluate(np.take(vals, self.rest_source, axis=0), normal_control=False))
         for single, value_ids in self.groups:
             n, k = value_ids.shape
-            columns = np.take(vals, value_ids, axis=0).reshape(n, k * d)  # island j: columns j d .. j d + d - 1
-            blocks.append(single.evaluate(columns, normal_control=False).reshape(-1, d))
+            if k <= ISLANDS_PER_EVALUATION:
+                columns = np.take(vals, value_ids, axis=0).reshape(n, k * d)  # island j: columns j d .. j d + d - 1
+                blocks.append(single.evaluate(columns, normal_control=False).reshape(-1, d))
+                continue
+            # many islands: in chunks of a fixed width (the last one padded), so that the single face's refiner
+            # keeps level buffers of a bounded width and records its launches for one width
+            out = None
+            columns = np.zeros((n, ISLANDS_PER_EVALUATION, d))
+            for a in range(0, k, ISLANDS_PER_EVALUATION):
+                b = min(k, a + ISLANDS_PER_EVALUATION)
+                columns[:, :b - a] = np.take(vals, value_ids[:, a:b], axis=0)
+                part = single.evaluate(columns.reshape(n, -1), normal_control=False)
+                if out is None:
+                    out = np.empty((len(part), k, d), dtype=part.dtype)
+                out[:, a:b] = part.reshape(len(part), ISLANDS_PER_EVALUATION, d)[:, :b - a]
+            blocks.append(out.reshape(-1, d))
         joined = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
         return np.take(joined, self.order, axis=0), self.indices
