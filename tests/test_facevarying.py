@@ -220,13 +220,25 @@ def _bits(a):
     return a.view(np.uint32 if a.dtype == np.float32 else np.uint64)
 
 
+@pytest.fixture
+def every_island_apart(monkeypatch):
+    """Refine every island apart, however few share a vertex order (small test meshes have few)."""
+    from warp_subdiv.tables import facevarying
+
+    monkeypatch.setattr(facevarying, "MIN_ISLANDS", 1)
+
+
 @pytest.mark.parametrize("seed", range(10))
-def test_islands_refined_apart_equal_the_whole_value_mesh_bit_for_bit(seed):
+@pytest.mark.parametrize("min_islands", [1, 4])
+def test_islands_refined_apart_equal_the_whole_value_mesh_bit_for_bit(seed, min_islands, monkeypatch):
     """Faces that are UV islands of their own (per-corner values) refine apart from the rest of the value mesh
     (one small refiner per face size and vertex order): on random open grids of quads, triangles or mixed
     polygons, with shared-value regions, creases (one on an island), a hole and a semi-sharp corner, every
     mode, both precisions, levels 1-3: the same bits at every refined corner as the whole value mesh's refiner
-    gives."""
+    gives. ``min_islands`` 4: the islands of rarer vertex orders refine with the rest."""
+    from warp_subdiv.tables import facevarying
+
+    monkeypatch.setattr(facevarying, "MIN_ISLANDS", min_islands)
     rng = np.random.default_rng(seed)
     nx, ny = 6, 5
     x, y = np.meshgrid(np.arange(nx + 1, dtype=float), np.arange(ny + 1, dtype=float))
@@ -267,7 +279,7 @@ def test_islands_refined_apart_equal_the_whole_value_mesh_bit_for_bit(seed):
             assert channel._islands is not None
 
 
-def test_unindexed_uvs_refine_islands_apart():
+def test_unindexed_uvs_refine_islands_apart(every_island_apart):
     """Per-corner UVs (every face an island) on a cube: no refiner of the whole value mesh is built, and the
     values are its values."""
     cube = load_mesh("cube")
@@ -292,7 +304,22 @@ def test_many_islands_evaluate_in_chunks_with_the_same_bits(monkeypatch):
     source = r.face_varying_channel(islands(mesh), "corners-only").source
     expected = full.evaluate(vals[source], normal_control=False)[full.topology()[1]]
     monkeypatch.setattr(facevarying, "ISLANDS_PER_EVALUATION", 2)
+    monkeypatch.setattr(facevarying, "MIN_ISLANDS", 1)
     chunked = facevarying.FaceVaryingChannel(r, islands(mesh), "corners-only")
     assert max(v.shape[1] for _, v in chunked._islands.groups) > 2  # (some group is chunked)
     values, at = chunked.evaluate(vals)
     np.testing.assert_array_equal(_bits(values[at]), _bits(expected))
+
+
+def test_rare_vertex_orders_refine_with_the_rest():
+    """With the default MIN_ISLANDS a small mesh's few islands refine with the rest: no single-face refiner,
+    the same bits as the whole value mesh's refiner."""
+    cube = load_mesh("cube")
+    r = ws.Refiner(cube, 2, device="cpu")
+    vals = np.random.default_rng(7).random((24, 2))
+    channel = r.face_varying_channel(islands(cube), "corners-plus1")
+    values, at = channel.evaluate(vals)
+    assert channel._islands.groups == [] and channel._islands.rest is not None
+    whole = channel.refiner
+    np.testing.assert_array_equal(_bits(values[at]), _bits(whole.evaluate(vals[channel.source], normal_control=False)[
+        whole.topology()[1]]))

@@ -375,6 +375,10 @@ def _control_level(refiner):
 #: (values, islands x width) rows, so a larger group is evaluated in chunks of this many (a few MiB).
 ISLANDS_PER_EVALUATION = 8192
 
+#: Islands of one size and vertex order that make a single face's refiner worth building (~6 ms, once per
+#: process): fewer refine with the rest of the value mesh.
+MIN_ISLANDS = 64
+
 #: Refiners of single faces with sharp corners (:class:`_Islands`), by owner type, face size, vertex order,
 #: levels, options and device: the same few serve every channel of a bake.
 _ISLAND_REFINERS: dict = {}
@@ -432,6 +436,23 @@ class _Islands:
         self.size = 3 if loop else 4
         first_out = np.concatenate([[0], np.cumsum(per_face)])
         self.num_out_faces = int(first_out[-1])
+        # the islands of every size by the order of their value-mesh vertices; the islands of an order with
+        # fewer than MIN_ISLANDS of them refine with the rest (a single face's refiner costs more to build)
+        island = island.copy()
+        orders = []
+        for n in np.unique(counts[island]):
+            faces = np.flatnonzero(island & (counts == n))
+            ids = tags.pid[mesh.face_offsets[faces][:, None] + np.arange(n)]  # (K, n): their value-mesh vertices
+            order = np.argsort(ids, axis=1, kind="stable")
+            rank = np.argsort(order, axis=1, kind="stable")  # each corner's place among its face's values
+            key = (rank * n ** np.arange(n)).sum(axis=1)
+            _, which, group_size = np.unique(key, return_inverse=True, return_counts=True)
+            common = group_size[which.reshape(-1)] >= MIN_ISLANDS
+            if not common.all():
+                island[faces[~common]] = False
+                faces, ids, order, rank, key = faces[common], ids[common], order[common], rank[common], key[common]
+            if len(faces):
+                orders.append((n, faces, ids, order, rank, key))
         rest = ~island
         self.rest = self.rest_source = self.rest_rows = None
         if rest.any():
@@ -444,13 +465,8 @@ class _Islands:
         rest_values = 0 if self.rest is None else self.rest.num_vertices
         self.first_use_order = self.rest is None
         sizes, value_count = [], np.zeros(len(counts), dtype=np.int64)
-        for n in np.unique(counts[island]):
-            faces = np.flatnonzero(island & (counts == n))
-            ids = tags.pid[mesh.face_offsets[faces][:, None] + np.arange(n)]  # (K, n): their value-mesh vertices
-            order = np.argsort(ids, axis=1, kind="stable")
-            rank = np.argsort(order, axis=1, kind="stable")  # each corner's place among its face's values
-            _, first, which = np.unique((rank * n ** np.arange(n)).sum(axis=1), return_index=True,
-                                        return_inverse=True)
+        for n, faces, ids, order, rank, key in orders:
+            _, first, which = np.unique(key, return_index=True, return_inverse=True)
             singles = [_single_face(channel, rank[f]) for f in first]
             value_count[faces] = singles[0][1]  # (every single face of a size has as many values)
             sizes.append((faces, tags.source[np.take_along_axis(ids, order, axis=1)], which.reshape(-1), singles))
