@@ -287,7 +287,8 @@ class FaceVaryingChannel:
     all islands of a size and vertex order share one small refiner (:class:`_Islands`), evaluated on all their
     values at once as columns; the rest of the value mesh gets a refiner of its own. The values are those of
     the whole value mesh's refiner, bit for bit (the same stencil rows, in the same order); only their
-    numbering differs. :attr:`refiner` (the whole value mesh's refiner) is built when asked for."""
+    numbering differs. :attr:`refiner` (the whole value mesh's refiner) is built when asked for. On the CPU only
+    (a GPU runs the whole value mesh's rows in parallel, the islands' columns on one thread per row)."""
 
     def __init__(self, refiner, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
         self.mode = mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
@@ -298,7 +299,10 @@ class FaceVaryingChannel:
         self._factory, self._levels, self._device = type(refiner), refiner.levels, refiner.device
         self.num_source_values = int(self.source.max()) + 1 if len(self.source) else 0
         self._refiner = self._islands = None
-        island = tags.islands() if refiner.levels >= 1 else None
+        # (on the CPU only: a single face's refiner evaluates its islands as columns, one thread per row, which a
+        # GPU would run on a few dozen threads; there the whole value mesh's rows run in parallel)
+        on_cpu = bool(getattr(refiner.device, "is_cpu", True))
+        island = tags.islands() if refiner.levels >= 1 and on_cpu else None
         if island is not None and island.any():
             self._islands = _Islands(self, tags, island)
             self._tags = tags  # for the whole value mesh's refiner, if asked for
