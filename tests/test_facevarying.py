@@ -213,3 +213,113 @@ def test_random_meshes_with_uvs_match_opensubdiv(random_uv_peer, seed):
     n = int(np.asarray(peer.face_counts)[0]) if len(peer.face_counts) else 3
     expected = peer.fvar_values[np.asarray(peer.fvar_indices).reshape(-1, n)[keep].reshape(-1)]
     np.testing.assert_allclose(fv[fi], expected, atol=1e-9, err_msg=f"seed {seed}: {scheme} {boundary} L{level} {mode}")
+
+
+def _bits(a):
+    a = np.ascontiguousarray(a)
+    return a.view(np.uint32 if a.dtype == np.float32 else np.uint64)
+
+
+@pytest.fixture
+def every_island_apart(monkeypatch):
+    """Refine every island apart, however few share a vertex order (small test meshes have few)."""
+    from warp_subdiv.tables import facevarying
+
+    monkeypatch.setattr(facevarying, "MIN_ISLANDS", 1)
+
+
+@pytest.mark.parametrize("seed", range(10))
+@pytest.mark.parametrize("min_islands", [1, 4])
+def test_islands_refined_apart_equal_the_whole_value_mesh_bit_for_bit(seed, min_islands, monkeypatch):
+    """Faces that are UV islands of their own (per-corner values) refine apart from the rest of the value mesh
+    (one small refiner per face size and vertex order): on random open grids of quads, triangles or mixed
+    polygons, with shared-value regions, creases (one on an island), a hole and a semi-sharp corner, every
+    mode, both precisions, levels 1-3: the same bits at every refined corner as the whole value mesh's refiner
+    gives. ``min_islands`` 4: the islands of rarer vertex orders refine with the rest."""
+    from warp_subdiv.tables import facevarying
+
+    monkeypatch.setattr(facevarying, "MIN_ISLANDS", min_islands)
+    rng = np.random.default_rng(seed)
+    nx, ny = 6, 5
+    x, y = np.meshgrid(np.arange(nx + 1, dtype=float), np.arange(ny + 1, dtype=float))
+    pts = np.stack([x.ravel(), y.ravel(), 0.3 * rng.standard_normal(x.size)], axis=1)
+    v = lambda i, j: j * (nx + 1) + i  # noqa: E731
+    faces = []
+    for j in range(ny):
+        for i in range(nx):
+            a, b, c, d = v(i, j), v(i + 1, j), v(i + 1, j + 1), v(i, j + 1)
+            shape = rng.integers(3) if seed % 3 == 2 else seed % 3
+            if shape == 1:
+                faces += [[a, b, c], [a, c, d]]
+            else:
+                quad = [a, b, c, d]
+                k = int(rng.integers(4))  # any starting corner: islands in several vertex orders
+                faces.append(quad[k:] + quad[:k])
+    counts = np.array([len(f) for f in faces])
+    indices = np.concatenate(faces)
+    # shared values (one per vertex) on some faces, values of their own on the others
+    own = rng.random(len(faces)) < 0.6
+    corner_face = np.repeat(np.arange(len(faces)), counts)
+    idx = np.where(own[corner_face], len(pts) + np.arange(len(indices)), indices)
+    uv = rng.random((len(pts) + len(indices), 2))
+    mesh = ws.Mesh(pts, counts, indices, creases=[[v(1, 1), v(2, 1)], [v(3, 3), v(3, 4)]],
+                   crease_sharpness=[10.0, 2.5], corners=[v(2, 2)], corner_sharpness=[1.5],
+                   holes=[int(rng.integers(len(faces)))])
+    scheme = "loop" if seed % 3 == 1 or seed == 8 else "catmull-clark"  # (seed 8: Loop on mixed polygons)
+    r = ws.Refiner(mesh, 1 + seed % 3, scheme=scheme, device="cpu", precision=("float32", "float64")[seed % 2],
+                   boundary=("edge-and-corner", "edge-only", "none")[seed % 3])
+    for mode in FVAR_MODES:
+        channel = r.face_varying_channel(idx, mode)
+        values, at = channel.evaluate(uv)
+        whole = channel.refiner  # the whole value mesh's refiner
+        expected = whole.evaluate(uv[channel.source], normal_control=False)[whole.topology()[1]]
+        assert values.dtype == expected.dtype
+        np.testing.assert_array_equal(_bits(values[at]), _bits(expected))
+        if mode != "none":  # (where corners are smooth no face is an island)
+            assert channel._islands is not None
+
+
+def test_unindexed_uvs_refine_islands_apart(every_island_apart):
+    """Per-corner UVs (every face an island) on a cube: no refiner of the whole value mesh is built, and the
+    values are its values."""
+    cube = load_mesh("cube")
+    r = ws.Refiner(cube, 2, device="cpu")
+    vals = np.random.default_rng(5).random((24, 2))
+    channel = r.face_varying_channel(islands(cube), "corners-plus1")
+    values, at = channel.evaluate(vals)
+    assert channel._refiner is None and channel._islands.rest is None
+    whole = channel.refiner
+    np.testing.assert_array_equal(_bits(values[at]), _bits(whole.evaluate(vals[channel.source], normal_control=False)[
+        whole.topology()[1]]))
+
+
+def test_many_islands_evaluate_in_chunks_with_the_same_bits(monkeypatch):
+    """Islands beyond ISLANDS_PER_EVALUATION per vertex order are evaluated in padded chunks: the same bits."""
+    from warp_subdiv.tables import facevarying
+
+    mesh = load_mesh("grid3x3")
+    r = ws.Refiner(mesh, 2, device="cpu", precision="float64")
+    vals = np.random.default_rng(6).random((len(mesh.face_vertex_indices), 3))
+    full = r.face_varying_channel(islands(mesh), "corners-only").refiner  # the whole value mesh's refiner
+    source = r.face_varying_channel(islands(mesh), "corners-only").source
+    expected = full.evaluate(vals[source], normal_control=False)[full.topology()[1]]
+    monkeypatch.setattr(facevarying, "ISLANDS_PER_EVALUATION", 2)
+    monkeypatch.setattr(facevarying, "MIN_ISLANDS", 1)
+    chunked = facevarying.FaceVaryingChannel(r, islands(mesh), "corners-only")
+    assert max(v.shape[1] for _, v in chunked._islands.groups) > 2  # (some group is chunked)
+    values, at = chunked.evaluate(vals)
+    np.testing.assert_array_equal(_bits(values[at]), _bits(expected))
+
+
+def test_rare_vertex_orders_refine_with_the_rest():
+    """With the default MIN_ISLANDS a small mesh's few islands refine with the rest: no single-face refiner,
+    the same bits as the whole value mesh's refiner."""
+    cube = load_mesh("cube")
+    r = ws.Refiner(cube, 2, device="cpu")
+    vals = np.random.default_rng(7).random((24, 2))
+    channel = r.face_varying_channel(islands(cube), "corners-plus1")
+    values, at = channel.evaluate(vals)
+    assert channel._islands.groups == [] and channel._islands.rest is not None
+    whole = channel.refiner
+    np.testing.assert_array_equal(_bits(values[at]), _bits(whole.evaluate(vals[channel.source], normal_control=False)[
+        whole.topology()[1]]))

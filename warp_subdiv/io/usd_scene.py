@@ -20,16 +20,20 @@ SITE = Sdf.Path("/__site__")
 _NOT_INPUTS = re.compile(r"^xformOp|^xformOpOrder$|^visibility$|^purpose$|^proxyPrim$")
 
 
-def _value_bytes(value) -> bytes:
+def _hash_value(h, value) -> None:
+    """Feed ``value`` to hash ``h``: a numeric array's shape and bytes (its buffer, not a copy), else its repr."""
     if value is None:
-        return b"\x00none"
+        h.update(b"\x00none")
+        return
     try:
         arr = np.asarray(value)
         if arr.dtype.kind in "fiub":
-            return str(arr.shape).encode() + np.ascontiguousarray(arr).tobytes()
+            h.update(str(arr.shape).encode())
+            h.update(np.ascontiguousarray(arr).reshape(-1).view(np.uint8))
+            return
     except (TypeError, ValueError):
         pass
-    return repr(value).encode()
+    h.update(repr(value).encode())
 
 
 def skinned(prim: Usd.Prim) -> bool:
@@ -60,10 +64,10 @@ def input_fingerprint(prim: Usd.Prim) -> str:
                 continue
             h.update(f"{name}:{attr.GetTypeName()}:{attr.GetMetadata('interpolation')}:"
                      f"{attr.GetMetadata('elementSize')}".encode())
-            h.update(_value_bytes(attr.Get(DEFAULT)))
+            _hash_value(h, attr.Get(DEFAULT))
             for t in attr.GetTimeSamples():
                 h.update(f"@{t!r}".encode())
-                h.update(_value_bytes(attr.Get(t)))
+                _hash_value(h, attr.Get(t))
     return h.hexdigest()
 
 

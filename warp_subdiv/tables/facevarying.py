@@ -25,7 +25,7 @@ import warnings
 import numpy as np
 
 from ..errors import NonManifoldWarning, SubdivInputError
-from ..mesh import INFINITE_SHARPNESS, Mesh, check_rows
+from ..mesh import INFINITE_SHARPNESS, Mesh, check_rows, faces_with_repeats
 from ..options import FaceVaryingMode, Scheme
 from ..topology import base_level, triangulate
 
@@ -63,18 +63,58 @@ def value_mesh(mesh: Mesh, indices: np.ndarray, mode: str, boundary: str, scheme
     analysed (and its value mesh built) on its fan triangles (:func:`~warp_subdiv.topology.triangulate`),
     which is what the Loop refiner refines: vertices and values then follow the same faces.
     """
-    mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
-    scheme = Scheme.parse(scheme, "scheme")
-    idx = check_value_indices(indices, len(mesh.face_vertex_indices))
-    if scheme == Scheme.LOOP and not mesh.is_all(3):
-        mesh, idx = _fan_triangles(mesh, idx)
-    # vertex-level analysis of the control mesh (edges, fans, sharpness) with the geometry's options
-    level = base_level(mesh, "catmull-clark", boundary, "opensubdiv")
-    cv = mesh.face_vertex_indices.astype(np.int64)
-    pid, source, pair_vertex = _value_vertices(level, cv, idx)
-    nxt = mesh.edges.corner_next.astype(np.int64)
-    value_sharp = _sharp_values(level, mesh.num_vertices, cv, nxt, pid, pair_vertex, mode, boundary)
-    return _tagged_value_mesh(mesh, level, pid, nxt, pair_vertex, value_sharp, mode), source
+    tags = _ValueTags(mesh, indices, mode, boundary, scheme)
+    return tags.mesh(), tags.source
+
+
+class _ValueTags:
+    """What a value mesh is built from: the analysed mesh (the fan triangles of a polygon mesh under Loop), its
+    value-mesh vertex per face corner (``pid``), and per value-mesh vertex its source value index, its vertex
+    and its corner sharpness (the vertex mesh's, infinite for the values the mode makes sharp)."""
+
+    def __init__(self, mesh: Mesh, indices, mode: str, boundary: str, scheme: str, control_level=None):
+        self.mode = mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
+        scheme = Scheme.parse(scheme, "scheme")
+        idx = check_value_indices(indices, len(mesh.face_vertex_indices))
+        if scheme == Scheme.LOOP and not mesh.is_all(3):
+            mesh, idx = _fan_triangles(mesh, idx)
+        self.analysed = mesh
+        # vertex-level analysis of the control mesh (edges, fans, sharpness) with the geometry's options: the
+        # vertex refiner's own (``control_level``) where it has one; the rule set changes only its sectors
+        level = control_level
+        if level is None:
+            level = base_level(mesh, "catmull-clark", boundary, "opensubdiv")
+        self.level = level
+        cv = mesh.face_vertex_indices.astype(np.int64)
+        self.pid, self.source, self.pair_vertex = _value_vertices(level, cv, idx)
+        self.nxt = mesh.edges.corner_next.astype(np.int64)
+        value_sharp = _sharp_values(level, mesh.num_vertices, cv, self.nxt, self.pid, self.pair_vertex, mode,
+                                    boundary)
+        self.corner_sharp = np.maximum(level.vert_sharpness[self.pair_vertex],
+                                       np.where(value_sharp, INFINITE_SHARPNESS, 0.0))
+
+    def mesh(self, faces: np.ndarray | None = None) -> Mesh:
+        """The value mesh (of the control faces ``faces`` only, a bool mask, their values numbered in the
+        order of the whole value mesh's; None: every face)."""
+        return _tagged_value_mesh(self.analysed, self.level, self.pid, self.nxt, self.corner_sharp, self.mode,
+                                  faces)
+
+    def islands(self) -> np.ndarray:
+        """(F,) bool: the faces that are a value-mesh island of their own with every corner sharp (each of its
+        values used by no other face at its vertex, none of its vertices repeated, not a hole). Such a face
+        refines alone, as a single face with infinitely sharp corners and boundary edges: its refined values
+        depend on its own corner values only, and on the order of its value-mesh vertices (see
+        :class:`_Islands`)."""
+        mesh = self.analysed
+        span = np.bincount(self.pid, minlength=len(self.source))
+        lonely = (span[self.pid] == 1) & (self.corner_sharp[self.pid] >= INFINITE_SHARPNESS)
+        counts = mesh.face_vertex_counts
+        face_of = np.repeat(np.arange(len(counts)), counts)
+        island = np.bincount(face_of, weights=~lonely, minlength=len(counts)) == 0
+        island &= ~faces_with_repeats(counts, mesh.face_vertex_indices)
+        if self.level.face_hole is not None:
+            island &= ~self.level.face_hole
+        return island
 
 
 def _value_vertices(level, cv: np.ndarray, idx: np.ndarray):
@@ -160,27 +200,36 @@ def _sharp_values(level, nv: int, cv: np.ndarray, nxt: np.ndarray, pid: np.ndarr
     return value_sharp
 
 
-def _tagged_value_mesh(mesh: Mesh, level, pid: np.ndarray, nxt: np.ndarray, pair_vertex: np.ndarray,
-                       value_sharp: np.ndarray, mode: str) -> Mesh:
+def _tagged_value_mesh(mesh: Mesh, level, pid: np.ndarray, nxt: np.ndarray, corner_sharp: np.ndarray, mode: str,
+                       faces: np.ndarray | None = None) -> Mesh:
     """The value mesh: ``mesh``'s faces over the value-mesh vertices ``pid``, the vertex mesh's creases on the
-    corresponding value edges, its corners on all values, the sharp values as corners, its holes."""
-    npairs = len(pair_vertex)
+    corresponding value edges, ``corner_sharp`` on the values, its holes. ``faces`` (bool per face): only those
+    faces, over the values they use (renumbered in their order); None: every face."""
     counts = mesh.face_vertex_counts
     edge_of_corner = mesh.edges.corner_edge.astype(np.int64)
     crease_pairs = np.stack([pid, pid[nxt]], axis=1)
     crease_sharp = level.edge_sharpness[edge_of_corner]
-    keep = crease_sharp > 0
-    corner_ids = np.arange(npairs)
-    corner_sharp = np.maximum(level.vert_sharpness[pair_vertex], np.where(value_sharp, INFINITE_SHARPNESS, 0.0))
-    keep_c = corner_sharp > 0
-    holes = np.flatnonzero(level.face_hole) if level.face_hole is not None else None
     if mode == FaceVaryingMode.ALL:
         crease_sharp = np.full(len(crease_pairs), INFINITE_SHARPNESS)
-        keep = np.ones(len(crease_pairs), dtype=bool)
+    face_hole = level.face_hole
+    npairs = len(corner_sharp)
+    if faces is not None:
+        corner_in = np.repeat(faces, counts)
+        used = np.zeros(npairs, dtype=bool)
+        used[pid[corner_in]] = True
+        new_id = np.cumsum(used) - 1
+        counts, pid = counts[faces], new_id[pid[corner_in]]
+        crease_pairs, crease_sharp = new_id[crease_pairs[corner_in]], crease_sharp[corner_in]
+        corner_sharp = corner_sharp[used]
+        face_hole = face_hole[faces] if face_hole is not None else None
+        npairs = len(corner_sharp)
+    keep = crease_sharp > 0
+    keep_c = corner_sharp > 0
+    holes = np.flatnonzero(face_hole) if face_hole is not None else None
     return Mesh(
         np.zeros((npairs, 3)), counts, pid,
         creases=crease_pairs[keep], crease_sharpness=crease_sharp[keep],
-        corners=corner_ids[keep_c], corner_sharpness=corner_sharp[keep_c],
+        corners=np.flatnonzero(keep_c), corner_sharpness=corner_sharp[keep_c],
         holes=holes if holes is not None and len(holes) else None,
     )
 
@@ -231,35 +280,80 @@ class FaceVaryingChannel:
     which owns it: the value mesh refined with the vertex refiner's options and OpenSubdiv's rules.
 
     The owning refiner passes itself in (:meth:`Refiner.face_varying_channel`); the value mesh is refined by
-    a refiner of the same type, so this module needs no import of :mod:`warp_subdiv.refiner`."""
+    a refiner of the same type, so this module needs no import of :mod:`warp_subdiv.refiner`.
+
+    Faces that are value-mesh islands with sharp corners (:meth:`_ValueTags.islands`: UVs authored per face
+    corner, unindexed, make every face one) are not refined as part of the value mesh: each refines alone, so
+    all islands of a size and vertex order share one small refiner (:class:`_Islands`), evaluated on all their
+    values at once as columns; the rest of the value mesh gets a refiner of its own. The values are those of
+    the whole value mesh's refiner, bit for bit (the same stencil rows, in the same order); only their
+    numbering differs. :attr:`refiner` (the whole value mesh's refiner) is built when asked for. On the CPU only
+    (a GPU runs the whole value mesh's rows in parallel, the islands' columns on one thread per row)."""
 
     def __init__(self, refiner, indices, mode: str = FaceVaryingMode.CORNERS_PLUS1):
         self.mode = mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
-        mesh, self.source = value_mesh(refiner.mesh, indices, mode, refiner.boundary, refiner.scheme)
-        options = refiner.options.replace(rules="opensubdiv", boundary="edge-only", flatness=None,
-                                          loop_beta="loop", linear=(mode == FaceVaryingMode.ALL))
+        tags = _ValueTags(refiner.mesh, indices, mode, refiner.boundary, refiner.scheme, _control_level(refiner))
+        self.source = tags.source
+        self._options = refiner.options.replace(rules="opensubdiv", boundary="edge-only", flatness=None,
+                                                loop_beta="loop", linear=(mode == FaceVaryingMode.ALL))
+        self._factory, self._levels, self._device = type(refiner), refiner.levels, refiner.device
+        self.num_source_values = int(self.source.max()) + 1 if len(self.source) else 0
+        self._refiner = self._islands = None
+        # (on the CPU only: a single face's refiner evaluates its islands as columns, one thread per row, which a
+        # GPU would run on a few dozen threads; there the whole value mesh's rows run in parallel)
+        on_cpu = bool(getattr(refiner.device, "is_cpu", True))
+        island = tags.islands() if refiner.levels >= 1 and on_cpu else None
+        if island is not None and island.any():
+            self._islands = _Islands(self, tags, island)
+            self._tags = tags  # for the whole value mesh's refiner, if asked for
+        else:
+            self._refiner = self._refine(tags.mesh())
+
+    @property
+    def first_use_order(self) -> bool:
+        """Whether :meth:`evaluate`'s values come in the order its indices first use them, each used (where
+        every face is an island)."""
+        return self._islands is not None and self._islands.first_use_order
+
+    def _refine(self, mesh: Mesh):
+        """A refiner of a value mesh (of the owner's type, with the channel's options)."""
         with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
             warnings.simplefilter("ignore", NonManifoldWarning)
-            self.refiner = type(refiner)(mesh, refiner.levels, options=options, device=refiner.device)
-        self.num_source_values = int(self.source.max()) + 1 if len(self.source) else 0
+            return self._factory(mesh, self._levels, options=self._options, device=self._device)
 
-    def evaluate(self, values):
-        """(refined values (M, d), refined face-varying indices int32 aligned with the refined faces)."""
-        squeeze = np.ndim(values) == 1
+    @property
+    def refiner(self):
+        """The refiner of the whole value mesh (built on first use where the channel refines islands apart)."""
+        if self._refiner is None:
+            self._refiner = self._refine(self._tags.mesh())
+            self._tags = None
+        return self._refiner
+
+    def _checked(self, values):
         if np.ndim(values) in (1, 2) and len(values) < self.num_source_values:
             raise SubdivInputError(
                 f"face-varying indices refer to value {self.num_source_values - 1} but only {len(values)} values "
                 "were given", option="values", element="data", value=len(values),
             )
-        vals = check_rows(values, self.num_source_values, "face-varying values", at_least=True)
-        out = self.refiner.evaluate(vals[self.source], normal_control=False)
-        _, indices = self.refiner.topology()
+        return check_rows(values, self.num_source_values, "face-varying values", at_least=True)
+
+    def evaluate(self, values):
+        """(refined values (M, d), refined face-varying indices int32 aligned with the refined faces)."""
+        squeeze = np.ndim(values) == 1
+        vals = self._checked(values)
+        if self._islands is not None:
+            out, indices = self._islands.evaluate(vals)
+        else:
+            out = self.refiner.evaluate(vals[self.source], normal_control=False)
+            _, indices = self.refiner.topology()
         return (out[:, 0] if squeeze else out), indices
 
     def limit(self, values):
         """Limit values of the refined channel (OpenSubdiv's LimitFaceVarying): the limit masks of the value
         mesh, whose sharp values and seams are the channel's. Returns (values (M, d), indices)."""
-        refined, indices = self.evaluate(values)
+        squeeze = np.ndim(values) == 1
+        refined = self.refiner.evaluate(self._checked(values)[self.source], normal_control=False)
+        _, indices = self.refiner.topology()
         flat = refined[:, None] if refined.ndim == 1 else refined
         columns = []
         for c in range(0, flat.shape[1], 3):  # limit masks act on 3 columns at a time
@@ -267,4 +361,176 @@ class FaceVaryingChannel:
             block[:, :min(3, flat.shape[1] - c)] = flat[:, c:c + 3]
             columns.append(self.refiner.limit_points(block)[:, :min(3, flat.shape[1] - c)])
         out = np.concatenate(columns, axis=1)
-        return (out[:, 0] if refined.ndim == 1 else out), indices
+        return (out[:, 0] if squeeze else out), indices
+
+
+def _control_level(refiner):
+    """The vertex refiner's analysis of its control mesh where it is the one a channel's value mesh needs (a
+    Catmull-Clark refiner's, not linear: the same faces, edges, fans and sharpness), else None."""
+    h = getattr(refiner, "hierarchy", None)
+    level = getattr(h, "control_level", None)
+    options = refiner.options
+    if level is None or options.scheme != Scheme.CATMULL_CLARK or options.linear or h.mesh is not refiner.mesh:
+        return None
+    return level
+
+
+#: Islands evaluated at once by a single face's refiner (one column group each): its level buffers hold
+#: (values, islands x width) rows, so a larger group is evaluated in chunks of this many (a few MiB).
+ISLANDS_PER_EVALUATION = 8192
+
+#: Islands of one size and vertex order that make a single face's refiner worth building (~6 ms, once per
+#: process): fewer refine with the rest of the value mesh.
+MIN_ISLANDS = 64
+
+#: Refiners of single faces with sharp corners (:class:`_Islands`), by owner type, face size, vertex order,
+#: levels, options and device: the same few serve every channel of a bake.
+_ISLAND_REFINERS: dict = {}
+
+
+def _single_face(channel: FaceVaryingChannel, rank: np.ndarray):
+    """(refiner, number of values, its values in the order its refined faces first use them, its refined
+    corners' values in that numbering) of one face whose corners are value-mesh vertices ``rank``, with sharp
+    corners (cached: :data:`_ISLAND_REFINERS`)."""
+    key = (channel._factory, tuple(int(r) for r in rank), channel._levels, channel._options, str(channel._device))
+    single = _ISLAND_REFINERS.get(key)
+    if single is None:
+        n = len(rank)
+        refiner = channel._refine(Mesh(np.zeros((n, 3)), [n], rank, corners=np.arange(n),
+                                       corner_sharpness=np.full(n, INFINITE_SHARPNESS)))
+        own = np.asarray(refiner.topology()[1], dtype=np.int64)
+        _, first = np.unique(own, return_index=True)
+        old_id = np.argsort(first, kind="stable")
+        new_id = np.empty_like(old_id)
+        new_id[old_id] = np.arange(len(old_id))
+        single = (refiner, refiner.num_vertices, old_id, new_id[own])
+        if len(_ISLAND_REFINERS) > 256:
+            _ISLAND_REFINERS.clear()
+        _ISLAND_REFINERS[key] = single
+    return single
+
+
+def _put(out: np.ndarray, starts: np.ndarray, width: int, rows: np.ndarray) -> None:
+    """``out[starts[i] + j] = rows[i, j]`` for j < ``width``: a slice where the runs follow each other."""
+    if len(starts) and starts[-1] - starts[0] == (len(starts) - 1) * width and np.all(np.diff(starts) == width):
+        out[starts[0]:starts[0] + rows.size] = rows.reshape(-1)
+    else:
+        out[(starts[:, None] + np.arange(width)).reshape(-1)] = rows.reshape(-1)
+
+
+class _Islands:
+    """The islands of a :class:`FaceVaryingChannel` (faces whose values no other face uses, with sharp
+    corners) and the rest of its value mesh, refined apart and put back together in the value mesh's face
+    order.
+
+    An island's refined values depend on its corner values and on the order of its value-mesh vertices (which
+    fixes the order of the stencil rows' terms: the whole value mesh numbers values by vertex, so an island's
+    corners come in the order of their vertices' ids). Islands with the same size and that order share one
+    refiner of a single face numbered the same way, whose stencils are the island's in the whole value mesh;
+    it evaluates all their values at once, one island's values per group of columns."""
+
+    def __init__(self, channel: FaceVaryingChannel, tags: _ValueTags, island: np.ndarray):
+        mesh = tags.analysed
+        counts = mesh.face_vertex_counts.astype(np.int64)
+        levels = channel._levels
+        loop = channel._options.scheme == Scheme.LOOP
+        per_face = np.full(len(counts), 4 ** levels) if loop else counts * 4 ** (levels - 1)
+        if tags.level.face_hole is not None:
+            per_face[tags.level.face_hole] = 0  # a hole (of the value mesh: the analysis's) has no refined faces
+        self.size = 3 if loop else 4
+        first_out = np.concatenate([[0], np.cumsum(per_face)])
+        self.num_out_faces = int(first_out[-1])
+        # the islands of every size by the order of their value-mesh vertices; the islands of an order with
+        # fewer than MIN_ISLANDS of them refine with the rest (a single face's refiner costs more to build)
+        island = island.copy()
+        orders = []
+        for n in np.unique(counts[island]):
+            faces = np.flatnonzero(island & (counts == n))
+            ids = tags.pid[mesh.face_offsets[faces][:, None] + np.arange(n)]  # (K, n): their value-mesh vertices
+            order = np.argsort(ids, axis=1, kind="stable")
+            rank = np.argsort(order, axis=1, kind="stable")  # each corner's place among its face's values
+            key = (rank * n ** np.arange(n)).sum(axis=1)
+            _, which, group_size = np.unique(key, return_inverse=True, return_counts=True)
+            common = group_size[which.reshape(-1)] >= MIN_ISLANDS
+            if not common.all():
+                island[faces[~common]] = False
+                faces, ids, order, rank, key = faces[common], ids[common], order[common], rank[common], key[common]
+            if len(faces):
+                orders.append((n, faces, ids, order, rank, key))
+        rest = ~island
+        self.rest = self.rest_source = self.rest_rows = None
+        if rest.any():
+            used = np.zeros(len(tags.source), dtype=bool)
+            used[tags.pid[np.repeat(rest, counts)]] = True
+            self.rest = channel._refine(tags.mesh(rest))
+            self.rest_source = tags.source[used]
+            self.rest_rows = np.flatnonzero(np.repeat(rest, per_face))
+        self.groups = []  # (refiner, value indices (n, K) in its vertex order), by face size, then vertex order
+        rest_values = 0 if self.rest is None else self.rest.num_vertices
+        self.first_use_order = self.rest is None
+        sizes, value_count = [], np.zeros(len(counts), dtype=np.int64)
+        for n, faces, ids, order, rank, key in orders:
+            _, first, which = np.unique(key, return_index=True, return_inverse=True)
+            singles = [_single_face(channel, rank[f]) for f in first]
+            value_count[faces] = singles[0][1]  # (every single face of a size has as many values)
+            sizes.append((faces, tags.source[np.take_along_axis(ids, order, axis=1)], which.reshape(-1), singles))
+        # values: the rest's, then each island's in face order, each numbered in the order its refined faces
+        # first use them; so where every face is an island they come in the order the refined faces use them
+        value_start = rest_values + np.cumsum(value_count) - value_count
+        self.num_values = rest_values + int(value_count.sum())
+        kind = np.int32 if self.num_values < 2**31 - 1 else np.int64
+        indices = np.empty(self.num_out_faces * self.size, dtype=kind)
+        if self.rest is not None:
+            corner_rows = (self.rest_rows * self.size)[:, None] + np.arange(self.size)
+            indices[corner_rows.reshape(-1)] = self.rest.topology()[1]
+        # the evaluation concatenates the rest's values and each group's (value i of island j of a group at
+        # i K + j: the single face's values for K columns), and takes them out in the channel's order
+        self.order = np.empty(self.num_values, dtype=np.int64)
+        self.order[:rest_values] = np.arange(rest_values)
+        block = rest_values
+        for faces, values, which, singles in sizes:
+            m, corners = singles[0][1], len(singles[0][3])
+            group_size = np.bincount(which, minlength=len(singles))
+            members = np.argsort(which, kind="stable")  # the islands of each group, in face order
+            group_first = np.cumsum(group_size) - group_size
+            place = np.empty(len(faces), dtype=np.int64)  # each island's place in its group
+            place[members] = np.arange(len(faces)) - np.repeat(group_first, group_size)
+            group_block = block + group_first * m
+            own = np.take(np.stack([s[3] for s in singles]), which, axis=0)  # (K, corners)
+            old_id = np.take(np.stack([s[2] for s in singles]), which, axis=0)  # (K, m)
+            starts = value_start[faces]
+            _put(indices, first_out[faces] * self.size, corners, starts[:, None] + own)
+            _put(self.order, starts, m, (group_block[which] + place)[:, None] + old_id * group_size[which][:, None])
+            for g, single in enumerate(singles):
+                chosen = members[group_first[g]:group_first[g] + group_size[g]]
+                self.groups.append((single[0], np.ascontiguousarray(values[chosen].T)))
+            block += len(faces) * m
+        indices.flags.writeable = False  # (handed out by every evaluation, as a refiner's topology is)
+        self.indices = indices
+
+    def evaluate(self, vals: np.ndarray):
+        """(values (M, d), value index per refined face corner) of the channel's values ``vals`` (m, d)."""
+        d = vals.shape[1]
+        blocks = []
+        if self.rest is not None:
+            blocks.append(self.rest.evaluate(np.take(vals, self.rest_source, axis=0), normal_control=False))
+        for single, value_ids in self.groups:
+            n, k = value_ids.shape
+            if k <= ISLANDS_PER_EVALUATION:
+                columns = np.take(vals, value_ids, axis=0).reshape(n, k * d)  # island j: columns j d .. j d + d - 1
+                blocks.append(single.evaluate(columns, normal_control=False).reshape(-1, d))
+                continue
+            # many islands: in chunks of a fixed width (the last one padded), so that the single face's refiner
+            # keeps level buffers of a bounded width and records its launches for one width
+            out = None
+            columns = np.zeros((n, ISLANDS_PER_EVALUATION, d))
+            for a in range(0, k, ISLANDS_PER_EVALUATION):
+                b = min(k, a + ISLANDS_PER_EVALUATION)
+                columns[:, :b - a] = np.take(vals, value_ids[:, a:b], axis=0)
+                part = single.evaluate(columns.reshape(n, -1), normal_control=False)
+                if out is None:
+                    out = np.empty((len(part), k, d), dtype=part.dtype)
+                out[:, a:b] = part.reshape(len(part), ISLANDS_PER_EVALUATION, d)[:, :b - a]
+            blocks.append(out.reshape(-1, d))
+        joined = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
+        return np.take(joined, self.order, axis=0), self.indices

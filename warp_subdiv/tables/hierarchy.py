@@ -145,6 +145,9 @@ class Hierarchy:
         self.base_num_vertices = level.num_vertices
         self.base_face_size = level.face_size
         self.base_vert_class = level.vert_class  # (V,) int8: the control vertices' rules (warp_subdiv.usd.order)
+        # the analysed control mesh, kept for the face-varying channels (its edges, fans and sharpness are those
+        # of their value meshes' analysis: warp_subdiv.tables.facevarying)
+        self.control_level = level
         self.normal_vertices = mesh.normal_vertices.astype(np.int64)
         self.normal_vectors = mesh.normal_vectors
         base_s = projections.resolve_flatness(level) if o.piecewise_smooth else np.zeros(level.num_sectors)

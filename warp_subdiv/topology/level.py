@@ -89,11 +89,17 @@ class Level:
         return face_starts_of(self)
 
     def corner_face(self, h=None) -> np.ndarray:
-        if h is None:
-            h = np.arange(self.num_corners, dtype=np.int64)
         if self.face_size:
+            if h is None:
+                h = np.arange(self.num_corners, dtype=np.int64)
             return h // self.face_size
-        return np.searchsorted(self.face_offsets, h, side="right") - 1
+        # mixed polygons: every corner's face, found once (a repeat, not a search per call) and kept
+        every = self.__dict__.get("_corner_face")
+        if every is None:
+            every = np.repeat(np.arange(self.num_faces, dtype=np.int64), np.diff(self.face_offsets))
+            every.flags.writeable = False
+            self.__dict__["_corner_face"] = every
+        return every if h is None else every[h]
 
     def corner_next(self, h: np.ndarray) -> np.ndarray:
         if self.face_size:

@@ -153,7 +153,11 @@ class OrderedRefiner:
     def evaluate_face_varying(self, values, indices, mode="corners-plus1"):
         fast = _fast_parts(self.refiner, values, indices, mode, self._fast_plan, rows=self.old_id)
         if fast is None:
-            return self._face_varying(*self.refiner.evaluate_face_varying(values, indices, mode=mode))
+            channel = self.refiner.face_varying_channel(indices, mode)
+            refined, at = channel.evaluate(values)
+            if channel.first_use_order:  # (a channel of islands only)
+                return refined, at.astype(np.int32, copy=False)
+            return self._face_varying(refined, at)
         # values away from the seams are the vertices' (ids below N): numbered as the vertices are (the rows
         # come in the compact order), so no second renumbering pass; the values near the seams follow (a vertex
         # only the faces near a seam use keeps a value that no corner uses). The indices are the compact
@@ -181,11 +185,15 @@ class _ChannelOwner:
     with ``type(owner)(mesh, levels, options=, device=)``, which here builds a ``refiner_type``."""
 
     _refiner_type = None
+    _owner_types: dict = {}
 
     def __new__(cls, mesh, levels, *, options, device, refiner_type=None):
         if refiner_type is None:  # called by the channel for its value mesh
             return cls._refiner_type(mesh, levels, options=options, device=device)
-        owner = object.__new__(type("_Owner", (cls,), {"_refiner_type": refiner_type}))
+        owner_type = cls._owner_types.get(refiner_type)
+        if owner_type is None:  # one owner type per refiner type: channels cache what they build by owner type
+            owner_type = cls._owner_types[refiner_type] = type("_Owner", (cls,), {"_refiner_type": refiner_type})
+        owner = object.__new__(owner_type)
         owner.mesh, owner.levels, owner.options, owner.device = mesh, levels, options, device
         return owner
 
@@ -270,7 +278,6 @@ def _fast_parts(refiner, values, indices, mode, cache: dict | None = None, rows=
     if np.ndim(values) in (1, 2) and len(values) <= int(idx.max()):
         raise SubdivInputError(f"face-varying indices refer to value {int(idx.max())} but only {len(values)} values "
                                "were given", option="values", element="data", value=len(values))
-    vals = check_rows(values, int(idx.max()) + 1, "face-varying values", at_least=True)
     if cache is None:
         plan = _fast_plan(refiner, idx, mode)
     else:
@@ -280,7 +287,8 @@ def _fast_parts(refiner, values, indices, mode, cache: dict | None = None, rows=
             cache.update(key=key, plan=_fast_plan(refiner, idx, mode))
         plan = cache["plan"]
     if plan is None:
-        return None
+        return None  # (the channel checks the values)
+    vals = check_rows(values, int(idx.max()) + 1, "face-varying values", at_least=True)
 
     parts = _FastParts()
     parts.plan, parts.squeeze = plan, squeeze
@@ -327,19 +335,22 @@ def _fast_plan(refiner, idx, mode):
     plan.vertex_value = one_value[plan.vertices]
     plan.size = size = h.final.face_size  # 4 or 3: every refined face has it
 
-    def near_faces(flags, sizes, hierarchy):
-        """Per output face of ``hierarchy``: the flag of its control face (children of a control face are
-        consecutive: n 4^(L-1) of an n-gon for Catmull-Clark, 4^L of a triangle for Loop)."""
+    def per_face(sizes):
+        """Refined faces of each control face (children of a control face are consecutive: n 4^(L-1) of an
+        n-gon for Catmull-Clark, 4^L of a triangle for Loop)."""
         levels = refiner.levels
-        per_face = sizes * 4 ** (levels - 1) if size == 4 else np.full(len(sizes), 4 ** levels)
-        out = np.repeat(flags, per_face)
-        hole = hierarchy.final.face_hole
+        return sizes * 4 ** (levels - 1) if size == 4 else np.full(len(sizes), 4 ** levels)
+
+    def near_faces(flags, sizes, hole):
+        """Per output face: the flag of its control face; ``hole``: per refined face, whether it is a hole
+        (holes are not output), or None."""
+        out = np.repeat(flags, per_face(sizes))
         return out[~hole] if hole is not None and hole.any() else out
 
     plan.near_face = plan.channel = plan.sub_near = None
     if not near_seam.any():
         return plan
-    plan.near_face = near_faces(near_seam, counts, h)
+    plan.near_face = near_faces(near_seam, counts, h.final.face_hole)
     touch = np.bincount(cv, weights=near_seam[face_of], minlength=nv) > 0
     keep = np.bincount(face_of, weights=touch[cv], minlength=nf) > 0
     faces = np.flatnonzero(keep)
@@ -371,6 +382,9 @@ def _fast_plan(refiner, idx, mode):
         owner = _ChannelOwner(part, refiner.levels, options=options.replace(rules="opensubdiv", flatness=None),
                               device=refiner.device, refiner_type=type(refiner))
         plan.channel = FaceVaryingChannel(owner, idx[corner_in], mode)
-    sub = plan.channel.refiner  # the value mesh's refiner: the part's faces, holes and face order
-    plan.sub_near = near_faces(near_seam[faces], counts[faces], sub.hierarchy)
+    # the channel's refined faces: the part's faces in order, but its holes (the value mesh's only holes: its
+    # boundary is "edge-only")
+    part_hole = np.zeros(len(faces), dtype=bool)
+    part_hole[part.holes] = True
+    plan.sub_near = near_faces(near_seam[faces], counts[faces], np.repeat(part_hole, per_face(counts[faces])))
     return plan
