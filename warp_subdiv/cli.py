@@ -131,6 +131,9 @@ def _add_refine(sub) -> None:
     cmd.add_argument("--chunk-frames", type=int, default=None, metavar="N",
                      help="with --workers/--scheduler: time samples per frame task of an animated mesh "
                           "(default: about 3 tasks per worker)")
+    cmd.add_argument("--fresh", action="store_true",
+                     help="USD: refine everything again, ignoring (and removing) the work that a killed run of the "
+                          "same bake kept in OUT.resume/ (by default a rerun reuses it)")
 
 
 def _add_stitch(sub) -> None:
@@ -384,7 +387,7 @@ def _refine_usd(args, max_memory, progress) -> int:
     run = dict(prims=args.prim, scheme=args.scheme, rules=args.rules, boundary=args.boundary, device=args.device,
                precision=args.precision, frames=frames, limit=args.limit, normals=args.normals,
                max_memory=max_memory, flatten=args.flatten, semi_sharp="sharp" if args.semi_sharp_as_sharp else "keep",
-               progress=progress)
+               progress=progress, fresh=args.fresh)
     run["vertex_order"] = args.vertex_order  # always passed: every chunk of a distributed bake numbers alike
     if args.all_variants:
         if args.workers or args.scheduler:

@@ -51,9 +51,10 @@ from .ahead import Ahead
 from .batching import Batches
 from .order import check_vertex_order
 from .output_layout import layout
-from .planning import Plan, make_refiner, plan
+from .planning import Plan, PrimReport, make_refiner, plan
 from .record import layer_record
 from .refinement import MeshRefinement
+from .resume import MeshEntries, Store, eta_seconds, format_eta, resume_folder
 from .writer import PrimWriter
 
 
@@ -65,13 +66,18 @@ class Result:
     seconds: float
     predicted_bytes: int
     phases: dict = field(default_factory=dict)  # seconds per phase (warp_subdiv.runtime.phases): read, analyse, ...
+    reused: list = field(default_factory=list)  # what was kept by an earlier run and not refined again (resume)
 
 
 class Progress:
-    """Progress bookkeeping: units are predicted output vertices (tables once, then one per sample)."""
+    """Progress bookkeeping: units are predicted output vertices (tables once, then one per sample), so each
+    mesh weighs its predicted cost. The label ends with an ETA from the rate of the work done so far in this
+    run (meshes kept by an earlier run, :meth:`reuse`, count as done but not towards the rate)."""
 
     def __init__(self, p: Plan, callback):
         self.callback = callback
+        self.start = _time.perf_counter()
+        self.kept = 0.0
         self.weights = []  # per prim: (tables, each sample)
         for sp, e in zip(p.prims, p.estimates):
             tables = sum(c.vertices for c in e.counts[1:]) or 1
@@ -82,7 +88,14 @@ class Progress:
     def step(self, units: float, label: str) -> None:
         self.done += units
         if self.callback is not None:
-            self.callback(min(1.0, self.done / self.total), label)
+            eta = format_eta(eta_seconds(self.done, self.total, self.kept, _time.perf_counter() - self.start))
+            self.callback(min(1.0, self.done / self.total), f"{label} ({eta})" if eta else label)
+
+    def reuse(self, i: int, samples: int, label: str) -> None:
+        """Mesh ``i`` (``samples`` written samples) was kept by an earlier run: done, at no cost."""
+        tables, sample = self.weights[i]
+        self.kept += tables + sample * max(1, samples)
+        self.step(tables + sample * max(1, samples), label)
 
 
 class Bake:
@@ -94,17 +107,23 @@ class Bake:
     every mesh; :meth:`close` stops the workers."""
 
     def __init__(self, p: Plan, layer: OutputLayer, levels: int, *, device, limit, normals, vertex_order,
-                 samples_only: bool, batch: bool, max_memory, shipped, progress):
+                 samples_only: bool, batch: bool, max_memory, shipped, progress, resume: MeshEntries | None = None):
         self.plan, self.layer, self.levels = p, layer, levels
         self.device, self.limit, self.normals = device, limit, normals
         self.vertex_order, self.samples_only = vertex_order, samples_only
         self.shipped = tuple(h for h in shipped if h is not None)
         self.progress = Progress(p, progress)
         self.warnings = list(p.warnings)
+        self.resume = resume  # meshes kept by an earlier run (copied, not refined) and kept as they are written
+        self.reused = sorted(resume.kept) if resume is not None else []
         self.batches = self.ahead = None
         if batch:
             self.batches = Batches(p, levels, device, limit, normals, refiner=self.refiner,
                                    defaults=not samples_only, shipped=self.shipped)
+            for i in self.reused:  # not evaluated with their chunk
+                chunk = self.batches.chunk_of.pop(i, None)
+                if chunk is not None:
+                    chunk.remove(i)
         self.ahead = Ahead(self, max_memory)
 
     def refiner(self, i: int, sp) -> Refiner:
@@ -138,11 +157,21 @@ class Bake:
         for i, sp in enumerate(p.prims):
             t0 = _time.perf_counter()
             key = p.keys[i]
-            if self.batches is not None:
-                self.batches.prepare(i)  # the first prim of a chunk of small meshes: the chunk is evaluated now
             target = str(out_layout.homes[key])
-            prepared = self.ahead.take(i)
-            report = PrimWriter(self, i, target, f"[{i + 1}/{len(p.prims)}] {sp.path}").write(prepared)
+            label = f"[{i + 1}/{len(p.prims)}] {sp.path}"
+            kept = self.resume.load(i, layer, target) if self.resume is not None else None
+            if kept is not None:
+                report, warnings = PrimReport(**kept[0]), kept[1]
+                self.warnings.extend(warnings)
+                self.progress.reuse(i, len(sp.point_times), f"{label}: kept")
+            else:
+                if self.batches is not None:
+                    self.batches.prepare(i)  # the first prim of a chunk of small meshes: the chunk is evaluated now
+                prepared = self.ahead.take(i)
+                known = len(self.warnings)
+                report = PrimWriter(self, i, target, label).write(prepared)
+                if self.resume is not None:
+                    self.resume.save(i, layer, target, report, self.warnings[known:])
             for dst in out_layout.copies[key]:
                 layer.copy(out_layout.homes[key], dst)
             report.seconds = _time.perf_counter() - t0
@@ -181,6 +210,8 @@ def refine_usd(
     samples_only: bool = False,
     batch: bool = True,
     shipped=(),
+    resume: bool | str = True,
+    fresh: bool = False,
 ) -> Result:
     """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) ``levels`` times and
     write the layer ``output_path`` (.usd, .usda or .usdc) that sublayers the input and overrides them.
@@ -215,6 +246,10 @@ def refine_usd(
     ``shipped``: hierarchies built elsewhere (a distributed bake's topology task ships a mesh's tables to the
     tasks that refine its frames, :mod:`warp_subdiv.usd.distributed`): the refiner of a mesh that one of them
     fits starts from it (:meth:`~warp_subdiv.tables.Hierarchy.fits`), and such a mesh is not batched.
+    ``resume``: keep each refined mesh in ``<output>.resume/`` as it is written, and copy the meshes an earlier
+    run of the same bake kept there instead of refining them again (:mod:`warp_subdiv.usd.resume`; the
+    Result's ``reused`` lists them); a folder: keep them there; False: keep nothing. ``fresh``: remove what was
+    kept first.
     """
     start = _time.perf_counter()
     _check_run(input_path, output_path, levels, vertex_order)
@@ -222,30 +257,41 @@ def refine_usd(
     p = plan(input_path, levels, prims=prims, scheme=scheme, rules=rules, boundary=boundary,
              precision=precision, frames=frames, semi_sharp=semi_sharp, normals=normals, limit=limit,
              device=device, all_variants=all_variants, shipped=shipped)
-    out_abs = check_output_path(output_path, p.stage)
+    # the kept work's folder is cleaned and removed: the input must not read anything in it
+    out_abs = check_output_path(output_path, p.stage, folders=[resume_folder(os.path.abspath(output_path))])
     check_memory(p.estimates, max_memory, levels)
     custom = layer_record(p, levels, limit=limit, normals=normals, semi_sharp=semi_sharp, vertex_order=vertex_order,
                           all_variants=all_variants, flatten=flatten, frames=frames)
     layer = OutputLayer(out_abs, p.stage, custom)
-    bake = None
+    bake = store = None
     try:
+        entries = None
+        if resume:
+            store = Store(out_abs, fresh=fresh, folder=resume if isinstance(resume, str) else None)
+            entries = MeshEntries(store, p, [levels] * len(p.prims), vertex_order=vertex_order,
+                                  run=dict(limit=bool(limit), normals=bool(normals), semi_sharp=semi_sharp,
+                                           frames=frames, samples_only=bool(samples_only), device=device))
         bake = Bake(p, layer, levels, device=device, limit=limit, normals=normals, vertex_order=vertex_order,
                     samples_only=samples_only, batch=batch, max_memory=max_memory, shipped=shipped,
-                    progress=progress)
+                    progress=progress, resume=entries)
         reports, out_layout = bake.write()
         # bounding-box hints above the refined meshes: recomputed for the refined surfaces
         layer.override_extents_hints(p.stage, out_layout.hint_roots(p), frames)
         if progress is not None:
             progress(1.0, "writing " + os.path.basename(out_abs))
         layer.commit(flatten=flatten)
-    except BaseException:
+    except BaseException as exc:
         layer.discard()
+        if store is not None:
+            store.failed(exc)
         raise
     finally:
         if bake is not None:
             bake.close()
+    if store is not None:
+        store.finish()  # the output is complete: nothing left to resume
     return Result(out_abs, reports, bake.warnings, _time.perf_counter() - start,
-                  total_bytes(p.estimates, bake.ahead.concurrent))
+                  total_bytes(p.estimates, bake.ahead.concurrent), reused=[p.prims[i].path for i in bake.reused])
 
 
 def _check_run(input_path, output_path, levels, vertex_order) -> None:

@@ -1,0 +1,214 @@
+"""Resumable bakes: a bake killed after some meshes (a subprocess killed by the library's test hook, a Dask
+bake's client process killed while tasks run) and run again with the same command writes the layer an
+uninterrupted bake writes and refines only what was missing; stale kept work is not reused; ``--fresh``."""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from pxr import Sdf, Vt
+
+from warp_subdiv.errors import SubdivInputError
+from warp_subdiv.usd import refine_usd
+from warp_subdiv.usd import resume as rs
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+T = Sdf.ValueTypeNames
+
+
+def _grid(n, lift, seed):
+    """An n x n grid of quads, noisy heights: (points, counts, indices)."""
+    rng = np.random.default_rng(seed)
+    xs, ys = np.meshgrid(np.arange(n + 1, dtype=float), np.arange(n + 1, dtype=float))
+    pts = np.stack([xs.ravel(), ys.ravel(), lift + 0.2 * rng.standard_normal(xs.size)], 1)
+    i = np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]
+    quads = np.stack([i, i + 1, i + n + 2, i + n + 1], -1).reshape(-1)
+    return pts, np.full(n * n, 4, np.int32), quads.astype(np.int32)
+
+
+def make_scene(path, meshes=6, animated=True, seed=0):
+    """``meshes`` grids of different sizes (small ones batched, larger ones refined alone) with a vertex
+    primvar, a face-varying one and a face subset, and an animated grid of 12 samples."""
+    layer = Sdf.Layer.CreateNew(path)
+    world = Sdf.CreatePrimInLayer(layer, "/World")
+    world.specifier, world.typeName = Sdf.SpecifierDef, "Xform"
+    layer.defaultPrim = "World"
+    for k in range(meshes + (1 if animated else 0)):
+        n = 3 + 3 * (k % 4)
+        pts, counts, idx = _grid(n, float(k), seed + k)
+        prim = Sdf.CreatePrimInLayer(layer, f"/World/Grid_{k}")
+        prim.specifier, prim.typeName = Sdf.SpecifierDef, "Mesh"
+        points = Sdf.AttributeSpec(prim, "points", T.Point3fArray)
+        points.default = Vt.Vec3fArray.FromNumpy(pts.astype(np.float32))
+        if animated and k == meshes:
+            for t in range(1, 13):
+                layer.SetTimeSample(points.path, float(t), Vt.Vec3fArray.FromNumpy((pts * (1 + 0.01 * t)).astype(np.float32)))
+        Sdf.AttributeSpec(prim, "faceVertexCounts", T.IntArray).default = Vt.IntArray.FromNumpy(counts)
+        Sdf.AttributeSpec(prim, "faceVertexIndices", T.IntArray).default = Vt.IntArray.FromNumpy(idx)
+        Sdf.AttributeSpec(prim, "subdivisionScheme", T.Token, Sdf.VariabilityUniform).default = "catmullClark"
+        heat = Sdf.AttributeSpec(prim, "primvars:heat", T.FloatArray)
+        heat.default = Vt.FloatArray.FromNumpy(pts[:, 2].astype(np.float32))
+        heat.SetInfo("interpolation", "vertex")
+        st = Sdf.AttributeSpec(prim, "primvars:st", T.TexCoord2fArray)
+        st.default = Vt.Vec2fArray.FromNumpy(pts[idx, :2].astype(np.float32))
+        st.SetInfo("interpolation", "faceVarying")
+        sub = Sdf.CreatePrimInLayer(layer, f"/World/Grid_{k}/Top")
+        sub.specifier, sub.typeName = Sdf.SpecifierDef, "GeomSubset"
+        Sdf.AttributeSpec(sub, "elementType", T.Token, Sdf.VariabilityUniform).default = "face"
+        Sdf.AttributeSpec(sub, "indices", T.IntArray).default = Vt.IntArray(list(range(0, n * n, 2)))
+    layer.Save()
+    return [f"/World/Grid_{k}" for k in range(meshes + (1 if animated else 0))]
+
+
+def layer_text(path):
+    """The whole layer as text, but its sublayer (the input, relative to the output): two bakes of one input wrote
+    the same layer when these are equal."""
+    layer = Sdf.Layer.OpenAsAnonymous(path)
+    assert len(layer.subLayerPaths) == 1
+    layer.subLayerPaths.clear()
+    return layer.ExportToString()
+
+
+def cli(*args, env=None):
+    full = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""), **(env or {}))
+    return subprocess.run([sys.executable, "-m", "warp_subdiv", "refine", *map(str, args), "--quiet"],
+                          capture_output=True, text=True, env=full, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("resume_scene")
+    path = str(folder / "scene.usda")
+    paths = make_scene(path)
+    reference = str(folder / "reference.usdc")
+    refine_usd(path, reference, 2, normals=True, resume=False)
+    return path, paths, reference
+
+
+def entries(out):
+    folder = rs.resume_folder(str(out))
+    return sorted(n for n in os.listdir(folder) if n.endswith(".usdc")) if os.path.isdir(folder) else []
+
+
+def test_killed_bake_resumes(scene, tmp_path):
+    """A bake killed (SIGKILL) after 3 meshes were kept leaves no output and 3 entries; the same command again
+    refines only the other meshes, writes the layer the uninterrupted bake writes and removes the kept work."""
+    path, paths, reference = scene
+    out = tmp_path / "out.usdc"
+    killed = cli(path, "-o", out, "--levels", 2, "--normals", env={rs.KILL_ENV: "3"})
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    assert not out.exists()
+    kept = entries(out)
+    assert len(kept) == 3
+    # the kept work (and the killed process's temporary output file, which no one else removes)
+    assert sorted(n for n in os.listdir(tmp_path) if not n.startswith(".warp-subdiv-")) == ["out.usdc.resume"]
+    result = refine_usd(path, str(out), 2, normals=True)
+    assert result.reused == paths[:3]  # the plan's order: the first three were kept
+    assert [r.path for r in result.reports] == paths
+    assert layer_text(str(out)) == layer_text(reference)
+    assert [n for n in os.listdir(tmp_path) if not n.startswith(".warp")] == ["out.usdc"]  # kept work removed
+
+
+def test_resume_through_the_command(scene, tmp_path):
+    """Killed after 5 meshes, the same command line finishes with the uninterrupted layer; --fresh refines
+    everything again (kept work of another run is removed first)."""
+    path, paths, reference = scene
+    out = tmp_path / "out.usdc"
+    assert cli(path, "-o", out, "--levels", 2, "--normals", env={rs.KILL_ENV: "5"}).returncode == -signal.SIGKILL
+    assert len(entries(out)) == 5
+    done = cli(path, "-o", out, "--levels", 2, "--normals")
+    assert done.returncode == 0, done.stderr
+    assert layer_text(str(out)) == layer_text(reference)
+    assert not os.path.exists(rs.resume_folder(str(out)))
+    # --fresh: what a killed run kept is removed, every mesh refined
+    out2 = tmp_path / "fresh.usdc"
+    assert cli(path, "-o", out2, "--levels", 2, "--normals", env={rs.KILL_ENV: "2"}).returncode == -signal.SIGKILL
+    kept = entries(out2)
+    assert len(kept) == 2
+    killed = cli(path, "-o", out2, "--levels", 2, "--normals", "--fresh", env={rs.KILL_ENV: "1"})
+    assert killed.returncode == -signal.SIGKILL
+    assert len(entries(out2)) == 1 and entries(out2)[0] == kept[0]  # the first two removed, the first again
+    result = refine_usd(path, str(out2), 2, normals=True, fresh=True)
+    assert result.reused == []
+    assert layer_text(str(out2)) == layer_text(reference)
+
+
+def test_stale_entries_are_not_reused(scene, tmp_path):
+    """Kept work of other options or another level is removed and not reused; an edited mesh is refined again
+    while the unchanged ones are reused; a file touched but unchanged keeps everything (content keys)."""
+    _, paths, _ = scene
+    src = str(tmp_path / "scene.usda")
+    make_scene(src)
+    out = tmp_path / "out.usdc"
+    assert cli(src, "-o", out, "--levels", 2, "--normals", env={rs.KILL_ENV: "4"}).returncode == -signal.SIGKILL
+    first = entries(out)
+    # other options: nothing reused, and the stale entries are gone once the run starts
+    assert cli(src, "-o", out, "--levels", 1, env={rs.KILL_ENV: "1"}).returncode == -signal.SIGKILL
+    assert len(entries(out)) == 1 and not set(entries(out)) & set(first)
+    # a touched file (same content) keeps the entries
+    os.utime(src, (time.time() + 5, time.time() + 5))
+    result = refine_usd(src, str(out), 1, resume=True)
+    assert result.reused == paths[:1]
+    expected = str(tmp_path / "expected_1.usdc")
+    refine_usd(src, expected, 1, resume=False)
+    assert layer_text(str(out)) == layer_text(expected)
+    # an edited mesh is refined again, the others are reused
+    assert cli(src, "-o", out, "--levels", 2, "--normals", env={rs.KILL_ENV: "4"}).returncode == -signal.SIGKILL
+    layer = Sdf.Layer.FindOrOpen(src)
+    pts = np.array(layer.GetAttributeAtPath(paths[1] + ".points").default)
+    layer.GetAttributeAtPath(paths[1] + ".points").default = Vt.Vec3fArray.FromNumpy(pts * 1.5)
+    layer.Save()
+    result = refine_usd(src, str(out), 2, normals=True)
+    assert result.reused == [paths[0], paths[2], paths[3]]
+    refine_usd(src, expected, 2, normals=True, resume=False)
+    assert layer_text(str(out)) == layer_text(expected)
+
+
+def test_no_batching_or_workers_same_layer(scene, tmp_path, monkeypatch):
+    """Kept meshes leave the batches of small meshes and the meshes refined ahead: a resumed bake on one thread
+    and unbatched writes the same layer."""
+    path, paths, reference = scene
+    out = tmp_path / "out.usdc"
+    assert cli(path, "-o", out, "--levels", 2, "--normals", env={rs.KILL_ENV: "2"}).returncode == -signal.SIGKILL
+    monkeypatch.setenv("WARP_SUBDIV_THREADS", "1")
+    result = refine_usd(path, str(out), 2, normals=True, batch=False)
+    assert result.reused == paths[:2]
+    assert layer_text(str(out)) == layer_text(reference)
+
+
+def test_input_error_removes_kept_work(tmp_path, monkeypatch):
+    """A bake that fails on its input after some meshes were kept leaves nothing behind, kept work included
+    (the input must change); a bake stopped otherwise (an interrupt) keeps it."""
+    from warp_subdiv.usd import refine as refine_module
+
+    src = str(tmp_path / "scene.usda")
+    paths = make_scene(src, meshes=3, animated=False)
+    out = tmp_path / "out.usda"
+    write = refine_module.PrimWriter.write
+
+    def failing(kind):
+        def write_or_fail(self, prepared=None):
+            if self.sp.path == paths[2]:
+                raise kind(f"{self.sp.path}: failure requested by the test")
+            return write(self, prepared)
+        return write_or_fail
+
+    monkeypatch.setattr(refine_module.PrimWriter, "write", failing(KeyboardInterrupt))
+    with pytest.raises(KeyboardInterrupt):
+        refine_usd(src, str(out), 1)
+    assert len(entries(out)) == 2
+    monkeypatch.setattr(refine_module.PrimWriter, "write", failing(SubdivInputError))
+    with pytest.raises(SubdivInputError, match="Grid_2"):
+        refine_usd(src, str(out), 1)
+    assert sorted(os.listdir(tmp_path)) == ["scene.usda"]
+
+
+def test_eta():
+    """The ETA counts only the work done in this run: kept work is free."""
+    assert rs.eta_seconds(0.5, 1.0, 0.0, 10.0) == pytest.approx(10.0)
+    assert rs.eta_seconds(0.6, 1.0, 0.4, 10.0) == pytest.approx(20.0)
+    assert rs.eta_seconds(0.4, 1.0, 0.4, 10.0) is None
+    assert rs.format_eta(3725) == "ETA 1h02m" and rs.format_eta(65) == "ETA 1m05s" and rs.format_eta(None) == ""

@@ -1,0 +1,276 @@
+"""Resumable bakes: the finished work of a bake kept next to its output, so that a bake killed at any point
+(SIGKILL, a lost Dask worker, a reboot) and run again with the same command redoes only what was missing.
+
+The work is kept in ``<output>.resume/`` (:func:`resume_folder`, named like the distributed bake's chunk folder
+after the output's full file name, :func:`beside`):
+
+* a single-process bake (:func:`~warp_subdiv.usd.refine_usd`) keeps each refined mesh as soon as it is written
+  (:class:`MeshEntries`): the specs the writer authored for it (an ``over`` with the refined points, topology,
+  extents, normals, primvars, subsets and blocked attributes, with every time sample) copied into a small
+  ``.usdc`` layer, with its report and warnings in the layer's ``customLayerData``. A rerun copies the kept
+  specs back into the output layer instead of refining the mesh: the output is the same layer, spec for spec;
+* a distributed bake (:func:`~warp_subdiv.usd.bake`) keeps each finished task's chunk layer (a mesh, or a
+  frame range of an animated one) with the task's result (:class:`UnitEntries`); a rerun submits only the
+  tasks whose chunk is not kept.
+
+Every entry is named by a content key (:func:`content_key`): the library version, the mesh's input digest (the
+plan's key: every authored value and time sample the mesh refines from, as composed, so an edit anywhere in
+the layer stack that changes the mesh changes it, and a file merely touched does not), its path, its level and
+refinement options as passed to its refinement, and the run's options that decide the written values (limit
+points, normals, semi-sharp handling, vertex order, frames, device). Entries whose key the run does not expect
+(stale: another input, other options, an older version) are removed when the run starts. Every entry is
+written under a temporary name and renamed, so a bake killed while it writes one leaves no entry that looks
+finished (temporary names start with a dot and are removed by the next run).
+
+The output itself is still written once, atomically, at the end. The folder is removed when the bake
+succeeds, and when it fails on its input (:class:`~warp_subdiv.errors.SubdivInputError`: the input must change,
+and the run leaves nothing behind); any other failure (an interrupt, a lost cluster, memory) keeps it. With
+``fresh`` the kept work is removed before the bake starts.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import uuid
+from dataclasses import asdict
+
+from pxr import Sdf
+
+from ..errors import SubdivInputError
+from ..version import __version__
+from .order import resolved_vertex_order
+
+#: Test hook: the environment variable that makes a bake kill its own process (SIGKILL) once it has kept this
+#: many entries, for the tests of resumed bakes (a kill at a known point, without timing races).
+KILL_ENV = "WARP_SUBDIV_TEST_KILL_AFTER"
+
+
+def beside(output: str, kind: str) -> str:
+    """The folder of a bake's ``kind`` of files next to ``output``, named after the output's full file name
+    (``shot.usdc`` -> ``shot.usdc.<kind>``), so that outputs that differ only in their extension do not share
+    it."""
+    return f"{output}.{kind}"
+
+
+def resume_folder(output: str) -> str:
+    """The folder of a bake's kept work (``shot.usdc`` -> ``shot.usdc.resume``)."""
+    return beside(output, "resume")
+
+
+def content_key(*parts) -> str:
+    """A digest of the library version and ``parts`` (plain values, whose ``repr`` is stable)."""
+    return hashlib.sha256(repr((__version__,) + parts).encode()).hexdigest()
+
+
+def eta_seconds(done: float, total: float, kept: float, elapsed: float) -> float | None:
+    """Seconds left for a bake that has done ``done`` of ``total`` units of work in ``elapsed`` seconds, of
+    which ``kept`` came from kept work (free, so not part of the rate); None before any work was done."""
+    worked = done - kept
+    if worked <= 0 or elapsed <= 0:
+        return None
+    return max(0.0, total - done) * elapsed / worked
+
+
+def format_eta(seconds: float | None) -> str:
+    """``seconds`` as a short label: "ETA 42s", "ETA 3m05s", "ETA 1h02m" ("" when unknown)."""
+    if seconds is None:
+        return ""
+    s = int(round(seconds))
+    if s < 60:
+        return f"ETA {s}s"
+    if s < 3600:
+        return f"ETA {s // 60}m{s % 60:02d}s"
+    return f"ETA {s // 3600}h{(s % 3600) // 60:02d}m"
+
+
+class Store:
+    """The folder of kept work of the bake that writes ``output`` (:func:`resume_folder`, or ``folder``):
+    entries saved atomically (:meth:`save`), found by name (:meth:`find`), stale ones removed (:meth:`clean`),
+    the folder removed when the bake is done (:meth:`finish`). ``fresh``: remove what was kept first."""
+
+    def __init__(self, output: str, *, fresh: bool = False, folder: str | None = None):
+        self.folder = folder or resume_folder(output)
+        self.saved = 0
+        if os.path.exists(self.folder) and not os.path.isdir(self.folder):
+            raise SubdivInputError(f"{self.folder}: the folder of a resumable bake's kept work is a file; remove "
+                                   "it or run with resume off", option="resume")
+        if fresh:
+            self.finish()
+
+    def path(self, name: str) -> str:
+        return os.path.join(self.folder, name)
+
+    def find(self, name: str) -> str | None:
+        """The entry ``name``'s path, or None where it is not kept."""
+        path = self.path(name)
+        return path if os.path.isfile(path) else None
+
+    def clean(self, expected) -> None:
+        """Remove what the run does not expect: entries of other keys (stale) and temporary files of writes
+        that were cut short. Called before any of the run's own entries is written."""
+        if not os.path.isdir(self.folder):
+            return
+        keep = set(expected)
+        for name in os.listdir(self.folder):
+            if name not in keep:
+                full = self.path(name)
+                shutil.rmtree(full, ignore_errors=True) if os.path.isdir(full) else _unlink(full)
+
+    def save(self, name: str, write, *, counted: bool = True) -> None:
+        """Write the entry ``name``: ``write(path)`` writes it at a temporary path in the folder, which is then
+        renamed (an entry is complete or absent). ``counted``: counts towards :data:`KILL_ENV`."""
+        os.makedirs(self.folder, exist_ok=True)
+        stem, ext = os.path.splitext(name)
+        tmp = self.path(f".{stem}.{uuid.uuid4().hex}{ext}")
+        try:
+            write(tmp)
+            os.replace(tmp, self.path(name))
+        finally:
+            _unlink(tmp)
+        if not counted:
+            return
+        self.saved += 1
+        kill_after = os.environ.get(KILL_ENV)
+        if kill_after and self.saved >= int(kill_after):
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    def finish(self) -> None:
+        """Remove the folder and everything kept in it."""
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+    def failed(self, exc: BaseException) -> None:
+        """The bake failed with ``exc``: keep the work unless the input is at fault (see the module docstring)."""
+        if isinstance(exc, SubdivInputError):
+            self.finish()
+
+
+def _unlink(path: str) -> None:
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+
+
+def link_or_copy(source: str, dest: str) -> None:
+    """Make ``dest`` a hard link to ``source`` (no copy of a chunk's data), else a copy where the file system
+    has no hard links."""
+    try:
+        os.link(source, dest)
+    except OSError:
+        shutil.copyfile(source, dest)
+
+
+def _slug(path: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in path.strip("/"))[:48] or "root"
+
+
+def mesh_key(unit: str, path: str, level: int, options, vertex_order: str, run: dict) -> str:
+    """The content key of one refined mesh: its input digest ``unit`` (the plan's key), ``path``, ``level`` and
+    refinement ``options`` as passed to its refinement, its resolved vertex order, and the run's options that
+    decide the written values (``run``: limit, normals, semi_sharp, frames, samples_only, device)."""
+    return content_key("mesh", unit, path, int(level), sorted(options.as_dict().items()),
+                       resolved_vertex_order(vertex_order, options), sorted(run.items()))
+
+
+#: The prim path a kept mesh's specs have inside its entry layer.
+_ENTRY_ROOT = Sdf.Path("/Kept")
+
+
+class MeshEntries:
+    """The refined meshes of one single-process bake kept in a :class:`Store` (see the module docstring).
+
+    ``p``: the bake's plan; ``levels``: each mesh's level, as its refinement gets it; ``run``: the run's options
+    that decide the written values (:func:`mesh_key`). The stale entries are removed here."""
+
+    def __init__(self, store: Store, p, levels, *, vertex_order: str, run: dict):
+        self.store = store
+        self.names = [f"mesh-{_slug(sp.path)}-{mesh_key(unit, sp.path, level, options, vertex_order, run)[:32]}.usdc"
+                      for sp, unit, level, options in zip(p.prims, p.keys, levels, p.options)]
+        store.clean(self.names)
+        #: the meshes (plan indices) whose refined specs are kept: the bake copies them instead of refining
+        self.kept = {i for i, name in enumerate(self.names) if store.find(name)}
+
+    def load(self, i: int, layer, target: str):
+        """Copy the kept specs of mesh ``i`` to ``target`` in the output ``layer`` (an
+        :class:`~warp_subdiv.io.usd_write.OutputLayer`); returns (report fields, warnings), or None where the
+        entry cannot be read (then the mesh is refined)."""
+        path = self.store.find(self.names[i]) if i in self.kept else None
+        if path is None:
+            return None
+        entry = Sdf.Layer.OpenAsAnonymous(path)
+        record = json.loads(entry.customLayerData.get("warpSubdivKept", "null") or "null") if entry else None
+        if record is None or entry.GetPrimAtPath(_ENTRY_ROOT) is None:
+            return None
+        dest = Sdf.Path(str(target))
+        Sdf.CreatePrimInLayer(layer.layer, dest)
+        if not Sdf.CopySpec(entry, _ENTRY_ROOT, layer.layer, dest):
+            return None
+        return record["report"], record["warnings"]
+
+    def save(self, i: int, layer, target: str, report, warnings) -> None:
+        """Keep what the writer authored for mesh ``i`` at ``target`` (its subtree in the output layer), its
+        ``report`` (a :class:`~warp_subdiv.usd.PrimReport`) and ``warnings``."""
+        def write(tmp):
+            entry = Sdf.Layer.CreateAnonymous(".usdc")
+            Sdf.CreatePrimInLayer(entry, _ENTRY_ROOT)
+            if not Sdf.CopySpec(layer.layer, Sdf.Path(str(target)), entry, _ENTRY_ROOT):
+                raise OSError(f"could not copy {target} into {tmp}")
+            entry.customLayerData = {"warpSubdivKept": json.dumps({"report": asdict(report),
+                                                                   "warnings": list(warnings)})}
+            if not entry.Export(tmp):
+                raise OSError(f"could not write {tmp}")
+
+        self.store.save(self.names[i], write)
+
+
+class UnitEntries:
+    """The finished tasks of one distributed bake kept in a :class:`Store`: each task's chunk layer (``.usdc``,
+    hard-linked from the chunk folder) and its result (``.json``, written after the layer: an entry is complete
+    when both are there). ``keys``: each unit's content key (the units in the plan's order)."""
+
+    def __init__(self, store: Store, units, keys, scene_folder: str = "scene"):
+        self.store = store
+        self.names = [f"unit-{u.number:04d}-{key[:32]}" for u, key in zip(units, keys)]
+        self.scene_folder = scene_folder
+        store.clean([n + ext for n in self.names for ext in (".usdc", ".json")] + [scene_folder])
+
+    def load(self, number: int, dest: str):
+        """Put the kept chunk layer of unit ``number`` at ``dest`` and return its task's result, or None."""
+        name = self.names[number]
+        layer, result = self.store.find(name + ".usdc"), self.store.find(name + ".json")
+        if layer is None or result is None:
+            return None
+        with open(result) as f:
+            record = json.load(f)
+        link_or_copy(layer, dest)
+        return record
+
+    def spec(self, number: int) -> tuple:
+        """What a task needs to keep its unit: (folder, entry name)."""
+        return self.store.folder, self.names[number]
+
+    @property
+    def scene(self) -> str:
+        """The folder where a whole-scene task keeps its meshes (:class:`MeshEntries`)."""
+        return self.store.path(self.scene_folder)
+
+
+def keep_unit(spec, layer_path: str, result: dict) -> None:
+    """In a distributed bake's task: keep its finished chunk layer ``layer_path`` and ``result`` as entry
+    ``spec`` (:meth:`UnitEntries.spec`), the layer first."""
+    folder, name = spec
+    store = Store("", folder=folder)
+    store.save(name + ".usdc", lambda tmp: link_or_copy(layer_path, tmp), counted=False)
+
+    def write(tmp):
+        with open(tmp, "w") as f:
+            json.dump(result, f)
+
+    store.save(name + ".json", write, counted=False)
+
+
+__all__ = ["KILL_ENV", "MeshEntries", "Store", "UnitEntries", "beside", "content_key", "eta_seconds",
+           "format_eta", "keep_unit", "link_or_copy", "mesh_key", "resume_folder"]
