@@ -212,3 +212,51 @@ def test_eta():
     assert rs.eta_seconds(0.6, 1.0, 0.4, 10.0) == pytest.approx(20.0)
     assert rs.eta_seconds(0.4, 1.0, 0.4, 10.0) is None
     assert rs.format_eta(3725) == "ETA 1h02m" and rs.format_eta(65) == "ETA 1m05s" and rs.format_eta(None) == ""
+
+
+ANIMATED = os.path.join(ROOT, "scenes", "animated.usda")  # one creased plate, frames 1-24, primvars, a subset
+
+
+@pytest.fixture(scope="module")
+def client():
+    from conftest import dask_client
+
+    with dask_client(n_workers=2, processes=True) as c:
+        yield c
+
+
+def test_distributed_bake_resumes_after_its_client_is_killed(client, tmp_path):
+    """A distributed bake whose client process (and with it its local cluster) is killed while tasks run keeps
+    the finished frame chunks; the bake run again submits only the others and composes to the single-process
+    bake, and the kept work is removed."""
+    from test_distributed import assert_same_composition
+
+    from warp_subdiv.usd import distributed as dist
+
+    single = str(tmp_path / "single.usda")
+    refine_usd(ANIMATED, single, 1, resume=False)
+    out = tmp_path / "out" / "animated.usda"
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env[dist.FAULT_ENV] = "sleep:0.8"  # every task sleeps first: the kill lands while tasks run
+    proc = subprocess.Popen([sys.executable, "-m", "warp_subdiv", "refine", ANIMATED, "-o", str(out), "--levels",
+                             "1", "--workers", "2", "--chunk-frames", "4", "--quiet"], env=env,
+                            start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    folder = rs.resume_folder(str(out))
+
+    def finished():
+        return [n for n in os.listdir(folder) if n.endswith(".json")] if os.path.isdir(folder) else []
+
+    deadline = time.monotonic() + 180
+    while len(finished()) < 2 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)  # the client, its scheduler and workers
+    proc.wait(30)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.read()
+    kept = len(finished())
+    assert kept >= 2 and not out.exists()
+    result = dist.bake(ANIMATED, str(out), 1, chunk_frames=4, client=client)
+    units = result.timings["units"]
+    assert len(result.reused) == kept < len(units)  # only the missing chunks ran again
+    assert all("frames" in label for label in result.reused)
+    assert_same_composition(single, str(out))
+    assert sorted(os.listdir(out.parent)) == ["animated.usda", "animated.usda.chunks"]
