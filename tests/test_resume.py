@@ -29,22 +29,23 @@ def _grid(n, lift, seed):
     return pts, np.full(n * n, 4, np.int32), quads.astype(np.int32)
 
 
-def make_scene(path, meshes=6, animated=True, seed=0):
+def make_scene(path, meshes=6, animated=True, seed=0, samples=12, animated_cells=None):
     """``meshes`` grids of different sizes (small ones batched, larger ones refined alone) with a vertex
-    primvar, a face-varying one and a face subset, and an animated grid of 12 samples."""
+    primvar, a face-varying one and a face subset, and an animated grid of ``samples`` samples (of
+    ``animated_cells`` x ``animated_cells`` quads, else the size its place gives it)."""
     layer = Sdf.Layer.CreateNew(path)
     world = Sdf.CreatePrimInLayer(layer, "/World")
     world.specifier, world.typeName = Sdf.SpecifierDef, "Xform"
     layer.defaultPrim = "World"
     for k in range(meshes + (1 if animated else 0)):
-        n = 3 + 3 * (k % 4)
+        n = animated_cells if animated and k == meshes and animated_cells else 3 + 3 * (k % 4)
         pts, counts, idx = _grid(n, float(k), seed + k)
         prim = Sdf.CreatePrimInLayer(layer, f"/World/Grid_{k}")
         prim.specifier, prim.typeName = Sdf.SpecifierDef, "Mesh"
         points = Sdf.AttributeSpec(prim, "points", T.Point3fArray)
         points.default = Vt.Vec3fArray.FromNumpy(pts.astype(np.float32))
         if animated and k == meshes:
-            for t in range(1, 13):
+            for t in range(1, samples + 1):
                 layer.SetTimeSample(points.path, float(t), Vt.Vec3fArray.FromNumpy((pts * (1 + 0.01 * t)).astype(np.float32)))
         Sdf.AttributeSpec(prim, "faceVertexCounts", T.IntArray).default = Vt.IntArray.FromNumpy(counts)
         Sdf.AttributeSpec(prim, "faceVertexIndices", T.IntArray).default = Vt.IntArray.FromNumpy(idx)
@@ -204,6 +205,25 @@ def test_input_error_removes_kept_work(tmp_path, monkeypatch):
     with pytest.raises(SubdivInputError, match="Grid_2"):
         refine_usd(src, str(out), 1)
     assert sorted(os.listdir(tmp_path)) == ["scene.usda"]
+
+
+def test_animated_mesh_resumes_from_its_last_chunk_of_samples(tmp_path):
+    """An animated mesh refined on its own keeps its time samples in chunks as they are written: killed after
+    two chunks, the rerun refines only the later samples and writes the uninterrupted layer."""
+    src = str(tmp_path / "scene.usda")
+    paths = make_scene(src, meshes=1, samples=40, animated_cells=24)
+    reference = str(tmp_path / "reference.usdc")
+    refine_usd(src, reference, 2, normals=True, resume=False)
+    out = tmp_path / "out.usdc"
+    # saves: the static mesh, then two chunks of the animated one's samples
+    assert cli(src, "-o", out, "--levels", 2, "--normals", env={rs.KILL_ENV: "3"}).returncode == -signal.SIGKILL
+    kept = sorted(os.listdir(rs.resume_folder(str(out))))
+    assert len(kept) == 3 and sum(n.endswith(".npz") for n in kept) == 2
+    result = refine_usd(src, str(out), 2, normals=True)
+    assert result.reused == paths[:1]
+    assert result.reused_samples == {paths[1]: 2 * rs.CHUNK_SAMPLES}
+    assert layer_text(str(out)) == layer_text(reference)
+    assert not os.path.exists(rs.resume_folder(str(out)))
 
 
 def test_eta():

@@ -47,7 +47,7 @@ class Ahead:
         self.futures: dict = {}
         self.pool = None
         self.concurrent = 1
-        kept = set(getattr(bake, "reused", ()))  # meshes kept by an earlier run (resume): copied, not refined
+        kept = set(bake.reused) | set(bake.partial)  # kept by an earlier run (resume), whole or some samples
         self.queue = collections.deque(
             i for i, (sp, e) in enumerate(zip(p.prims, p.estimates))
             if not sp.topologies and e.final.vertices >= AHEAD_VERTICES

@@ -54,7 +54,7 @@ from .output_layout import layout
 from .planning import Plan, PrimReport, make_refiner, plan
 from .record import layer_record
 from .refinement import MeshRefinement
-from .resume import MeshEntries, Store, eta_seconds, format_eta, resume_folder
+from .resume import CHUNK_SAMPLES, MeshEntries, SampleChunks, Store, eta_seconds, format_eta, resume_folder
 from .writer import PrimWriter
 
 
@@ -67,6 +67,7 @@ class Result:
     predicted_bytes: int
     phases: dict = field(default_factory=dict)  # seconds per phase (warp_subdiv.runtime.phases): read, analyse, ...
     reused: list = field(default_factory=list)  # what was kept by an earlier run and not refined again (resume)
+    reused_samples: dict = field(default_factory=dict)  # mesh path -> its time samples kept by an earlier run
 
 
 class Progress:
@@ -85,8 +86,10 @@ class Progress:
         self.total = sum(t + s * max(1, len(sp.point_times)) for (t, s), sp in zip(self.weights, p.prims)) or 1
         self.done = 0
 
-    def step(self, units: float, label: str) -> None:
+    def step(self, units: float, label: str, kept: bool = False) -> None:
+        """``units`` of work done (``kept``: copied from an earlier run's kept work, at no cost)."""
         self.done += units
+        self.kept += units if kept else 0.0
         if self.callback is not None:
             eta = format_eta(eta_seconds(self.done, self.total, self.kept, _time.perf_counter() - self.start))
             self.callback(min(1.0, self.done / self.total), f"{label} ({eta})" if eta else label)
@@ -94,8 +97,7 @@ class Progress:
     def reuse(self, i: int, samples: int, label: str) -> None:
         """Mesh ``i`` (``samples`` written samples) was kept by an earlier run: done, at no cost."""
         tables, sample = self.weights[i]
-        self.kept += tables + sample * max(1, samples)
-        self.step(tables + sample * max(1, samples), label)
+        self.step(tables + sample * max(1, samples), label, kept=True)
 
 
 class Bake:
@@ -116,6 +118,8 @@ class Bake:
         self.warnings = list(p.warnings)
         self.resume = resume  # meshes kept by an earlier run (copied, not refined) and kept as they are written
         self.reused = sorted(resume.kept) if resume is not None else []
+        self.partial = sorted(resume.partial) if resume is not None else []  # with time samples kept
+        self.reused_samples: dict = {}  # mesh path -> time samples copied from kept chunks
         self.batches = self.ahead = None
         if batch:
             self.batches = Batches(p, levels, device, limit, normals, refiner=self.refiner,
@@ -124,6 +128,10 @@ class Bake:
                 chunk = self.batches.chunk_of.pop(i, None)
                 if chunk is not None:
                     chunk.remove(i)
+        # animated meshes refined on their own keep their time samples in chunks as they are written
+        self.chunked = {i for i, sp in enumerate(p.prims) if resume is not None
+                        and len(sp.point_times) >= 2 * CHUNK_SAMPLES
+                        and (self.batches is None or i not in self.batches.chunk_of)}
         self.ahead = Ahead(self, max_memory)
 
     def refiner(self, i: int, sp) -> Refiner:
@@ -137,6 +145,11 @@ class Bake:
         if analysis is not None and self.levels > 0 and not sp.topologies:
             p.analyses[i] = None  # used: not kept for the rest of the bake
         return refiner
+
+    def samples(self, i: int, group: int) -> SampleChunks | None:
+        """The kept time samples of prim ``i``'s control mesh ``group`` (see :class:`SampleChunks`), where
+        they are kept (an animated mesh refined on its own with resume on), else None."""
+        return self.resume.samples(i, group) if i in self.chunked else None
 
     @_phases.timed("analyse")
     def refinement(self, i: int, sp) -> MeshRefinement:
@@ -291,7 +304,8 @@ def refine_usd(
     if store is not None:
         store.finish()  # the output is complete: nothing left to resume
     return Result(out_abs, reports, bake.warnings, _time.perf_counter() - start,
-                  total_bytes(p.estimates, bake.ahead.concurrent), reused=[p.prims[i].path for i in bake.reused])
+                  total_bytes(p.estimates, bake.ahead.concurrent), reused=[p.prims[i].path for i in bake.reused],
+                  reused_samples=bake.reused_samples)
 
 
 def _check_run(input_path, output_path, levels, vertex_order) -> None:

@@ -37,6 +37,7 @@ import signal
 import uuid
 from dataclasses import asdict
 
+import numpy as np
 from pxr import Sdf
 
 from ..errors import SubdivInputError
@@ -108,14 +109,16 @@ class Store:
         path = self.path(name)
         return path if os.path.isfile(path) else None
 
-    def clean(self, expected) -> None:
-        """Remove what the run does not expect: entries of other keys (stale) and temporary files of writes
-        that were cut short. Called before any of the run's own entries is written."""
+    def clean(self, expected, prefixes=()) -> None:
+        """Remove what the run does not expect (``expected`` names, names starting with one of ``prefixes``):
+        entries of other keys (stale) and temporary files of writes that were cut short. Called before any of the
+        run's own entries is written."""
         if not os.path.isdir(self.folder):
             return
         keep = set(expected)
+        prefixes = tuple(prefixes)
         for name in os.listdir(self.folder):
-            if name not in keep:
+            if name not in keep and not (prefixes and name.startswith(prefixes)):
                 full = self.path(name)
                 shutil.rmtree(full, ignore_errors=True) if os.path.isdir(full) else _unlink(full)
 
@@ -175,6 +178,12 @@ def mesh_key(unit: str, path: str, level: int, options, vertex_order: str, run: 
                        resolved_vertex_order(vertex_order, options), sorted(run.items()))
 
 
+#: Time samples of an animated mesh kept together (:class:`SampleChunks`), fewer where they hold more than
+#: :data:`CHUNK_BYTES`.
+CHUNK_SAMPLES = 16
+#: Bytes of refined points and normals one chunk of time samples holds at most (one sample at least).
+CHUNK_BYTES = 128 * 2**20
+
 #: The prim path a kept mesh's specs have inside its entry layer.
 _ENTRY_ROOT = Sdf.Path("/Kept")
 
@@ -189,9 +198,21 @@ class MeshEntries:
         self.store = store
         self.names = [f"mesh-{_slug(sp.path)}-{mesh_key(unit, sp.path, level, options, vertex_order, run)[:32]}.usdc"
                       for sp, unit, level, options in zip(p.prims, p.keys, levels, p.options)]
-        store.clean(self.names)
+        store.clean(self.names, [self._samples_prefix(i) for i in range(len(self.names))])
         #: the meshes (plan indices) whose refined specs are kept: the bake copies them instead of refining
         self.kept = {i for i, name in enumerate(self.names) if store.find(name)}
+        found = os.listdir(store.folder) if os.path.isdir(store.folder) else []
+        #: the meshes not kept whole that have time samples kept (:class:`SampleChunks`)
+        self.partial = {i for i in range(len(self.names)) if i not in self.kept
+                        and any(n.startswith(self._samples_prefix(i)) for n in found)}
+
+    def _samples_prefix(self, i: int) -> str:
+        return self.names[i][: -len(".usdc")] + ".samples-"
+
+    def samples(self, i: int, group: int) -> "SampleChunks":
+        """The kept time samples of mesh ``i``'s control mesh ``group`` (0 unless its topology changes over
+        time), and where its refined samples are kept as they are written."""
+        return SampleChunks(self.store, f"{self._samples_prefix(i)}{group}-")
 
     def load(self, i: int, layer, target: str):
         """Copy the kept specs of mesh ``i`` to ``target`` in the output ``layer`` (an
@@ -224,6 +245,71 @@ class MeshEntries:
                 raise OSError(f"could not write {tmp}")
 
         self.store.save(self.names[i], write)
+        prefix = self._samples_prefix(i)  # the mesh is kept whole: its chunks of time samples are not needed
+        for name in os.listdir(self.store.folder):
+            if name.startswith(prefix):
+                _unlink(self.store.path(name))
+
+
+class SampleChunks:
+    """The refined points (and normals) of an animated mesh's time samples, kept in chunks of
+    :data:`CHUNK_SAMPLES` as the writer evaluates them, so that a bake killed inside a long animation resumes
+    from its last chunk: :meth:`get` gives a kept sample's arrays (exactly those written), :meth:`add` keeps one,
+    :meth:`flush` writes the pending chunk (``.npz``, atomically). Chunks are read one at a time, as the writer
+    asks for their samples (in time order)."""
+
+    def __init__(self, store: Store, prefix: str):
+        self.store, self.prefix = store, prefix
+        self.files: dict = {}  # time -> the chunk file that holds it
+        names = os.listdir(store.folder) if os.path.isdir(store.folder) else []
+        for name in sorted(n for n in names if n.startswith(prefix) and n.endswith(".npz")):
+            try:
+                with np.load(store.path(name)) as data:
+                    times = data["times"].tolist()
+            except (OSError, ValueError, KeyError):
+                continue  # unreadable: its samples are refined again
+            self.files.update((t, name) for t in times)
+        self.loaded_name, self.loaded = None, {}
+        self.pending: list = []
+        self.reused = 0  # samples given from kept chunks
+
+    def get(self, t: float):
+        """(points, normals or None) kept for time ``t``, or None."""
+        name = self.files.get(t)
+        if name is None:
+            return None
+        if name != self.loaded_name:
+            with np.load(self.store.path(name)) as data:
+                times = data["times"].tolist()
+                has_normals = bool(data["has_normals"])
+                self.loaded = {t: (data["points"][k], data["normals"][k] if has_normals else None)
+                               for k, t in enumerate(times)}
+            self.loaded_name = name
+        self.reused += 1
+        return self.loaded[t]
+
+    def add(self, t: float, points, normals) -> None:
+        """Keep the refined ``points`` and ``normals`` (or None) of time ``t``; a full chunk is written."""
+        # copies: an evaluator may hand out its own buffers, which its next evaluation overwrites
+        self.pending.append((t, np.array(points), None if normals is None else np.array(normals)))
+        size = sum(p.nbytes + (0 if n is None else n.nbytes) for _, p, n in self.pending)
+        if len(self.pending) >= CHUNK_SAMPLES or size >= CHUNK_BYTES:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the pending samples as one chunk."""
+        if not self.pending:
+            return
+        pending, self.pending = self.pending, []
+        has_normals = pending[0][2] is not None
+
+        def write(tmp):
+            with open(tmp, "wb") as f:
+                np.savez(f, times=np.array([t for t, _, _ in pending], dtype=np.float64),
+                         points=np.stack([p for _, p, _ in pending]), has_normals=np.array(has_normals),
+                         normals=np.stack([n for _, _, n in pending]) if has_normals else np.zeros(0))
+
+        self.store.save(f"{self.prefix}{pending[0][0]!r}.npz", write)
 
 
 class UnitEntries:
@@ -272,5 +358,6 @@ def keep_unit(spec, layer_path: str, result: dict) -> None:
     store.save(name + ".json", write, counted=False)
 
 
-__all__ = ["KILL_ENV", "MeshEntries", "Store", "UnitEntries", "beside", "content_key", "eta_seconds",
-           "format_eta", "keep_unit", "link_or_copy", "mesh_key", "resume_folder"]
+__all__ = ["CHUNK_BYTES", "CHUNK_SAMPLES", "KILL_ENV", "MeshEntries", "SampleChunks", "Store", "UnitEntries",
+           "beside", "content_key", "eta_seconds", "format_eta", "keep_unit", "link_or_copy", "mesh_key",
+           "resume_folder"]
