@@ -73,10 +73,10 @@ def layer_text(path):
     return layer.ExportToString()
 
 
-def cli(*args, env=None):
+def cli(*args, env=None, quiet=True):
     full = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""), **(env or {}))
-    return subprocess.run([sys.executable, "-m", "warp_subdiv", "refine", *map(str, args), "--quiet"],
-                          capture_output=True, text=True, env=full, timeout=300)
+    return subprocess.run([sys.executable, "-m", "warp_subdiv", "refine", *map(str, args)]
+                          + (["--quiet"] if quiet else []), capture_output=True, text=True, env=full, timeout=300)
 
 
 @pytest.fixture(scope="module")
@@ -106,64 +106,87 @@ def test_killed_bake_resumes(scene, tmp_path):
     assert len(kept) == 3
     # the kept work (and the killed process's temporary output file, which no one else removes)
     assert sorted(n for n in os.listdir(tmp_path) if not n.startswith(".warp-subdiv-")) == ["out.usdc.resume"]
-    result = refine_usd(path, str(out), 2, normals=True)
+    labels = []
+    result = refine_usd(path, str(out), 2, normals=True, progress=lambda f, label: labels.append((f, label)))
     assert result.reused == paths[:3]  # the plan's order: the first three were kept
+    # progress: the kept meshes first, done at no cost (no rate yet: no ETA); then an ETA from the rate
+    assert [label for _, label in labels[:3]] == [f"[{k + 1}/{len(paths)}] {p}: kept" for k, p in enumerate(paths[:3])]
+    assert all("ETA" in label for _, label in labels[3:-1]) and labels[-1][0] == 1.0
     assert [r.path for r in result.reports] == paths
     assert layer_text(str(out)) == layer_text(reference)
     assert [n for n in os.listdir(tmp_path) if not n.startswith(".warp")] == ["out.usdc"]  # kept work removed
 
 
-def test_resume_through_the_command(scene, tmp_path):
-    """Killed after 5 meshes, the same command line finishes with the uninterrupted layer; --fresh refines
-    everything again (kept work of another run is removed first)."""
+class Stopped(BaseException):
+    """A bake stopped in this process as a kill would stop it (not an input error: its work is kept)."""
+
+
+def stopped_bake(monkeypatch, n, *args, **keywords):
+    """Run ``refine_usd(*args, **keywords)`` until it has kept ``n`` entries, then stop it (:class:`Stopped`):
+    what a killed process leaves, without a process of its own (the bake's clean-up runs and keeps the work)."""
+    save = rs.Store.save
+    count = [0]
+
+    def counting(self, name, write, *, counted=True):
+        save(self, name, write, counted=counted)
+        count[0] += counted
+        if count[0] >= n:
+            raise Stopped
+
+    with monkeypatch.context() as m:
+        m.setattr(rs.Store, "save", counting)
+        with pytest.raises(Stopped):
+            refine_usd(*args, **keywords)
+
+
+def test_resume_through_the_command(scene, tmp_path, monkeypatch):
+    """Stopped after 5 meshes, the same bake run as a command finishes with the uninterrupted layer and says
+    what it reused; --fresh removes what was kept and refines everything."""
     path, paths, reference = scene
     out = tmp_path / "out.usdc"
-    assert cli(path, "-o", out, "--levels", 2, "--normals", env={rs.KILL_ENV: "5"}).returncode == -signal.SIGKILL
-    assert len(entries(out)) == 5
-    done = cli(path, "-o", out, "--levels", 2, "--normals")
+    stopped_bake(monkeypatch, 5, path, str(out), 2, normals=True)
+    assert len(entries(out)) == 5 and not out.exists()
+    done = cli(path, "-o", out, "--levels", 2, "--normals", quiet=False)
     assert done.returncode == 0, done.stderr
+    assert "resumed: 5 meshes and 0 time samples kept by an earlier run" in done.stdout
     assert layer_text(str(out)) == layer_text(reference)
     assert not os.path.exists(rs.resume_folder(str(out)))
-    # --fresh: what a killed run kept is removed, every mesh refined
-    out2 = tmp_path / "fresh.usdc"
-    assert cli(path, "-o", out2, "--levels", 2, "--normals", env={rs.KILL_ENV: "2"}).returncode == -signal.SIGKILL
-    kept = entries(out2)
-    assert len(kept) == 2
-    killed = cli(path, "-o", out2, "--levels", 2, "--normals", "--fresh", env={rs.KILL_ENV: "1"})
-    assert killed.returncode == -signal.SIGKILL
-    assert len(entries(out2)) == 1 and entries(out2)[0] == kept[0]  # the first two removed, the first again
-    result = refine_usd(path, str(out2), 2, normals=True, fresh=True)
-    assert result.reused == []
-    assert layer_text(str(out2)) == layer_text(reference)
+    # --fresh: what a stopped run kept is removed, every mesh refined
+    stopped_bake(monkeypatch, 2, path, str(out), 2, normals=True)
+    assert len(entries(out)) == 2
+    fresh = cli(path, "-o", out, "--levels", 2, "--normals", "--fresh", quiet=False)
+    assert fresh.returncode == 0, fresh.stderr
+    assert "resumed" not in fresh.stdout
+    assert layer_text(str(out)) == layer_text(reference)
+    assert not os.path.exists(rs.resume_folder(str(out)))
 
 
-def test_stale_entries_are_not_reused(scene, tmp_path):
+def test_stale_entries_are_not_reused(tmp_path, monkeypatch):
     """Kept work of other options or another level is removed and not reused; an edited mesh is refined again
     while the unchanged ones are reused; a file touched but unchanged keeps everything (content keys)."""
-    _, paths, _ = scene
     src = str(tmp_path / "scene.usda")
-    make_scene(src)
+    paths = make_scene(src, meshes=4, animated=False)
     out = tmp_path / "out.usdc"
-    assert cli(src, "-o", out, "--levels", 2, "--normals", env={rs.KILL_ENV: "4"}).returncode == -signal.SIGKILL
+    stopped_bake(monkeypatch, 3, src, str(out), 2, normals=True)
     first = entries(out)
     # other options: nothing reused, and the stale entries are gone once the run starts
-    assert cli(src, "-o", out, "--levels", 1, env={rs.KILL_ENV: "1"}).returncode == -signal.SIGKILL
+    stopped_bake(monkeypatch, 1, src, str(out), 1)
     assert len(entries(out)) == 1 and not set(entries(out)) & set(first)
     # a touched file (same content) keeps the entries
     os.utime(src, (time.time() + 5, time.time() + 5))
-    result = refine_usd(src, str(out), 1, resume=True)
+    result = refine_usd(src, str(out), 1)
     assert result.reused == paths[:1]
-    expected = str(tmp_path / "expected_1.usdc")
+    expected = str(tmp_path / "expected.usdc")
     refine_usd(src, expected, 1, resume=False)
     assert layer_text(str(out)) == layer_text(expected)
     # an edited mesh is refined again, the others are reused
-    assert cli(src, "-o", out, "--levels", 2, "--normals", env={rs.KILL_ENV: "4"}).returncode == -signal.SIGKILL
+    stopped_bake(monkeypatch, 3, src, str(out), 2, normals=True)
     layer = Sdf.Layer.FindOrOpen(src)
     pts = np.array(layer.GetAttributeAtPath(paths[1] + ".points").default)
     layer.GetAttributeAtPath(paths[1] + ".points").default = Vt.Vec3fArray.FromNumpy(pts * 1.5)
     layer.Save()
     result = refine_usd(src, str(out), 2, normals=True)
-    assert result.reused == [paths[0], paths[2], paths[3]]
+    assert result.reused == [paths[0], paths[2]]
     refine_usd(src, expected, 2, normals=True, resume=False)
     assert layer_text(str(out)) == layer_text(expected)
 
@@ -173,7 +196,7 @@ def test_no_batching_or_workers_same_layer(scene, tmp_path, monkeypatch):
     and unbatched writes the same layer."""
     path, paths, reference = scene
     out = tmp_path / "out.usdc"
-    assert cli(path, "-o", out, "--levels", 2, "--normals", env={rs.KILL_ENV: "2"}).returncode == -signal.SIGKILL
+    stopped_bake(monkeypatch, 2, path, str(out), 2, normals=True)
     monkeypatch.setenv("WARP_SUBDIV_THREADS", "1")
     result = refine_usd(path, str(out), 2, normals=True, batch=False)
     assert result.reused == paths[:2]
@@ -207,19 +230,18 @@ def test_input_error_removes_kept_work(tmp_path, monkeypatch):
     assert sorted(os.listdir(tmp_path)) == ["scene.usda"]
 
 
-def test_animated_mesh_resumes_from_its_last_chunk_of_samples(tmp_path):
-    """An animated mesh refined on its own keeps its time samples in chunks as they are written: killed after
+def test_animated_mesh_resumes_from_its_last_chunk_of_samples(tmp_path, monkeypatch):
+    """An animated mesh refined on its own keeps its time samples in chunks as they are written: stopped after
     two chunks, the rerun refines only the later samples and writes the uninterrupted layer."""
     src = str(tmp_path / "scene.usda")
-    paths = make_scene(src, meshes=1, samples=40, animated_cells=24)
+    paths = make_scene(src, meshes=1, samples=40, animated_cells=34)  # 4,624 refined vertices: not batched
     reference = str(tmp_path / "reference.usdc")
-    refine_usd(src, reference, 2, normals=True, resume=False)
+    refine_usd(src, reference, 1, normals=True, resume=False)
     out = tmp_path / "out.usdc"
-    # saves: the static mesh, then two chunks of the animated one's samples
-    assert cli(src, "-o", out, "--levels", 2, "--normals", env={rs.KILL_ENV: "3"}).returncode == -signal.SIGKILL
+    stopped_bake(monkeypatch, 3, src, str(out), 1, normals=True)  # the static mesh, two chunks of samples
     kept = sorted(os.listdir(rs.resume_folder(str(out))))
     assert len(kept) == 3 and sum(n.endswith(".npz") for n in kept) == 2
-    result = refine_usd(src, str(out), 2, normals=True)
+    result = refine_usd(src, str(out), 1, normals=True)
     assert result.reused == paths[:1]
     assert result.reused_samples == {paths[1]: 2 * rs.CHUNK_SAMPLES}
     assert layer_text(str(out)) == layer_text(reference)

@@ -23,7 +23,9 @@ animated mesh's chunks as USD value clips (:func:`stitch_clips`: ``UsdUtils.Stit
 (:func:`chunk_folder`: ``shot.usdc.chunks``, each output file its own) and writes the output layer last: clip
 sets, then sublayers ``[topology, per-mesh layers..., input]``. A run whose input reads anything in that
 folder is refused before any task starts. Any failure cancels the other tasks and removes the folder, so no
-output and no chunk file is left; a worker that dies has its tasks rerun elsewhere by Dask. Each task applies
+output and no chunk file is left; a worker that dies has its tasks rerun elsewhere by Dask. Each finished task
+is kept in ``<output>.resume/`` (:mod:`warp_subdiv.usd.resume`): a rerun of a killed bake submits only the
+tasks whose chunk is not kept. Each task applies
 the memory guard against its worker's memory (the worker's memory limit, and ``max_memory`` when given).
 
 :func:`stitch` (``warp-subdiv stitch``) assembles chunk layers that ``warp-subdiv refine --frames A:B`` runs
@@ -326,7 +328,8 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     """Refine the subdivision meshes of ``input_path`` on a Dask cluster and write ``output_path`` (see the
     module docstring). ``run``: :func:`warp_subdiv.usd.refine_usd`'s keywords (prims, scheme, rules, boundary,
     device, precision, frames, limit, normals, max_memory, flatten, semi_sharp, vertex_order: each
-    task passes it on, so every chunk numbers the refined vertices alike). ``workers``: worker processes
+    task passes it on, so every chunk numbers the refined vertices alike; resume and fresh: the finished tasks
+    are kept for a rerun, :mod:`warp_subdiv.usd.resume`). ``workers``: worker processes
     of a local cluster (default: the cores this process may use); ``scheduler``: the address of an existing
     cluster's scheduler instead; ``client``: an existing ``distributed.Client``. ``threads``: evaluation
     threads per task (default: the local cluster's share of the cores, a remote worker's own cores).
