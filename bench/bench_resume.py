@@ -151,7 +151,8 @@ def _report(r: dict) -> None:
           f"level {r['levels']}; killed after {r['kill_after']} meshes kept; {r['cores']} cores, load "
           f"{', '.join(f'{x:.2f}' for x in r['load_average'])}\n")
     print("| rep | no keeping (s) | full, keeping (s) | keeping's cost | killed at (s) | kept (MiB) | resumed (s) | "
-          "meshes reused | killed + resumed / full | resumed / full | bakes' own s: full, resumed | output identical |")
+          "meshes reused | killed + resumed / full | resumed / full | bakes' own s: no keeping, full, resumed | "
+          "output identical |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for k, rep in enumerate(r["reps"], 1):
         plain, full, killed, resumed = rep["no_keeping"], rep["full"], rep["killed"], rep["resumed"]
@@ -159,7 +160,8 @@ def _report(r: dict) -> None:
               f"{killed['wall']:.2f} ({killed['wall'] / full['wall']:.0%}) | {killed['kept_bytes'] / 2**20:.1f} | "
               f"{resumed['wall']:.2f} | {resumed.get('reused', '?')}/{resumed.get('meshes', '?')} | "
               f"{(killed['wall'] + resumed['wall']) / full['wall']:.2f} | {resumed['wall'] / full['wall']:.2f} | "
-              f"{full.get('seconds', float('nan')):.2f}, {resumed.get('seconds', float('nan')):.2f} | "
+              f"{plain.get('seconds', float('nan')):.2f}, {full.get('seconds', float('nan')):.2f}, "
+              f"{resumed.get('seconds', float('nan')):.2f} | "
               f"{'yes' if rep['identical'] else 'NO'} |")
 
 

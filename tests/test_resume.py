@@ -246,6 +246,9 @@ def test_animated_mesh_resumes_from_its_last_chunk_of_samples(tmp_path, monkeypa
     assert result.reused_samples == {paths[1]: 2 * rs.CHUNK_SAMPLES}
     assert layer_text(str(out)) == layer_text(reference)
     assert not os.path.exists(rs.resume_folder(str(out)))
+    # once the mesh is kept whole (the 5th save: after its 3 chunks), its chunks are removed
+    stopped_bake(monkeypatch, 5, src, str(out), 1, normals=True, fresh=True)
+    assert len(entries(out)) == 2 and len(os.listdir(rs.resume_folder(str(out)))) == 2
 
 
 def test_eta():

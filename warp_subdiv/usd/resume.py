@@ -109,16 +109,16 @@ class Store:
         path = self.path(name)
         return path if os.path.isfile(path) else None
 
-    def clean(self, expected, prefixes=()) -> None:
-        """Remove what the run does not expect (``expected`` names, names starting with one of ``prefixes``):
-        entries of other keys (stale) and temporary files of writes that were cut short. Called before any of the
-        run's own entries is written."""
+    def clean(self, expected, owners=()) -> None:
+        """Remove what the run does not expect (``expected`` names, and names of the parts of an expected
+        entry: ``<owner>.samples-...`` for an ``owner`` in ``owners``, :class:`SampleChunks`): entries of other
+        keys (stale) and temporary files of writes that were cut short. Called before any of the run's own entries
+        is written."""
         if not os.path.isdir(self.folder):
             return
-        keep = set(expected)
-        prefixes = tuple(prefixes)
+        keep, owners = set(expected), set(owners)
         for name in os.listdir(self.folder):
-            if name not in keep and not (prefixes and name.startswith(prefixes)):
+            if name not in keep and _owner(name) not in owners:
                 full = self.path(name)
                 shutil.rmtree(full, ignore_errors=True) if os.path.isdir(full) else _unlink(full)
 
@@ -148,6 +148,12 @@ class Store:
         """The bake failed with ``exc``: keep the work unless the input is at fault (see the module docstring)."""
         if isinstance(exc, SubdivInputError):
             self.finish()
+
+
+def _owner(name: str) -> str | None:
+    """The entry that the part ``name`` (``<owner>.samples-...``) belongs to, else None."""
+    owner, sep, _ = name.partition(SAMPLES_TAG)
+    return owner if sep else None
 
 
 def _unlink(path: str) -> None:
@@ -184,6 +190,9 @@ CHUNK_SAMPLES = 16
 #: Bytes of refined points and normals one chunk of time samples holds at most (one sample at least).
 CHUNK_BYTES = 128 * 2**20
 
+#: What separates a kept mesh's entry name (without its extension) from a chunk of its time samples' part.
+SAMPLES_TAG = ".samples-"
+
 #: The prim path a kept mesh's specs have inside its entry layer.
 _ENTRY_ROOT = Sdf.Path("/Kept")
 
@@ -198,21 +207,27 @@ class MeshEntries:
         self.store = store
         self.names = [f"mesh-{_slug(sp.path)}-{mesh_key(unit, sp.path, level, options, vertex_order, run)[:32]}.usdc"
                       for sp, unit, level, options in zip(p.prims, p.keys, levels, p.options)]
-        store.clean(self.names, [self._samples_prefix(i) for i in range(len(self.names))])
+        store.clean(self.names, [self._owner(i) for i in range(len(self.names))])
+        found = set(os.listdir(store.folder)) if os.path.isdir(store.folder) else set()
         #: the meshes (plan indices) whose refined specs are kept: the bake copies them instead of refining
-        self.kept = {i for i, name in enumerate(self.names) if store.find(name)}
-        found = os.listdir(store.folder) if os.path.isdir(store.folder) else []
+        self.kept = {i for i, name in enumerate(self.names) if name in found}
+        owners = {_owner(n) for n in found}
         #: the meshes not kept whole that have time samples kept (:class:`SampleChunks`)
-        self.partial = {i for i in range(len(self.names)) if i not in self.kept
-                        and any(n.startswith(self._samples_prefix(i)) for n in found)}
+        self.partial = {i for i in range(len(self.names)) if i not in self.kept and self._owner(i) in owners}
+        self._chunks: dict = {}  # mesh -> its SampleChunks (removed once the mesh is kept whole)
+
+    def _owner(self, i: int) -> str:
+        return self.names[i][: -len(".usdc")]
 
     def _samples_prefix(self, i: int) -> str:
-        return self.names[i][: -len(".usdc")] + ".samples-"
+        return self._owner(i) + SAMPLES_TAG
 
     def samples(self, i: int, group: int) -> "SampleChunks":
         """The kept time samples of mesh ``i``'s control mesh ``group`` (0 unless its topology changes over
         time), and where its refined samples are kept as they are written."""
-        return SampleChunks(self.store, f"{self._samples_prefix(i)}{group}-")
+        chunks = SampleChunks(self.store, f"{self._samples_prefix(i)}{group}-")
+        self._chunks.setdefault(i, []).append(chunks)
+        return chunks
 
     def load(self, i: int, layer, target: str):
         """Copy the kept specs of mesh ``i`` to ``target`` in the output ``layer`` (an
@@ -245,9 +260,8 @@ class MeshEntries:
                 raise OSError(f"could not write {tmp}")
 
         self.store.save(self.names[i], write)
-        prefix = self._samples_prefix(i)  # the mesh is kept whole: its chunks of time samples are not needed
-        for name in os.listdir(self.store.folder):
-            if name.startswith(prefix):
+        for chunks in self._chunks.pop(i, ()):  # the mesh is kept whole: its chunks of samples are not needed
+            for name in set(chunks.files.values()) | chunks.written:
                 _unlink(self.store.path(name))
 
 
@@ -271,6 +285,7 @@ class SampleChunks:
             self.files.update((t, name) for t in times)
         self.loaded_name, self.loaded = None, {}
         self.pending: list = []
+        self.written: set = set()  # the chunks this run wrote
         self.reused = 0  # samples given from kept chunks
 
     def get(self, t: float):
@@ -309,7 +324,9 @@ class SampleChunks:
                          points=np.stack([p for _, p, _ in pending]), has_normals=np.array(has_normals),
                          normals=np.stack([n for _, _, n in pending]) if has_normals else np.zeros(0))
 
-        self.store.save(f"{self.prefix}{pending[0][0]!r}.npz", write)
+        name = f"{self.prefix}{pending[0][0]!r}.npz"
+        self.store.save(name, write)
+        self.written.add(name)
 
 
 class UnitEntries:
