@@ -246,8 +246,14 @@ def test_animated_mesh_resumes_from_its_last_chunk_of_samples(tmp_path, monkeypa
     assert result.reused_samples == {paths[1]: 2 * rs.CHUNK_SAMPLES}
     assert layer_text(str(out)) == layer_text(reference)
     assert not os.path.exists(rs.resume_folder(str(out)))
-    # once the mesh is kept whole (the 5th save: after its 3 chunks), its chunks are removed
+    # once the mesh is kept whole its chunks are removed: after its entry is written, or by the next run where
+    # a kill came between the two (here: stopped right after the 5th save, the entry after 3 chunks)
     stopped_bake(monkeypatch, 5, src, str(out), 1, normals=True, fresh=True)
+    assert len(entries(out)) == 2 and len(os.listdir(rs.resume_folder(str(out)))) == 5
+    monkeypatch.setattr(rs.Store, "finish", lambda self: None)  # what a successful run would remove
+    result = refine_usd(src, str(out), 1, normals=True)
+    assert result.reused == paths and sorted(os.listdir(rs.resume_folder(str(out)))) == entries(out)
+    assert refine_usd(src, str(out), 1, normals=True, fresh=True).reused == []
     assert len(entries(out)) == 2 and len(os.listdir(rs.resume_folder(str(out)))) == 2
 
 

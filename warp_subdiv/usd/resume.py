@@ -99,7 +99,7 @@ class Store:
             raise SubdivInputError(f"{self.folder}: the folder of a resumable bake's kept work is a file; remove "
                                    "it or run with resume off", option="resume")
         if fresh:
-            self.finish()
+            self.clear()
 
     def path(self, name: str) -> str:
         return os.path.join(self.folder, name)
@@ -140,14 +140,18 @@ class Store:
         if kill_after and self.saved >= int(kill_after):
             os.kill(os.getpid(), signal.SIGKILL)
 
-    def finish(self) -> None:
+    def clear(self) -> None:
         """Remove the folder and everything kept in it."""
         shutil.rmtree(self.folder, ignore_errors=True)
+
+    def finish(self) -> None:
+        """The bake succeeded: nothing is left to resume."""
+        self.clear()
 
     def failed(self, exc: BaseException) -> None:
         """The bake failed with ``exc``: keep the work unless the input is at fault (see the module docstring)."""
         if isinstance(exc, SubdivInputError):
-            self.finish()
+            self.clear()
 
 
 def _owner(name: str) -> str | None:
@@ -207,10 +211,12 @@ class MeshEntries:
         self.store = store
         self.names = [f"mesh-{_slug(sp.path)}-{mesh_key(unit, sp.path, level, options, vertex_order, run)[:32]}.usdc"
                       for sp, unit, level, options in zip(p.prims, p.keys, levels, p.options)]
-        store.clean(self.names, [self._owner(i) for i in range(len(self.names))])
         found = set(os.listdir(store.folder)) if os.path.isdir(store.folder) else set()
         #: the meshes (plan indices) whose refined specs are kept: the bake copies them instead of refining
         self.kept = {i for i, name in enumerate(self.names) if name in found}
+        # chunks of samples are expected of the meshes not kept whole (a kill can come between the two)
+        store.clean(self.names, [self._owner(i) for i in range(len(self.names)) if i not in self.kept])
+        found = set(os.listdir(store.folder)) if os.path.isdir(store.folder) else set()
         owners = {_owner(n) for n in found}
         #: the meshes not kept whole that have time samples kept (:class:`SampleChunks`)
         self.partial = {i for i in range(len(self.names)) if i not in self.kept and self._owner(i) in owners}
