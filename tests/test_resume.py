@@ -305,9 +305,12 @@ def test_distributed_bake_resumes_after_its_client_is_killed(client, tmp_path):
     assert proc.returncode == -signal.SIGKILL, proc.stderr.read()
     kept = len(finished())
     assert kept >= 2 and not out.exists()
-    result = dist.bake(ANIMATED, str(out), 1, chunk_frames=4, client=client)
+    labels = []
+    result = dist.bake(ANIMATED, str(out), 1, chunk_frames=4, client=client,
+                       progress=lambda f, label: labels.append(label))
     units = result.timings["units"]
     assert len(result.reused) == kept < len(units)  # only the missing chunks ran again
+    assert len(labels) == len(units) - kept and all("ETA" in label for label in labels)  # one per task run
     assert all("frames" in label for label in result.reused)
     assert_same_composition(single, str(out))
     assert sorted(os.listdir(out.parent)) == ["animated.usda", "animated.usda.chunks"]
