@@ -203,6 +203,52 @@ def test_no_batching_or_workers_same_layer(scene, tmp_path, monkeypatch):
     assert layer_text(str(out)) == layer_text(reference)
 
 
+def test_damaged_entry_is_refined_again(scene, tmp_path, monkeypatch):
+    """An entry that cannot be read (cut short by a full disk, say) is refined again, not trusted."""
+    path, paths, reference = scene
+    out = tmp_path / "out.usdc"
+    stopped_bake(monkeypatch, 3, path, str(out), 2, normals=True)
+    damaged = os.path.join(rs.resume_folder(str(out)), entries(out)[0])
+    with open(damaged, "r+b") as f:
+        f.truncate(100)
+    result = refine_usd(path, str(out), 2, normals=True)
+    assert len(result.reused) == 2
+    assert layer_text(str(out)) == layer_text(reference)
+
+
+def test_whole_scene_task_keeps_its_meshes(tmp_path, monkeypatch):
+    """A distributed bake's task that bakes a whole scene (instances: one task, as the single process bakes it)
+    keeps its meshes one by one beside the bake's units: run again after it was stopped, it reuses them; once
+    done, the unit is kept whole and the meshes' folder is gone."""
+    from warp_subdiv.usd import distributed as dist
+    from warp_subdiv.usd import plan
+
+    scene = os.path.join(ROOT, "scenes", "instanced.usda")
+    p = plan(scene, 1)
+    assert not p.one_place_each and len(p.prims) >= 2
+    unit = dist.Unit(0, "scene", -1, None, None, "scene.usdc")
+    out = tmp_path / "out.usda"
+    kept = rs.UnitEntries(rs.Store(str(out)), [unit], [dist.unit_key(p, unit, 1, {})])
+    chunks = tmp_path / "chunks"
+    chunks.mkdir()
+    with monkeypatch.context() as m:
+        save = rs.Store.save
+
+        def stop_after_first(self, name, write, *, counted=True):
+            save(self, name, write, counted=counted)
+            raise Stopped
+
+        m.setattr(rs.Store, "save", stop_after_first)
+        with pytest.raises(Stopped):
+            dist.unit_task(scene, str(chunks), unit, 1, {}, keep=kept.spec(0))
+    assert len(os.listdir(kept.scene)) == 1
+    done = dist.unit_task(scene, str(chunks), unit, 1, {}, keep=kept.spec(0))
+    assert done["reused"] == [p.prims[0].path]
+    assert sorted(os.listdir(kept.store.folder)) == [kept.names[0] + ".json", kept.names[0] + ".usdc"]
+    assert os.listdir(chunks) == ["scene.usdc"]
+    assert kept.load(0, str(tmp_path / "again.usdc"))["reports"] == done["reports"]
+
+
 def test_input_error_removes_kept_work(tmp_path, monkeypatch):
     """A bake that fails on its input after some meshes were kept leaves nothing behind, kept work included
     (the input must change); a bake stopped otherwise (an interrupt) keeps it."""

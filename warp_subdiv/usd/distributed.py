@@ -209,7 +209,7 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
             os.unlink(tmp)
     done = {"unit": unit.number, "reports": [asdict(r) for r in result.reports], "warnings": result.warnings,
             "times": (min(times), max(times)) if times else None, "seconds": result.seconds,
-            "wall": _time.perf_counter() - start}
+            "wall": _time.perf_counter() - start, "reused": result.reused}
     if keep is not None:
         keep_unit(keep, os.path.join(folder, unit.layer), done)
     return done
@@ -404,7 +404,8 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     if store is not None:
         store.finish()  # the output is complete: nothing left to resume
     result = Result(out, reports, list(dict.fromkeys(p.warnings + warnings)), _time.perf_counter() - start,
-                    p.predicted_bytes, reused=[u.label for u in units if u.number in kept])
+                    p.predicted_bytes, reused=[u.label for u in units if u.number in kept]
+                    + [path for u in units if u.number not in kept for path in results[u.number].get("reused", ())])
     timings["units"] = [{"kind": u.kind, "path": u.path, "frames": u.frames, "seconds": results[u.number]["seconds"],
                          "wall": results[u.number]["wall"]} for u in units]
     timings["workers"] = n_workers

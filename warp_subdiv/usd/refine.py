@@ -117,7 +117,8 @@ class Bake:
         self.progress = Progress(p, progress)
         self.warnings = list(p.warnings)
         self.resume = resume  # meshes kept by an earlier run (copied, not refined) and kept as they are written
-        self.reused = sorted(resume.kept) if resume is not None else []
+        self.reused = sorted(resume.kept) if resume is not None else []  # neither batched nor refined ahead
+        self.copied: list = []  # the paths of the meshes copied from kept work (a damaged entry is refined)
         self.partial = sorted(resume.partial) if resume is not None else []  # with time samples kept
         self.reused_samples: dict = {}  # mesh path -> time samples copied from kept chunks
         self.batches = self.ahead = None
@@ -176,6 +177,7 @@ class Bake:
             if kept is not None:
                 report, warnings = PrimReport(**kept[0]), kept[1]
                 self.warnings.extend(warnings)
+                self.copied.append(sp.path)
                 self.progress.reuse(i, len(sp.point_times), f"{label}: kept")
             else:
                 if self.batches is not None:
@@ -304,7 +306,7 @@ def refine_usd(
     if store is not None:
         store.finish()  # the output is complete: nothing left to resume
     return Result(out_abs, reports, bake.warnings, _time.perf_counter() - start,
-                  total_bytes(p.estimates, bake.ahead.concurrent), reused=[p.prims[i].path for i in bake.reused],
+                  total_bytes(p.estimates, bake.ahead.concurrent), reused=bake.copied,
                   reused_samples=bake.reused_samples)
 
 

@@ -238,17 +238,21 @@ class MeshEntries:
     def load(self, i: int, layer, target: str):
         """Copy the kept specs of mesh ``i`` to ``target`` in the output ``layer`` (an
         :class:`~warp_subdiv.io.usd_write.OutputLayer`); returns (report fields, warnings), or None where the
-        entry cannot be read (then the mesh is refined)."""
+        entry cannot be read (then the mesh is refined, and the entry is written again)."""
         path = self.store.find(self.names[i]) if i in self.kept else None
         if path is None:
             return None
-        entry = Sdf.Layer.OpenAsAnonymous(path)
-        record = json.loads(entry.customLayerData.get("warpSubdivKept", "null") or "null") if entry else None
+        try:
+            entry = Sdf.Layer.OpenAsAnonymous(path)
+            record = json.loads(entry.customLayerData.get("warpSubdivKept", "null") or "null") if entry else None
+        except Exception:  # noqa: BLE001 (a damaged entry, e.g. a disk that filled up: refined again)
+            record = None
         if record is None or entry.GetPrimAtPath(_ENTRY_ROOT) is None:
             return None
         dest = Sdf.Path(str(target))
         Sdf.CreatePrimInLayer(layer.layer, dest)
         if not Sdf.CopySpec(entry, _ENTRY_ROOT, layer.layer, dest):
+            layer.remove(dest)  # nothing half-copied stays under what the writer writes
             return None
         return record["report"], record["warnings"]
 
