@@ -94,6 +94,11 @@ def entries(out):
     return sorted(n for n in os.listdir(folder) if n.endswith(".usdc")) if os.path.isdir(folder) else []
 
 
+def sample_chunks(out):
+    folder = rs.resume_folder(str(out))
+    return sorted(n for n in os.listdir(folder) if rs.PART_TAG + "samples-" in n) if os.path.isdir(folder) else []
+
+
 def test_killed_bake_resumes(scene, tmp_path):
     """A bake killed (SIGKILL) after 3 meshes were kept leaves no output and 3 entries; the same command again
     refines only the other meshes, writes the layer the uninterrupted bake writes and removes the kept work."""
@@ -208,11 +213,14 @@ def test_damaged_entry_is_refined_again(scene, tmp_path, monkeypatch):
     path, paths, reference = scene
     out = tmp_path / "out.usdc"
     stopped_bake(monkeypatch, 3, path, str(out), 2, normals=True)
-    damaged = os.path.join(rs.resume_folder(str(out)), entries(out)[0])
-    with open(damaged, "r+b") as f:
-        f.truncate(100)
+    folder = rs.resume_folder(str(out))
+    arrays = sorted(n for n in os.listdir(folder) if n.endswith(rs.PART_TAG + "arrays.npy"))
+    assert len(arrays) == 3  # the large arrays of each kept mesh, saved raw beside its entry layer
+    for damaged in (entries(out)[0], arrays[1]):  # one mesh's entry layer, another's arrays
+        with open(os.path.join(folder, damaged), "r+b") as f:
+            f.truncate(100)
     result = refine_usd(path, str(out), 2, normals=True)
-    assert len(result.reused) == 2
+    assert len(result.reused) == 1
     assert layer_text(str(out)) == layer_text(reference)
 
 
@@ -285,8 +293,7 @@ def test_animated_mesh_resumes_from_its_last_chunk_of_samples(tmp_path, monkeypa
     refine_usd(src, reference, 1, normals=True, resume=False)
     out = tmp_path / "out.usdc"
     stopped_bake(monkeypatch, 3, src, str(out), 1, normals=True)  # the static mesh, two chunks of samples
-    kept = sorted(os.listdir(rs.resume_folder(str(out))))
-    assert len(kept) == 3 and sum(n.endswith(".npz") for n in kept) == 2
+    assert len(entries(out)) == 1 and len(sample_chunks(out)) == 2
     result = refine_usd(src, str(out), 1, normals=True)
     assert result.reused == paths[:1]
     assert result.reused_samples == {paths[1]: 2 * rs.CHUNK_SAMPLES}
@@ -295,12 +302,12 @@ def test_animated_mesh_resumes_from_its_last_chunk_of_samples(tmp_path, monkeypa
     # once the mesh is kept whole its chunks are removed: after its entry is written, or by the next run where
     # a kill came between the two (here: stopped right after the 5th save, the entry after 3 chunks)
     stopped_bake(monkeypatch, 5, src, str(out), 1, normals=True, fresh=True)
-    assert len(entries(out)) == 2 and len(os.listdir(rs.resume_folder(str(out)))) == 5
+    assert len(entries(out)) == 2 and len(sample_chunks(out)) == 3
     monkeypatch.setattr(rs.Store, "finish", lambda self: None)  # what a successful run would remove
     result = refine_usd(src, str(out), 1, normals=True)
-    assert result.reused == paths and sorted(os.listdir(rs.resume_folder(str(out)))) == entries(out)
+    assert result.reused == paths and len(entries(out)) == 2 and sample_chunks(out) == []
     assert refine_usd(src, str(out), 1, normals=True, fresh=True).reused == []
-    assert len(entries(out)) == 2 and len(os.listdir(rs.resume_folder(str(out)))) == 2
+    assert len(entries(out)) == 2 and sample_chunks(out) == []
 
 
 def test_eta():

@@ -7,8 +7,10 @@ after the output's full file name, :func:`beside`):
 * a single-process bake (:func:`~warp_subdiv.usd.refine_usd`) keeps each refined mesh as soon as it is written
   (:class:`MeshEntries`): the specs the writer authored for it (an ``over`` with the refined points, topology,
   extents, normals, primvars, subsets and blocked attributes, with every time sample) copied into a small
-  ``.usdc`` layer, with its report and warnings in the layer's ``customLayerData``. A rerun copies the kept
-  specs back into the output layer instead of refining the mesh: the output is the same layer, spec for spec;
+  ``.usdc`` layer, with its report and warnings in the layer's ``customLayerData``, its large numeric arrays
+  taken out and saved raw beside it (``.npy``: usd-core's crate writer compresses integer arrays, which cost
+  more than writing them raw, 2.6x in all on the benchmark's scene). A rerun copies the kept specs back into
+  the output layer instead of refining the mesh: the output is the same layer, spec for spec;
 * a distributed bake (:func:`~warp_subdiv.usd.bake`) keeps each finished task's chunk layer (a mesh, or a
   frame range of an animated one) with the task's result (:class:`UnitEntries`); a rerun submits only the
   tasks whose chunk is not kept.
@@ -38,9 +40,10 @@ import uuid
 from dataclasses import asdict
 
 import numpy as np
-from pxr import Sdf
+from pxr import Sdf, Vt
 
 from ..errors import SubdivInputError
+from ..io.usd_write import from_numpy
 from ..version import __version__
 from .order import resolved_vertex_order
 
@@ -154,9 +157,16 @@ class Store:
             self.clear()
 
 
+def _raw(value) -> bool:
+    """Whether ``value`` is a large numeric Vt array (kept raw, :data:`RAW_ELEMENTS`)."""
+    if not hasattr(type(value), "FromNumpy") or not hasattr(value, "__len__") or len(value) < RAW_ELEMENTS:
+        return False
+    return np.asarray(value).dtype.kind in "fiu"
+
+
 def _owner(name: str) -> str | None:
     """The entry that the part ``name`` (``<owner>.samples-...``) belongs to, else None."""
-    owner, sep, _ = name.partition(SAMPLES_TAG)
+    owner, sep, _ = name.partition(PART_TAG)
     return owner if sep else None
 
 
@@ -194,8 +204,12 @@ CHUNK_SAMPLES = 16
 #: Bytes of refined points and normals one chunk of time samples holds at most (one sample at least).
 CHUNK_BYTES = 128 * 2**20
 
-#: What separates a kept mesh's entry name (without its extension) from a chunk of its time samples' part.
-SAMPLES_TAG = ".samples-"
+#: What separates a kept mesh's entry name (without its extension) from the name of one of its parts (its large
+#: arrays, a chunk of its time samples).
+PART_TAG = ".part-"
+#: Arrays of at least this many elements are kept raw beside a mesh's entry layer, not in it (see
+#: :meth:`MeshEntries.save`).
+RAW_ELEMENTS = 256
 
 #: The prim path a kept mesh's specs have inside its entry layer.
 _ENTRY_ROOT = Sdf.Path("/Kept")
@@ -215,7 +229,8 @@ class MeshEntries:
         #: the meshes (plan indices) whose refined specs are kept: the bake copies them instead of refining
         self.kept = {i for i, name in enumerate(self.names) if name in found}
         # chunks of samples are expected of the meshes not kept whole (a kill can come between the two)
-        store.clean(self.names, [self._owner(i) for i in range(len(self.names)) if i not in self.kept])
+        store.clean(self.names + [self._arrays(i) for i in range(len(self.names))],
+                    [self._owner(i) for i in range(len(self.names)) if i not in self.kept])
         found = set(os.listdir(store.folder)) if os.path.isdir(store.folder) else set()
         owners = {_owner(n) for n in found}
         #: the meshes not kept whole that have time samples kept (:class:`SampleChunks`)
@@ -226,7 +241,10 @@ class MeshEntries:
         return self.names[i][: -len(".usdc")]
 
     def _samples_prefix(self, i: int) -> str:
-        return self._owner(i) + SAMPLES_TAG
+        return self._owner(i) + PART_TAG + "samples-"
+
+    def _arrays(self, i: int) -> str:
+        return self._owner(i) + PART_TAG + "arrays.npy"
 
     def samples(self, i: int, group: int) -> "SampleChunks":
         """The kept time samples of mesh ``i``'s control mesh ``group`` (0 unless its topology changes over
@@ -251,24 +269,64 @@ class MeshEntries:
             return None
         dest = Sdf.Path(str(target))
         Sdf.CreatePrimInLayer(layer.layer, dest)
-        if not Sdf.CopySpec(entry, _ENTRY_ROOT, layer.layer, dest):
+        try:
+            if not Sdf.CopySpec(entry, _ENTRY_ROOT, layer.layer, dest):
+                raise OSError(f"could not copy {path}")
+            if record.get("raw"):
+                with open(self.store.path(self._arrays(i)), "rb") as arrays:
+                    for attr, time, cls in record["raw"]:  # saved one after the other, in this order
+                        at = Sdf.Path(attr).ReplacePrefix(_ENTRY_ROOT, dest)
+                        value = from_numpy(getattr(Vt, cls), np.load(arrays, allow_pickle=False))
+                        if time is None:
+                            layer.layer.GetAttributeAtPath(at).default = value
+                        else:
+                            layer.layer.SetTimeSample(at, time, value)
+        except Exception:  # noqa: BLE001 (a damaged entry: refined again)
             layer.remove(dest)  # nothing half-copied stays under what the writer writes
             return None
         return record["report"], record["warnings"]
 
     def save(self, i: int, layer, target: str, report, warnings) -> None:
         """Keep what the writer authored for mesh ``i`` at ``target`` (its subtree in the output layer), its
-        ``report`` (a :class:`~warp_subdiv.usd.PrimReport`) and ``warnings``."""
+        ``report`` (a :class:`~warp_subdiv.usd.PrimReport`) and ``warnings``: the specs in an entry layer, less the
+        values of at least :data:`RAW_ELEMENTS` numbers (defaults and time samples), which go raw into the
+        entry's arrays file, saved first (the entry layer, which lists them, marks a complete entry)."""
+        entry = Sdf.Layer.CreateAnonymous(".usdc")
+        Sdf.CreatePrimInLayer(entry, _ENTRY_ROOT)
+        if not Sdf.CopySpec(layer.layer, Sdf.Path(str(target)), entry, _ENTRY_ROOT):
+            raise OSError(f"could not copy {target} into an entry")
+        raw, arrays = [], []  # the large numeric arrays, taken out of the entry layer: saved raw
+
+        def take(path):
+            spec = entry.GetAttributeAtPath(path) if path.IsPropertyPath() else None
+            if spec is None:
+                return
+            if spec.HasDefaultValue() and _raw(spec.default):
+                raw.append((str(path), None, type(spec.default).__name__))
+                arrays.append(np.asarray(spec.default))
+                spec.ClearDefaultValue()
+            for time in entry.ListTimeSamplesForPath(path):
+                value = entry.QueryTimeSample(path, time)
+                if _raw(value):
+                    raw.append((str(path), time, type(value).__name__))
+                    arrays.append(np.asarray(value))
+                    entry.EraseTimeSample(path, time)
+
+        entry.Traverse(_ENTRY_ROOT, take)
+        entry.customLayerData = {"warpSubdivKept": json.dumps({"report": asdict(report), "warnings": list(warnings),
+                                                               "raw": raw})}
+
+        def write_arrays(tmp):  # .npy one after the other (no zip: its checksums cost more than the writes)
+            with open(tmp, "wb") as f:
+                for array in arrays:
+                    np.save(f, array, allow_pickle=False)
+
         def write(tmp):
-            entry = Sdf.Layer.CreateAnonymous(".usdc")
-            Sdf.CreatePrimInLayer(entry, _ENTRY_ROOT)
-            if not Sdf.CopySpec(layer.layer, Sdf.Path(str(target)), entry, _ENTRY_ROOT):
-                raise OSError(f"could not copy {target} into {tmp}")
-            entry.customLayerData = {"warpSubdivKept": json.dumps({"report": asdict(report),
-                                                                   "warnings": list(warnings)})}
             if not entry.Export(tmp):
                 raise OSError(f"could not write {tmp}")
 
+        if arrays:  # first: the entry layer is the mark of a complete entry
+            self.store.save(self._arrays(i), write_arrays, counted=False)
         self.store.save(self.names[i], write)
         for chunks in self._chunks.pop(i, ()):  # the mesh is kept whole: its chunks of samples are not needed
             for name in set(chunks.files.values()) | chunks.written:
@@ -385,6 +443,6 @@ def keep_unit(spec, layer_path: str, result: dict) -> None:
     store.save(name + ".json", write, counted=False)
 
 
-__all__ = ["CHUNK_BYTES", "CHUNK_SAMPLES", "KILL_ENV", "MeshEntries", "SampleChunks", "Store", "UnitEntries",
-           "beside", "content_key", "eta_seconds", "format_eta", "keep_unit", "link_or_copy", "mesh_key",
-           "resume_folder"]
+__all__ = ["CHUNK_BYTES", "CHUNK_SAMPLES", "KILL_ENV", "MeshEntries", "PART_TAG", "RAW_ELEMENTS", "SampleChunks",
+           "Store", "UnitEntries", "beside", "content_key", "eta_seconds", "format_eta", "keep_unit", "link_or_copy",
+           "mesh_key", "resume_folder"]
