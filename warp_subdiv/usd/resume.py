@@ -9,7 +9,7 @@ after the output's full file name, :func:`beside`):
   extents, normals, primvars, subsets and blocked attributes, with every time sample) copied into a small
   ``.usdc`` layer, with its report and warnings in the layer's ``customLayerData``, its large numeric arrays
   taken out and saved raw beside it (``.npy``: usd-core's crate writer compresses integer arrays, which cost
-  more than writing them raw, 2.6x in all on the benchmark's scene). A rerun copies the kept specs back into
+  more than writing them raw: about 2.5x in all on the benchmark's scene). A rerun copies the kept specs back into
   the output layer instead of refining the mesh: the output is the same layer, spec for spec;
 * a distributed bake (:func:`~warp_subdiv.usd.bake`) keeps each finished task's chunk layer (a mesh, or a
   frame range of an animated one) with the task's result (:class:`UnitEntries`); a rerun submits only the
