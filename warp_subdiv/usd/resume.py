@@ -161,7 +161,10 @@ def _raw(value) -> bool:
     """Whether ``value`` is a large numeric Vt array (kept raw, :data:`RAW_ELEMENTS`)."""
     if not hasattr(type(value), "FromNumpy") or not hasattr(value, "__len__") or len(value) < RAW_ELEMENTS:
         return False
-    return np.asarray(value).dtype.kind in "fiu"
+    try:
+        return np.asarray(value).dtype.kind in "fiu"
+    except Exception:  # noqa: BLE001 (a type numpy cannot view: kept in the entry layer)
+        return False
 
 
 def _owner(name: str) -> str | None:
