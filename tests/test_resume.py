@@ -367,3 +367,18 @@ def test_distributed_bake_resumes_after_its_client_is_killed(client, tmp_path):
     assert all("frames" in label for label in result.reused)
     assert_same_composition(single, str(out))
     assert sorted(os.listdir(out.parent)) == ["animated.usda", "animated.usda.chunks"]
+
+
+@pytest.mark.parametrize("name", sorted(n[:-5] for n in os.listdir(os.path.join(ROOT, "scenes"))
+                                         if n.endswith(".usda") and n != "adaptive_tessellation.usda"))
+def test_bundled_scenes_resume_to_the_same_layer(name, tmp_path, monkeypatch):
+    """The bundled scenes with subdivision meshes (time samples, primvars of several kinds, subsets, instances,
+    prescribed normals), stopped after their first kept mesh and resumed: the layer of an uninterrupted bake."""
+    src = os.path.join(ROOT, "scenes", f"{name}.usda")
+    reference = str(tmp_path / "reference.usda")
+    refine_usd(src, reference, 1, normals=True, resume=False)
+    out = tmp_path / "out.usda"
+    stopped_bake(monkeypatch, 1, src, str(out), 1, normals=True)
+    result = refine_usd(src, str(out), 1, normals=True)
+    assert len(result.reused) == 1
+    assert layer_text(str(out)) == layer_text(reference)
