@@ -159,6 +159,12 @@ def _add_refine(sub) -> None:
     cmd.add_argument("--chunk-frames", type=int, default=None, metavar="N",
                      help="with --workers/--scheduler: time samples per frame task of an animated mesh "
                           "(default: about 3 tasks per worker)")
+    cmd.add_argument("--fresh", action="store_true",
+                     help="USD: refine everything again, ignoring (and removing) the work that a killed run of the "
+                          "same bake kept in OUT.resume/ (by default a rerun reuses it)")
+    cmd.add_argument("--no-resume", action="store_true",
+                     help="USD: keep nothing for a rerun (no OUT.resume/: a killed bake starts over; saves writing "
+                          "each refined mesh twice)")
 
 
 def _add_stitch(sub) -> None:
@@ -431,7 +437,7 @@ def _refine_usd(args, max_memory, progress) -> int:
     run = dict(prims=args.prim, scheme=args.scheme, rules=args.rules, boundary=args.boundary, device=args.device,
                precision=args.precision, frames=frames, limit=args.limit, normals=args.normals,
                max_memory=max_memory, flatten=args.flatten, semi_sharp="sharp" if args.semi_sharp_as_sharp else "keep",
-               progress=progress)
+               progress=progress, fresh=args.fresh, resume=not args.no_resume)
     run["vertex_order"] = args.vertex_order  # always passed: every chunk of a distributed bake numbers alike
     levels = dict(max_levels=args.max_levels, camera=args.camera, pixel_error=args.pixel_error,
                   resolution=args.resolution, offscreen_level=args.offscreen_level, lod_variants=args.lod_variants)
@@ -456,6 +462,9 @@ def _refine_usd(args, max_memory, progress) -> int:
     if not args.quiet:
         _summary(args.input, args.output, args.levels, _device_name(args.device), result.reports, result.seconds,
                  result.predicted_bytes, getattr(result, "phases", None))
+        if result.reused or result.reused_samples:  # a killed run's finished work, copied (not refined)
+            print(f"resumed: {len(result.reused)} {'tasks' if hasattr(result, 'timings') else 'meshes'} and "
+                  f"{sum(result.reused_samples.values())} time samples kept by an earlier run")
     return 0
 
 

@@ -47,10 +47,11 @@ class Ahead:
         self.futures: dict = {}
         self.pool = None
         self.concurrent = 1
+        kept = set(bake.reused) | set(bake.partial)  # kept by an earlier run (resume), whole or some samples
         self.queue = collections.deque(
             i for i, (sp, e) in enumerate(zip(p.prims, p.estimates))
             if not sp.topologies and e.final.vertices >= AHEAD_VERTICES
-            and (batches is None or i not in batches.chunk_of))
+            and (batches is None or i not in batches.chunk_of) and i not in kept)
         workers = _threads.default_threads()
         if workers < 2 or len(self.queue) < 2 or not wp.get_device(bake.device).is_cpu:
             return

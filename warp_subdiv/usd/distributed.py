@@ -23,7 +23,9 @@ animated mesh's chunks as USD value clips (:func:`stitch_clips`: ``UsdUtils.Stit
 (:func:`chunk_folder`: ``shot.usdc.chunks``, each output file its own) and writes the output layer last: clip
 sets, then sublayers ``[topology, per-mesh layers..., input]``. A run whose input reads anything in that
 folder is refused before any task starts. Any failure cancels the other tasks and removes the folder, so no
-output and no chunk file is left; a worker that dies has its tasks rerun elsewhere by Dask. Each task applies
+output and no chunk file is left; a worker that dies has its tasks rerun elsewhere by Dask. Each finished task
+is kept in ``<output>.resume/`` (:mod:`warp_subdiv.usd.resume`): a rerun of a killed bake submits only the
+tasks whose chunk is not kept. Each task applies
 the memory guard against its worker's memory (the worker's memory limit, and ``max_memory`` when given).
 
 :func:`stitch` (``warp-subdiv stitch``) assembles chunk layers that ``warp-subdiv refine --frames A:B`` runs
@@ -34,6 +36,7 @@ only by :func:`bake`.
 """
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import re
@@ -55,6 +58,7 @@ from .planning import PrimReport, make_refiner, plan
 from .clips import animated, clip_range, stitch_clips
 from .record import check_same_refinement, layer_record
 from .refine import Result, refine_usd
+from .resume import Store, UnitEntries, beside, content_key, eta_seconds, format_eta, keep_unit, resume_folder
 
 #: Fewest time samples a frame chunk holds (an animated mesh with fewer than twice this is one unit).
 MIN_CHUNK_SAMPLES = 4
@@ -175,10 +179,11 @@ def _seconds_of(topology):
     return topology[1]
 
 
-def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, threads=None) -> dict:
+def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, threads=None, keep=None) -> dict:
     """Refine one unit into ``folder/unit.layer`` (written under a private name, then renamed); ``topology``:
     the mesh's (hierarchy, seconds) from :func:`topology_task`, or None. Returns its reports and warnings, or
-    {"error": ...} for input errors (the driver raises them)."""
+    {"error": ...} for input errors (the driver raises them). ``keep``: where the finished unit is kept for a
+    rerun of a killed bake (:meth:`~warp_subdiv.usd.resume.UnitEntries.spec`), or None."""
     start = _time.perf_counter()
     hierarchy = topology[0] if topology is not None else None
     limit = _worker_setup(threads)
@@ -188,6 +193,8 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
         keywords = {k: v for k, v in run.items() if k != "prims"}
         keywords.update(max_memory=_memory(run.get("max_memory"), limit), frames=unit.frames, flatten=False,
                         samples_only=unit.samples_only, shipped=(hierarchy,) if hierarchy is not None else ())
+        # the whole scene in one task: its meshes are kept one by one beside the bake's units
+        keywords["resume"] = os.path.join(keep[0], "scene") if keep is not None and unit.kind == "scene" else False
         prims = [unit.path] if unit.path is not None else run.get("prims")
         result = refine_usd(input_path, tmp, levels, prims=prims, **keywords)
         layer = Sdf.Layer.FindOrOpen(tmp)
@@ -202,9 +209,12 @@ def unit_task(input_path, folder, unit: Unit, levels, run, topology=None, thread
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-    return {"unit": unit.number, "reports": [asdict(r) for r in result.reports], "warnings": result.warnings,
+    done = {"unit": unit.number, "reports": [asdict(r) for r in result.reports], "warnings": result.warnings,
             "times": (min(times), max(times)) if times else None, "seconds": result.seconds,
-            "wall": _time.perf_counter() - start}
+            "wall": _time.perf_counter() - start, "reused": result.reused}
+    if keep is not None:
+        keep_unit(keep, os.path.join(folder, unit.layer), done)
+    return done
 
 
 def _plan_keywords(run: dict) -> dict:
@@ -217,12 +227,12 @@ def _plan_keywords(run: dict) -> dict:
 def chunk_folder(output: str) -> str:
     """The folder of a distributed bake's chunks: named after the output's full file name (``shot.usdc`` ->
     ``shot.usdc.chunks``), so that outputs that differ only in their extension do not share it."""
-    return output + ".chunks"
+    return beside(output, "chunks")
 
 
 def stitch_folder(output: str) -> str:
     """The folder of a stitched output's topology and manifests (``shot.usda`` -> ``shot.usda.stitch``)."""
-    return output + ".stitch"
+    return beside(output, "stitch")
 
 
 class _Folder:
@@ -288,6 +298,15 @@ class _Folder:
         remove_folders(self.created)
 
 
+def _sweep_killed(output: str) -> None:
+    """Remove the temporary chunk folders that killed bakes of ``output`` left (``.<name>.chunks-*``): their
+    finished chunks are kept in the resume folder (hard links to the same files). One bake per output at a time."""
+    parent, prefix = os.path.dirname(output), "." + os.path.basename(chunk_folder(output)) + "-"
+    for name in os.listdir(parent) if os.path.isdir(parent) else ():
+        if name.startswith(prefix) and os.path.isdir(os.path.join(parent, name)):
+            shutil.rmtree(os.path.join(parent, name), ignore_errors=True)
+
+
 def _client(workers, scheduler):
     try:
         from distributed import Client, LocalCluster
@@ -311,7 +330,8 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     """Refine the subdivision meshes of ``input_path`` on a Dask cluster and write ``output_path`` (see the
     module docstring). ``run``: :func:`warp_subdiv.usd.refine_usd`'s keywords (prims, scheme, rules, boundary,
     device, precision, frames, limit, normals, max_memory, flatten, semi_sharp, vertex_order: each
-    task passes it on, so every chunk numbers the refined vertices alike). ``workers``: worker processes
+    task passes it on, so every chunk numbers the refined vertices alike; resume and fresh: the finished tasks
+    are kept for a rerun, :mod:`warp_subdiv.usd.resume`). ``workers``: worker processes
     of a local cluster (default: the cores this process may use); ``scheduler``: the address of an existing
     cluster's scheduler instead; ``client``: an existing ``distributed.Client``. ``threads``: evaluation
     threads per task (default: the local cluster's share of the cores, a remote worker's own cores).
@@ -333,14 +353,16 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
         raise SubdivInputError(f"{input_path}: no such file")
     check_output_path(output_path)
     flatten = bool(run.pop("flatten", False))
+    resume, fresh = run.pop("resume", True), bool(run.pop("fresh", False))
     run.setdefault("max_memory", None)
     p = plan(input_path, levels, **{k: v for k, v in _plan_keywords(run).items()}, prims=run.get("prims"))
     if run.get("camera") is not None:  # the tasks see their own frames only: they take the levels chosen here
         for key in LEVEL_KEYWORDS:
             run.pop(key, None)
         run["mesh_levels"] = {path: level for path, (level, _) in p.level_sources.items()}
-    # the chunk folder is replaced as a whole: the input must not read anything in it
-    out_abs = check_output_path(output_path, p.stage, folders=[chunk_folder(os.path.abspath(output_path))])
+    # the chunk and kept work's folders are replaced as a whole: the input must not read anything in them
+    given = os.path.abspath(output_path)
+    out_abs = check_output_path(output_path, p.stage, folders=[chunk_folder(given), resume_folder(given)])
     run.pop("progress", None)
 
     timings = {"plan_s": _time.perf_counter() - start}
@@ -359,10 +381,25 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
             units = plan_units(p.prims, run.get("frames"), n_workers, chunk_frames, ext)
         else:  # instances, shared or variant refinements: one task bakes the plan as the single process does
             units = [Unit(0, "scene", -1, None, run.get("frames"), "scene" + ext)]
+        store = Store(out_abs, fresh=fresh) if resume else None
+        if store is not None:
+            _sweep_killed(out_abs)
+        entries = UnitEntries(store, units, [unit_key(p, u, levels, run) for u in units]) if resume else None
         with _Folder(out_abs, flatten=flatten) as folder:
             t = _time.perf_counter()
-            results = _run_units(client, input_path, folder.path, units, p, levels, run, threads, progress,
-                                 timings)
+            kept = {}  # units finished by an earlier run of this bake: their layers are linked in, not refined
+            for u in units if entries is not None else ():
+                found = entries.load(u.number, os.path.join(folder.path, u.layer))
+                if found is not None:
+                    kept[u.number] = found
+            try:
+                results = _run_units(client, input_path, folder.path, [u for u in units if u.number not in kept],
+                                     p, levels, run, threads, progress, timings, entries, unit_weights(p, units))
+            except BaseException as exc:
+                if store is not None:
+                    store.failed(exc)
+                raise
+            results.update(kept)
             timings["tasks_s"] = _time.perf_counter() - t
             reports, warnings = _merge(p, units, results)
             names = {u.layer for u in units}
@@ -373,8 +410,11 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
             client.close()
         if cluster is not None:
             cluster.close()
+    if store is not None:
+        store.finish()  # the output is complete: nothing left to resume
     result = Result(out, reports, list(dict.fromkeys(p.warnings + warnings)), _time.perf_counter() - start,
-                    p.predicted_bytes)
+                    p.predicted_bytes, reused=[u.label for u in units if u.number in kept]
+                    + [path for u in units if u.number not in kept for path in results[u.number].get("reused", ())])
     timings["units"] = [{"kind": u.kind, "path": u.path, "frames": u.frames, "seconds": results[u.number]["seconds"],
                          "wall": results[u.number]["wall"]} for u in units]
     timings["workers"] = n_workers
@@ -382,10 +422,53 @@ def bake(input_path: str, output_path: str, levels: int, *, workers: int | None 
     return result
 
 
-def _run_units(client, input_path, folder, units, p, levels, run, threads, progress, timings) -> dict:
+def unit_key(p, u: Unit, levels, run) -> str:
+    """The content key of unit ``u`` (:mod:`warp_subdiv.usd.resume`): what it is (number, kind, path, frames,
+    chunk layer), its meshes' input digests, levels and options as their refinement gets them, ``levels``, and the
+    run's options that decide the written values (``run``: :func:`bake`'s; not its memory limit)."""
+    meshes = range(len(p.prims)) if u.mesh < 0 else [u.mesh]
+    return content_key("unit", u.number, u.kind, u.path, u.frames, u.samples_only, u.layer, int(levels),
+                       [(p.keys[i], int(p.levels[i]), sorted(p.options[i].as_dict().items())) for i in meshes],
+                       [(k, repr(run.get(k, default))) for k, default in _VALUE_DEFAULTS.items()])
+
+
+#: refine_usd's keywords that decide the written values, with their defaults (a run that leaves one out and a
+#: run that passes its default bake the same units).
+_VALUE_DEFAULTS = {name: param.default for name, param in inspect.signature(refine_usd).parameters.items()
+                   if name in ("prims", "scheme", "rules", "boundary", "device", "precision", "frames", "limit",
+                               "normals", "semi_sharp", "all_variants", "vertex_order", "skinning",
+                               "max_influences", "max_levels", "camera", "pixel_error", "resolution",
+                               "offscreen_level", "mesh_levels")}
+
+
+def unit_weights(p, units) -> dict:
+    """Each unit's predicted cost (refined vertices x the samples it writes), for the progress's ETA."""
+    weights = {}
+    for u in units:
+        meshes = range(len(p.prims)) if u.mesh < 0 else [u.mesh]
+        total = 0
+        for i in meshes:
+            times = p.prims[i].point_times
+            if u.kind == "frames":
+                a, b = u.frames
+                times = [t for t in times if (a is None or t >= a) and (b is None or t <= b)]
+            total += (p.estimates[i].final.vertices or 1) * max(1, len(times))
+        weights[u.number] = total
+    return weights
+
+
+def _run_units(client, input_path, folder, units, p, levels, run, threads, progress, timings, entries=None,
+               weights=None) -> dict:
     """Submit the topology and unit tasks; wait for all of them. The first failure cancels the rest and is
-    raised (input errors as SubdivInputError)."""
+    raised (input errors as SubdivInputError). ``entries``: where the finished units are kept
+    (:class:`~warp_subdiv.usd.resume.UnitEntries`); ``weights``: the units' predicted costs (the ETA)."""
     from distributed import as_completed
+
+    by_number = {u.number: u for u in units}
+    weights = weights or {}
+    total = sum(weights.values()) or 1
+    kept = total - sum(weights.get(u.number, 0) for u in units)
+    done_weight, start = kept, _time.perf_counter()
 
     topo = {}
     for u in units:
@@ -393,6 +476,7 @@ def _run_units(client, input_path, folder, units, p, levels, run, threads, progr
             topo[u.mesh] = client.submit(topology_task, input_path, u.path, levels, run, threads, pure=False,
                                          key=f"warp-subdiv-topology-{u.mesh}-{uuid.uuid4().hex}")
     futures = [client.submit(unit_task, input_path, folder, u, levels, run, topo.get(u.mesh), threads,
+                             entries.spec(u.number) if entries is not None else None,
                              pure=False, key=f"warp-subdiv-unit-{u.number}-{uuid.uuid4().hex}") for u in units]
     seconds = [client.submit(_seconds_of, f, pure=False) for f in topo.values()]
     results = {}
@@ -401,8 +485,11 @@ def _run_units(client, input_path, folder, units, p, levels, run, threads, progr
             if isinstance(value, dict) and "error" in value:
                 raise _reraise(value["error"])
             results[value["unit"]] = value
+            done_weight += weights.get(value["unit"], 0)
             if progress is not None:
-                progress(done / (len(units) + 1), f"[{done}/{len(units)}] {units[value['unit']].label}")
+                eta = format_eta(eta_seconds(done_weight, total, kept, _time.perf_counter() - start))
+                progress(done / (len(units) + 1),
+                         f"[{done}/{len(units)}] {by_number[value['unit']].label}" + (f" ({eta})" if eta else ""))
         timings["topology_s"] = client.gather(seconds)
     except BaseException:
         client.cancel(futures + list(topo.values()))

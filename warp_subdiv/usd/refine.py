@@ -52,10 +52,11 @@ from .batching import Batches
 from .order import check_vertex_order
 from .output_layout import layout
 from .lod import check_lod_run, declare_variant_set, local_meshes, lod_path, merge_levels, variant_name
-from .planning import Plan, make_refiner, plan
+from .planning import Plan, PrimReport, make_refiner, plan
 from .record import layer_record
 from .skinning import check_max_influences, check_skinning
 from .refinement import MeshRefinement
+from .resume import CHUNK_SAMPLES, MeshEntries, SampleChunks, Store, eta_seconds, format_eta, resume_folder
 from .writer import PrimWriter
 
 
@@ -67,13 +68,19 @@ class Result:
     seconds: float
     predicted_bytes: int
     phases: dict = field(default_factory=dict)  # seconds per phase (warp_subdiv.runtime.phases): read, analyse, ...
+    reused: list = field(default_factory=list)  # what was kept by an earlier run and not refined again (resume)
+    reused_samples: dict = field(default_factory=dict)  # mesh path -> its time samples kept by an earlier run
 
 
 class Progress:
-    """Progress bookkeeping: units are predicted output vertices (tables once, then one per sample)."""
+    """Progress bookkeeping: units are predicted output vertices (tables once, then one per sample), so each
+    mesh weighs its predicted cost. The label ends with an ETA from the rate of the work done so far in this
+    run (meshes kept by an earlier run, :meth:`reuse`, count as done but not towards the rate)."""
 
     def __init__(self, p: Plan, callback):
         self.callback = callback
+        self.start = _time.perf_counter()
+        self.kept = 0.0
         self.weights = []  # per prim: (tables, each sample)
         for sp, e in zip(p.prims, p.estimates):
             tables = sum(c.vertices for c in e.counts[1:]) or 1
@@ -81,10 +88,18 @@ class Progress:
         self.total = sum(t + s * max(1, len(sp.point_times)) for (t, s), sp in zip(self.weights, p.prims)) or 1
         self.done = 0
 
-    def step(self, units: float, label: str) -> None:
+    def step(self, units: float, label: str, kept: bool = False) -> None:
+        """``units`` of work done (``kept``: copied from an earlier run's kept work, at no cost)."""
         self.done += units
+        self.kept += units if kept else 0.0
         if self.callback is not None:
-            self.callback(min(1.0, self.done / self.total), label)
+            eta = format_eta(eta_seconds(self.done, self.total, self.kept, _time.perf_counter() - self.start))
+            self.callback(min(1.0, self.done / self.total), f"{label} ({eta})" if eta else label)
+
+    def reuse(self, i: int, samples: int, label: str) -> None:
+        """Mesh ``i`` (``samples`` written samples) was kept by an earlier run: done, at no cost."""
+        tables, sample = self.weights[i]
+        self.step(tables + sample * max(1, samples), label, kept=True)
 
 
 class Bake:
@@ -96,7 +111,8 @@ class Bake:
     every mesh; :meth:`close` stops the workers."""
 
     def __init__(self, p: Plan, layer: OutputLayer, *, device, limit, normals, vertex_order,
-                 samples_only: bool, batch: bool, max_memory, shipped, progress, lod_variants=None):
+                 samples_only: bool, batch: bool, max_memory, shipped, progress, lod_variants=None,
+                 resume: MeshEntries | None = None):
         self.plan, self.layer = p, layer
         self.lod_variants = lod_variants  # levels written as variants of every mesh (warp_subdiv.usd.lod)
         batch = batch and not lod_variants  # batches and workers refine each mesh at its planned level only
@@ -105,10 +121,23 @@ class Bake:
         self.shipped = tuple(h for h in shipped if h is not None)
         self.progress = Progress(p, progress)
         self.warnings = list(p.warnings)
+        self.resume = resume  # meshes kept by an earlier run (copied, not refined) and kept as they are written
+        self.reused = sorted(resume.kept) if resume is not None else []  # neither batched nor refined ahead
+        self.copied: list = []  # the paths of the meshes copied from kept work (a damaged entry is refined)
+        self.partial = sorted(resume.partial) if resume is not None else []  # with time samples kept
+        self.reused_samples: dict = {}  # mesh path -> time samples copied from kept chunks
         self.batches = self.ahead = None
         if batch:
             self.batches = Batches(p, device, limit, normals, refiner=self.refiner,
                                    defaults=not samples_only, shipped=self.shipped)
+            for i in self.reused:  # not evaluated with their chunk
+                chunk = self.batches.chunk_of.pop(i, None)
+                if chunk is not None:
+                    chunk.remove(i)
+        # animated meshes refined on their own keep their time samples in chunks as they are written
+        self.chunked = {i for i, sp in enumerate(p.prims) if resume is not None
+                        and len(sp.point_times) >= 2 * CHUNK_SAMPLES
+                        and (self.batches is None or i not in self.batches.chunk_of)}
         self.ahead = Ahead(self, max_memory)
 
     def refiner(self, i: int, sp) -> Refiner:
@@ -123,6 +152,11 @@ class Bake:
         if analysis is not None and level > 0 and not sp.topologies:
             p.analyses[i] = None  # used: not kept for the rest of the bake
         return refiner
+
+    def samples(self, i: int, group: int) -> SampleChunks | None:
+        """The kept time samples of prim ``i``'s control mesh ``group`` (see :class:`SampleChunks`), where
+        they are kept (an animated mesh refined on its own with resume on), else None."""
+        return self.resume.samples(i, group) if i in self.chunked else None
 
     @_phases.timed("analyse")
     def refinement(self, i: int, sp) -> MeshRefinement:
@@ -143,18 +177,28 @@ class Bake:
         for i, sp in enumerate(p.prims):
             t0 = _time.perf_counter()
             key = p.keys[i]
-            if self.batches is not None:
-                self.batches.prepare(i)  # the first prim of a chunk of small meshes: the chunk is evaluated now
             target = str(out_layout.homes[key])
             label = f"[{i + 1}/{len(p.prims)}] {sp.path}"
-            if self.lod_variants:
+            kept = self.resume.load(i, layer, target) if self.resume is not None else None
+            if kept is not None:
+                report, warnings = PrimReport(**kept[0]), kept[1]
+                self.warnings.extend(warnings)
+                self.copied.append(sp.path)
+                self.progress.reuse(i, len(sp.point_times), f"{label}: kept")
+            elif self.lod_variants:
                 for level in self.lod_variants:
                     p.levels[i] = level
                     report = PrimWriter(self, i, str(lod_path(target, level)), f"{label} ({variant_name(level)})"
                                         ).write()
                 declare_variant_set(layer.layer, target, self.lod_variants)
             else:
-                report = PrimWriter(self, i, target, label).write(self.ahead.take(i))
+                if self.batches is not None:
+                    self.batches.prepare(i)  # the first prim of a chunk of small meshes: the chunk is evaluated now
+                prepared = self.ahead.take(i)
+                known = len(self.warnings)
+                report = PrimWriter(self, i, target, label).write(prepared)
+                if self.resume is not None:
+                    self.resume.save(i, layer, target, report, self.warnings[known:])
             for dst in out_layout.copies[key]:
                 layer.copy(out_layout.homes[key], dst)
             report.seconds = _time.perf_counter() - t0
@@ -202,6 +246,8 @@ def refine_usd(
     lod_variants=None,
     skinning: str = "bake",
     max_influences: int | None = None,
+    resume: bool | str = True,
+    fresh: bool = False,
 ) -> Result:
     """Refine every subdivision mesh of ``input_path`` (or those at or under ``prims``) and write the layer
     ``output_path`` (.usd, .usda or .usdc) that sublayers the input and overrides them.
@@ -253,6 +299,10 @@ def refine_usd(
     ``shipped``: hierarchies built elsewhere (a distributed bake's topology task ships a mesh's tables to the
     tasks that refine its frames, :mod:`warp_subdiv.usd.distributed`): the refiner of a mesh that one of them
     fits starts from it (:meth:`~warp_subdiv.tables.Hierarchy.fits`), and such a mesh is not batched.
+    ``resume``: keep each refined mesh in ``<output>.resume/`` as it is written, and copy the meshes an earlier
+    run of the same bake kept there instead of refining them again (:mod:`warp_subdiv.usd.resume`; the
+    Result's ``reused`` lists them); a folder: keep them there; False: keep nothing. ``fresh``: remove what was
+    kept first.
     """
     start = _time.perf_counter()
     _check_run(input_path, output_path, levels, vertex_order, skinning, max_influences)
@@ -267,7 +317,8 @@ def refine_usd(
              pixel_error=pixel_error, resolution=resolution, offscreen_level=offscreen_level,
              mesh_levels=mesh_levels, scene_levels=lod_variants is None,
              skinning=skinning, max_influences=max_influences)
-    out_abs = check_output_path(output_path, p.stage)
+    # the kept work's folder is cleaned and removed: the input must not read anything in it
+    out_abs = check_output_path(output_path, p.stage, folders=[resume_folder(os.path.abspath(output_path))])
     check_memory(p.estimates, max_memory, p.max_level)
     local = local_meshes(p.stage, [o.composed for o in p.scene.top.meshes]) if lod_variants else []
     if local and not flatten:  # variants cannot override the input's own opinions: flattened (warp_subdiv.usd.lod)
@@ -279,7 +330,7 @@ def refine_usd(
                           all_variants=all_variants, flatten=flatten, frames=frames,
                           skinning=skinning, max_influences=max_influences, lod_variants=lod_variants)
     layer = OutputLayer(out_abs, p.stage, custom)
-    bake = None
+    bake = store = None
     try:
         settings = dict(device=device, limit=limit, normals=normals, vertex_order=vertex_order,
                         samples_only=samples_only, batch=batch, max_memory=max_memory, shipped=shipped,
@@ -287,7 +338,14 @@ def refine_usd(
         if lod_variants and flatten:
             bake, reports, merged = _flattened_levels(p, layer, settings, lod_variants, frames)
         else:
-            bake = Bake(p, layer, lod_variants=lod_variants, **settings)
+            entries = None
+            if resume and not lod_variants:  # (a mesh's LOD variants are written together: nothing to keep apart)
+                store = Store(out_abs, fresh=fresh, folder=resume if isinstance(resume, str) else None)
+                entries = MeshEntries(store, p, list(p.levels), vertex_order=vertex_order,
+                                      run=dict(limit=bool(limit), normals=bool(normals), semi_sharp=semi_sharp,
+                                               frames=frames, samples_only=bool(samples_only), device=device,
+                                               skinning=skinning, max_influences=max_influences))
+            bake = Bake(p, layer, lod_variants=lod_variants, resume=entries, **settings)
             reports, out_layout = bake.write()
             # bounding-box hints above the refined meshes: recomputed for the refined surfaces
             layer.override_extents_hints(p.stage, out_layout.hint_roots(p), frames)
@@ -295,14 +353,19 @@ def refine_usd(
         if progress is not None:
             progress(1.0, "writing " + os.path.basename(out_abs))
         layer.commit(flatten=flatten, flattened=merged)
-    except BaseException:
+    except BaseException as exc:
         layer.discard()
+        if store is not None:
+            store.failed(exc)
         raise
     finally:
         if bake is not None:
             bake.close()
+    if store is not None:
+        store.finish()  # the output is complete: nothing left to resume
     return Result(out_abs, reports, bake.warnings, _time.perf_counter() - start,
-                  total_bytes(p.estimates, bake.ahead.concurrent))
+                  total_bytes(p.estimates, bake.ahead.concurrent), reused=bake.copied,
+                  reused_samples=bake.reused_samples)
 
 
 def _flattened_levels(p: Plan, layer: OutputLayer, settings: dict, levels, frames):

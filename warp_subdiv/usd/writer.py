@@ -126,14 +126,22 @@ class PrimWriter:
         layer, prim, progress = self.layer, self.prim, self.bake.progress
         pts_spec = layer.attr(prim, "points", T.Point3fArray)
         ext_spec = layer.attr(prim, "extent", T.Float3Array)
+        kept = self.bake.samples(self.i, group)  # time samples kept for a resumed bake, or None
         for t in self._written([DEFAULT] + list(self.sp.point_times), group):
-            pos, nrm = refinement.positions(spg.points_at(t))
+            found = kept.get(t) if kept is not None and t != DEFAULT else None
+            pos, nrm = found if found is not None else refinement.positions(spg.points_at(t))
             layer.set(pts_spec, *default_or_sample(t, vec3f_array(pos)))
             layer.set(ext_spec, *default_or_sample(t, extent_of(pos)))
             if normals_spec is not None:
                 layer.set(normals_spec, *default_or_sample(t, vec3f_array(nrm)))
             if t != DEFAULT:
-                progress.step(w_sample, f"{self.label}: time {t:g}")
+                if kept is not None and found is None:
+                    kept.add(t, pos, nrm)
+                progress.step(w_sample, f"{self.label}: time {t:g}", kept=found is not None)
+        if kept is not None:
+            kept.flush()
+            if kept.reused:
+                self.bake.reused_samples[self.sp.path] = self.bake.reused_samples.get(self.sp.path, 0) + kept.reused
         if not self.sp.point_times:
             progress.step(w_sample, f"{self.label}: points")
 
