@@ -2,6 +2,7 @@
 bake's client process killed while tasks run) and run again with the same command writes the layer an
 uninterrupted bake writes and refines only what was missing; stale kept work is not reused; ``--fresh``."""
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -9,7 +10,7 @@ import time
 
 import numpy as np
 import pytest
-from pxr import Sdf, Vt
+from pxr import Sdf, Usd, UsdGeom, Vt
 
 from warp_subdiv.errors import SubdivInputError
 from warp_subdiv.usd import refine_usd
@@ -369,8 +370,10 @@ def test_distributed_bake_resumes_after_its_client_is_killed(client, tmp_path):
     assert sorted(os.listdir(out.parent)) == ["animated.usda", "animated.usda.chunks"]
 
 
+# (every mesh of the skinned character reads its skeleton: nothing of it is kept, see the next test)
 @pytest.mark.parametrize("name", sorted(n[:-5] for n in os.listdir(os.path.join(ROOT, "scenes"))
-                                         if n.endswith(".usda") and n != "adaptive_tessellation.usda"))
+                                         if n.endswith(".usda") and n not in ("adaptive_tessellation.usda",
+                                                                              "skinned_character.usda")))
 def test_bundled_scenes_resume_to_the_same_layer(name, tmp_path, monkeypatch):
     """The bundled scenes with subdivision meshes (time samples, primvars of several kinds, subsets, instances,
     prescribed normals), stopped after their first kept mesh and resumed: the layer of an uninterrupted bake."""
@@ -382,3 +385,30 @@ def test_bundled_scenes_resume_to_the_same_layer(name, tmp_path, monkeypatch):
     result = refine_usd(src, str(out), 1, normals=True)
     assert len(result.reused) == 1
     assert layer_text(str(out)) == layer_text(reference)
+
+
+def test_skinned_meshes_are_never_reused(tmp_path, monkeypatch):
+    """A skinned mesh's baked points depend on its skeleton's animation, which its input digest does not cover:
+    work kept for it is never reused, so an animation edited between a stopped run and its rerun bakes the new
+    pose (the plain mesh beside it is still reused)."""
+    src = str(tmp_path / "character.usda")
+    shutil.copy(os.path.join(ROOT, "scenes", "skinned_character.usda"), src)
+    layer = Sdf.Layer.FindOrOpen(src)
+    stage = Usd.Stage.Open(layer)
+    plain = UsdGeom.Mesh.Define(stage, "/World/Prop")  # a mesh no skeleton deforms
+    plain.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
+    plain.CreateFaceVertexCountsAttr([4])
+    plain.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    layer.Save()
+    out = tmp_path / "out.usdc"
+    stopped_bake(monkeypatch, 1, src, str(out), 1)
+    assert len(entries(out)) == 1  # the prop's
+    rotations = layer.GetAttributeAtPath("/World/Character/Skel/Anim.rotations")
+    for t in layer.ListTimeSamplesForPath(rotations.path):  # the joints held in their first pose
+        layer.SetTimeSample(rotations.path, t, layer.QueryTimeSample(rotations.path, 1.0))
+    layer.Save()
+    result = refine_usd(src, str(out), 1)
+    assert result.reused == ["/World/Prop"]
+    expected = str(tmp_path / "expected.usdc")
+    refine_usd(src, expected, 1, resume=False)
+    assert layer_text(str(out)) == layer_text(expected)

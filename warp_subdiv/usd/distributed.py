@@ -58,7 +58,8 @@ from .planning import PrimReport, make_refiner, plan
 from .clips import animated, clip_range, stitch_clips
 from .record import check_same_refinement, layer_record
 from .refine import Result, refine_usd
-from .resume import Store, UnitEntries, beside, content_key, eta_seconds, format_eta, keep_unit, resume_folder
+from .resume import (Store, UnitEntries, beside, content_key, eta_seconds, format_eta, keep_unit, reads_other_prims,
+                     resume_folder)
 
 #: Fewest time samples a frame chunk holds (an animated mesh with fewer than twice this is one unit).
 MIN_CHUNK_SAMPLES = 4
@@ -427,7 +428,9 @@ def unit_key(p, u: Unit, levels, run) -> str:
     chunk layer), its meshes' input digests, levels and options as their refinement gets them, ``levels``, and the
     run's options that decide the written values (``run``: :func:`bake`'s; not its memory limit)."""
     meshes = range(len(p.prims)) if u.mesh < 0 else [u.mesh]
-    return content_key("unit", u.number, u.kind, u.path, u.frames, u.samples_only, u.layer, int(levels),
+    # a mesh unit that reads other prims (a skinned mesh) gets a key no later run matches: refined every time
+    fresh = [os.urandom(16).hex()] if u.mesh >= 0 and reads_other_prims(p.prims[u.mesh]) else []
+    return content_key("unit", *fresh, u.number, u.kind, u.path, u.frames, u.samples_only, u.layer, int(levels),
                        [(p.keys[i], int(p.levels[i]), sorted(p.options[i].as_dict().items())) for i in meshes],
                        [(k, repr(run.get(k, default))) for k, default in _VALUE_DEFAULTS.items()])
 

@@ -135,7 +135,7 @@ class Bake:
                 if chunk is not None:
                     chunk.remove(i)
         # animated meshes refined on their own keep their time samples in chunks as they are written
-        self.chunked = {i for i, sp in enumerate(p.prims) if resume is not None
+        self.chunked = {i for i, sp in enumerate(p.prims) if resume is not None and i not in resume.volatile
                         and len(sp.point_times) >= 2 * CHUNK_SAMPLES
                         and (self.batches is None or i not in self.batches.chunk_of)}
         self.ahead = Ahead(self, max_memory)

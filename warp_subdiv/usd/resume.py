@@ -193,6 +193,15 @@ def _slug(path: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in path.strip("/"))[:48] or "root"
 
 
+def reads_other_prims(sp) -> bool:
+    """Whether the refined values of mesh ``sp`` depend on prims other than its own, which its input digest (the
+    plan's key) does not cover: a skinned mesh (a skeleton, its animation, blend shape targets and the transforms
+    between them, :mod:`warp_subdiv.usd.skinning`) other than one whose binding is dropped. Such work is never
+    reused."""
+    skin = getattr(sp, "skin", None)
+    return skin is not None and skin.mode != "none"
+
+
 def mesh_key(unit: str, path: str, level: int, options, vertex_order: str, run: dict) -> str:
     """The content key of one refined mesh: its input digest ``unit`` (the plan's key), ``path``, ``level`` and
     refinement ``options`` as passed to its refinement, its resolved vertex order, and the run's options that
@@ -229,8 +238,12 @@ class MeshEntries:
         self.names = [f"mesh-{_slug(sp.path)}-{mesh_key(unit, sp.path, level, options, vertex_order, run)[:32]}.usdc"
                       for sp, unit, level, options in zip(p.prims, p.keys, levels, p.options)]
         found = set(os.listdir(store.folder)) if os.path.isdir(store.folder) else set()
+        #: the meshes whose refined values depend on prims other than their own (a skeleton, its animation, blend
+        #: shape targets, the transforms between them: :mod:`warp_subdiv.usd.skinning`), which their input digest
+        #: does not cover: never kept, always refined
+        self.volatile = {i for i, sp in enumerate(p.prims) if reads_other_prims(sp)}
         #: the meshes (plan indices) whose refined specs are kept: the bake copies them instead of refining
-        self.kept = {i for i, name in enumerate(self.names) if name in found}
+        self.kept = {i for i, name in enumerate(self.names) if name in found and i not in self.volatile}
         # chunks of samples are expected of the meshes not kept whole (a kill can come between the two)
         store.clean(self.names + [self._arrays(i) for i in range(len(self.names))],
                     [self._owner(i) for i in range(len(self.names)) if i not in self.kept])
@@ -294,6 +307,8 @@ class MeshEntries:
         ``report`` (a :class:`~warp_subdiv.usd.PrimReport`) and ``warnings``: the specs in an entry layer, less the
         values of at least :data:`RAW_ELEMENTS` numbers (defaults and time samples), which go raw into the
         entry's arrays file, saved first (the entry layer, which lists them, marks a complete entry)."""
+        if i in self.volatile:
+            return
         entry = Sdf.Layer.CreateAnonymous(".usdc")
         Sdf.CreatePrimInLayer(entry, _ENTRY_ROOT)
         if not Sdf.CopySpec(layer.layer, Sdf.Path(str(target)), entry, _ENTRY_ROOT):
