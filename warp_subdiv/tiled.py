@@ -149,7 +149,8 @@ class _Plan:
         pts = self.mesh.points
         centres = np.add.reduceat(pts[self.indices], self.offsets[:-1], axis=0) / self.counts[:, None]
         lo, hi = centres.min(axis=0), centres.max(axis=0)
-        cells = np.floor((centres - lo) / np.maximum(hi - lo, 1e-300) * (2**21 - 1)).astype(np.uint64)
+        extent = max(float(np.max(hi - lo)), 1e-300)  # one scale for all axes: a cube's cells
+        cells = np.floor((centres - lo) / extent * (2**21 - 1)).astype(np.uint64)
         code = np.zeros(len(centres), dtype=np.uint64)
         for axis in range(3):
             code |= _spread_bits(cells[:, axis]) << np.uint64(axis)

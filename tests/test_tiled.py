@@ -1,0 +1,211 @@
+"""Tiled refinement (warp_subdiv.refine_tiled): the tiles gathered by their global ids are refine()'s result
+bitwise (points, faces, limit points and normals), whatever the tile size, on the test meshes and on seeded
+random tagged meshes large enough that small tiles have halos well inside the mesh; every refined face is in
+exactly one tile and a border vertex has the same bits in every tile that uses it; tiles sized by max_memory
+stay under their prediction and are spatially coherent."""
+import glob
+import os
+import warnings
+
+import numpy as np
+import pytest
+
+from conftest import DATA, MESHES
+import warp_subdiv as ws
+from warp_subdiv.errors import NonManifoldWarning
+from warp_subdiv.io.obj import read_obj
+from warp_subdiv.tiled import Tile, _Plan, _tile_bytes, refine_tiled
+
+TEST_MESHES = sorted(glob.glob(os.path.join(MESHES, "*.obj")) + glob.glob(os.path.join(DATA, "opensubdiv-shapes",
+                                                                                        "*.obj")))
+
+
+def gather(mesh, levels, tile_faces=None, limits=False, **options):
+    """refine() and the gathered tiles: asserts that every face is in one tile, that border vertices agree
+    bitwise between tiles, and that tiles' topology is refine()'s; returns (reference, points, limit points,
+    limit normals, covered vertices, tiles)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NonManifoldWarning)
+        ref = ws.refine(mesh, levels, device="cpu", **options)
+        tiles = list(refine_tiled(mesh, levels, tile_faces=tile_faces, device="cpu", limit_points=limits,
+                                  limit_normals=limits, **options))
+    n = len(ref.points)
+    points = np.zeros_like(ref.points)
+    lp, ln = np.zeros_like(ref.points), np.zeros_like(ref.points)
+    covered = np.zeros(n, bool)
+    face_seen = np.zeros(len(ref.face_vertex_counts), int)
+    starts = np.concatenate([[0], np.cumsum(ref.face_vertex_counts)])
+    for tile in tiles:
+        assert isinstance(tile, Tile)
+        ids = tile.vertex_ids
+        assert np.all(np.diff(ids) > 0), "tile vertices sorted by id, once each"
+        again = covered[ids]
+        assert np.array_equal(points[ids][again].view(np.uint8), tile.points[again].view(np.uint8)), \
+            "a border vertex has other bits in another tile"
+        points[ids], covered[ids] = tile.points, True
+        if limits:
+            lp[ids], ln[ids] = tile.limit_points, tile.limit_normals
+        face_seen[tile.face_ids] += 1
+        assert np.array_equal(tile.face_vertex_counts, ref.face_vertex_counts[tile.face_ids])
+        corners = np.concatenate([np.arange(starts[f], starts[f + 1]) for f in tile.face_ids]) \
+            if len(tile.face_ids) else np.zeros(0, int)
+        assert np.array_equal(ids[tile.face_vertex_indices], ref.face_vertex_indices[corners])
+    assert np.all(face_seen == 1), "every refined face in exactly one tile"
+    assert np.array_equal(covered, np.isin(np.arange(n), ref.face_vertex_indices)), "tiles hold the used vertices"
+    return ref, points, lp, ln, covered, tiles
+
+
+def assert_bitwise(ref, points, covered):
+    assert points.dtype == ref.points.dtype
+    assert np.array_equal(points[covered].view(np.uint8), ref.points[covered].view(np.uint8))
+
+
+def noisy_torus(nu, nv, rng, triangles=0.0, tags=True, sheet=False):
+    """A noisy torus (or with ``sheet`` an open, twisted grid) of nu x nv quads, a fraction ``triangles`` of
+    them split; with ``tags`` random crease tags (infinitely and semi-sharp), corners and holes."""
+    u, v = np.meshgrid(np.arange(nu + sheet), np.arange(nv + sheet), indexing="ij")
+    if sheet:
+        pts = np.stack([u, v, 0.3 * np.sin(u + v)], -1).reshape(-1, 3).astype(float)
+    else:
+        a, b = 2 * np.pi * u / nu, 2 * np.pi * v / nv
+        pts = np.stack([(3 + np.cos(b)) * np.cos(a), (3 + np.cos(b)) * np.sin(a), np.sin(b)], -1).reshape(-1, 3)
+    pts = pts + rng.normal(scale=0.05, size=pts.shape)
+    cols = nv + sheet
+    faces = []
+    for i in range(nu):
+        for j in range(nv):
+            i1, j1 = (i + 1) if sheet else (i + 1) % nu, (j + 1) if sheet else (j + 1) % nv
+            q = [i * cols + j, i1 * cols + j, i1 * cols + j1, i * cols + j1]
+            faces += [q[:3], [q[0], q[2], q[3]]] if rng.random() < triangles else [q]
+    counts = np.array([len(f) for f in faces])
+    indices = np.concatenate(faces)
+    kw = {}
+    if tags:
+        nxt = np.concatenate([f[1:] + f[:1] for f in faces])
+        edges = np.unique(np.sort(np.stack([indices, nxt], 1), 1), axis=0)
+        tagged = rng.random(len(edges)) < 0.15
+        kw["creases"] = edges[tagged]
+        kw["crease_sharpness"] = np.where(rng.random(int(tagged.sum())) < 0.5, 10.0,
+                                          rng.integers(4, 50, int(tagged.sum())) / 16)
+        kw["corners"] = np.flatnonzero(rng.random(len(pts)) < 0.05)
+        kw["corner_sharpness"] = rng.integers(4, 200, len(kw["corners"])) / 16
+        kw["holes"] = np.flatnonzero(rng.random(len(faces)) < 0.05)
+    return ws.Mesh(pts, counts, indices, **kw)
+
+
+@pytest.mark.parametrize("path", TEST_MESHES, ids=os.path.basename)
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+@pytest.mark.parametrize("rules", ["piecewise-smooth", "opensubdiv"])
+def test_test_meshes_bitwise(path, scheme, rules):
+    """Every test mesh, both schemes and rule sets, levels 1-3, one face per tile at level 1, three above."""
+    data = read_obj(path)
+    options = {k: v for k, v in data.options.items() if k in ("boundary", "crease_method")}
+    for levels, tile_faces in ((1, 1), (2, 3), (3, 3)):
+        ref, points, *_, covered, _ = gather(data.mesh, levels, tile_faces, scheme=scheme, rules=rules, **options)
+        assert_bitwise(ref, points, covered)
+
+
+CASES = [  # (seed, scheme, rules, triangles, boundary, sheet)
+    (0, "catmull-clark", "piecewise-smooth", 0.0, "edge-and-corner", False),
+    (1, "catmull-clark", "opensubdiv", 0.2, "edge-only", True),
+    (2, "catmull-clark", "piecewise-smooth", 0.2, "none", True),
+    (3, "loop", "piecewise-smooth", 1.0, "edge-and-corner", False),
+    (4, "loop", "opensubdiv", 0.0, "edge-only", True),
+    (5, "loop", "piecewise-smooth", 0.5, "none", True),
+    (6, "catmull-clark", "opensubdiv", 1.0, "edge-and-corner", False),
+]
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: f"seed{c[0]}-{c[1]}-{c[2]}")
+def test_random_tagged_meshes_bitwise(case):
+    """Noisy tagged tori and open sheets (creases, semi-sharp tags, corners, holes, mixed polygons), levels 1-3,
+    tiles of 1, 5 and 40 faces: the halos lie inside the mesh, where only the halo makes tiles right."""
+    seed, scheme, rules, triangles, boundary, sheet = case
+    rng = np.random.default_rng(seed)
+    mesh = noisy_torus(8, 6, rng, triangles=triangles, sheet=sheet)
+    crease_method = "chaikin" if seed % 2 else "uniform"
+    for levels, tile_faces in ((1, 1), (2, 5), (3, 40)):
+        ref, points, *_, covered, tiles = gather(mesh, levels, tile_faces, scheme=scheme, rules=rules,
+                                                 boundary=boundary, crease_method=crease_method)
+        assert_bitwise(ref, points, covered)
+        assert len(tiles) > 1
+
+
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+def test_projections_bitwise(scheme):
+    """The paper's projections: explicit and per-vertex flatness at crease sectors, prescribed normals with
+    normal control (at interior vertices); float64."""
+    rng = np.random.default_rng(11)
+    base = noisy_torus(8, 6, rng, triangles=0.3 if scheme == "loop" else 0.0)
+    normal_ids = np.array([9, 20, 33])
+    normals = np.tile([0.0, 0.0, 1.0], (3, 1))
+    mesh = ws.Mesh(base.points, base.face_vertex_counts, base.face_vertex_indices, creases=base.creases,
+                   crease_sharpness=np.full(len(base.creases), 10.0), normals=(normal_ids, normals))
+    flatness = np.where(rng.random(mesh.num_vertices) < 0.5, 0.7, np.nan)
+    cases = (({"flatness": 0.5}, 2, 3), ({"flatness": flatness, "precision": "float64"}, 3, 20), ({}, 1, 1))
+    for options, levels, tile_faces in cases:
+        ref, points, *_, covered, _ = gather(mesh, levels, tile_faces, scheme=scheme, **options)
+        assert_bitwise(ref, points, covered)
+
+
+@pytest.mark.parametrize("rules", ["piecewise-smooth", "opensubdiv"])
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+def test_limits_bitwise(scheme, rules):
+    """Limit points and normals of every tile are refine()'s, with masks read one level deeper where the
+    whole mesh's are (extraordinary crease sectors) though a tile's own would not be, and the other way round
+    (a tile's cut-off halo has crease sectors the whole mesh does not)."""
+    rng = np.random.default_rng(5)
+    mesh = noisy_torus(8, 6, rng, triangles=0.4 if scheme == "loop" else 0.0)
+    for levels, tile_faces in ((1, 2), (2, 7)):
+        ref, points, lp, ln, covered, _ = gather(mesh, levels, tile_faces, limits=True, scheme=scheme, rules=rules)
+        assert_bitwise(ref, points, covered)
+        assert np.array_equal(lp[covered], ref.limit_points()[covered])
+        assert np.array_equal(ln[covered], ref.limit_normals()[covered])
+
+
+def test_level_zero_and_one_tile():
+    """Level 0: the tiles are the control faces; no tile size or memory limit: one tile, the whole mesh."""
+    mesh = noisy_torus(6, 4, np.random.default_rng(2))
+    ref, points, *_, covered, tiles = gather(mesh, 0, 5)
+    assert_bitwise(ref, points, covered)
+    ref, points, *_, covered, tiles = gather(mesh, 2)
+    assert len(tiles) == 1
+    assert_bitwise(ref, points, covered)
+
+
+def test_tiles_are_coherent():
+    """Tiles along the Morton curve are compact: on a 16 x 16 sheet, tiles of 16 faces share fewer vertices
+    with other tiles than rows of the grid would (32 border vertices per row of 16 faces, shared on both
+    sides)."""
+    mesh = noisy_torus(16, 16, np.random.default_rng(3), tags=False, sheet=True)
+    tiles = list(refine_tiled(mesh, 1, tile_faces=16, device="cpu"))
+    assert len(tiles) == 16
+    uses = np.bincount(np.concatenate([t.vertex_ids for t in tiles]))
+    shared = np.count_nonzero(uses > 1)
+    assert shared < 0.75 * 15 * 33  # rows: 15 shared rows of 33 level-1 vertices
+
+
+def test_max_memory_sizes_tiles():
+    """max_memory: tiles are cut so that each one's prediction fits; more memory, fewer tiles; too little for
+    one face is refused, naming max_memory."""
+    mesh = noisy_torus(16, 12, np.random.default_rng(4), tags=False)
+    plan = _Plan(mesh, 3, ws.Options())
+    whole = _tile_bytes(plan, np.arange(mesh.num_faces), 0, False, False)
+    limit = 64 * 2**20 + 120 * 4 * mesh.num_faces + whole // 3
+    tiles = list(refine_tiled(mesh, 3, max_memory=limit, device="cpu"))
+    assert len(tiles) > 3
+    for tile in tiles:
+        assert _tile_bytes(plan, tile.control_faces, 2, False, False) <= limit
+    fewer = list(refine_tiled(mesh, 3, max_memory=limit + whole, device="cpu"))
+    assert len(fewer) == 1
+    with pytest.raises(ws.SubdivInputError) as err:
+        list(refine_tiled(mesh, 3, max_memory="64M", device="cpu"))
+    assert err.value.option == "max_memory"
+
+
+@pytest.mark.parametrize("bad", [0, -1, 2.5, True])
+def test_bad_tile_faces(bad):
+    mesh = noisy_torus(4, 4, np.random.default_rng(0), tags=False)
+    with pytest.raises(ws.SubdivInputError) as err:
+        refine_tiled(mesh, 1, tile_faces=bad)
+    assert err.value.option == "tile_faces"
