@@ -51,6 +51,9 @@ def gather(mesh, levels, tile_faces=None, limits=False, **options):
             if len(tile.face_ids) else np.zeros(0, int)
         assert np.array_equal(ids[tile.face_vertex_indices], ref.face_vertex_indices[corners])
     assert np.all(face_seen == 1), "every refined face in exactly one tile"
+    uses = np.bincount(np.concatenate([t.vertex_ids for t in tiles]), minlength=n)
+    for tile in tiles:
+        assert np.array_equal(tile.border, uses[tile.vertex_ids] > 1), "border: the vertices other tiles use"
     assert np.array_equal(covered, np.isin(np.arange(n), ref.face_vertex_indices)), "tiles hold the used vertices"
     return ref, points, lp, ln, covered, tiles
 
@@ -209,3 +212,44 @@ def test_bad_tile_faces(bad):
     with pytest.raises(ws.SubdivInputError) as err:
         refine_tiled(mesh, 1, tile_faces=bad)
     assert err.value.option == "tile_faces"
+
+
+def test_obj_tiles_stream(tmp_path):
+    """write_obj_tiles: one OBJ of the tiles, every used vertex written once (border vertices too), the faces
+    refine()'s faces in tile order, their points refine()'s."""
+    from warp_subdiv.io.obj import write_obj_tiles
+
+    mesh = noisy_torus(6, 5, np.random.default_rng(8))
+    ref = ws.refine(mesh, 2, device="cpu")
+    tiles = list(refine_tiled(mesh, 2, tile_faces=4, device="cpu"))
+    path = str(tmp_path / "tiled.obj")
+    vertices, faces = write_obj_tiles(path, iter(tiles))
+    back = read_obj(path).mesh
+    assert vertices == back.num_vertices == len(np.unique(ref.face_vertex_indices))
+    order = np.concatenate([t.face_ids for t in tiles])
+    assert faces == back.num_faces == len(order)
+    starts = np.concatenate([[0], np.cumsum(ref.face_vertex_counts)])
+    ref_corners = np.concatenate([np.arange(starts[f], starts[f + 1]) for f in order])
+    assert np.array_equal(back.points[back.face_vertex_indices].astype(np.float32),
+                          ref.points[ref.face_vertex_indices[ref_corners]])
+
+
+def test_cli_obj_in_tiles(tmp_path, capsys):
+    """`refine --max-memory` with OBJ output whose refinement would not fit: written in tiles, the same faces
+    and points as the in-core run."""
+    from warp_subdiv.cli import main
+    from warp_subdiv.io.obj import write_obj
+
+    mesh = noisy_torus(12, 10, np.random.default_rng(9), tags=False)
+    src = str(tmp_path / "in.obj")
+    write_obj(src, mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices)
+    full, tiled = str(tmp_path / "full.obj"), str(tmp_path / "tiled.obj")
+    assert main(["refine", src, "-o", full, "--levels", "3", "--device", "cpu", "--max-memory", "none"]) == 0
+    plan = _Plan(mesh, 3, ws.Options())
+    limit = 64 * 2**20 + 120 * 4 * mesh.num_faces + _tile_bytes(plan, np.arange(mesh.num_faces), 0, False, False) // 3
+    assert main(["refine", src, "-o", tiled, "--levels", "3", "--device", "cpu", "--max-memory", str(limit)]) == 0
+    assert "tiles" in capsys.readouterr().out
+    a, b = read_obj(full).mesh, read_obj(tiled).mesh
+    assert a.num_faces == b.num_faces and b.num_vertices == a.num_vertices
+    key = lambda m: np.sort(m.points[m.face_vertex_indices].reshape(m.num_faces, -1), axis=0)  # noqa: E731
+    assert np.array_equal(key(a), key(b))

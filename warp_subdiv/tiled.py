@@ -45,6 +45,7 @@ from .options import Options, Scheme
 from .refiner import Refiner
 from .runtime import estimate
 from .runtime.threads import resolve as resolve_threads
+from .tables import Hierarchy
 from .topology import base_faces
 
 
@@ -56,6 +57,7 @@ class Tile:
     indices into ``points``): the refined faces of the tile's control faces, hole faces left out. ``vertex_ids``
     and ``face_ids``: the rows these vertices and faces are in ``refine(mesh, levels)`` (int32, int64 where the
     refined mesh's counts pass 2^31); vertices are sorted by id, faces are in the order of their ids.
+    ``border``: (n,) bool, the vertices that faces of other tiles use too.
     ``control_faces``: the level-0 faces of the tile (Loop: triangles of the fan triangulation).
     ``limit_points`` and ``limit_normals``: of ``points``, where asked for."""
 
@@ -66,6 +68,7 @@ class Tile:
     face_vertex_indices: np.ndarray
     vertex_ids: np.ndarray
     face_ids: np.ndarray
+    border: np.ndarray
     limit_points: np.ndarray | None = None
     limit_normals: np.ndarray | None = None
 
@@ -97,6 +100,12 @@ class _Plan:
 
     def __init__(self, mesh: Mesh, levels: int, options: Options):
         self.mesh, self.levels, self.options = mesh, levels, options
+        # the whole mesh's analysis (level 0 only; it warns of non-manifold input once): whether the paper's
+        # projections act on it, and whether its limits read their masks one level deeper
+        analysis = Hierarchy(mesh, 0, options)
+        self.projects = analysis.projects
+        self.limit_deeper = analysis.limit_reads_deeper(levels)
+        del analysis
         self.loop = options.scheme == Scheme.LOOP
         faces = base_faces(mesh, options.scheme, options.boundary, options.triangulate)
         self.faces = faces
@@ -139,9 +148,9 @@ class _Plan:
     def grow(self, faces: np.ndarray, rings: int) -> np.ndarray:
         """``faces`` (sorted level-0 face ids) and ``rings`` rings of faces around them (sharing a vertex)."""
         for _ in range(rings):
-            verts = np.unique(self.indices[_corners_of(self.offsets, faces)])
+            verts = _members(self.indices[_corners_of(self.offsets, faces)], self.num_vertices)
             around = self.vert_faces_order[_corners_of(self.vert_offsets, verts)]
-            faces = np.unique(np.concatenate([faces, self.corner_face[around]]))
+            faces = _members(np.concatenate([faces, self.corner_face[around]]), len(self.counts))
         return faces
 
     def morton_order(self) -> np.ndarray:
@@ -163,6 +172,26 @@ class _Plan:
 
 #: The vertices of the separate face a submesh of one face size gets (:class:`_Submesh`).
 _EXTRA_FACE_POINTS = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def _mask(items: np.ndarray, size: int) -> np.ndarray:
+    """(size,) bool: True at ``items`` (numpy's hashing ``unique`` and ``isin`` are many times slower on the
+    refined levels' arrays than a pass over a mask)."""
+    mask = np.zeros(size, dtype=bool)
+    mask[items] = True
+    return mask
+
+
+def _members(items: np.ndarray, size: int) -> np.ndarray:
+    """The distinct values of ``items`` (ids below ``size``), sorted, int64."""
+    return np.flatnonzero(_mask(items, size))
+
+
+def _renumbering(members: np.ndarray, size: int) -> np.ndarray:
+    """(size,) int64: the position of every id in the sorted ``members`` (-1 for the others)."""
+    out = np.full(size, -1, dtype=np.int64)
+    out[members] = np.arange(len(members))
+    return out
 
 
 def _corners_of(offsets: np.ndarray, items: np.ndarray) -> np.ndarray:
@@ -189,11 +218,11 @@ class _Submesh:
     def __init__(self, plan: _Plan, tile_faces: np.ndarray, rings: int):
         mesh = plan.mesh
         self.faces = plan.grow(tile_faces, rings)  # level-0 faces, sorted
-        self.in_tile = np.isin(self.faces, tile_faces)
+        self.in_tile = _mask(tile_faces, len(plan.counts))[self.faces]
         global_corners = _corners_of(plan.offsets, self.faces)
         corner_verts = plan.indices[global_corners]
-        self.verts, local_indices = np.unique(corner_verts, return_inverse=True)
-        local_indices = local_indices.reshape(-1)
+        self.verts = _members(corner_verts, plan.num_vertices)
+        local_indices = _renumbering(self.verts, plan.num_vertices)[corner_verts]
         counts = plan.counts[self.faces]
         self.global_corners = global_corners
         edges = find_edges(counts, local_indices, len(self.verts))
@@ -201,6 +230,7 @@ class _Submesh:
         # vertices whose every face is in the submesh (their tags that need a whole ring are kept)
         corners_here = np.bincount(local_indices, minlength=len(self.verts))
         complete = corners_here == np.diff(plan.vert_offsets)[self.verts]
+        self.complete = complete
         points = mesh.points[self.verts]
         # a mesh of mixed polygons has its first step evaluated from explicit stencils, a mesh of one face size
         # from index tables, summed in another order: a submesh of one face size cut from a mixed mesh gets a
@@ -257,11 +287,21 @@ class _Submesh:
         return tags
 
     def options(self, options: Options) -> Options:
-        """``options`` for the submesh: a per-vertex flatness restricted to its vertices."""
+        """``options`` for the submesh. Under the piecewise-smooth rules the flatness is per vertex: the
+        mesh's (NaN: the optimal s*) at vertices whose whole ring the submesh holds, 0 at the vertices it cuts
+        off, whose ring's crease sectors are the submesh's own boundary: no projection where the whole mesh has
+        none (it would build every level's projection tables, and move the outer halo's points further in)."""
+        if not options.piecewise_smooth:
+            return options
         flat = options.flatness
-        if flat is not None and not isinstance(flat, numbers.Real) and np.ndim(flat) == 1:
-            return options.replace(flatness=np.asarray(flat)[self.verts])
-        return options
+        if flat is None:
+            flat = np.full(len(self.verts), np.nan)
+        elif isinstance(flat, numbers.Real):
+            flat = np.full(len(self.verts), float(flat))
+        else:
+            flat = np.asarray(flat, dtype=np.float64)[self.verts]
+        flat = np.where(self.complete, flat, 0.0)
+        return options.replace(flatness=np.concatenate([flat, np.zeros(self.extra)]))
 
     def vertex_ids(self, plan: _Plan, levels: int) -> np.ndarray:
         """(vertices of the submesh's level ``levels``,) int64: their ids in the whole mesh's level."""
@@ -328,47 +368,23 @@ def refine_tiled(mesh: Mesh, levels: int, *, max_memory=None, tile_faces: int | 
 
 def _tiles(mesh, levels, options, budget, tile_faces, device, threads, limit, want_points, want_normals):
     plan = _Plan(mesh, levels, options)
-    reference = _limit_reference(mesh, levels, options, threads) if limit else None
-    projecting = options.piecewise_smooth and (len(mesh.normal_vertices) > 0 or options.flatness is not None
-                                               or reference is None or reference.projects)
-    rings = HALO_RINGS_PROJECTING if projecting else HALO_RINGS
-    deeper = reference.limit_reads_deeper() if reference is not None else False
+    rings = HALO_RINGS_PROJECTING if plan.projects else HALO_RINGS
+    deeper = plan.limit_deeper if limit else False
     for index, faces in enumerate(_tile_faces(plan, tile_faces, budget, rings, limit, deeper)):
         yield _refine_tile(plan, index, faces, rings, device, threads, want_points, want_normals, deeper)
-
-
-def _limit_reference(mesh, levels, options, threads):
-    """The whole mesh's level-0 refiner tables (numpy only): whether its limits read one level deeper."""
-    from .tables import Hierarchy
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NonManifoldWarning)
-        hierarchy = Hierarchy(mesh, 0, options, threads=threads)
-    return _LimitChoice(hierarchy, levels)
-
-
-class _LimitChoice:
-    """The whole mesh's choice of limit masks: one level deeper or not (``Refiner.limit_reads_deeper``)."""
-
-    def __init__(self, hierarchy, levels):
-        self.projects = hierarchy.projects
-        self._deeper = hierarchy.limit_reads_deeper(levels)
-
-    def limit_reads_deeper(self) -> bool:
-        return self._deeper
 
 
 def _tile_bytes(plan: _Plan, faces: np.ndarray, rings: int, limit: bool, deeper: bool) -> int:
     """The predicted peak of refining the tile of ``faces`` with its halo and holding the previous tile."""
     sub = plan.grow(faces, rings)
     corners = _corners_of(plan.offsets, sub)
-    verts = np.unique(plan.indices[corners])
+    verts = _members(plan.indices[corners], plan.num_vertices)
     counts = plan.counts[sub]
     # edges of the submesh: (corners + boundary edges) / 2, bounded by the corners
     num_edges = len(corners)
     o = plan.options
     est = estimate.estimate("tile", len(verts), counts, num_edges, plan.levels, o.scheme, precision=o.precision,
-                            projecting=o.piecewise_smooth, limit=limit, limit_deeper=deeper)
+                            projecting=plan.projects, limit=limit, limit_deeper=deeper)
     return est.working_bytes + 2 * est.output_bytes + ID_MAP_BYTES * est.final.vertices
 
 
@@ -443,10 +459,17 @@ def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device,
         corner_vert = final.corner_vert.reshape(F, final.face_size)[kept].reshape(-1)
     else:
         corner_vert = final.corner_vert[_corners_of(final.face_offsets, kept)]
-    used = np.unique(corner_vert)
+    used = _members(corner_vert, final.num_vertices)
     vertex_ids = sub.vertex_ids(plan, levels)[used]
     order = np.argsort(vertex_ids, kind="stable")
     used, vertex_ids = used[order], vertex_ids[order]
+    # border vertices: also used by a face of another tile that refine() keeps (not a hole)
+    others = np.flatnonzero(~sub.in_tile[local_base] & ~final.face_hole)
+    if final.face_size:
+        other_verts = final.corner_vert.reshape(F, final.face_size)[others].reshape(-1)
+    else:
+        other_verts = final.corner_vert[_corners_of(final.face_offsets, others)]
+    border = _mask(other_verts, final.num_vertices)[used]
     to_tile = np.full(final.num_vertices, -1, dtype=np.int64)
     to_tile[used] = np.arange(len(used))
     return Tile(
@@ -457,6 +480,7 @@ def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device,
         face_vertex_indices=to_tile[corner_vert].astype(np.int32),
         vertex_ids=vertex_ids.astype(plan.id_dtype),
         face_ids=face_ids,
+        border=border,
         limit_points=None if lp is None else np.ascontiguousarray(lp[used]),
         limit_normals=None if ln is None else np.ascontiguousarray(ln[used]),
     )
