@@ -87,9 +87,9 @@ class Tile:
 #: paper's projections act on the mesh.
 HALO_RINGS = 2
 HALO_RINGS_PROJECTING = 4
-#: Bytes per control face corner that a tiled refinement keeps for the whole mesh while tiles are refined
-#: (faces, edges, the vertex-to-face lists, face centres and the tiles' face lists).
-GLOBAL_BYTES_PER_CORNER = 120
+#: Bytes per control face corner that a tiled refinement allocates for the whole mesh after it reads the
+#: process's resident memory (the Morton order of the faces and the tiles' face lists).
+GLOBAL_BYTES_PER_CORNER = 16
 #: Bytes per vertex of a tile's refined submesh for its id maps (the int64 maps of the last two levels).
 ID_MAP_BYTES = 24
 
@@ -172,6 +172,18 @@ class _Plan:
 
 #: The vertices of the separate face a submesh of one face size gets (:class:`_Submesh`).
 _EXTRA_FACE_POINTS = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def resident_bytes() -> int:
+    """The process's resident memory now (Linux's ``/proc/self/status``; 0 where it cannot be read)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
 
 
 def _mask(items: np.ndarray, size: int) -> np.ndarray:
@@ -397,7 +409,8 @@ def _tile_faces(plan: _Plan, tile_faces, budget, rings, limit, deeper) -> Iterat
         for start in range(0, F, tile_faces):
             yield np.sort(order[start:start + tile_faces])
         return
-    available = budget - estimate.RUNTIME_BYTES - GLOBAL_BYTES_PER_CORNER * int(plan.offsets[-1])
+    # what the process holds now (Warp's runtime, the mesh, the plan, the caller's data) is not the tiles'
+    available = budget - max(estimate.RUNTIME_BYTES, resident_bytes()) - GLOBAL_BYTES_PER_CORNER * int(plan.offsets[-1])
     everything = np.arange(F, dtype=np.int64)
     if _tile_bytes(plan, everything, 0, limit, deeper) <= available:
         yield everything
