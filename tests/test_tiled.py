@@ -258,3 +258,26 @@ def test_cli_obj_in_tiles(tmp_path, capsys, monkeypatch):
     assert a.num_faces == b.num_faces and b.num_vertices == a.num_vertices
     key = lambda m: np.sort(m.points[m.face_vertex_indices].reshape(m.num_faces, -1), axis=0)  # noqa: E731
     assert np.array_equal(key(a), key(b))
+
+
+def test_ids_past_32_bits():
+    """Ids are int64 where the refined mesh's counts pass 2^31 (level 15 of a cube: 6.4e9 faces; only the plan
+    is made), int32 below; the counts per level follow the closed forms."""
+    cube = read_obj(os.path.join(MESHES, "cube.obj")).mesh
+    deep = _Plan(cube, 15, ws.Options())
+    assert deep.id_dtype == np.int64 and deep.level_counts[-1][1] == 6 * 4**15
+    assert deep.first_child[-1] == 5 * 4**15
+    shallow = _Plan(cube, 3, ws.Options())
+    assert shallow.id_dtype == np.int32
+    ref = ws.refine(cube, 3, device="cpu")
+    assert shallow.level_counts[-1][:2] == (len(ref.points), len(ref.face_vertex_counts))
+
+
+def test_non_manifold_warns_once():
+    """The whole mesh's analysis warns of non-manifold input once; the tiles' own analyses do not warn."""
+    mesh = read_obj(os.path.join(DATA, "opensubdiv-shapes", "catmark_nonman_edges.obj")).mesh
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        tiles = list(refine_tiled(mesh, 1, tile_faces=20, device="cpu"))
+    assert len(tiles) > 1
+    assert sum(issubclass(w.category, NonManifoldWarning) for w in caught) == 1

@@ -449,24 +449,24 @@ def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device,
         if want_points or want_normals:
             lp, ln = _limits(refiner, sub, points, options, device, threads, deeper, want_points, want_normals)
     final = refiner.hierarchy.final
+    base_hole = refiner.hierarchy.parentage.base_face_hole  # the submesh's level-0 holes ("none" included)
     del refiner
-    # the faces of the last level, their level-0 face, and which child of it they are
-    F = final.num_faces
-    raw = np.arange(F, dtype=np.int64)
+    # the children of the submesh's level-0 face f are the run first[f]..first[f + 1] of the last level's faces
+    # (holes inherited), as the whole mesh's are: kept, the runs of the tile's faces that are not holes
     sub_counts = np.asarray(sub.mesh.face_vertex_counts, dtype=np.int64)
     if levels == 0:
-        local_base, offset = raw, np.zeros(F, np.int64)
+        per_face = np.ones(len(sub_counts), np.int64)
     elif plan.loop:
-        local_base, offset = raw // 4**levels, raw % 4**levels
+        per_face = np.full(len(sub_counts), 4**levels, np.int64)
     else:
-        scale = 4 ** (levels - 1)
-        sub_offsets = face_offsets_of(sub_counts)
-        local_corner = raw // scale
-        local_base = np.searchsorted(sub_offsets, local_corner, side="right") - 1
-        offset = (local_corner - sub_offsets[local_base]) * scale + raw % scale
-    keep = sub.in_tile[local_base] & ~final.face_hole
-    kept = np.flatnonzero(keep)
-    face_ids = plan.face_ids(sub.faces[local_base[kept]], offset[kept]).astype(plan.id_dtype)
+        per_face = sub_counts * 4 ** (levels - 1)
+    first = face_offsets_of(per_face)
+    mine = np.flatnonzero(sub.in_tile & ~base_hole)
+    kept = _corners_of(first, mine)
+    g = sub.faces[mine]
+    shift = plan.first_child[g] - plan.holes_before[g] - first[mine]
+    face_ids = (kept + np.repeat(shift, per_face[mine])).astype(plan.id_dtype)
+    F = final.num_faces
     sizes = final.face_sizes()[kept] if final.face_size == 0 else np.full(len(kept), final.face_size, np.int64)
     if final.face_size:
         corner_vert = final.corner_vert.reshape(F, final.face_size)[kept].reshape(-1)
@@ -477,7 +477,7 @@ def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device,
     order = np.argsort(vertex_ids, kind="stable")
     used, vertex_ids = used[order], vertex_ids[order]
     # border vertices: also used by a face of another tile that refine() keeps (not a hole)
-    others = np.flatnonzero(~sub.in_tile[local_base] & ~final.face_hole)
+    others = _corners_of(first, np.flatnonzero(~sub.in_tile & ~base_hole))
     if final.face_size:
         other_verts = final.corner_vert.reshape(F, final.face_size)[others].reshape(-1)
     else:
