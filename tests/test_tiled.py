@@ -134,6 +134,17 @@ def test_random_tagged_meshes_bitwise(case):
         assert len(tiles) > 1
 
 
+@pytest.mark.parametrize("options", [{"scheme": "catmull-clark", "triangle_subdivision": "smooth"},
+                                     {"scheme": "loop", "loop_beta": "warren"}], ids=["smooth-triangles", "warren"])
+def test_rule_variants_bitwise(options):
+    """OpenSubdiv's smooth triangle rule (weights that depend on the faces at an edge) and the paper's Warren
+    beta, on a mixed tagged mesh."""
+    mesh = noisy_torus(8, 6, np.random.default_rng(12), triangles=0.4)
+    for levels, tile_faces in ((1, 1), (2, 6)):
+        ref, points, *_, covered, _ = gather(mesh, levels, tile_faces, **options)
+        assert_bitwise(ref, points, covered)
+
+
 @pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
 def test_projections_bitwise(scheme):
     """The paper's projections: explicit and per-vertex flatness at crease sectors, prescribed normals with
