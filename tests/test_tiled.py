@@ -292,3 +292,43 @@ def test_non_manifold_warns_once():
         tiles = list(refine_tiled(mesh, 1, tile_faces=20, device="cpu"))
     assert len(tiles) > 1
     assert sum(issubclass(w.category, NonManifoldWarning) for w in caught) == 1
+
+
+def test_cli_usd_in_tiles(tmp_path, capsys, monkeypatch):
+    """`refine in.obj -o out.usda --max-memory` where the refinement would not fit: an Xform of tile meshes, one
+    layer per tile loaded as a payload; gathered by their vertex ids the tiles are the in-core points, every face
+    once; no validation error."""
+    import re
+
+    from test_usd_production import validation_errors
+
+    import warp_subdiv.tiled
+    from pxr import Usd, UsdGeom
+    from warp_subdiv.cli import main
+    from warp_subdiv.io.obj import write_obj
+
+    mesh = noisy_torus(10, 8, np.random.default_rng(10), tags=False)
+    src = str(tmp_path / "in.obj")
+    write_obj(src, mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices)
+    plan = _Plan(mesh, 3, ws.Options())
+    limit = 64 * 2**20 + _tile_bytes(plan, np.arange(mesh.num_faces), 0, False, False) // 3
+    monkeypatch.setattr(warp_subdiv.tiled, "resident_bytes", lambda: 0)
+    out = str(tmp_path / "out" / "tiled.usda")
+    assert main(["refine", src, "-o", out, "--levels", "3", "--device", "cpu", "--max-memory", str(limit)]) == 0
+    assert re.search(r"3 levels in [2-9]\d* tiles", capsys.readouterr().out)
+    ref = ws.refine(read_obj(src).mesh, 3, device="cpu")
+    stage = Usd.Stage.Open(out)
+    root = stage.GetDefaultPrim()
+    assert root.GetTypeName() == "Xform"
+    points = np.full(ref.points.shape, np.nan, np.float32)
+    faces = 0
+    for child in root.GetChildren():
+        tile = UsdGeom.Mesh(child)
+        ids = np.array(child.GetAttribute("warpSubdiv:vertexIds").Get())
+        pts = np.array(tile.GetPointsAttr().Get())
+        assert np.all(np.isnan(points[ids]) | (points[ids] == pts))
+        points[ids] = pts
+        faces += len(tile.GetFaceVertexCountsAttr().Get())
+    assert len(root.GetChildren()) > 1 and faces == len(ref.face_vertex_counts)
+    assert np.array_equal(points, ref.points)
+    assert not validation_errors(out)

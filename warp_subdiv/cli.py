@@ -436,9 +436,7 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     try:
         check_memory([est], max_memory, args.levels)
     except MemoryGuardError:
-        if out_kind != "obj":
-            raise
-        return _refine_obj_tiled(args, data, options, max_memory, start)  # it fits in tiles
+        return _refine_obj_tiled(args, data, options, max_memory, start, out_kind)  # it fits in tiles
     progress(0.0, f"{args.input}: {args.levels} levels")
     refiner = make_refiner(data, args.levels, options=options, device=args.device, reuse=(control.hierarchy,))
     progress(0.7, f"{args.input}: points")
@@ -469,27 +467,33 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     return 0
 
 
-def _refine_obj_tiled(args, data, options, max_memory, start) -> int:
+def _refine_obj_tiled(args, data, options, max_memory, start, out_kind) -> int:
     """An OBJ refinement that does not fit ``max_memory`` at once: refined in tiles that each fit
-    (:func:`warp_subdiv.refine_tiled`), streamed into one OBJ file (:func:`warp_subdiv.io.obj.write_obj_tiles`)."""
+    (:func:`warp_subdiv.refine_tiled`), streamed into one OBJ file (:func:`warp_subdiv.io.obj.write_obj_tiles`)
+    or written as one USD layer per tile under an Xform (:func:`warp_subdiv.io.usd_write.write_tiled_mesh_layer`)."""
     from .io.obj import write_obj_tiles
+    from .io.usd_write import make_folders, remove_folders, write_tiled_mesh_layer
     from .tiled import refine_tiled
 
     tiles = refine_tiled(data.mesh, args.levels, max_memory=max_memory, options=options, device=args.device,
                          threads=args.threads)
-    count = [0]
-
-    def counted():
-        for tile in tiles:
-            count[0] += 1
-            yield tile
-
-    out_dir = os.path.dirname(os.path.abspath(args.output))
-    from .io.usd_write import make_folders, remove_folders
-
-    created = make_folders(out_dir)
+    created = make_folders(os.path.dirname(os.path.abspath(args.output)))
     try:
-        vertices, faces = write_obj_tiles(args.output, counted(), header=f"warp-subdiv: level {args.levels} in tiles")
+        if out_kind == "obj":
+            count = [0]
+
+            def counted():
+                for tile in tiles:
+                    count[0] += 1
+                    yield tile
+
+            header = f"warp-subdiv: level {args.levels} in tiles"
+            vertices, faces = write_obj_tiles(args.output, counted(), header=header)
+            written = f"{count[0]} tiles"
+        else:
+            name = os.path.splitext(os.path.basename(args.input))[0]
+            count, vertices, faces = write_tiled_mesh_layer(os.path.abspath(args.output), name, tiles)
+            written = f"{count} tiles (one layer each in {os.path.splitext(args.output)[0]}_tiles/)"
     except OSError as exc:
         remove_folders(created)
         raise SubdivInputError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
@@ -497,8 +501,8 @@ def _refine_obj_tiled(args, data, options, max_memory, start) -> int:
         remove_folders(created)
         raise
     if not args.quiet:
-        print(f"{args.input}: {options.scheme.value}, {options.rules.value} rules, {args.levels} levels in "
-              f"{count[0]} tiles (the whole refinement would not fit --max-memory)")
+        print(f"{args.input}: {options.scheme.value}, {options.rules.value} rules, {args.levels} levels in {written} "
+              "(the whole refinement would not fit --max-memory)")
         print(f"  faces {data.mesh.num_faces} -> {faces}, vertices {data.mesh.num_vertices} -> {vertices}, "
               f"{time.perf_counter() - start:.2f} s; wrote {args.output}")
     return 0
