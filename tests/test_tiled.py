@@ -178,10 +178,17 @@ def test_limits_bitwise(scheme, rules):
 
 
 def test_level_zero_and_one_tile():
-    """Level 0: the tiles are the control faces; no tile size or memory limit: one tile, the whole mesh."""
-    mesh = noisy_torus(6, 4, np.random.default_rng(2))
+    """Level 0: the tiles are the control faces (Loop: the fan triangles); no tile size or memory limit: one tile,
+    the whole mesh. A control vertex no face uses is in no tile (its row of refine() is its own point)."""
+    mesh = noisy_torus(6, 4, np.random.default_rng(2), triangles=0.3)
     ref, points, *_, covered, tiles = gather(mesh, 0, 5)
     assert_bitwise(ref, points, covered)
+    ref, points, *_, covered, tiles = gather(mesh, 0, 5, scheme="loop")
+    assert_bitwise(ref, points, covered)
+    spare = ws.Mesh(np.vstack([mesh.points, [[9.0, 9.0, 9.0]]]), mesh.face_vertex_counts, mesh.face_vertex_indices)
+    ref, points, *_, covered, tiles = gather(spare, 2, 7)
+    assert_bitwise(ref, points, covered)
+    assert not covered[mesh.num_vertices]
     ref, points, *_, covered, tiles = gather(mesh, 2)
     assert len(tiles) == 1
     assert_bitwise(ref, points, covered)
