@@ -339,3 +339,36 @@ def test_cli_usd_in_tiles(tmp_path, capsys, monkeypatch):
     assert len(root.GetChildren()) > 1 and faces == len(ref.face_vertex_counts)
     assert np.array_equal(points, ref.points)
     assert not validation_errors(out)
+
+
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+@pytest.mark.parametrize("mode", ["corners-plus1", "boundaries", "all"])
+def test_face_varying_bitwise(scheme, mode):
+    """A face-varying channel with seams (values split at random vertices): each tile's values and indices,
+    gathered by value id, are Refiner.evaluate_face_varying's bitwise."""
+    rng = np.random.default_rng(13)
+    mesh = noisy_torus(8, 6, rng, triangles=0.3)
+    # a value per (vertex, face) pair at a random third of the vertices, one per vertex elsewhere
+    corners = mesh.face_vertex_indices.astype(np.int64)
+    split = rng.random(mesh.num_vertices) < 0.3
+    keys = np.where(split[corners], mesh.num_vertices + np.arange(len(corners)), corners)
+    _, indices = np.unique(keys, return_inverse=True)
+    values = rng.random((int(indices.max()) + 1, 2))
+    for levels, tile_faces in ((1, 1), (2, 5)):
+        refiner = ws.Refiner(mesh, levels, scheme=scheme, device="cpu")
+        ref_values, ref_indices = refiner.evaluate_face_varying(values, indices, mode)
+        ref = refiner.refine()
+        starts = np.concatenate([[0], np.cumsum(ref.face_vertex_counts)])
+        gathered = np.full(ref_values.shape, np.nan)
+        for tile in refine_tiled(mesh, levels, tile_faces=tile_faces, scheme=scheme, device="cpu",
+                                 face_varying=(values, indices, mode)):
+            fv = tile.face_varying
+            if not len(tile.face_ids):  # a tile of hole faces
+                continue
+            known = ~np.isnan(gathered[fv.value_ids, 0])
+            assert np.array_equal(gathered[fv.value_ids][known], fv.values[known])
+            gathered[fv.value_ids] = fv.values
+            corners_of_tile = np.concatenate([np.arange(starts[f], starts[f + 1]) for f in tile.face_ids])
+            assert np.array_equal(fv.value_ids[fv.indices], ref_indices[corners_of_tile])
+        used = np.isin(np.arange(len(ref_values)), ref_indices)
+        assert np.array_equal(gathered[used].astype(ref_values.dtype).view(np.uint8), ref_values[used].view(np.uint8))

@@ -40,12 +40,12 @@ from typing import Iterator
 import numpy as np
 
 from .errors import NonManifoldWarning, SubdivInputError
-from .mesh import Mesh, face_offsets_of, find_edges
-from .options import Options, Scheme
+from .mesh import Mesh, check_rows, face_offsets_of, find_edges
+from .options import FaceVaryingMode, Options, Scheme
 from .refiner import Refiner
 from .runtime import estimate
 from .runtime.threads import resolve as resolve_threads
-from .tables import Hierarchy
+from .tables import Hierarchy, check_value_indices, value_mesh
 from .topology import base_faces
 
 
@@ -59,7 +59,8 @@ class Tile:
     refined mesh's counts pass 2^31); vertices are sorted by id, faces are in the order of their ids.
     ``border``: (n,) bool, the vertices that faces of other tiles use too.
     ``control_faces``: the level-0 faces of the tile (Loop: triangles of the fan triangulation).
-    ``limit_points`` and ``limit_normals``: of ``points``, where asked for."""
+    ``limit_points`` and ``limit_normals``: of ``points``, where asked for; ``face_varying``: the tile's
+    face-varying channel, where asked for."""
 
     index: int
     control_faces: np.ndarray
@@ -71,6 +72,7 @@ class Tile:
     border: np.ndarray
     limit_points: np.ndarray | None = None
     limit_normals: np.ndarray | None = None
+    face_varying: "TileFaceVarying | None" = None
 
     @property
     def num_vertices(self) -> int:
@@ -81,6 +83,18 @@ class Tile:
     def num_faces(self) -> int:
         """The number of refined faces of the tile."""
         return len(self.face_vertex_counts)
+
+
+@dataclass
+class TileFaceVarying:
+    """A face-varying channel of a tile: ``values`` (m, d), ``indices`` (int32, one per corner of the tile's
+    faces, into ``values``) and ``value_ids``: the rows these values are in
+    :meth:`Refiner.evaluate_face_varying`'s values (sorted; values on a tile border are in every tile that
+    uses them)."""
+
+    values: np.ndarray
+    indices: np.ndarray
+    value_ids: np.ndarray
 
 
 #: Rings of faces around a tile: enough for the subdivision rules (see the module docstring), and where the
@@ -346,7 +360,8 @@ class _Submesh:
 
 def refine_tiled(mesh: Mesh, levels: int, *, max_memory=None, tile_faces: int | None = None,
                  options: Options | None = None, device=None, threads: int | None = None,
-                 limit_points: bool = False, limit_normals: bool = False, **option_keywords) -> Iterator[Tile]:
+                 limit_points: bool = False, limit_normals: bool = False, face_varying=None,
+                 **option_keywords) -> Iterator[Tile]:
     """Refine ``mesh`` uniformly ``levels`` times in tiles: an iterator of :class:`Tile`.
 
     Gathered by their ids, the tiles are ``refine(mesh, levels)`` bitwise: every refined face is in exactly one
@@ -358,7 +373,9 @@ def refine_tiled(mesh: Mesh, levels: int, *, max_memory=None, tile_faces: int | 
     a size such as "4G"; default: half the physical memory), and a mesh that fits is one tile.
     ``limit_points`` / ``limit_normals``: also the limit positions and normals of each tile's vertices, bitwise
     those of :meth:`Refined.limit_points` and :meth:`Refined.limit_normals`. ``device`` and ``threads`` as
-    :func:`warp_subdiv.refine` takes them.
+    :func:`warp_subdiv.refine` takes them. ``face_varying``: (values, indices, mode) of a face-varying channel (as
+    :meth:`Refiner.evaluate_face_varying` takes them): each tile also carries :class:`TileFaceVarying`, bitwise
+    that method's values and indices for the tile's faces (its value mesh is tiled with the same faces).
     """
     if not isinstance(mesh, Mesh):
         raise TypeError(f"mesh must be a warp_subdiv.Mesh, got {type(mesh).__name__}")
@@ -374,16 +391,41 @@ def refine_tiled(mesh: Mesh, levels: int, *, max_memory=None, tile_faces: int | 
     budget = estimate.memory_limit(max_memory)
     if budget is None and tile_faces is None:
         budget = estimate.default_max_memory()
+    channel = None if face_varying is None else _face_varying_plan(mesh, int(levels), options, face_varying)
     return _tiles(mesh, int(levels), options, budget, tile_faces, device, resolve_threads(threads), limit,
-                  bool(limit_points), bool(limit_normals))
+                  bool(limit_points), bool(limit_normals), channel)
 
 
-def _tiles(mesh, levels, options, budget, tile_faces, device, threads, limit, want_points, want_normals):
+def _face_varying_plan(mesh, levels, options, face_varying):
+    """(plan of the channel's value mesh, its values per value-mesh vertex): the value mesh and options of
+    :class:`~warp_subdiv.tables.FaceVaryingChannel`, whose faces are the mesh's level-0 faces."""
+    try:
+        values, indices, mode = face_varying
+    except (TypeError, ValueError):
+        raise SubdivInputError("face_varying must be (values, indices, mode)", option="face_varying") from None
+    mode = FaceVaryingMode.parse(mode, "mode", "face-varying mode")
+    indices = check_value_indices(indices, len(mesh.face_vertex_indices))
+    vmesh, source = value_mesh(mesh, indices, mode, options.boundary, options.scheme)
+    voptions = options.replace(rules="opensubdiv", boundary="edge-only", flatness=None, loop_beta="loop",
+                               linear=(mode == FaceVaryingMode.ALL))
+    count = int(source.max()) + 1 if len(source) else 0
+    vals = check_rows(values, count, "face-varying values", at_least=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NonManifoldWarning)  # disjoint value fans are expected
+        return _Plan(vmesh, levels, voptions), vals[source]
+
+
+def _tiles(mesh, levels, options, budget, tile_faces, device, threads, limit, want_points, want_normals, channel):
     plan = _Plan(mesh, levels, options)
     rings = HALO_RINGS_PROJECTING if plan.projects else HALO_RINGS
     deeper = plan.limit_deeper if limit else False
     for index, faces in enumerate(_tile_faces(plan, tile_faces, budget, rings, limit, deeper)):
-        yield _refine_tile(plan, index, faces, rings, device, threads, want_points, want_normals, deeper)
+        tile = _refine_tile(plan, index, faces, rings, device, threads, want_points, want_normals, deeper)
+        if channel is not None:
+            fv = _refine_tile(channel[0], index, faces, HALO_RINGS, device, threads, False, False, False,
+                              data=channel[1])
+            tile.face_varying = TileFaceVarying(fv.points, fv.face_vertex_indices, fv.vertex_ids)
+        yield tile
 
 
 def _tile_bytes(plan: _Plan, faces: np.ndarray, rings: int, limit: bool, deeper: bool) -> int:
@@ -436,15 +478,20 @@ def _tile_faces(plan: _Plan, tile_faces, budget, rings, limit, deeper) -> Iterat
 
 
 def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device, threads, want_points: bool,
-                 want_normals: bool, deeper: bool) -> Tile:
-    """Refine one tile with its halo and keep the children of its own faces, with their global ids."""
+                 want_normals: bool, deeper: bool, data=None) -> Tile:
+    """Refine one tile with its halo and keep the children of its own faces, with their global ids. ``data``:
+    rows per vertex of the plan's mesh refined instead of its points (no normal control)."""
     levels = plan.levels
     sub = _Submesh(plan, faces, rings)
     options = sub.options(plan.options)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NonManifoldWarning)  # the whole mesh's analysis would warn once
         refiner = Refiner(sub.mesh, levels, options=options, device=device, threads=threads)
-        points = refiner.evaluate(sub.mesh.points)
+        if data is None:
+            points = refiner.evaluate(sub.mesh.points)
+        else:
+            rows = np.concatenate([data[sub.verts], np.zeros((sub.extra,) + data.shape[1:])])
+            points = refiner.evaluate(rows, normal_control=False)
         lp = ln = None
         if want_points or want_normals:
             lp, ln = _limits(refiner, sub, points, options, device, threads, deeper, want_points, want_normals)
