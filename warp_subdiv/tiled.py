@@ -419,7 +419,8 @@ def _tiles(mesh, levels, options, budget, tile_faces, device, threads, limit, wa
     plan = _Plan(mesh, levels, options)
     rings = HALO_RINGS_PROJECTING if plan.projects else HALO_RINGS
     deeper = plan.limit_deeper if limit else False
-    for index, faces in enumerate(_tile_faces(plan, tile_faces, budget, rings, limit, deeper)):
+    held = 3 if channel is not None else 2  # the previous tile's arrays, and this tile's while its channel refines
+    for index, faces in enumerate(_tile_faces(plan, tile_faces, budget, rings, limit, deeper, held)):
         tile = _refine_tile(plan, index, faces, rings, device, threads, want_points, want_normals, deeper)
         if channel is not None:
             fv = _refine_tile(channel[0], index, faces, HALO_RINGS, device, threads, False, False, False,
@@ -428,8 +429,10 @@ def _tiles(mesh, levels, options, budget, tile_faces, device, threads, limit, wa
         yield tile
 
 
-def _tile_bytes(plan: _Plan, faces: np.ndarray, rings: int, limit: bool, deeper: bool) -> int:
-    """The predicted peak of refining the tile of ``faces`` with its halo and holding the previous tile."""
+def _tile_bytes(plan: _Plan, faces: np.ndarray, rings: int, limit: bool, deeper: bool, held: int = 2) -> int:
+    """The predicted peak of refining the tile of ``faces`` with its halo, its output held ``held`` times (this
+    tile's, the previous one's held by the caller, and where a face-varying channel is refined after the points,
+    the tile's points meanwhile; the channel's own tile is about the points' size)."""
     sub = plan.grow(faces, rings)
     corners = _corners_of(plan.offsets, sub)
     verts = _members(plan.indices[corners], plan.num_vertices)
@@ -439,10 +442,10 @@ def _tile_bytes(plan: _Plan, faces: np.ndarray, rings: int, limit: bool, deeper:
     o = plan.options
     est = estimate.estimate("tile", len(verts), counts, num_edges, plan.levels, o.scheme, precision=o.precision,
                             projecting=plan.projects, limit=limit, limit_deeper=deeper)
-    return est.working_bytes + 2 * est.output_bytes + ID_MAP_BYTES * est.final.vertices
+    return est.working_bytes + held * est.output_bytes + ID_MAP_BYTES * est.final.vertices
 
 
-def _tile_faces(plan: _Plan, tile_faces, budget, rings, limit, deeper) -> Iterator[np.ndarray]:
+def _tile_faces(plan: _Plan, tile_faces, budget, rings, limit, deeper, held=2) -> Iterator[np.ndarray]:
     """The level-0 faces of every tile (sorted): runs of ``tile_faces`` faces along the Morton curve, or runs
     sized to ``budget``, halved until each one's prediction fits."""
     F = len(plan.counts)
@@ -454,22 +457,22 @@ def _tile_faces(plan: _Plan, tile_faces, budget, rings, limit, deeper) -> Iterat
     # what the process holds now (Warp's runtime, the mesh, the plan, the caller's data) is not the tiles'
     available = budget - max(estimate.RUNTIME_BYTES, resident_bytes()) - GLOBAL_BYTES_PER_CORNER * int(plan.offsets[-1])
     everything = np.arange(F, dtype=np.int64)
-    if _tile_bytes(plan, everything, 0, limit, deeper) <= available:
+    if _tile_bytes(plan, everything, 0, limit, deeper, held) <= available:
         yield everything
         return
-    whole = _tile_bytes(plan, everything, 0, limit, deeper)
+    whole = _tile_bytes(plan, everything, 0, limit, deeper, held)
     size = max(1, int(F * available / whole / 2))  # half the share: room for the halo
     order = plan.morton_order()
     stack = [order[start:start + size] for start in range(0, F, size)][::-1]
     while stack:
         faces = np.sort(stack.pop())
-        if _tile_bytes(plan, faces, rings, limit, deeper) <= available:
+        if _tile_bytes(plan, faces, rings, limit, deeper, held) <= available:
             yield faces
             continue
         if len(faces) == 1:
             raise SubdivInputError(
                 f"refining one control face with its halo to level {plan.levels} needs about "
-                f"{estimate.format_bytes(_tile_bytes(plan, faces, rings, limit, deeper))} (with what the tiled "
+                f"{estimate.format_bytes(_tile_bytes(plan, faces, rings, limit, deeper, held))} (with what the tiled "
                 f"refinement keeps), more than max_memory {estimate.format_bytes(budget)} allows; raise max_memory "
                 "or refine fewer levels", option="max_memory", value=budget)
         half = len(faces) // 2
