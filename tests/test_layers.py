@@ -26,7 +26,7 @@ FLOORS = {
     "warp_subdiv.evaluator": 7,
     "warp_subdiv.limit": 8, "warp_subdiv.gradients": 8,
     "warp_subdiv.refiner": 9,
-    "warp_subdiv.batch": 10,
+    "warp_subdiv.batch": 10, "warp_subdiv.tiled": 10,
     "warp_subdiv.usd": 11,
     "warp_subdiv.render": 12, "warp_subdiv.jax": 12, "warp_subdiv.torch": 12,
     "warp_subdiv.cli": 13,

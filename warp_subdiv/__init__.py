@@ -12,7 +12,9 @@ from .options import (Boundary, CreaseMethod, FaceVaryingMode, LoopBeta, Options
                       TriangleSubdivision)
 from .refiner import Refined, Refiner, refine
 from .limit import LimitEvaluation, LimitSurface
+from .tiled import Tile, TileFaceVarying, refine_tiled
 
 __all__ = ["Mesh", "Options", "Refiner", "Refined", "refine", "default_device", "SubdivInputError",
            "NonManifoldWarning", "Scheme", "RuleSet", "Boundary", "Precision", "LoopBeta", "CreaseMethod",
-           "TriangleSubdivision", "FaceVaryingMode", "LimitSurface", "LimitEvaluation", "__version__"]
+           "TriangleSubdivision", "FaceVaryingMode", "LimitSurface", "LimitEvaluation", "refine_tiled", "Tile",
+           "TileFaceVarying", "__version__"]

@@ -476,7 +476,7 @@ def _device_name(device) -> str:
 
 def _refine_obj(args, out_kind, max_memory, progress) -> int:
     _quiet_warp()
-    from .runtime.estimate import check_memory, estimate
+    from .runtime.estimate import MemoryGuardError, check_memory, estimate
     from .io.obj import read_obj, write_obj
     from .usd import make_refiner, options_for
 
@@ -499,7 +499,10 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
     control = make_refiner(data, 0, options=options, device=args.device)
     est = estimate(args.input, mesh.num_vertices, mesh.face_vertex_counts, mesh.num_edges, args.levels, scheme,
                    precision=options.precision.value, projecting=control.projects)
-    check_memory([est], max_memory, args.levels)
+    try:
+        check_memory([est], max_memory, args.levels)
+    except MemoryGuardError:
+        return _refine_obj_tiled(args, data, options, max_memory, start, out_kind)  # it fits in tiles
     progress(0.0, f"{args.input}: {args.levels} levels")
     refiner = make_refiner(data, args.levels, options=options, device=args.device, reuse=(control.hierarchy,))
     progress(0.7, f"{args.input}: points")
@@ -527,6 +530,47 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
         print(f"{args.input}: {scheme}, {rules} rules, {args.levels} levels on {refiner.device}")
         print(f"  faces {mesh.num_faces} -> {refined.num_faces}, vertices {mesh.num_vertices} -> "
               f"{refined.num_vertices}, {time.perf_counter() - start:.2f} s; wrote {args.output}")
+    return 0
+
+
+def _refine_obj_tiled(args, data, options, max_memory, start, out_kind) -> int:
+    """An OBJ refinement that does not fit ``max_memory`` at once: refined in tiles that each fit
+    (:func:`warp_subdiv.refine_tiled`), streamed into one OBJ file (:func:`warp_subdiv.io.obj.write_obj_tiles`)
+    or written as one USD layer per tile under an Xform (:func:`warp_subdiv.io.usd_write.write_tiled_mesh_layer`)."""
+    from .io.obj import write_obj_tiles
+    from .io.usd_write import make_folders, remove_folders, write_tiled_mesh_layer
+    from .tiled import refine_tiled
+
+    tiles = refine_tiled(data.mesh, args.levels, max_memory=max_memory, options=options, device=args.device,
+                         threads=args.threads)
+    created = make_folders(os.path.dirname(os.path.abspath(args.output)))
+    try:
+        if out_kind == "obj":
+            count = [0]
+
+            def counted():
+                for tile in tiles:
+                    count[0] += 1
+                    yield tile
+
+            header = f"warp-subdiv: level {args.levels} in tiles"
+            vertices, faces = write_obj_tiles(args.output, counted(), header=header)
+            written = f"{count[0]} tiles"
+        else:
+            name = os.path.splitext(os.path.basename(args.input))[0]
+            count, vertices, faces = write_tiled_mesh_layer(os.path.abspath(args.output), name, tiles)
+            written = f"{count} tiles (one layer each in {os.path.splitext(args.output)[0]}_tiles/)"
+    except OSError as exc:
+        remove_folders(created)
+        raise SubdivInputError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
+    except BaseException:
+        remove_folders(created)
+        raise
+    if not args.quiet:
+        print(f"{args.input}: {options.scheme.value}, {options.rules.value} rules, {args.levels} levels in {written} "
+              "(the whole refinement would not fit --max-memory)")
+        print(f"  faces {data.mesh.num_faces} -> {faces}, vertices {data.mesh.num_vertices} -> {vertices}, "
+              f"{time.perf_counter() - start:.2f} s; wrote {args.output}")
     return 0
 
 

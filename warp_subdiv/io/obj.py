@@ -125,27 +125,85 @@ def read_obj(path: str) -> ObjData:
     return ObjData(mesh, options, path)
 
 
-def write_obj(path: str, points: np.ndarray, face_vertex_counts: np.ndarray, face_vertex_indices: np.ndarray) -> None:
-    """Write a polygon mesh as OBJ, through a temporary file and a rename (no partial file on failure), with the
-    permissions ``open()`` would give the file (:func:`~warp_subdiv.io.files.publish`)."""
+def _write_vertices(fh, points: np.ndarray) -> None:
+    np.savetxt(fh, np.asarray(points, dtype=np.float64), fmt="v %.9g %.9g %.9g")
+
+
+def _write_faces(fh, counts: np.ndarray, idx: np.ndarray) -> None:
+    """Face lines of ``counts`` faces with the 1-based vertex numbers ``idx``."""
+    counts = np.asarray(counts)
+    if len(counts) and np.all(counts == counts[0]):
+        fmt = "f" + " %d" * int(counts[0])
+        np.savetxt(fh, idx.reshape(-1, int(counts[0])), fmt=fmt)
+    else:
+        start = 0
+        for c in counts:
+            fh.write("f " + " ".join(map(str, idx[start:start + c])) + "\n")
+            start += c
+
+
+def _published(path: str, write) -> None:
+    """``write(fh)`` into a temporary file beside ``path``, renamed into place once complete (no partial file on
+    failure), with the permissions ``open()`` would give the file (:func:`~warp_subdiv.io.files.publish`)."""
     folder = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=".obj", dir=folder)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(f"# warp-subdiv: {len(points)} vertices, {len(face_vertex_counts)} faces\n")
-            np.savetxt(fh, np.asarray(points, dtype=np.float64), fmt="v %.9g %.9g %.9g")
-            counts = np.asarray(face_vertex_counts)
-            idx = np.asarray(face_vertex_indices, dtype=np.int64) + 1
-            if len(counts) and np.all(counts == counts[0]):
-                fmt = "f" + " %d" * int(counts[0])
-                np.savetxt(fh, idx.reshape(-1, int(counts[0])), fmt=fmt)
-            else:
-                start = 0
-                for c in counts:
-                    fh.write("f " + " ".join(map(str, idx[start:start + c])) + "\n")
-                    start += c
+            write(fh)
         publish(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def write_obj(path: str, points: np.ndarray, face_vertex_counts: np.ndarray, face_vertex_indices: np.ndarray) -> None:
+    """Write a polygon mesh as OBJ, through a temporary file and a rename (no partial file on failure), with the
+    permissions ``open()`` would give the file (:func:`~warp_subdiv.io.files.publish`)."""
+
+    def write(fh):
+        fh.write(f"# warp-subdiv: {len(points)} vertices, {len(face_vertex_counts)} faces\n")
+        _write_vertices(fh, points)
+        _write_faces(fh, face_vertex_counts, np.asarray(face_vertex_indices, dtype=np.int64) + 1)
+
+    _published(path, write)
+
+
+def write_obj_tiles(path: str, tiles, header: str = "") -> tuple[int, int]:
+    """Write the tiles of a tiled refinement (:func:`warp_subdiv.refine_tiled`) into one OBJ file as they come:
+    each tile's vertices that no earlier tile wrote, then its faces. A vertex shared by tiles (``border``, with
+    the same ``vertex_ids`` in each) is written once; OBJ numbers vertices in the order written, so the file's
+    vertex order is not ``refine``'s, its faces are ``refine``'s faces in tile order. Only the border vertices'
+    numbers are kept between tiles. Through a temporary file and a rename, as :func:`write_obj`. Returns
+    (vertices, faces) written."""
+    totals = [0, 0]
+
+    def write(fh):
+        if header:
+            fh.write(f"# {header}\n")
+        known_ids = np.zeros(0, dtype=np.int64)  # border vertices written so far, sorted, and their numbers
+        known_numbers = np.zeros(0, dtype=np.int64)
+        for tile in tiles:
+            ids = np.asarray(tile.vertex_ids, dtype=np.int64)
+            border = np.asarray(tile.border, dtype=bool)
+            numbers = np.empty(len(ids), dtype=np.int64)
+            pos = np.minimum(np.searchsorted(known_ids, ids[border]), max(len(known_ids) - 1, 0))
+            found = np.zeros(int(border.sum()), bool) if not len(known_ids) else known_ids[pos] == ids[border]
+            seen = np.zeros(len(ids), bool)
+            seen[np.flatnonzero(border)[found]] = True
+            numbers[seen] = known_numbers[pos[found]]
+            new = np.flatnonzero(~seen)
+            numbers[new] = totals[0] + 1 + np.arange(len(new))
+            _write_vertices(fh, tile.points[new])
+            totals[0] += len(new)
+            fresh_border = new[border[new]]
+            if len(fresh_border):
+                known_ids = np.concatenate([known_ids, ids[fresh_border]])
+                known_numbers = np.concatenate([known_numbers, numbers[fresh_border]])
+                order = np.argsort(known_ids, kind="stable")
+                known_ids, known_numbers = known_ids[order], known_numbers[order]
+            _write_faces(fh, tile.face_vertex_counts, numbers[np.asarray(tile.face_vertex_indices)])
+            totals[1] += len(tile.face_vertex_counts)
+
+    _published(path, write)
+    return totals[0], totals[1]

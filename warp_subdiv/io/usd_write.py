@@ -400,3 +400,89 @@ def write_mesh_layer(output: str, name: str, points, face_vertex_counts, face_ve
     existing = Sdf.Layer.Find(output)
     if existing is not None:
         existing.Reload(force=True)
+
+
+def _prim_name(name: str) -> str:
+    """``name`` as a USD prim name (other characters become "_"; a leading digit gets a "_" before it)."""
+    prim_name = re.sub(r"[^A-Za-z0-9_]", "_", name) or "Mesh"
+    return "_" + prim_name if prim_name[0].isdigit() else prim_name
+
+
+def write_tiled_mesh_layer(output: str, name: str, tiles) -> tuple[int, int, int]:
+    """A refined mesh written tile by tile (the tiles of :func:`warp_subdiv.refine_tiled`), for a mesh whose
+    refinement does not fit in memory at once: each tile a layer of its own in the folder ``<output stem>_tiles``
+    beside ``output`` (``tile_0000.usdc``, ... : a Mesh with its points, extent, faces, the ids its vertices have in
+    the in-core refinement as ``int64[] warpSubdiv:vertexIds``, and its limit normals where the tiles have them),
+    saved and released before the next tile is refined; ``output`` holds an Xform /<name> whose children
+    ``tile_0000``, ... load those layers as payloads. Tiles share their border vertices (the same ids, the same
+    points). The tile layers are written under temporary names and renamed once all are written, then
+    ``output``; a failed run removes what it wrote. Returns (tiles, vertices, faces) written (border vertices
+    counted in every tile that has them)."""
+    prim_name = _prim_name(name)
+    stem = os.path.splitext(os.path.abspath(output))[0]
+    folder = stem + "_tiles"
+    created = make_folders(folder)
+    written: list = []  # (temporary, final) paths
+    totals = [0, 0, 0]
+    T = Sdf.ValueTypeNames
+    try:
+        for tile in tiles:
+            final = os.path.join(folder, f"tile_{totals[0]:04d}.usdc")
+            fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=".usdc", dir=folder)
+            os.close(fd)
+            written.append((tmp, final))
+            layer = Sdf.Layer.CreateNew(tmp)
+            prim = Sdf.CreatePrimInLayer(layer, "/tile")
+            prim.specifier = Sdf.SpecifierDef
+            prim.typeName = "Mesh"
+            layer.defaultPrim = "tile"
+            Sdf.AttributeSpec(prim, "subdivisionScheme", T.Token, Sdf.VariabilityUniform).default = "none"
+            Sdf.AttributeSpec(prim, "points", T.Point3fArray).default = vec3f_array(tile.points)
+            Sdf.AttributeSpec(prim, "extent", T.Float3Array).default = extent_of(tile.points)
+            Sdf.AttributeSpec(prim, "faceVertexCounts", T.IntArray).default = int_array(tile.face_vertex_counts)
+            Sdf.AttributeSpec(prim, "faceVertexIndices", T.IntArray).default = int_array(tile.face_vertex_indices)
+            ids = Sdf.AttributeSpec(prim, "warpSubdiv:vertexIds", T.Int64Array, Sdf.VariabilityUniform)
+            ids.custom = True
+            ids.default = Vt.Int64Array.FromNumpy(np.ascontiguousarray(tile.vertex_ids, dtype=np.int64))
+            if getattr(tile, "limit_normals", None) is not None:
+                normals = Sdf.AttributeSpec(prim, "normals", T.Normal3fArray)
+                normals.default = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(tile.limit_normals, dtype=np.float32))
+                normals.SetInfo("interpolation", UsdGeom.Tokens.vertex)
+            if not layer.Save():
+                raise OSError(f"could not save {final}")
+            del layer
+            totals[0] += 1
+            totals[1] += len(tile.points)
+            totals[2] += len(tile.face_vertex_counts)
+        fd, root_tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=os.path.splitext(output)[1],
+                                        dir=os.path.dirname(stem))
+        os.close(fd)
+        written.append((root_tmp, os.path.abspath(output)))
+        layer = Sdf.Layer.CreateNew(root_tmp)
+        root = Sdf.CreatePrimInLayer(layer, "/" + prim_name)
+        root.specifier = Sdf.SpecifierDef
+        root.typeName = "Xform"
+        layer.defaultPrim = prim_name
+        # the stage's fallbacks, stated (an OBJ has no units or axis): usd-core's validators ask for them
+        layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.y)
+        layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, 0.01)
+        for _, final in written[:-1]:
+            child = Sdf.PrimSpec(root, os.path.splitext(os.path.basename(final))[0], Sdf.SpecifierDef, "Mesh")
+            child.payloadList.Prepend(Sdf.Payload("./" + os.path.basename(folder) + "/" + os.path.basename(final)))
+        if not layer.Save():
+            raise OSError(f"could not save {output}")
+        del layer
+        for tmp, final in written:
+            publish(tmp, final)
+    except BaseException:
+        for tmp, final in written:
+            for path in (tmp, final):
+                if os.path.exists(path) and (path == tmp or path != os.path.abspath(output)):
+                    os.unlink(path)
+        remove_folders(created)
+        raise
+    for _, final in written:
+        existing = Sdf.Layer.Find(final)
+        if existing is not None:
+            existing.Reload(force=True)
+    return tuple(totals)

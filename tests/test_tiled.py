@@ -1,0 +1,374 @@
+"""Tiled refinement (warp_subdiv.refine_tiled): the tiles gathered by their global ids are refine()'s result
+bitwise (points, faces, limit points and normals), whatever the tile size, on the test meshes and on seeded
+random tagged meshes large enough that small tiles have halos well inside the mesh; every refined face is in
+exactly one tile and a border vertex has the same bits in every tile that uses it; tiles sized by max_memory
+stay under their prediction and are spatially coherent."""
+import glob
+import os
+import warnings
+
+import numpy as np
+import pytest
+
+from conftest import DATA, MESHES
+import warp_subdiv as ws
+from warp_subdiv.errors import NonManifoldWarning
+from warp_subdiv.io.obj import read_obj
+from warp_subdiv.tiled import Tile, _Plan, _tile_bytes, refine_tiled, resident_bytes
+
+TEST_MESHES = sorted(glob.glob(os.path.join(MESHES, "*.obj")) + glob.glob(os.path.join(DATA, "opensubdiv-shapes",
+                                                                                        "*.obj")))
+
+
+def gather(mesh, levels, tile_faces=None, limits=False, **options):
+    """refine() and the gathered tiles: asserts that every face is in one tile, that border vertices agree
+    bitwise between tiles, and that tiles' topology is refine()'s; returns (reference, points, limit points,
+    limit normals, covered vertices, tiles)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NonManifoldWarning)
+        ref = ws.refine(mesh, levels, device="cpu", **options)
+        tiles = list(refine_tiled(mesh, levels, tile_faces=tile_faces, device="cpu", limit_points=limits,
+                                  limit_normals=limits, **options))
+    n = len(ref.points)
+    points = np.zeros_like(ref.points)
+    lp, ln = np.zeros_like(ref.points), np.zeros_like(ref.points)
+    covered = np.zeros(n, bool)
+    face_seen = np.zeros(len(ref.face_vertex_counts), int)
+    starts = np.concatenate([[0], np.cumsum(ref.face_vertex_counts)])
+    for tile in tiles:
+        assert isinstance(tile, Tile)
+        ids = tile.vertex_ids
+        assert np.all(np.diff(ids) > 0), "tile vertices sorted by id, once each"
+        again = covered[ids]
+        assert np.array_equal(points[ids][again].view(np.uint8), tile.points[again].view(np.uint8)), \
+            "a border vertex has other bits in another tile"
+        points[ids], covered[ids] = tile.points, True
+        if limits:
+            lp[ids], ln[ids] = tile.limit_points, tile.limit_normals
+        face_seen[tile.face_ids] += 1
+        assert np.array_equal(tile.face_vertex_counts, ref.face_vertex_counts[tile.face_ids])
+        corners = np.concatenate([np.arange(starts[f], starts[f + 1]) for f in tile.face_ids]) \
+            if len(tile.face_ids) else np.zeros(0, int)
+        assert np.array_equal(ids[tile.face_vertex_indices], ref.face_vertex_indices[corners])
+    assert np.all(face_seen == 1), "every refined face in exactly one tile"
+    uses = np.bincount(np.concatenate([t.vertex_ids for t in tiles]), minlength=n)
+    for tile in tiles:
+        assert np.array_equal(tile.border, uses[tile.vertex_ids] > 1), "border: the vertices other tiles use"
+    assert np.array_equal(covered, np.isin(np.arange(n), ref.face_vertex_indices)), "tiles hold the used vertices"
+    return ref, points, lp, ln, covered, tiles
+
+
+def assert_bitwise(ref, points, covered):
+    assert points.dtype == ref.points.dtype
+    assert np.array_equal(points[covered].view(np.uint8), ref.points[covered].view(np.uint8))
+
+
+def noisy_torus(nu, nv, rng, triangles=0.0, tags=True, sheet=False):
+    """A noisy torus (or with ``sheet`` an open, twisted grid) of nu x nv quads, a fraction ``triangles`` of
+    them split; with ``tags`` random crease tags (infinitely and semi-sharp), corners and holes."""
+    u, v = np.meshgrid(np.arange(nu + sheet), np.arange(nv + sheet), indexing="ij")
+    if sheet:
+        pts = np.stack([u, v, 0.3 * np.sin(u + v)], -1).reshape(-1, 3).astype(float)
+    else:
+        a, b = 2 * np.pi * u / nu, 2 * np.pi * v / nv
+        pts = np.stack([(3 + np.cos(b)) * np.cos(a), (3 + np.cos(b)) * np.sin(a), np.sin(b)], -1).reshape(-1, 3)
+    pts = pts + rng.normal(scale=0.05, size=pts.shape)
+    cols = nv + sheet
+    faces = []
+    for i in range(nu):
+        for j in range(nv):
+            i1, j1 = (i + 1) if sheet else (i + 1) % nu, (j + 1) if sheet else (j + 1) % nv
+            q = [i * cols + j, i1 * cols + j, i1 * cols + j1, i * cols + j1]
+            faces += [q[:3], [q[0], q[2], q[3]]] if rng.random() < triangles else [q]
+    counts = np.array([len(f) for f in faces])
+    indices = np.concatenate(faces)
+    kw = {}
+    if tags:
+        nxt = np.concatenate([f[1:] + f[:1] for f in faces])
+        edges = np.unique(np.sort(np.stack([indices, nxt], 1), 1), axis=0)
+        tagged = rng.random(len(edges)) < 0.15
+        kw["creases"] = edges[tagged]
+        kw["crease_sharpness"] = np.where(rng.random(int(tagged.sum())) < 0.5, 10.0,
+                                          rng.integers(4, 50, int(tagged.sum())) / 16)
+        kw["corners"] = np.flatnonzero(rng.random(len(pts)) < 0.05)
+        kw["corner_sharpness"] = rng.integers(4, 200, len(kw["corners"])) / 16
+        kw["holes"] = np.flatnonzero(rng.random(len(faces)) < 0.05)
+    return ws.Mesh(pts, counts, indices, **kw)
+
+
+@pytest.mark.parametrize("path", TEST_MESHES, ids=os.path.basename)
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+@pytest.mark.parametrize("rules", ["piecewise-smooth", "opensubdiv"])
+def test_test_meshes_bitwise(path, scheme, rules):
+    """Every test mesh, both schemes and rule sets, levels 1-3, one face per tile at level 1, three above."""
+    data = read_obj(path)
+    options = {k: v for k, v in data.options.items() if k in ("boundary", "crease_method")}
+    for levels, tile_faces in ((1, 1), (2, 3), (3, 3)):
+        ref, points, *_, covered, _ = gather(data.mesh, levels, tile_faces, scheme=scheme, rules=rules, **options)
+        assert_bitwise(ref, points, covered)
+
+
+CASES = [  # (seed, scheme, rules, triangles, boundary, sheet)
+    (0, "catmull-clark", "piecewise-smooth", 0.0, "edge-and-corner", False),
+    (1, "catmull-clark", "opensubdiv", 0.2, "edge-only", True),
+    (2, "catmull-clark", "piecewise-smooth", 0.2, "none", True),
+    (3, "loop", "piecewise-smooth", 1.0, "edge-and-corner", False),
+    (4, "loop", "opensubdiv", 0.0, "edge-only", True),
+    (5, "loop", "piecewise-smooth", 0.5, "none", True),
+    (6, "catmull-clark", "opensubdiv", 1.0, "edge-and-corner", False),
+]
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: f"seed{c[0]}-{c[1]}-{c[2]}")
+def test_random_tagged_meshes_bitwise(case):
+    """Noisy tagged tori and open sheets (creases, semi-sharp tags, corners, holes, mixed polygons), levels 1-3,
+    tiles of 1, 5 and 40 faces: the halos lie inside the mesh, where only the halo makes tiles right."""
+    seed, scheme, rules, triangles, boundary, sheet = case
+    rng = np.random.default_rng(seed)
+    mesh = noisy_torus(8, 6, rng, triangles=triangles, sheet=sheet)
+    crease_method = "chaikin" if seed % 2 else "uniform"
+    for levels, tile_faces in ((1, 1), (2, 5), (3, 40)):
+        ref, points, *_, covered, tiles = gather(mesh, levels, tile_faces, scheme=scheme, rules=rules,
+                                                 boundary=boundary, crease_method=crease_method)
+        assert_bitwise(ref, points, covered)
+        assert len(tiles) > 1
+
+
+@pytest.mark.parametrize("options", [{"scheme": "catmull-clark", "triangle_subdivision": "smooth"},
+                                     {"scheme": "loop", "loop_beta": "warren"}], ids=["smooth-triangles", "warren"])
+def test_rule_variants_bitwise(options):
+    """OpenSubdiv's smooth triangle rule (weights that depend on the faces at an edge) and the paper's Warren
+    beta, on a mixed tagged mesh."""
+    mesh = noisy_torus(8, 6, np.random.default_rng(12), triangles=0.4)
+    for levels, tile_faces in ((1, 1), (2, 6)):
+        ref, points, *_, covered, _ = gather(mesh, levels, tile_faces, **options)
+        assert_bitwise(ref, points, covered)
+
+
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+def test_projections_bitwise(scheme):
+    """The paper's projections: explicit and per-vertex flatness at crease sectors, prescribed normals with
+    normal control (at interior vertices); float64."""
+    rng = np.random.default_rng(11)
+    base = noisy_torus(8, 6, rng, triangles=0.3 if scheme == "loop" else 0.0)
+    normal_ids = np.array([9, 20, 33])
+    normals = np.tile([0.0, 0.0, 1.0], (3, 1))
+    mesh = ws.Mesh(base.points, base.face_vertex_counts, base.face_vertex_indices, creases=base.creases,
+                   crease_sharpness=np.full(len(base.creases), 10.0), normals=(normal_ids, normals))
+    flatness = np.where(rng.random(mesh.num_vertices) < 0.5, 0.7, np.nan)
+    cases = (({"flatness": 0.5}, 2, 3), ({"flatness": flatness, "precision": "float64"}, 3, 20), ({}, 1, 1))
+    for options, levels, tile_faces in cases:
+        ref, points, *_, covered, _ = gather(mesh, levels, tile_faces, scheme=scheme, **options)
+        assert_bitwise(ref, points, covered)
+
+
+@pytest.mark.parametrize("rules", ["piecewise-smooth", "opensubdiv"])
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+def test_limits_bitwise(scheme, rules):
+    """Limit points and normals of every tile are refine()'s, with masks read one level deeper where the
+    whole mesh's are (extraordinary crease sectors) though a tile's own would not be, and the other way round
+    (a tile's cut-off halo has crease sectors the whole mesh does not)."""
+    rng = np.random.default_rng(5)
+    mesh = noisy_torus(8, 6, rng, triangles=0.4 if scheme == "loop" else 0.0)
+    for levels, tile_faces in ((1, 2), (2, 7)):
+        ref, points, lp, ln, covered, _ = gather(mesh, levels, tile_faces, limits=True, scheme=scheme, rules=rules)
+        assert_bitwise(ref, points, covered)
+        assert np.array_equal(lp[covered], ref.limit_points()[covered])
+        assert np.array_equal(ln[covered], ref.limit_normals()[covered])
+
+
+def test_level_zero_and_one_tile():
+    """Level 0: the tiles are the control faces (Loop: the fan triangles); no tile size or memory limit: one tile,
+    the whole mesh. A control vertex no face uses is in no tile (its row of refine() is its own point)."""
+    mesh = noisy_torus(6, 4, np.random.default_rng(2), triangles=0.3)
+    ref, points, *_, covered, tiles = gather(mesh, 0, 5)
+    assert_bitwise(ref, points, covered)
+    ref, points, *_, covered, tiles = gather(mesh, 0, 5, scheme="loop")
+    assert_bitwise(ref, points, covered)
+    spare = ws.Mesh(np.vstack([mesh.points, [[9.0, 9.0, 9.0]]]), mesh.face_vertex_counts, mesh.face_vertex_indices)
+    ref, points, *_, covered, tiles = gather(spare, 2, 7)
+    assert_bitwise(ref, points, covered)
+    assert not covered[mesh.num_vertices]
+    ref, points, *_, covered, tiles = gather(mesh, 2)
+    assert len(tiles) == 1
+    assert_bitwise(ref, points, covered)
+
+
+def test_tiles_are_coherent():
+    """Tiles along the Morton curve are compact: on a 16 x 16 sheet, tiles of 16 faces share fewer vertices
+    with other tiles than rows of the grid would (32 border vertices per row of 16 faces, shared on both
+    sides)."""
+    mesh = noisy_torus(16, 16, np.random.default_rng(3), tags=False, sheet=True)
+    tiles = list(refine_tiled(mesh, 1, tile_faces=16, device="cpu"))
+    assert len(tiles) == 16
+    uses = np.bincount(np.concatenate([t.vertex_ids for t in tiles]))
+    shared = np.count_nonzero(uses > 1)
+    assert shared < 0.75 * 15 * 33  # rows: 15 shared rows of 33 level-1 vertices
+
+
+def test_max_memory_sizes_tiles():
+    """max_memory: tiles are cut so that each one's prediction fits beside what the process holds; more memory,
+    fewer tiles; too little for one face is refused, naming max_memory."""
+    mesh = noisy_torus(16, 12, np.random.default_rng(4), tags=False)
+    plan = _Plan(mesh, 3, ws.Options())
+    whole = _tile_bytes(plan, np.arange(mesh.num_faces), 0, False, False)
+    share = whole // 3
+    tiles = list(refine_tiled(mesh, 3, max_memory=resident_bytes() + share, device="cpu"))
+    assert len(tiles) > 3
+    for tile in tiles:
+        assert _tile_bytes(plan, tile.control_faces, 2, False, False) <= share
+    fewer = list(refine_tiled(mesh, 3, max_memory=resident_bytes() + 2 * whole, device="cpu"))
+    assert len(fewer) == 1
+    with pytest.raises(ws.SubdivInputError) as err:
+        list(refine_tiled(mesh, 3, max_memory=resident_bytes() // 2, device="cpu"))
+    assert err.value.option == "max_memory"
+
+
+@pytest.mark.parametrize("bad", [0, -1, 2.5, True])
+def test_bad_tile_faces(bad):
+    mesh = noisy_torus(4, 4, np.random.default_rng(0), tags=False)
+    with pytest.raises(ws.SubdivInputError) as err:
+        refine_tiled(mesh, 1, tile_faces=bad)
+    assert err.value.option == "tile_faces"
+
+
+def test_obj_tiles_stream(tmp_path):
+    """write_obj_tiles: one OBJ of the tiles, every used vertex written once (border vertices too), the faces
+    refine()'s faces in tile order, their points refine()'s."""
+    from warp_subdiv.io.obj import write_obj_tiles
+
+    mesh = noisy_torus(6, 5, np.random.default_rng(8))
+    ref = ws.refine(mesh, 2, device="cpu")
+    tiles = list(refine_tiled(mesh, 2, tile_faces=4, device="cpu"))
+    path = str(tmp_path / "tiled.obj")
+    vertices, faces = write_obj_tiles(path, iter(tiles))
+    back = read_obj(path).mesh
+    assert vertices == back.num_vertices == len(np.unique(ref.face_vertex_indices))
+    order = np.concatenate([t.face_ids for t in tiles])
+    assert faces == back.num_faces == len(order)
+    starts = np.concatenate([[0], np.cumsum(ref.face_vertex_counts)])
+    ref_corners = np.concatenate([np.arange(starts[f], starts[f + 1]) for f in order])
+    assert np.array_equal(back.points[back.face_vertex_indices].astype(np.float32),
+                          ref.points[ref.face_vertex_indices[ref_corners]])
+
+
+def test_cli_obj_in_tiles(tmp_path, capsys, monkeypatch):
+    """`refine --max-memory` with OBJ output whose refinement would not fit: written in tiles, the same faces
+    and points as the in-core run. (The tiles are sized as if the process held only Warp's runtime, as the
+    guard's model has it, so that a limit the guard refuses leaves room for tiles.)"""
+    import re
+
+    import warp_subdiv.tiled
+    from warp_subdiv.cli import main
+    from warp_subdiv.io.obj import write_obj
+
+    mesh = noisy_torus(12, 10, np.random.default_rng(9), tags=False)
+    src = str(tmp_path / "in.obj")
+    write_obj(src, mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices)
+    full, tiled = str(tmp_path / "full.obj"), str(tmp_path / "tiled.obj")
+    assert main(["refine", src, "-o", full, "--levels", "3", "--device", "cpu", "--max-memory", "none"]) == 0
+    plan = _Plan(mesh, 3, ws.Options())
+    limit = 64 * 2**20 + _tile_bytes(plan, np.arange(mesh.num_faces), 0, False, False) // 3
+    monkeypatch.setattr(warp_subdiv.tiled, "resident_bytes", lambda: 0)
+    assert main(["refine", src, "-o", tiled, "--levels", "3", "--device", "cpu", "--max-memory", str(limit)]) == 0
+    assert re.search(r"3 levels in [2-9]\d* tiles", capsys.readouterr().out)
+    a, b = read_obj(full).mesh, read_obj(tiled).mesh
+    assert a.num_faces == b.num_faces and b.num_vertices == a.num_vertices
+    key = lambda m: np.sort(m.points[m.face_vertex_indices].reshape(m.num_faces, -1), axis=0)  # noqa: E731
+    assert np.array_equal(key(a), key(b))
+
+
+def test_ids_past_32_bits():
+    """Ids are int64 where the refined mesh's counts pass 2^31 (level 15 of a cube: 6.4e9 faces; only the plan
+    is made), int32 below; the counts per level follow the closed forms."""
+    cube = read_obj(os.path.join(MESHES, "cube.obj")).mesh
+    deep = _Plan(cube, 15, ws.Options())
+    assert deep.id_dtype == np.int64 and deep.level_counts[-1][1] == 6 * 4**15
+    assert deep.first_child[-1] == 5 * 4**15
+    shallow = _Plan(cube, 3, ws.Options())
+    assert shallow.id_dtype == np.int32
+    ref = ws.refine(cube, 3, device="cpu")
+    assert shallow.level_counts[-1][:2] == (len(ref.points), len(ref.face_vertex_counts))
+
+
+def test_non_manifold_warns_once():
+    """The whole mesh's analysis warns of non-manifold input once; the tiles' own analyses do not warn."""
+    mesh = read_obj(os.path.join(DATA, "opensubdiv-shapes", "catmark_nonman_edges.obj")).mesh
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        tiles = list(refine_tiled(mesh, 1, tile_faces=20, device="cpu"))
+    assert len(tiles) > 1
+    assert sum(issubclass(w.category, NonManifoldWarning) for w in caught) == 1
+
+
+def test_cli_usd_in_tiles(tmp_path, capsys, monkeypatch):
+    """`refine in.obj -o out.usda --max-memory` where the refinement would not fit: an Xform of tile meshes, one
+    layer per tile loaded as a payload; gathered by their vertex ids the tiles are the in-core points, every face
+    once; no validation error."""
+    import re
+
+    from test_usd_production import validation_errors
+
+    import warp_subdiv.tiled
+    from pxr import Usd, UsdGeom
+    from warp_subdiv.cli import main
+    from warp_subdiv.io.obj import write_obj
+
+    mesh = noisy_torus(10, 8, np.random.default_rng(10), tags=False)
+    src = str(tmp_path / "in.obj")
+    write_obj(src, mesh.points, mesh.face_vertex_counts, mesh.face_vertex_indices)
+    plan = _Plan(mesh, 3, ws.Options())
+    limit = 64 * 2**20 + _tile_bytes(plan, np.arange(mesh.num_faces), 0, False, False) // 3
+    monkeypatch.setattr(warp_subdiv.tiled, "resident_bytes", lambda: 0)
+    out = str(tmp_path / "out" / "tiled.usda")
+    assert main(["refine", src, "-o", out, "--levels", "3", "--device", "cpu", "--max-memory", str(limit)]) == 0
+    assert re.search(r"3 levels in [2-9]\d* tiles", capsys.readouterr().out)
+    ref = ws.refine(read_obj(src).mesh, 3, device="cpu")
+    stage = Usd.Stage.Open(out)
+    root = stage.GetDefaultPrim()
+    assert root.GetTypeName() == "Xform"
+    points = np.full(ref.points.shape, np.nan, np.float32)
+    faces = 0
+    for child in root.GetChildren():
+        tile = UsdGeom.Mesh(child)
+        ids = np.array(child.GetAttribute("warpSubdiv:vertexIds").Get())
+        pts = np.array(tile.GetPointsAttr().Get())
+        assert np.all(np.isnan(points[ids]) | (points[ids] == pts))
+        points[ids] = pts
+        faces += len(tile.GetFaceVertexCountsAttr().Get())
+    assert len(root.GetChildren()) > 1 and faces == len(ref.face_vertex_counts)
+    assert np.array_equal(points, ref.points)
+    assert not validation_errors(out)
+
+
+@pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
+@pytest.mark.parametrize("mode", ["corners-plus1", "boundaries", "all"])
+def test_face_varying_bitwise(scheme, mode):
+    """A face-varying channel with seams (values split at random vertices): each tile's values and indices,
+    gathered by value id, are Refiner.evaluate_face_varying's bitwise."""
+    rng = np.random.default_rng(13)
+    mesh = noisy_torus(8, 6, rng, triangles=0.3)
+    # a value per (vertex, face) pair at a random third of the vertices, one per vertex elsewhere
+    corners = mesh.face_vertex_indices.astype(np.int64)
+    split = rng.random(mesh.num_vertices) < 0.3
+    keys = np.where(split[corners], mesh.num_vertices + np.arange(len(corners)), corners)
+    _, indices = np.unique(keys, return_inverse=True)
+    values = rng.random((int(indices.max()) + 1, 2))
+    for levels, tile_faces in ((1, 1), (2, 5)):
+        refiner = ws.Refiner(mesh, levels, scheme=scheme, device="cpu")
+        ref_values, ref_indices = refiner.evaluate_face_varying(values, indices, mode)
+        ref = refiner.refine()
+        starts = np.concatenate([[0], np.cumsum(ref.face_vertex_counts)])
+        gathered = np.full(ref_values.shape, np.nan)
+        for tile in refine_tiled(mesh, levels, tile_faces=tile_faces, scheme=scheme, device="cpu",
+                                 face_varying=(values, indices, mode)):
+            fv = tile.face_varying
+            if not len(tile.face_ids):  # a tile of hole faces
+                continue
+            known = ~np.isnan(gathered[fv.value_ids, 0])
+            assert np.array_equal(gathered[fv.value_ids][known], fv.values[known])
+            gathered[fv.value_ids] = fv.values
+            corners_of_tile = np.concatenate([np.arange(starts[f], starts[f + 1]) for f in tile.face_ids])
+            assert np.array_equal(fv.value_ids[fv.indices], ref_indices[corners_of_tile])
+        used = np.isin(np.arange(len(ref_values)), ref_indices)
+        assert np.array_equal(gathered[used].astype(ref_values.dtype).view(np.uint8), ref_values[used].view(np.uint8))
