@@ -103,6 +103,13 @@ class Launcher:
         _threads.each_chunk(lambda a, b: wp.launch(kernel, dim=b - a, inputs=inputs_of(a, b), device=dev), n,
                             self.threads)
 
+    @contextlib.contextmanager
+    def together(self):
+        """The block's launches read nothing another of them writes, and write disjoint rows: they may run
+        with no barrier between them. Direct launches keep theirs (one after another, as issued); a
+        :class:`Recorder` on several threads records them as one group whose ranges share one queue."""
+        yield
+
 
 def launcher(device_or_launcher) -> Launcher:
     """A :class:`Launcher` as given, or a one-thread launcher on the given device."""
@@ -114,8 +121,9 @@ def launcher(device_or_launcher) -> Launcher:
 class Recorder(Launcher):
     """A :class:`Launcher` that records its launches (``wp.launch(..., record_cmd=True)``) instead of running
     them: the functions of :mod:`~warp_subdiv.evaluator.dispatch` issue through it the launches they would run,
-    split into the same row ranges, and a :class:`LaunchPlan` replays them. ``groups``: per launch, its recorded
-    row ranges (one, or several per CPU thread)."""
+    split into the same row ranges, and a :class:`LaunchPlan` replays them. ``groups``: per launch (or per block
+    of launches issued :meth:`together` on several threads), its recorded row ranges (one, or several per CPU
+    thread)."""
 
     def __init__(self, device, threads: int = 1):
         super().__init__(device, threads)
@@ -123,6 +131,13 @@ class Recorder(Launcher):
 
     def _spans(self, n: int) -> list[tuple[int, int]]:
         return _threads.chunks(n, self.threads)
+
+    @contextlib.contextmanager
+    def together(self):
+        start = len(self.groups)
+        yield
+        if self.threads > 1 and len(self.groups) - start > 1:  # one queue for every range of the block
+            self.groups[start:] = [[launch for group in self.groups[start:] for launch in group]]
 
     def _record(self, kernel, dim: int, inputs: list):
         return wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, record_cmd=True)
