@@ -18,6 +18,7 @@ import warp as wp
 
 from ..runtime import estimate
 from ..runtime import threads as _threads
+from ..runtime.pages import small_pages
 from .interop import is_contiguous_rows
 from .launch import OwnStream
 from .records import PRECISIONS, Uploader
@@ -145,24 +146,21 @@ class Transfers:
                       stream=self.own.stream)
 
     def to_host(self, arr: wp.array) -> np.ndarray:
-        """A new numpy array with the contents of device array ``arr``. On CUDA one transfer into a reused pinned
-        buffer, then a copy.
-
-        The copy keeps the host's transparent-huge-page hint (numpy's default), unlike the build's temporaries
-        (:func:`~warp_subdiv.runtime.pages.small_pages`): the first touch of a fresh output is page faults, and
-        faults of 4 KiB pages of one array neither scale over threads nor come cheap (a 300 MB copy here: 166
-        ms on one thread, 175 ms on two, against 67 ms on either with 2 MiB pages)."""
-        if self.device.is_cpu:
-            out = arr.numpy()
-        else:
-            stage, out = self._staging.get("out", arr.shape, arr.dtype)
-            wp.copy(stage, arr, stream=self.own.stream)
-            wp.synchronize_stream(self.own.stream)
-        if self.threads == 1 or len(out) < 2 * _threads.MIN_ROWS:
-            return np.array(out, copy=True)
-        copy = np.empty_like(out)  # copied in row ranges on the evaluator's threads (numpy frees the GIL)
-        _threads.each_chunk(lambda a, b: np.copyto(copy[a:b], out[a:b]), len(out), self.threads)
-        return copy
+        """A new numpy array with the contents of device array ``arr`` (written once, read in order: small
+        pages, see :func:`warp_subdiv.runtime.pages.small_pages`). On CUDA one transfer into a reused pinned
+        buffer, then a copy."""
+        with small_pages():
+            if self.device.is_cpu:
+                out = arr.numpy()
+            else:
+                stage, out = self._staging.get("out", arr.shape, arr.dtype)
+                wp.copy(stage, arr, stream=self.own.stream)
+                wp.synchronize_stream(self.own.stream)
+            if self.threads == 1 or len(out) < 2 * _threads.MIN_ROWS:
+                return np.array(out, copy=True)
+            copy = np.empty_like(out)  # copied in row ranges on the evaluator's threads (numpy frees the GIL)
+            _threads.each_chunk(lambda a, b: np.copyto(copy[a:b], out[a:b]), len(out), self.threads)
+            return copy
 
 
 class LimitOutputs:

@@ -1,5 +1,5 @@
 """Memory pages of large temporaries: numpy's transparent-huge-page hint switched off while arrays that are
-written once and read in order are made (a refinement step's topology)."""
+written once and read in order are made (a refinement step's topology, output copies)."""
 import contextlib
 import threading
 
@@ -15,7 +15,7 @@ def small_pages():
 
     A refinement step writes many large temporaries once each; with the hint the kernel zeroes (and on a
     fragmented machine first compacts) 2 MiB pages at every first touch (BENCHMARKS.md, "Where the build
-    time goes"). Used for topology steps; everything else keeps the host's setting.
+    time goes"). Used for topology steps and output copies; everything else keeps the host's setting.
     numpy's switch is private: without it, nothing changes.
     """
     switch = getattr(getattr(getattr(np, "_core", None), "multiarray", None), "_set_madvise_hugepage", None)
