@@ -28,6 +28,43 @@ def test_ranges_cover_rows_in_order():
         assert all(r[i][1] == r[i + 1][0] for i in range(len(r) - 1))
 
 
+def test_chunks_cover_rows_several_per_thread():
+    """chunks() covers 0..n in order with up to CHUNKS_PER_THREAD contiguous ranges per thread, none shorter
+    than min_rows; one range for one thread or small n."""
+    assert th.chunks(10**6, 1) == [(0, 10**6)] and th.chunks(100, 2, min_rows=64) == [(0, 100)]
+    assert th.chunks(0, 2) == []
+    r = th.chunks(10**6, 2, min_rows=1000)
+    assert len(r) == 2 * th.CHUNKS_PER_THREAD and r[0][0] == 0 and r[-1][1] == 10**6
+    assert all(r[i][1] == r[i + 1][0] for i in range(len(r) - 1))
+    assert len(th.chunks(5000, 2, min_rows=1000)) == 5
+
+
+def test_run_shared_runs_every_job_once_on_several_threads():
+    """run_shared() runs each job exactly once, the calling thread and the pool taking jobs from one queue
+    (a job that waits does not hold back the others), and raises a job's exception after the others stop."""
+    done, names, lock = [], set(), threading.Lock()
+    started = threading.Event()
+
+    def job(k):
+        def f():
+            if k == 0:  # the first job waits until another thread has run one: two threads take jobs
+                started.wait(10)
+            with lock:
+                done.append(k)
+                names.add(threading.current_thread().name)
+                started.set()
+        return f
+
+    th.run_shared([job(k) for k in range(20)], 2)
+    assert sorted(done) == list(range(20)) and len(names) == 2
+
+    def fail():
+        raise ValueError("boom")
+
+    with pytest.raises(ValueError, match="boom"):
+        th.run_shared([fail] + [job(k) for k in range(5)], 2)
+
+
 @pytest.mark.parametrize("name,scheme,normals", [
     ("cube_creased", "catmull-clark", False), ("quad_lshape", "catmull-clark", True),
     ("tri_hexfan", "loop", False), ("mixed_prism", "loop", True), ("mixed_prism", "catmull-clark", False)])

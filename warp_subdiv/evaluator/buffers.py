@@ -159,7 +159,7 @@ class Transfers:
             if self.threads == 1 or len(out) < 2 * _threads.MIN_ROWS:
                 return np.array(out, copy=True)
             copy = np.empty_like(out)  # copied in row ranges on the evaluator's threads (numpy frees the GIL)
-            _threads.map_ranges(lambda a, b: np.copyto(copy[a:b], out[a:b]), len(out), self.threads)
+            _threads.each_chunk(lambda a, b: np.copyto(copy[a:b], out[a:b]), len(out), self.threads)
             return copy
 
 

@@ -27,21 +27,24 @@ def apply(record, src: wp.array, dst: wp.array, device) -> None:
 def _(record: QuadStep, src, dst, device) -> None:
     k, run = _kernels(), launcher(device)
     V, F = record.num_vertices, record.num_faces
-    # face points first: edge and vertex points read them from dst (each launch ends before the next starts)
+    # face points first: edge and vertex points read them from dst (the face points end before they start);
+    # edge and vertex points read only src and face points and write their own rows: no barrier between them;
+    # the explicit rows (the rows they skip) come after both, as they always did
     run.rows(k.quad_face_points, F, [record.corner_vert, src, dst, V, record.quarter])
-    if record.edge_ends is not None:  # expanded tables (the CPU's)
-        run.rows(k.quad_edge_points_expanded, record.num_edges,
-                 [record.edge_ends, record.edge_regular, src, dst, V, V + F, record.edge_weights])
-        run.rows(k.quad_vertex_points_expanded, V,
-                 [record.ring_offsets, record.ring_vertices, record.ring_faces, record.vertex_regular, src, dst, V,
-                  record.ring_weights])
-    else:
-        run.rows(k.quad_edge_points, record.num_edges,
-                 [record.edge_neighbours, record.corner_vert, record.edge_regular, src, dst, V, V + F,
-                  record.edge_weights])
-        run.rows(k.quad_vertex_points, V,
-                 [record.ring_offsets, record.ring, record.corner_vert, record.vertex_regular, src, dst, V,
-                  record.ring_weights])
+    with run.together():
+        if record.edge_ends is not None:  # expanded tables (the CPU's)
+            run.rows(k.quad_edge_points_expanded, record.num_edges,
+                     [record.edge_ends, record.edge_regular, src, dst, V, V + F, record.edge_weights])
+            run.rows(k.quad_vertex_points_expanded, V,
+                     [record.ring_offsets, record.ring_vertices, record.ring_faces, record.vertex_regular, src,
+                      dst, V, record.ring_weights])
+        else:
+            run.rows(k.quad_edge_points, record.num_edges,
+                     [record.edge_neighbours, record.corner_vert, record.edge_regular, src, dst, V, V + F,
+                      record.edge_weights])
+            run.rows(k.quad_vertex_points, V,
+                     [record.ring_offsets, record.ring, record.corner_vert, record.vertex_regular, src, dst, V,
+                      record.ring_weights])
     apply(record.explicit, src, dst, run)
 
 
@@ -49,10 +52,11 @@ def _(record: QuadStep, src, dst, device) -> None:
 def _(record: TriangleStep, src, dst, device) -> None:
     k, run = _kernels(), launcher(device)
     V = record.num_vertices
-    run.rows(k.tri_edge_points, record.num_edges,
-             [record.edge_neighbours, record.edge_regular, src, dst, V, record.edge_weights])
-    run.rows(k.tri_vertex_points, V, [record.ring_offsets, record.ring, record.vertex_regular, src, dst,
-                                      record.ring_weights])
+    with run.together():  # both read only src and write their own rows; the explicit rows come after both
+        run.rows(k.tri_edge_points, record.num_edges,
+                 [record.edge_neighbours, record.edge_regular, src, dst, V, record.edge_weights])
+        run.rows(k.tri_vertex_points, V, [record.ring_offsets, record.ring, record.vertex_regular, src, dst,
+                                          record.ring_weights])
     apply(record.explicit, src, dst, run)
 
 

@@ -1,11 +1,12 @@
 """How launches run: directly, split into row ranges on CPU threads, or recorded once and replayed.
 
 A :class:`Launcher` launches kernels on an explicit device; on the CPU it splits each launch into a few
-contiguous row ranges run on several threads (:mod:`warp_subdiv.runtime.threads`; Warp runs one CPU launch on one
-thread and releases the GIL while a kernel runs). Every row is computed by the same code whatever the split, so
-results are bitwise equal to one thread's. A :class:`Recorder` issues the same launches as records, and a
-:class:`LaunchPlan` replays them (as captured Warp graphs, or as native calls with their arguments packed once).
-:func:`load_kernels` is the one registry of loaded kernel modules (the evaluator's, the gradients', the bake's).
+contiguous row ranges that several threads take from one queue (:mod:`warp_subdiv.runtime.threads`; Warp runs
+one CPU launch on one thread and releases the GIL while a kernel runs). Every row is computed by the same code
+whatever the split, so results are bitwise equal to one thread's. A :class:`Recorder` issues the same launches
+as records, and a :class:`LaunchPlan` replays them (as captured Warp graphs, or as native calls with their
+arguments packed once). :func:`load_kernels` is the one registry of loaded kernel modules (the evaluator's,
+the gradients', the bake's).
 """
 from __future__ import annotations
 
@@ -65,8 +66,9 @@ def load_kernels(device, modules=None) -> None:
 
 class Launcher:
     """Launches kernels on ``device``; on the CPU with ``threads`` > 1, a launch of many rows runs as a few
-    contiguous row ranges on the process's thread pool (the calling thread runs the first), and returns when
-    every range is done. On CUDA one launch, whatever ``threads``."""
+    contiguous row ranges (:func:`~warp_subdiv.runtime.threads.chunks`: several per thread) that the calling
+    thread and the process's thread pool take from one queue, and returns when every range is done. On CUDA one
+    launch, whatever ``threads``."""
 
     def __init__(self, device, threads: int = 1):
         self.device = wp.get_device(device)
@@ -86,7 +88,7 @@ class Launcher:
             wp.launch(kernel, dim=n, inputs=inputs + [0], device=self.device)
             return
         dev = self.device
-        _threads.map_ranges(lambda a, b: wp.launch(kernel, dim=b - a, inputs=inputs + [a], device=dev), n,
+        _threads.each_chunk(lambda a, b: wp.launch(kernel, dim=b - a, inputs=inputs + [a], device=dev), n,
                             self.threads)
 
     def sliced(self, kernel, n: int, inputs_of) -> None:
@@ -98,8 +100,15 @@ class Launcher:
             wp.launch(kernel, dim=n, inputs=inputs_of(0, n), device=self.device)
             return
         dev = self.device
-        _threads.map_ranges(lambda a, b: wp.launch(kernel, dim=b - a, inputs=inputs_of(a, b), device=dev), n,
+        _threads.each_chunk(lambda a, b: wp.launch(kernel, dim=b - a, inputs=inputs_of(a, b), device=dev), n,
                             self.threads)
+
+    @contextlib.contextmanager
+    def together(self):
+        """The block's launches read nothing another of them writes, and write disjoint rows: they may run
+        with no barrier between them. Direct launches keep theirs (one after another, as issued); a
+        :class:`Recorder` on several threads records them as one group whose ranges share one queue."""
+        yield
 
 
 def launcher(device_or_launcher) -> Launcher:
@@ -112,17 +121,23 @@ def launcher(device_or_launcher) -> Launcher:
 class Recorder(Launcher):
     """A :class:`Launcher` that records its launches (``wp.launch(..., record_cmd=True)``) instead of running
     them: the functions of :mod:`~warp_subdiv.evaluator.dispatch` issue through it the launches they would run,
-    split into the same row ranges, and a :class:`LaunchPlan` replays them. ``groups``: per launch, its recorded
-    row ranges (one, or one per CPU thread)."""
+    split into the same row ranges, and a :class:`LaunchPlan` replays them. ``groups``: per launch (or per block
+    of launches issued :meth:`together` on several threads), its recorded row ranges (one, or several per CPU
+    thread)."""
 
     def __init__(self, device, threads: int = 1):
         super().__init__(device, threads)
         self.groups: list[list] = []
 
     def _spans(self, n: int) -> list[tuple[int, int]]:
-        if self.threads == 1 or n < 2 * _threads.MIN_ROWS:
-            return [(0, n)]
-        return _threads.ranges(n, self.threads, _threads.MIN_ROWS)
+        return _threads.chunks(n, self.threads)
+
+    @contextlib.contextmanager
+    def together(self):
+        start = len(self.groups)
+        yield
+        if self.threads > 1 and len(self.groups) - start > 1:  # one queue for every range of the block
+            self.groups[start:] = [[launch for group in self.groups[start:] for launch in group]]
 
     def _record(self, kernel, dim: int, inputs: list):
         return wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, record_cmd=True)
@@ -143,7 +158,8 @@ class LaunchPlan:
     CUDA graph on CUDA, Warp's replay of the recorded launches on the CPU) and replayed with
     ``wp.capture_launch``; without, or where a capture fails, the recorded launches run one after another (on
     the CPU each as one native call with its arguments packed once, :func:`_cpu_call`). A launch split into
-    row ranges (CPU threads) runs its ranges on the thread pool. Either way every launch runs with the
+    row ranges (CPU threads) runs its ranges from one queue on the thread pool and the calling thread. Either way
+    every launch runs with the
     arguments it was recorded with, in the recorded order: results are bitwise those of the direct launches.
     The buffers a plan was recorded over must outlive it and keep their addresses.
     """
@@ -197,7 +213,7 @@ class LaunchPlan:
                 for call in item:
                     call()
             else:
-                _threads.run(item, self.threads)
+                _threads.run_shared(item, self.threads)
 
 
 #: ctypes argument structs of recorded CPU launches, by their fields (:func:`_cpu_call`).

@@ -22,6 +22,9 @@ from ..errors import SubdivInputError
 
 #: Rows below which a launch is not split (a launch costs about 24 us of GIL-held Python time).
 MIN_ROWS = 32768
+#: Ranges per thread of a shared split (:func:`chunks`): a thread that finishes early, or runs while another
+#: is descheduled by other processes, takes the next range instead of waiting at the end.
+CHUNKS_PER_THREAD = 4
 
 _default: int | None = None
 _pools: dict[int, ThreadPoolExecutor] = {}
@@ -94,6 +97,48 @@ def ranges(n: int, parts: int, min_rows: int = MIN_ROWS) -> list[tuple[int, int]
     return [(bounds[i], bounds[i + 1]) for i in range(parts) if bounds[i + 1] > bounds[i]]
 
 
+def chunks(n: int, threads: int, min_rows: int | None = None) -> list[tuple[int, int]]:
+    """Contiguous (start, stop) ranges covering 0..n for :func:`run_shared` on ``threads`` threads: up to
+    :data:`CHUNKS_PER_THREAD` per thread, none shorter than ``min_rows`` (None: :data:`MIN_ROWS`); one range
+    for one thread or small n."""
+    min_rows = MIN_ROWS if min_rows is None else min_rows
+    if threads <= 1 or n < 2 * min_rows:
+        return [(0, n)] if n > 0 else []
+    return ranges(n, threads * CHUNKS_PER_THREAD, min_rows)
+
+
+def run_shared(jobs, threads: int) -> None:
+    """Run the callables ``jobs`` (no arguments, results dropped) on ``threads`` threads that take them in
+    order from one shared queue, the calling thread among them: no thread waits while a job is left, whatever
+    the other processes on the machine do to one of them. The first exception is raised after every started
+    job has finished (no new job starts after one failed)."""
+    jobs = list(jobs)
+    ex = pool(threads)
+    if ex is None or len(jobs) <= 1 or getattr(_local, "in_pool", False):
+        for job in jobs:
+            job()
+        return
+    queue = iter(jobs)  # next() on a list iterator is atomic under the GIL
+    errors: list = []
+
+    def drain():
+        for job in queue:
+            if errors:
+                return
+            try:
+                job()
+            except BaseException as exc:  # noqa: BLE001 (re-raised by the caller after the others stop)
+                errors.append(exc)
+                return
+
+    futures = [ex.submit(_pooled, drain) for _ in range(min(threads, len(jobs)) - 1)]
+    drain()
+    for f in futures:
+        f.result()
+    if errors:
+        raise errors[0]
+
+
 def run(jobs, threads: int) -> list:
     """Run the callables ``jobs`` (no arguments) on ``threads`` threads, the first on the calling thread;
     returns their results in order. The first exception is raised after every job has finished."""
@@ -138,3 +183,8 @@ def _pooled(job):
 def map_ranges(fn, n: int, threads: int, min_rows: int = MIN_ROWS) -> list:
     """``fn(start, stop)`` over contiguous ranges of 0..n on ``threads`` threads; results in range order."""
     return run([(lambda a=a, b=b: fn(a, b)) for a, b in ranges(n, threads, min_rows)], threads)
+
+
+def each_chunk(fn, n: int, threads: int, min_rows: int | None = None) -> None:
+    """``fn(start, stop)`` over the :func:`chunks` of 0..n, run by :func:`run_shared` (results dropped)."""
+    run_shared([(lambda a=a, b=b: fn(a, b)) for a, b in chunks(n, threads, min_rows)], threads)
