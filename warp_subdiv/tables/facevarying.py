@@ -410,12 +410,32 @@ def _single_face(channel: FaceVaryingChannel, rank: np.ndarray):
     return single
 
 
-def _put(out: np.ndarray, starts: np.ndarray, width: int, rows: np.ndarray) -> None:
-    """``out[starts[i] + j] = rows[i, j]`` for j < ``width``: a slice where the runs follow each other."""
-    if len(starts) and starts[-1] - starts[0] == (len(starts) - 1) * width and np.all(np.diff(starts) == width):
-        out[starts[0]:starts[0] + rows.size] = rows.reshape(-1)
-    else:
+#: Runs of consecutive blocks :func:`_put` writes one slice at a time at most (more: one scatter).
+PUT_RUNS = 1024
+
+
+def _put(out: np.ndarray, starts: np.ndarray, base: np.ndarray, table: np.ndarray, which: np.ndarray,
+         scale: np.ndarray | None = None) -> None:
+    """``out[starts[i] + j] = base[i] + table[which[i], j] * scale[i]`` (``scale`` None: 1) for j < the table's
+    width: where the blocks run on from each other (islands of one size in face order, a few runs), each run is
+    computed straight into its slice of ``out``, with no index array and no temporary of the whole."""
+    width = table.shape[1]
+    breaks = np.flatnonzero(np.diff(starts) != width) + 1
+    if len(breaks) >= PUT_RUNS:
+        rows = np.take(table, which, axis=0)
+        if scale is not None:
+            rows *= scale[:, None]
+        rows += base[:, None]
         out[(starts[:, None] + np.arange(width)).reshape(-1)] = rows.reshape(-1)
+        return
+    bounds = np.concatenate([[0], breaks, [len(starts)]])
+    for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
+        rows = np.take(table, which[a:b], axis=0)
+        if scale is not None:
+            rows *= scale[a:b, None]
+        start = int(starts[a])
+        np.add(rows, base[a:b, None], out=out[start:start + (b - a) * width].reshape(b - a, width),
+               casting="unsafe")
 
 
 class _Islands:
@@ -450,13 +470,19 @@ class _Islands:
             order = np.argsort(ids, axis=1, kind="stable")
             rank = np.argsort(order, axis=1, kind="stable")  # each corner's place among its face's values
             key = (rank * n ** np.arange(n)).sum(axis=1)
-            _, which, group_size = np.unique(key, return_inverse=True, return_counts=True)
-            common = group_size[which.reshape(-1)] >= MIN_ISLANDS
-            if not common.all():
+            # the vertex orders (groups): each one's first island and each island's group, sorted by key
+            _, first, which, group_size = np.unique(key, return_index=True, return_inverse=True,
+                                                    return_counts=True)
+            which = which.reshape(-1)
+            kept = group_size >= MIN_ISLANDS
+            if not kept.all():  # whole groups leave: renumber the rest's groups and first islands
+                common = kept[which]
                 island[faces[~common]] = False
-                faces, ids, order, rank, key = faces[common], ids[common], order[common], rank[common], key[common]
+                first = (np.cumsum(common) - 1)[first[kept]]
+                which = (np.cumsum(kept) - 1)[which[common]]
+                faces, ids, order, rank = faces[common], ids[common], order[common], rank[common]
             if len(faces):
-                orders.append((n, faces, ids, order, rank, key))
+                orders.append((n, faces, ids, order, rank, first, which))
         rest = ~island
         self.rest = self.rest_source = self.rest_rows = None
         if rest.any():
@@ -469,11 +495,10 @@ class _Islands:
         rest_values = 0 if self.rest is None else self.rest.num_vertices
         self.first_use_order = self.rest is None
         sizes, value_count = [], np.zeros(len(counts), dtype=np.int64)
-        for n, faces, ids, order, rank, key in orders:
-            _, first, which = np.unique(key, return_index=True, return_inverse=True)
+        for n, faces, ids, order, rank, first, which in orders:
             singles = [_single_face(channel, rank[f]) for f in first]
             value_count[faces] = singles[0][1]  # (every single face of a size has as many values)
-            sizes.append((faces, tags.source[np.take_along_axis(ids, order, axis=1)], which.reshape(-1), singles))
+            sizes.append((faces, tags.source[np.take_along_axis(ids, order, axis=1)], which, singles))
         # values: the rest's, then each island's in face order, each numbered in the order its refined faces
         # first use them; so where every face is an island they come in the order the refined faces use them
         value_start = rest_values + np.cumsum(value_count) - value_count
@@ -489,18 +514,18 @@ class _Islands:
         self.order[:rest_values] = np.arange(rest_values)
         block = rest_values
         for faces, values, which, singles in sizes:
-            m, corners = singles[0][1], len(singles[0][3])
+            m = singles[0][1]
             group_size = np.bincount(which, minlength=len(singles))
             members = np.argsort(which, kind="stable")  # the islands of each group, in face order
             group_first = np.cumsum(group_size) - group_size
             place = np.empty(len(faces), dtype=np.int64)  # each island's place in its group
             place[members] = np.arange(len(faces)) - np.repeat(group_first, group_size)
             group_block = block + group_first * m
-            own = np.take(np.stack([s[3] for s in singles]), which, axis=0)  # (K, corners)
-            old_id = np.take(np.stack([s[2] for s in singles]), which, axis=0)  # (K, m)
+            own = np.stack([s[3] for s in singles]).astype(np.int64)  # (groups, corners)
+            old_id = np.stack([s[2] for s in singles]).astype(np.int64)  # (groups, m)
             starts = value_start[faces]
-            _put(indices, first_out[faces] * self.size, corners, starts[:, None] + own)
-            _put(self.order, starts, m, (group_block[which] + place)[:, None] + old_id * group_size[which][:, None])
+            _put(indices, first_out[faces] * self.size, starts, own, which)
+            _put(self.order, starts, group_block[which] + place, old_id, which, group_size[which])
             for g, single in enumerate(singles):
                 chosen = members[group_first[g]:group_first[g] + group_size[g]]
                 self.groups.append((single[0], np.ascontiguousarray(values[chosen].T)))
