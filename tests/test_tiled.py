@@ -372,3 +372,103 @@ def test_face_varying_bitwise(scheme, mode):
             assert np.array_equal(fv.value_ids[fv.indices], ref_indices[corners_of_tile])
         used = np.isin(np.arange(len(ref_values)), ref_indices)
         assert np.array_equal(gathered[used].astype(ref_values.dtype).view(np.uint8), ref_values[used].view(np.uint8))
+
+
+def _grid_stage(path, n=16):
+    """A stage with an n x n Catmull-Clark grid (transformed, bound to a material, a constant displayColor and
+    a face-varying st) and a small quad that fits any budget."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+
+    stage = Usd.Stage.CreateNew(path)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    material = UsdShade.Material.Define(stage, "/World/Looks/Mat")
+    u, v = np.meshgrid(np.arange(n + 1), np.arange(n + 1))
+    rng = np.random.default_rng(3)
+    points = np.stack([u.ravel(), v.ravel(), rng.normal(0, 0.2, u.size)], 1).astype(np.float32)
+    quads = np.array([[j * (n + 1) + i, j * (n + 1) + i + 1, (j + 1) * (n + 1) + i + 1, (j + 1) * (n + 1) + i]
+                      for j in range(n) for i in range(n)])
+    grid = UsdGeom.Mesh.Define(stage, "/World/Grid")
+    grid.CreatePointsAttr(points)
+    grid.CreateFaceVertexCountsAttr([4] * len(quads))
+    grid.CreateFaceVertexIndicesAttr(quads.ravel().tolist())
+    grid.CreateSubdivisionSchemeAttr("catmullClark")
+    grid.CreateExtentAttr(UsdGeom.PointBased.ComputeExtent(points))
+    grid.AddTranslateOp().Set(Gf.Vec3d(1, 2, 3))
+    grid.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set([(0.2, 0.4, 0.6)])
+    st = UsdGeom.PrimvarsAPI(grid).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                 UsdGeom.Tokens.faceVarying)
+    st.Set(points[quads.ravel(), :2] / n)
+    UsdShade.MaterialBindingAPI.Apply(grid.GetPrim()).Bind(material)
+    small = UsdGeom.Mesh.Define(stage, "/World/Small")
+    small.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
+    small.CreateFaceVertexCountsAttr([4])
+    small.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    small.CreateExtentAttr([(0, 0, 0), (1, 1, 0)])
+    stage.Save()
+    return grid.GetPrim(), points, quads
+
+
+def test_usd_bake_in_tiles(tmp_path, monkeypatch):
+    """A USD mesh that does not fit max_memory is baked in tiles: the mesh deactivated, a sibling Xform of tile
+    meshes with its transform, binding and constant primvars; gathered by their vertex ids the tiles are
+    refine()'s points and face-varying values bitwise, every face once; the mesh that fits is refined as
+    always; no validation error."""
+    from test_usd_production import validation_errors
+
+    import warp_subdiv.tiled
+    from pxr import Usd, UsdGeom, UsdShade
+    from warp_subdiv.usd import refine_usd
+
+    src, out = str(tmp_path / "in.usda"), str(tmp_path / "out.usda")
+    _, points, quads = _grid_stage(src)
+    mesh = ws.Mesh(points, np.full(len(quads), 4), quads.ravel())
+    monkeypatch.setattr(warp_subdiv.tiled, "resident_bytes", lambda: 0)
+    plan = _Plan(mesh, 3, ws.Options())
+    limit = ws.runtime.estimate.RUNTIME_BYTES + _tile_bytes(plan, np.arange(mesh.num_faces), 0, True, False, 3) // 3
+    result = refine_usd(src, out, 3, device="cpu", max_memory=limit, normals=True, resume=False)
+    assert any("refined in tiles" in w for w in result.warnings)
+    ref = ws.refine(mesh, 3, device="cpu")
+    stage = Usd.Stage.Open(out)
+    assert not stage.GetPrimAtPath("/World/Grid").IsActive()
+    assert UsdGeom.Mesh(stage.GetPrimAtPath("/World/Small")).GetSubdivisionSchemeAttr().Get() == "none"
+    root = stage.GetPrimAtPath("/World/Grid_tiles")
+    assert root.GetTypeName() == "Xform"
+    assert UsdGeom.Xformable(root).GetLocalTransformation().ExtractTranslation() == (1, 2, 3)
+    got = np.full(ref.points.shape, np.nan, np.float32)
+    faces = 0
+    tiles = root.GetChildren()
+    assert len(tiles) > 1
+    for child in tiles:
+        tile = UsdGeom.Mesh(child)
+        assert tile.GetSubdivisionSchemeAttr().Get() == "none"
+        assert UsdShade.MaterialBindingAPI(child).ComputeBoundMaterial()[0].GetPath() == "/World/Looks/Mat"
+        assert tuple(tile.GetDisplayColorPrimvar().Get()[0]) == pytest.approx((0.2, 0.4, 0.6))
+        assert len(tile.GetNormalsAttr().Get()) == len(tile.GetPointsAttr().Get())
+        ids = np.array(child.GetAttribute("warpSubdiv:vertexIds").Get())
+        pts = np.array(tile.GetPointsAttr().Get())
+        assert np.all(np.isnan(got[ids]) | (got[ids] == pts))
+        got[ids] = pts
+        st = UsdGeom.PrimvarsAPI(child).GetPrimvar("st")
+        assert len(st.GetIndices()) == len(tile.GetFaceVertexIndicesAttr().Get())
+        faces += len(tile.GetFaceVertexCountsAttr().Get())
+    assert faces == len(ref.face_vertex_counts)
+    assert np.array_equal(got, ref.points)
+    assert not validation_errors(out)
+
+
+def test_usd_bake_refuses_what_tiles_cannot_write(tmp_path):
+    """A mesh that must be tiled but has what tiles do not carry (time samples here) is refused, naming the
+    prim and saying it is refined in tiles."""
+    from pxr import Usd, UsdGeom
+    from warp_subdiv.usd import refine_usd
+
+    src = str(tmp_path / "in.usda")
+    prim, points, _ = _grid_stage(src)
+    stage = Usd.Stage.Open(src)
+    UsdGeom.Mesh(stage.GetPrimAtPath("/World/Grid")).GetPointsAttr().Set(points, 1.0)
+    stage.Save()
+    with pytest.raises(ws.SubdivInputError, match="/World/Grid.*in tiles.*time samples"):
+        refine_usd(src, str(tmp_path / "out.usda"), 3, device="cpu", max_memory=1, resume=False)
