@@ -438,6 +438,10 @@ def test_usd_bake_in_tiles(tmp_path, monkeypatch):
     assert root.GetTypeName() == "Xform"
     assert UsdGeom.Xformable(root).GetLocalTransformation().ExtractTranslation() == (1, 2, 3)
     got = np.full(ref.points.shape, np.nan, np.float32)
+    st_values, st_indices = ws.Refiner(mesh, 3, device="cpu").evaluate_face_varying(
+        (points[quads.ravel(), :2] / 16).astype(np.float64), np.arange(quads.size), "corners-plus1")
+    ref_uv = np.asarray(st_values, np.float32)[st_indices]
+    uv = np.full(ref_uv.shape, np.nan, np.float32)
     faces = 0
     tiles = root.GetChildren()
     assert len(tiles) > 1
@@ -452,10 +456,13 @@ def test_usd_bake_in_tiles(tmp_path, monkeypatch):
         assert np.all(np.isnan(got[ids]) | (got[ids] == pts))
         got[ids] = pts
         st = UsdGeom.PrimvarsAPI(child).GetPrimvar("st")
-        assert len(st.GetIndices()) == len(tile.GetFaceVertexIndicesAttr().Get())
+        face_ids = np.array(child.GetAttribute("warpSubdiv:faceIds").Get())
+        corners = (face_ids[:, None] * 4 + np.arange(4)).ravel()  # quads: corner k of face f is row 4f + k
+        uv[corners] = np.array(st.Get())[np.array(st.GetIndices())]
         faces += len(tile.GetFaceVertexCountsAttr().Get())
     assert faces == len(ref.face_vertex_counts)
     assert np.array_equal(got, ref.points)
+    assert np.array_equal(uv, ref_uv)
     assert not validation_errors(out)
 
 

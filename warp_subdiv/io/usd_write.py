@@ -411,8 +411,8 @@ def _prim_name(name: str) -> str:
 def save_tile_layer(path: str, final: str, tile, points=None, primvars=(), orientation: str | None = None) -> None:
     """Save one tile of :func:`warp_subdiv.refine_tiled` as a layer at ``path`` (``final``: the name it will have,
     for the error): a Mesh /tile (its default prim) with subdivisionScheme "none", ``points`` (default: the
-    tile's), extent, faces, the ids its vertices have in the in-core refinement as ``int64[]
-    warpSubdiv:vertexIds``, and the tile's limit normals as ``normals`` where it has them. ``primvars``: (name,
+    tile's), extent, faces, the ids its vertices and faces have in the in-core refinement as ``int64[]
+    warpSubdiv:vertexIds`` and ``warpSubdiv:faceIds``, and the tile's limit normals as ``normals`` where it has them. ``primvars``: (name,
     type name, values, indices or None, interpolation) written as they are; ``orientation``: authored when
     given."""
     T = Sdf.ValueTypeNames
@@ -432,6 +432,9 @@ def save_tile_layer(path: str, final: str, tile, points=None, primvars=(), orien
     ids = Sdf.AttributeSpec(prim, "warpSubdiv:vertexIds", T.Int64Array, Sdf.VariabilityUniform)
     ids.custom = True
     ids.default = Vt.Int64Array.FromNumpy(np.ascontiguousarray(tile.vertex_ids, dtype=np.int64))
+    face_ids = Sdf.AttributeSpec(prim, "warpSubdiv:faceIds", T.Int64Array, Sdf.VariabilityUniform)
+    face_ids.custom = True
+    face_ids.default = Vt.Int64Array.FromNumpy(np.ascontiguousarray(tile.face_ids, dtype=np.int64))
     if getattr(tile, "limit_normals", None) is not None:
         normals = Sdf.AttributeSpec(prim, "normals", T.Normal3fArray)
         normals.default = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(tile.limit_normals, dtype=np.float32))

@@ -36,6 +36,7 @@ from ..runtime.estimate import check_index_range, memory_limit, total_bytes
 from ..tiled import refine_tiled
 from .planning import Plan, PrimReport
 from .primvars import face_varying_input
+from .skinning import SkinnedPrim
 
 
 def choose_tiled(p: Plan, max_memory) -> list:
@@ -71,7 +72,7 @@ def check_tileable(p: Plan, i: int, *, lod_variants=None, flatten=False) -> None
     if (len(occurrences) != 1 or occurrences[0].dest.ContainsPrimVariantSelection()
             or str(occurrences[0].dest) != sp.path or any(r.site == key for r in p.scene.top.refs)):
         _refuse(sp, "meshes in instances, in variants or shared with identical meshes")
-    if getattr(sp, "skin", None) is not None or type(sp).__name__ != "SubdivPrim":
+    if isinstance(sp, SkinnedPrim):
         _refuse(sp, "skinned meshes")
     if sp.point_times or sp.topologies or any(pv.times for pv in sp.primvars):
         _refuse(sp, "time samples")
