@@ -434,6 +434,7 @@ def test_usd_bake_in_tiles(tmp_path, monkeypatch):
     stage = Usd.Stage.Open(out)
     assert not stage.GetPrimAtPath("/World/Grid").IsActive()
     assert UsdGeom.Mesh(stage.GetPrimAtPath("/World/Small")).GetSubdivisionSchemeAttr().Get() == "none"
+    assert not stage.GetPrimAtPath("/World/Small_tiles")  # it fits: refined as always
     root = stage.GetPrimAtPath("/World/Grid_tiles")
     assert root.GetTypeName() == "Xform"
     assert UsdGeom.Xformable(root).GetLocalTransformation().ExtractTranslation() == (1, 2, 3)
@@ -479,3 +480,25 @@ def test_usd_bake_refuses_what_tiles_cannot_write(tmp_path):
     stage.Save()
     with pytest.raises(ws.SubdivInputError, match="/World/Grid.*in tiles.*time samples"):
         refine_usd(src, str(tmp_path / "out.usda"), 3, device="cpu", max_memory=1, resume=False)
+
+
+def test_cli_usd_bake_in_tiles(tmp_path, capsys, monkeypatch):
+    """`warp-subdiv refine in.usda -o out.usda --max-memory` where a mesh does not fit: it is written in tiles,
+    the command says so and succeeds."""
+    import warp_subdiv.tiled
+    from pxr import Usd
+    from warp_subdiv.cli import main
+
+    src, out = str(tmp_path / "in.usda"), str(tmp_path / "out.usda")
+    _, points, quads = _grid_stage(src)
+    mesh = ws.Mesh(points, np.full(len(quads), 4), quads.ravel())
+    monkeypatch.setattr(warp_subdiv.tiled, "resident_bytes", lambda: 0)
+    limit = ws.runtime.estimate.RUNTIME_BYTES + _tile_bytes(_Plan(mesh, 3, ws.Options()), np.arange(mesh.num_faces),
+                                                            0, True, False, 3) // 3
+    assert main(["refine", src, "-o", out, "--levels", "3", "--device", "cpu", "--normals",
+                 "--max-memory", str(limit)]) == 0
+    printed = capsys.readouterr()
+    assert "refined in tiles" in printed.out + printed.err, printed
+    stage = Usd.Stage.Open(out)
+    assert len(stage.GetPrimAtPath("/World/Grid_tiles").GetChildren()) > 1
+    assert not stage.GetPrimAtPath("/World/Grid").IsActive()

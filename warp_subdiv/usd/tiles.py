@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import time
 
 import numpy as np
 from pxr import Sdf, UsdGeom
@@ -118,11 +119,14 @@ class TiledMeshes:
         self.created: list = []
         self.written: list = []  # (temporary, final)
 
-    def write(self, progress=None) -> list:
+    def write(self) -> list:
         """Refine and write every tiled mesh; returns a report per mesh."""
         reports = []
         for sp, level, options in self.items:
-            reports.append(self._write_mesh(sp, level, options))
+            start = time.perf_counter()
+            report = self._write_mesh(sp, level, options)
+            report.seconds = time.perf_counter() - start
+            reports.append(report)
         return reports
 
     def _write_mesh(self, sp, level, options) -> PrimReport:
