@@ -412,9 +412,9 @@ def save_tile_layer(path: str, final: str, tile, points=None, primvars=(), orien
     """Save one tile of :func:`warp_subdiv.refine_tiled` as a layer at ``path`` (``final``: the name it will have,
     for the error): a Mesh /tile (its default prim) with subdivisionScheme "none", ``points`` (default: the
     tile's), extent, faces, the ids its vertices and faces have in the in-core refinement as ``int64[]
-    warpSubdiv:vertexIds`` and ``warpSubdiv:faceIds``, and the tile's limit normals as ``normals`` where it has them. ``primvars``: (name,
-    type name, values, indices or None, interpolation) written as they are; ``orientation``: authored when
-    given."""
+    warpSubdiv:vertexIds`` and ``warpSubdiv:faceIds``, and the tile's limit normals as ``normals`` where it has
+    them. ``primvars``: (name, type name, values, indices or None, interpolation) written as they are;
+    ``orientation``: authored when given."""
     T = Sdf.ValueTypeNames
     points = tile.points if points is None else points
     layer = Sdf.Layer.CreateNew(path)
