@@ -397,6 +397,7 @@ def _grid_stage(path, n=16):
     grid.CreateSubdivisionSchemeAttr("catmullClark")
     grid.CreateExtentAttr(UsdGeom.PointBased.ComputeExtent(points))
     grid.AddTranslateOp().Set(Gf.Vec3d(1, 2, 3))
+    grid.CreatePurposeAttr(UsdGeom.Tokens.render)
     grid.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set([(0.2, 0.4, 0.6)])
     st = UsdGeom.PrimvarsAPI(grid).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
                                                  UsdGeom.Tokens.faceVarying)
@@ -449,6 +450,7 @@ def test_usd_bake_in_tiles(tmp_path, monkeypatch):
     for child in tiles:
         tile = UsdGeom.Mesh(child)
         assert tile.GetSubdivisionSchemeAttr().Get() == "none"
+        assert UsdGeom.Imageable(child).ComputePurpose() == UsdGeom.Tokens.render
         assert UsdShade.MaterialBindingAPI(child).ComputeBoundMaterial()[0].GetPath() == "/World/Looks/Mat"
         assert tuple(tile.GetDisplayColorPrimvar().Get()[0]) == pytest.approx((0.2, 0.4, 0.6))
         assert len(tile.GetNormalsAttr().Get()) == len(tile.GetPointsAttr().Get())

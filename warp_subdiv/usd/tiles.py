@@ -18,7 +18,8 @@ memory guard; :func:`without` takes them out of the plan; :class:`TiledMeshes` r
 Refused, with an error naming the prim: meshes with time samples (points, primvars, topology or transform),
 skinned meshes, meshes inside instances or variants or shared with identical meshes, bilinear meshes, meshes
 with vertex, varying or uniform primvars, velocities / accelerations or GeomSubsets, and LOD variants or
-flattened output.
+flattened output. Distributed bakes (:mod:`~warp_subdiv.usd.distributed`) build a mesh's tables in a task of its
+own under the memory guard, which still refuses a mesh that does not fit.
 """
 from __future__ import annotations
 
@@ -144,10 +145,10 @@ class TiledMeshes:
         Sdf.AttributeSpec(xform, "xformOp:transform", T.Matrix4d).default = matrix
         order.append("xformOp:transform")
         Sdf.AttributeSpec(xform, "xformOpOrder", T.TokenArray, Sdf.VariabilityUniform).default = order
-        for name in ("purpose", "visibility"):
+        for name, variability in (("purpose", Sdf.VariabilityUniform), ("visibility", Sdf.VariabilityVarying)):
             attr = prim.GetAttribute(name)
             if attr and attr.HasAuthoredValue():
-                Sdf.AttributeSpec(xform, name, T.Token, Sdf.VariabilityUniform).default = attr.Get()
+                Sdf.AttributeSpec(xform, name, T.Token, variability).default = attr.Get()
         bindings = [r for r in prim.GetRelationships() if r.GetName().startswith("material:binding")]
         constants = [pv for pv in UsdGeom.PrimvarsAPI(prim).GetPrimvars()
                      if pv.GetInterpolation() == UsdGeom.Tokens.constant and pv.HasAuthoredValue()]
