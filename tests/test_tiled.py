@@ -473,6 +473,7 @@ def test_usd_bake_refuses_what_tiles_cannot_write(tmp_path):
     """A mesh that must be tiled but has what tiles do not carry (time samples here) is refused, naming the
     prim and saying it is refined in tiles."""
     from pxr import Usd, UsdGeom
+    from warp_subdiv.runtime.estimate import RUNTIME_BYTES
     from warp_subdiv.usd import refine_usd
 
     src = str(tmp_path / "in.usda")
@@ -481,7 +482,8 @@ def test_usd_bake_refuses_what_tiles_cannot_write(tmp_path):
     UsdGeom.Mesh(stage.GetPrimAtPath("/World/Grid")).GetPointsAttr().Set(points, 1.0)
     stage.Save()
     with pytest.raises(ws.SubdivInputError, match="/World/Grid.*in tiles.*time samples"):
-        refine_usd(src, str(tmp_path / "out.usda"), 3, device="cpu", max_memory=1, resume=False)
+        refine_usd(src, str(tmp_path / "out.usda"), 3, device="cpu", max_memory=RUNTIME_BYTES + 1, resume=False)
+    assert sorted(os.listdir(tmp_path)) == ["in.usda"]  # nothing written
 
 
 def test_cli_usd_bake_in_tiles(tmp_path, capsys, monkeypatch):

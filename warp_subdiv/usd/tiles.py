@@ -34,7 +34,7 @@ from ..errors import SubdivInputError
 from ..io.files import publish
 from ..io.usd_stage import DEFAULT
 from ..io.usd_write import OutputLayer, make_folders, remove_folders, save_tile_layer, vt_array
-from ..runtime.estimate import check_index_range, memory_limit, total_bytes
+from ..runtime.estimate import RUNTIME_BYTES, check_index_range, memory_limit, total_bytes
 from ..tiled import refine_tiled
 from .planning import Plan, PrimReport
 from .primvars import face_varying_input
@@ -43,9 +43,10 @@ from .skinning import SkinnedPrim
 
 def choose_tiled(p: Plan, max_memory) -> list:
     """Indices of the plan's meshes to refine in tiles: none when the bake fits ``max_memory``; else the largest
-    meshes, one by one, until the rest fits (all of them if it never does)."""
+    meshes, one by one, until the rest fits (all of them if it never does). None either when the limit does not
+    even hold Warp's runtime (no tile fits then: the memory guard refuses the bake)."""
     budget = memory_limit(max_memory)
-    if budget is None or total_bytes(p.estimates) <= budget:
+    if budget is None or total_bytes(p.estimates) <= budget or budget <= RUNTIME_BYTES:
         return []
     order = sorted(range(len(p.prims)), key=lambda i: -(p.estimates[i].output_bytes + p.estimates[i].working_bytes))
     chosen = []
