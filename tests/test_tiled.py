@@ -372,3 +372,137 @@ def test_face_varying_bitwise(scheme, mode):
             assert np.array_equal(fv.value_ids[fv.indices], ref_indices[corners_of_tile])
         used = np.isin(np.arange(len(ref_values)), ref_indices)
         assert np.array_equal(gathered[used].astype(ref_values.dtype).view(np.uint8), ref_values[used].view(np.uint8))
+
+
+def _grid_stage(path, n=16):
+    """A stage with an n x n Catmull-Clark grid (transformed, bound to a material, a constant displayColor and
+    a face-varying st) and a small quad that fits any budget."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+
+    stage = Usd.Stage.CreateNew(path)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    material = UsdShade.Material.Define(stage, "/World/Looks/Mat")
+    u, v = np.meshgrid(np.arange(n + 1), np.arange(n + 1))
+    rng = np.random.default_rng(3)
+    points = np.stack([u.ravel(), v.ravel(), rng.normal(0, 0.2, u.size)], 1).astype(np.float32)
+    quads = np.array([[j * (n + 1) + i, j * (n + 1) + i + 1, (j + 1) * (n + 1) + i + 1, (j + 1) * (n + 1) + i]
+                      for j in range(n) for i in range(n)])
+    grid = UsdGeom.Mesh.Define(stage, "/World/Grid")
+    grid.CreatePointsAttr(points)
+    grid.CreateFaceVertexCountsAttr([4] * len(quads))
+    grid.CreateFaceVertexIndicesAttr(quads.ravel().tolist())
+    grid.CreateSubdivisionSchemeAttr("catmullClark")
+    grid.CreateExtentAttr(UsdGeom.PointBased.ComputeExtent(points))
+    grid.AddTranslateOp().Set(Gf.Vec3d(1, 2, 3))
+    grid.CreatePurposeAttr(UsdGeom.Tokens.render)
+    grid.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set([(0.2, 0.4, 0.6)])
+    st = UsdGeom.PrimvarsAPI(grid).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                 UsdGeom.Tokens.faceVarying)
+    st.Set(points[quads.ravel(), :2] / n)
+    UsdShade.MaterialBindingAPI.Apply(grid.GetPrim()).Bind(material)
+    small = UsdGeom.Mesh.Define(stage, "/World/Small")
+    small.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
+    small.CreateFaceVertexCountsAttr([4])
+    small.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    small.CreateExtentAttr([(0, 0, 0), (1, 1, 0)])
+    stage.Save()
+    return grid.GetPrim(), points, quads
+
+
+def test_usd_bake_in_tiles(tmp_path, monkeypatch):
+    """A USD mesh that does not fit max_memory is baked in tiles: the mesh deactivated, a sibling Xform of tile
+    meshes with its transform, binding and constant primvars; gathered by their vertex ids the tiles are
+    refine()'s points and face-varying values bitwise, every face once; the mesh that fits is refined as
+    always; no validation error."""
+    from test_usd_production import validation_errors
+
+    import warp_subdiv.tiled
+    from pxr import Usd, UsdGeom, UsdShade
+    from warp_subdiv.usd import refine_usd
+
+    src, out = str(tmp_path / "in.usda"), str(tmp_path / "out.usda")
+    _, points, quads = _grid_stage(src)
+    mesh = ws.Mesh(points, np.full(len(quads), 4), quads.ravel())
+    monkeypatch.setattr(warp_subdiv.tiled, "resident_bytes", lambda: 0)
+    plan = _Plan(mesh, 3, ws.Options())
+    limit = ws.runtime.estimate.RUNTIME_BYTES + _tile_bytes(plan, np.arange(mesh.num_faces), 0, True, False, 3) // 3
+    result = refine_usd(src, out, 3, device="cpu", max_memory=limit, normals=True, resume=False)
+    assert any("refined in tiles" in w for w in result.warnings)
+    ref = ws.refine(mesh, 3, device="cpu")
+    stage = Usd.Stage.Open(out)
+    assert not stage.GetPrimAtPath("/World/Grid").IsActive()
+    assert UsdGeom.Mesh(stage.GetPrimAtPath("/World/Small")).GetSubdivisionSchemeAttr().Get() == "none"
+    assert not stage.GetPrimAtPath("/World/Small_tiles")  # it fits: refined as always
+    root = stage.GetPrimAtPath("/World/Grid_tiles")
+    assert root.GetTypeName() == "Xform"
+    assert UsdGeom.Xformable(root).GetLocalTransformation().ExtractTranslation() == (1, 2, 3)
+    got = np.full(ref.points.shape, np.nan, np.float32)
+    st_values, st_indices = ws.Refiner(mesh, 3, device="cpu").evaluate_face_varying(
+        (points[quads.ravel(), :2] / 16).astype(np.float64), np.arange(quads.size), "corners-plus1")
+    ref_uv = np.asarray(st_values, np.float32)[st_indices]
+    uv = np.full(ref_uv.shape, np.nan, np.float32)
+    faces = 0
+    tiles = root.GetChildren()
+    assert len(tiles) > 1
+    for child in tiles:
+        tile = UsdGeom.Mesh(child)
+        assert tile.GetSubdivisionSchemeAttr().Get() == "none"
+        assert UsdGeom.Imageable(child).ComputePurpose() == UsdGeom.Tokens.render
+        assert UsdShade.MaterialBindingAPI(child).ComputeBoundMaterial()[0].GetPath() == "/World/Looks/Mat"
+        assert tuple(tile.GetDisplayColorPrimvar().Get()[0]) == pytest.approx((0.2, 0.4, 0.6))
+        assert len(tile.GetNormalsAttr().Get()) == len(tile.GetPointsAttr().Get())
+        ids = np.array(child.GetAttribute("warpSubdiv:vertexIds").Get())
+        pts = np.array(tile.GetPointsAttr().Get())
+        assert np.all(np.isnan(got[ids]) | (got[ids] == pts))
+        got[ids] = pts
+        st = UsdGeom.PrimvarsAPI(child).GetPrimvar("st")
+        face_ids = np.array(child.GetAttribute("warpSubdiv:faceIds").Get())
+        corners = (face_ids[:, None] * 4 + np.arange(4)).ravel()  # quads: corner k of face f is row 4f + k
+        uv[corners] = np.array(st.Get())[np.array(st.GetIndices())]
+        faces += len(tile.GetFaceVertexCountsAttr().Get())
+    assert faces == len(ref.face_vertex_counts)
+    assert np.array_equal(got, ref.points)
+    assert np.array_equal(uv, ref_uv)
+    assert not validation_errors(out)
+
+
+def test_usd_bake_refuses_what_tiles_cannot_write(tmp_path):
+    """A mesh that must be tiled but has what tiles do not carry (time samples here) is refused, naming the
+    prim and saying it is refined in tiles."""
+    from pxr import Usd, UsdGeom
+    from warp_subdiv.runtime.estimate import RUNTIME_BYTES
+    from warp_subdiv.usd import refine_usd
+
+    src = str(tmp_path / "in.usda")
+    prim, points, _ = _grid_stage(src)
+    stage = Usd.Stage.Open(src)
+    UsdGeom.Mesh(stage.GetPrimAtPath("/World/Grid")).GetPointsAttr().Set(points, 1.0)
+    stage.Save()
+    with pytest.raises(ws.SubdivInputError, match="/World/Grid.*in tiles.*time samples"):
+        refine_usd(src, str(tmp_path / "out.usda"), 3, device="cpu", max_memory=RUNTIME_BYTES + 1, resume=False)
+    assert sorted(os.listdir(tmp_path)) == ["in.usda"]  # nothing written
+
+
+def test_cli_usd_bake_in_tiles(tmp_path, capsys, monkeypatch):
+    """`warp-subdiv refine in.usda -o out.usda --max-memory` where a mesh does not fit: it is written in tiles,
+    the command says so and succeeds."""
+    import warp_subdiv.tiled
+    from pxr import Usd
+    from warp_subdiv.cli import main
+
+    src, out = str(tmp_path / "in.usda"), str(tmp_path / "out.usda")
+    _, points, quads = _grid_stage(src)
+    mesh = ws.Mesh(points, np.full(len(quads), 4), quads.ravel())
+    monkeypatch.setattr(warp_subdiv.tiled, "resident_bytes", lambda: 0)
+    limit = ws.runtime.estimate.RUNTIME_BYTES + _tile_bytes(_Plan(mesh, 3, ws.Options()), np.arange(mesh.num_faces),
+                                                            0, True, False, 3) // 3
+    assert main(["refine", src, "-o", out, "--levels", "3", "--device", "cpu", "--normals",
+                 "--max-memory", str(limit)]) == 0
+    printed = capsys.readouterr()
+    assert "refined in tiles" in printed.out + printed.err, printed
+    stage = Usd.Stage.Open(out)
+    assert len(stage.GetPrimAtPath("/World/Grid_tiles").GetChildren()) > 1
+    assert not stage.GetPrimAtPath("/World/Grid").IsActive()

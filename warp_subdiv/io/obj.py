@@ -125,21 +125,31 @@ def read_obj(path: str) -> ObjData:
     return ObjData(mesh, options, path)
 
 
+#: Rows formatted per call: one %-format of a whole chunk (C-level, about 4x faster than np.savetxt's row by row
+#: formatting, the same text) with a bounded string.
+_CHUNK_ROWS = 1 << 16
+
+
 def _write_vertices(fh, points: np.ndarray) -> None:
-    np.savetxt(fh, np.asarray(points, dtype=np.float64), fmt="v %.9g %.9g %.9g")
+    """``v x y z`` lines (``%.9g`` of the float64 values: float32 points round-trip exactly)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    for start in range(0, len(points), _CHUNK_ROWS):
+        chunk = points[start:start + _CHUNK_ROWS]
+        fh.write(("v %.9g %.9g %.9g\n" * len(chunk)) % tuple(chunk.ravel().tolist()))
 
 
 def _write_faces(fh, counts: np.ndarray, idx: np.ndarray) -> None:
-    """Face lines of ``counts`` faces with the 1-based vertex numbers ``idx``."""
-    counts = np.asarray(counts)
-    if len(counts) and np.all(counts == counts[0]):
-        fmt = "f" + " %d" * int(counts[0])
-        np.savetxt(fh, idx.reshape(-1, int(counts[0])), fmt=fmt)
-    else:
-        start = 0
-        for c in counts:
-            fh.write("f " + " ".join(map(str, idx[start:start + c])) + "\n")
-            start += c
+    """Face lines of ``counts`` faces with the 1-based vertex numbers ``idx``, a chunk of faces per write."""
+    counts = np.asarray(counts, dtype=np.int64)
+    idx = np.asarray(idx, dtype=np.int64)
+    if not len(counts):
+        return
+    templates = np.array(["f" + " %d" * c + "\n" for c in range(int(counts.max()) + 1)], dtype=object)
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    for start in range(0, len(counts), _CHUNK_ROWS):
+        stop = min(start + _CHUNK_ROWS, len(counts))
+        fmt = "".join(templates[counts[start:stop]])
+        fh.write(fmt % tuple(idx[offsets[start]:offsets[stop]].tolist()))
 
 
 def _published(path: str, write) -> None:

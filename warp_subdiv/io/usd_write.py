@@ -408,6 +408,47 @@ def _prim_name(name: str) -> str:
     return "_" + prim_name if prim_name[0].isdigit() else prim_name
 
 
+def save_tile_layer(path: str, final: str, tile, points=None, primvars=(), orientation: str | None = None) -> None:
+    """Save one tile of :func:`warp_subdiv.refine_tiled` as a layer at ``path`` (``final``: the name it will have,
+    for the error): a Mesh /tile (its default prim) with subdivisionScheme "none", ``points`` (default: the
+    tile's), extent, faces, the ids its vertices and faces have in the in-core refinement as ``int64[]
+    warpSubdiv:vertexIds`` and ``warpSubdiv:faceIds``, and the tile's limit normals as ``normals`` where it has
+    them. ``primvars``: (name, type name, values, indices or None, interpolation) written as they are;
+    ``orientation``: authored when given."""
+    T = Sdf.ValueTypeNames
+    points = tile.points if points is None else points
+    layer = Sdf.Layer.CreateNew(path)
+    prim = Sdf.CreatePrimInLayer(layer, "/tile")
+    prim.specifier = Sdf.SpecifierDef
+    prim.typeName = "Mesh"
+    layer.defaultPrim = "tile"
+    Sdf.AttributeSpec(prim, "subdivisionScheme", T.Token, Sdf.VariabilityUniform).default = "none"
+    if orientation is not None:
+        Sdf.AttributeSpec(prim, "orientation", T.Token, Sdf.VariabilityUniform).default = orientation
+    Sdf.AttributeSpec(prim, "points", T.Point3fArray).default = vec3f_array(points)
+    Sdf.AttributeSpec(prim, "extent", T.Float3Array).default = extent_of(points)
+    Sdf.AttributeSpec(prim, "faceVertexCounts", T.IntArray).default = int_array(tile.face_vertex_counts)
+    Sdf.AttributeSpec(prim, "faceVertexIndices", T.IntArray).default = int_array(tile.face_vertex_indices)
+    ids = Sdf.AttributeSpec(prim, "warpSubdiv:vertexIds", T.Int64Array, Sdf.VariabilityUniform)
+    ids.custom = True
+    ids.default = Vt.Int64Array.FromNumpy(np.ascontiguousarray(tile.vertex_ids, dtype=np.int64))
+    face_ids = Sdf.AttributeSpec(prim, "warpSubdiv:faceIds", T.Int64Array, Sdf.VariabilityUniform)
+    face_ids.custom = True
+    face_ids.default = Vt.Int64Array.FromNumpy(np.ascontiguousarray(tile.face_ids, dtype=np.int64))
+    if getattr(tile, "limit_normals", None) is not None:
+        normals = Sdf.AttributeSpec(prim, "normals", T.Normal3fArray)
+        normals.default = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(tile.limit_normals, dtype=np.float32))
+        normals.SetInfo("interpolation", UsdGeom.Tokens.vertex)
+    for name, type_name, values, indices, interpolation in primvars:
+        spec = Sdf.AttributeSpec(prim, name, type_name)
+        spec.default = values
+        spec.SetInfo("interpolation", interpolation)
+        if indices is not None:
+            Sdf.AttributeSpec(prim, name + ":indices", T.IntArray).default = int_array(indices)
+    if not layer.Save():
+        raise OSError(f"could not save {final}")
+
+
 def write_tiled_mesh_layer(output: str, name: str, tiles) -> tuple[int, int, int]:
     """A refined mesh written tile by tile (the tiles of :func:`warp_subdiv.refine_tiled`), for a mesh whose
     refinement does not fit in memory at once: each tile a layer of its own in the folder ``<output stem>_tiles``
@@ -424,33 +465,13 @@ def write_tiled_mesh_layer(output: str, name: str, tiles) -> tuple[int, int, int
     created = make_folders(folder)
     written: list = []  # (temporary, final) paths
     totals = [0, 0, 0]
-    T = Sdf.ValueTypeNames
     try:
         for tile in tiles:
             final = os.path.join(folder, f"tile_{totals[0]:04d}.usdc")
             fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=".usdc", dir=folder)
             os.close(fd)
             written.append((tmp, final))
-            layer = Sdf.Layer.CreateNew(tmp)
-            prim = Sdf.CreatePrimInLayer(layer, "/tile")
-            prim.specifier = Sdf.SpecifierDef
-            prim.typeName = "Mesh"
-            layer.defaultPrim = "tile"
-            Sdf.AttributeSpec(prim, "subdivisionScheme", T.Token, Sdf.VariabilityUniform).default = "none"
-            Sdf.AttributeSpec(prim, "points", T.Point3fArray).default = vec3f_array(tile.points)
-            Sdf.AttributeSpec(prim, "extent", T.Float3Array).default = extent_of(tile.points)
-            Sdf.AttributeSpec(prim, "faceVertexCounts", T.IntArray).default = int_array(tile.face_vertex_counts)
-            Sdf.AttributeSpec(prim, "faceVertexIndices", T.IntArray).default = int_array(tile.face_vertex_indices)
-            ids = Sdf.AttributeSpec(prim, "warpSubdiv:vertexIds", T.Int64Array, Sdf.VariabilityUniform)
-            ids.custom = True
-            ids.default = Vt.Int64Array.FromNumpy(np.ascontiguousarray(tile.vertex_ids, dtype=np.int64))
-            if getattr(tile, "limit_normals", None) is not None:
-                normals = Sdf.AttributeSpec(prim, "normals", T.Normal3fArray)
-                normals.default = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(tile.limit_normals, dtype=np.float32))
-                normals.SetInfo("interpolation", UsdGeom.Tokens.vertex)
-            if not layer.Save():
-                raise OSError(f"could not save {final}")
-            del layer
+            save_tile_layer(tmp, final, tile)
             totals[0] += 1
             totals[1] += len(tile.points)
             totals[2] += len(tile.face_vertex_counts)

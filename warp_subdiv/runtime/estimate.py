@@ -231,7 +231,7 @@ def check_memory(estimates, max_memory, levels: int) -> None:
             f"({biggest.path}: {biggest.final.faces:,} faces, {biggest.final.vertices:,} vertices), more than "
             f"max_memory {format_bytes(max_memory)}; refine fewer levels"
             + (" or fewer meshes" if len(estimates) > 1 else "") + ", or raise max_memory; or refine in tiles "
-            "that fit (warp_subdiv.refine_tiled; the command line does for OBJ output)",
+            "that fit (warp_subdiv.refine_tiled; `warp-subdiv refine` and the USD bake do so by themselves)",
             option="max_memory", value=need,
         )
 

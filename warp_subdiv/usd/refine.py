@@ -57,6 +57,7 @@ from .record import layer_record
 from .skinning import check_max_influences, check_skinning
 from .refinement import MeshRefinement
 from .resume import CHUNK_SAMPLES, MeshEntries, SampleChunks, Store, eta_seconds, format_eta, resume_folder
+from .tiles import TiledMeshes, check_tileable, choose_tiled, without
 from .writer import PrimWriter
 
 
@@ -274,7 +275,10 @@ def refine_usd(
     same variant set and variant (see :func:`plan` and the README's USD section).
 
     ``frames``: (start, end) time codes (None for an open end) selecting the time samples to refine.
-    ``max_memory``: bytes; refuse (MemoryGuardError) when the prediction is larger; None for no limit.
+    ``max_memory``: bytes; None for no limit. Meshes that do not fit are refined in tiles, largest first until
+    the rest fits (:mod:`warp_subdiv.usd.tiles`: the mesh deactivated, a sibling Xform ``<name>_tiles`` of
+    tile meshes, each a layer of its own in ``<output stem>_tiles/``); a mesh that tiles cannot write is refused
+    with an error naming it, and so is a bake whose rest does not fit (MemoryGuardError).
     ``semi_sharp``: "keep" (refine semi-sharp creases and corners as such) or "sharp" (treat them as infinitely
     sharp, with a warning).
     ``progress``: callable(fraction, label) or None. Errors in the input are SubdivInputError.
@@ -319,6 +323,15 @@ def refine_usd(
              skinning=skinning, max_influences=max_influences)
     # the kept work's folder is cleaned and removed: the input must not read anything in it
     out_abs = check_output_path(output_path, p.stage, folders=[resume_folder(os.path.abspath(output_path))])
+    # meshes that do not fit max_memory are refined in tiles (warp_subdiv.usd.tiles); the rest must fit
+    chosen = choose_tiled(p, max_memory)
+    for i in chosen:
+        check_tileable(p, i, lod_variants=lod_variants, flatten=flatten)
+    tiled_items = [(p.prims[i], p.levels[i], p.options[i]) for i in chosen]
+    if chosen:
+        p.warnings.extend(f"{sp.path}: does not fit max_memory: refined in tiles ({os.path.basename(out_abs)}: "
+                          f"{sp.prim.GetName()}_tiles, the mesh deactivated)" for sp, _, _ in tiled_items)
+        without(p, chosen)
     check_memory(p.estimates, max_memory, p.max_level)
     local = local_meshes(p.stage, [o.composed for o in p.scene.top.meshes]) if lod_variants else []
     if local and not flatten:  # variants cannot override the input's own opinions: flattened (warp_subdiv.usd.lod)
@@ -331,6 +344,8 @@ def refine_usd(
                           skinning=skinning, max_influences=max_influences, lod_variants=lod_variants)
     layer = OutputLayer(out_abs, p.stage, custom)
     bake = store = None
+    tiled = TiledMeshes(layer, out_abs, tiled_items, max_memory=max_memory, device=device, limit=limit,
+                        normals=normals)
     try:
         settings = dict(device=device, limit=limit, normals=normals, vertex_order=vertex_order,
                         samples_only=samples_only, batch=batch, max_memory=max_memory, shipped=shipped,
@@ -350,11 +365,14 @@ def refine_usd(
             # bounding-box hints above the refined meshes: recomputed for the refined surfaces
             layer.override_extents_hints(p.stage, out_layout.hint_roots(p), frames)
             merged = None
+        reports = reports + tiled.write()
         if progress is not None:
             progress(1.0, "writing " + os.path.basename(out_abs))
         layer.commit(flatten=flatten, flattened=merged)
+        tiled.publish()
     except BaseException as exc:
         layer.discard()
+        tiled.discard()
         if store is not None:
             store.failed(exc)
         raise

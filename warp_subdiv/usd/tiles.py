@@ -1,0 +1,224 @@
+"""Meshes of a USD bake whose refinement does not fit ``max_memory``: refined in tiles instead of refused.
+
+:func:`choose_tiled` picks, largest first, the meshes to take out of the in-core bake until what is left fits the
+memory guard; :func:`without` takes them out of the plan; :class:`TiledMeshes` refines each of them with
+:func:`warp_subdiv.refine_tiled` and writes, in the output layer:
+
+* the original mesh deactivated (``active = false``): the composed stage does not show it;
+* a sibling ``Xform`` ``<name>_tiles`` with the mesh's local transform (one ``xformOp:transform``, and
+  ``!resetXformStack!`` where the mesh resets it), its ``purpose`` and ``visibility`` where authored;
+* under it one ``Mesh`` ``tile_0000``, ``tile_0001``, ... per tile, each loading a layer of its own
+  (``<output stem>_tiles/<mesh path>/tile_NNNN.usdc``) as a payload: subdivisionScheme "none", the refined
+  points (the limit points with ``limit``), extent, faces, ``int64[] warpSubdiv:vertexIds`` (the ids its vertices
+  have in ``refine()``), the limit normals with ``normals`` (borders share their vertices' ids and bits, so
+  they shade seamlessly), the face-varying primvars refined per tile, the mesh's orientation; the tile prims in
+  the output layer carry the mesh's material bindings (every ``material:binding*`` relationship, with
+  MaterialBindingAPI) and its constant primvars.
+
+Refused, with an error naming the prim: meshes with time samples (points, primvars, topology or transform),
+skinned meshes, meshes inside instances or variants or shared with identical meshes, bilinear meshes, meshes
+with vertex, varying or uniform primvars, velocities / accelerations or GeomSubsets, and LOD variants or
+flattened output. Distributed bakes (:mod:`~warp_subdiv.usd.distributed`) build a mesh's tables in a task of its
+own under the memory guard, which still refuses a mesh that does not fit.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+
+import numpy as np
+from pxr import Sdf, UsdGeom
+
+from ..errors import SubdivInputError
+from ..io.files import publish
+from ..io.usd_stage import DEFAULT
+from ..io.usd_write import OutputLayer, make_folders, remove_folders, save_tile_layer, vt_array
+from ..runtime.estimate import RUNTIME_BYTES, check_index_range, memory_limit, total_bytes
+from ..tiled import refine_tiled
+from .planning import Plan, PrimReport
+from .primvars import face_varying_input
+from .skinning import SkinnedPrim
+
+
+def choose_tiled(p: Plan, max_memory) -> list:
+    """Indices of the plan's meshes to refine in tiles: none when the bake fits ``max_memory``; else the largest
+    meshes, one by one, until the rest fits (all of them if it never does). None either when the limit does not
+    even hold Warp's runtime (no tile fits then: the memory guard refuses the bake)."""
+    budget = memory_limit(max_memory)
+    if budget is None or total_bytes(p.estimates) <= budget or budget <= RUNTIME_BYTES:
+        return []
+    order = sorted(range(len(p.prims)), key=lambda i: -(p.estimates[i].output_bytes + p.estimates[i].working_bytes))
+    chosen = []
+    for i in order:
+        rest = [e for j, e in enumerate(p.estimates) if j not in chosen]
+        if rest and total_bytes(rest) <= budget:
+            break
+        chosen.append(i)
+    return sorted(chosen)
+
+
+def _refuse(sp, why: str):
+    raise SubdivInputError(f"{sp.path}: does not fit max_memory and is refined in tiles, which do not support "
+                           f"{why}; raise max_memory or lower its level", option="max_memory")
+
+
+def check_tileable(p: Plan, i: int, *, lod_variants=None, flatten=False) -> None:
+    """Refuse, naming the prim, a mesh that a tiled bake cannot write (see the module docstring)."""
+    sp = p.prims[i]
+    key = p.keys[i]
+    if lod_variants:
+        _refuse(sp, "LOD variants")
+    if flatten:
+        _refuse(sp, "flattened output")
+    occurrences = [o for o in p.scene.top.meshes if o.key == key]
+    if (len(occurrences) != 1 or occurrences[0].dest.ContainsPrimVariantSelection()
+            or str(occurrences[0].dest) != sp.path or any(r.site == key for r in p.scene.top.refs)):
+        _refuse(sp, "meshes in instances, in variants or shared with identical meshes")
+    if isinstance(sp, SkinnedPrim):
+        _refuse(sp, "skinned meshes")
+    if sp.point_times or sp.topologies or any(pv.times for pv in sp.primvars):
+        _refuse(sp, "time samples")
+    if UsdGeom.Xformable(sp.prim).TransformMightBeTimeVarying():
+        _refuse(sp, "a time-varying transform")
+    if sp.scheme == "bilinear":
+        _refuse(sp, "bilinear meshes")
+    if sp.point_arrays:
+        _refuse(sp, "velocities or accelerations")
+    if sp.subsets:
+        _refuse(sp, "GeomSubsets")
+    other = [pv.name for pv in sp.primvars if pv.interpolation != "faceVarying"]
+    if other:
+        _refuse(sp, f"vertex, varying or uniform primvars ({', '.join(other)})")
+    parent = sp.prim.GetParent()
+    if parent.GetChild(sp.prim.GetName() + "_tiles"):
+        _refuse(sp, f"a sibling named {sp.prim.GetName()}_tiles (the tiles' name)")
+    check_index_range([p.estimates[i]], p.levels[i])
+
+
+def without(p: Plan, chosen) -> Plan:
+    """The plan with the meshes ``chosen`` (indices) taken out (they are refined in tiles instead)."""
+    keep = [i for i in range(len(p.prims)) if i not in set(chosen)]
+    keys = {p.keys[i] for i in chosen}
+    for name in ("prims", "keys", "levels", "options", "analyses", "estimates", "tables"):
+        values = getattr(p, name)
+        setattr(p, name, [values[i] for i in keep])
+    p.scene.top.meshes = [o for o in p.scene.top.meshes if o.key not in keys]
+    for key in keys:
+        p.scene.units.pop(key, None)
+    return p
+
+
+class TiledMeshes:
+    """The meshes of a bake refined in tiles (``items``: (SubdivPrim, level, options) each), written into
+    ``layer`` by :meth:`write`; their tile layers go into ``<output stem>_tiles/``. :meth:`publish` gives them
+    their names once the output is committed; :meth:`discard` removes them."""
+
+    def __init__(self, layer: OutputLayer, output: str, items, *, max_memory, device, limit, normals):
+        self.layer, self.items = layer, items
+        self.max_memory, self.device, self.limit, self.normals = max_memory, device, limit, normals
+        self.folder = os.path.splitext(os.path.abspath(output))[0] + "_tiles"
+        self.created: list = []
+        self.written: list = []  # (temporary, final)
+
+    def write(self) -> list:
+        """Refine and write every tiled mesh; returns a report per mesh."""
+        reports = []
+        for sp, level, options in self.items:
+            start = time.perf_counter()
+            report = self._write_mesh(sp, level, options)
+            report.seconds = time.perf_counter() - start
+            reports.append(report)
+        return reports
+
+    def _write_mesh(self, sp, level, options) -> PrimReport:
+        layer = self.layer
+        prim = sp.prim
+        layer.prim(sp.path).SetInfo("active", False)
+        tiles_path = prim.GetPath().GetParentPath().AppendChild(prim.GetName() + "_tiles")
+        xform = Sdf.CreatePrimInLayer(layer.layer, tiles_path)
+        xform.specifier = Sdf.SpecifierDef
+        xform.typeName = "Xform"
+        T = Sdf.ValueTypeNames
+        xformable = UsdGeom.Xformable(prim)
+        order = ["!resetXformStack!"] if xformable.GetResetXformStack() else []
+        matrix = xformable.GetLocalTransformation()
+        Sdf.AttributeSpec(xform, "xformOp:transform", T.Matrix4d).default = matrix
+        order.append("xformOp:transform")
+        Sdf.AttributeSpec(xform, "xformOpOrder", T.TokenArray, Sdf.VariabilityUniform).default = order
+        for name, variability in (("purpose", Sdf.VariabilityUniform), ("visibility", Sdf.VariabilityVarying)):
+            attr = prim.GetAttribute(name)
+            if attr and attr.HasAuthoredValue():
+                Sdf.AttributeSpec(xform, name, T.Token, variability).default = attr.Get()
+        bindings = [r for r in prim.GetRelationships() if r.GetName().startswith("material:binding")]
+        constants = [pv for pv in UsdGeom.PrimvarsAPI(prim).GetPrimvars()
+                     if pv.GetInterpolation() == UsdGeom.Tokens.constant and pv.HasAuthoredValue()]
+        channels = [pv for pv in sp.primvars if pv.interpolation == "faceVarying"]
+        mode = sp.face_varying_mode
+        orientation = prim.GetAttribute("orientation").Get() if prim.GetAttribute("orientation") else None
+        folder = os.path.join(self.folder, sp.path.strip("/").replace("/", "_"))
+        self.created += make_folders(folder)
+        want = dict(max_memory=self.max_memory, options=options, device=self.device,
+                    limit_points=bool(self.limit), limit_normals=bool(self.normals))
+        # one tiled refinement per face-varying channel (the first gives the points too), all with the same tiles:
+        # the tiling depends on the mesh, the budget and whether a channel is refined
+        runs = [refine_tiled(sp.mesh, level, face_varying=(*face_varying_input(sp, pv, DEFAULT)[:2], mode), **want)
+                for pv in channels] or [refine_tiled(sp.mesh, level, **want)]
+        count = vertices = faces = 0
+        for tiles in zip(*runs):
+            tile = tiles[0]
+            others = tiles if channels else ()
+            name = f"tile_{count:04d}"
+            final = os.path.join(folder, name + ".usdc")
+            fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=".usdc", dir=folder)
+            os.close(fd)
+            self.written.append((tmp, final))
+            primvars = []
+            for pv, other in zip(channels, others):
+                like = np.asarray(pv.raw(DEFAULT)[0])
+                values = np.asarray(other.face_varying.values).reshape(len(other.face_varying.values), -1)
+                shaped = values.reshape((len(values) * pv.element_size,) + like.shape[1:])
+                primvars.append((pv.name, pv.type_name, vt_array(pv.type_name, shaped, like),
+                                 other.face_varying.indices, "faceVarying"))
+            points = tile.limit_points if self.limit else tile.points
+            save_tile_layer(tmp, final, tile, points=points, primvars=primvars, orientation=orientation)
+            child = Sdf.PrimSpec(xform, name, Sdf.SpecifierDef, "Mesh")
+            child.payloadList.Prepend(Sdf.Payload(self._relative(final)))
+            if bindings:
+                child.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=["MaterialBindingAPI"]))
+            for rel in bindings:
+                spec = Sdf.RelationshipSpec(child, rel.GetName(), custom=False)
+                spec.targetPathList.explicitItems = rel.GetTargets()
+            for pv in constants:
+                attr = pv.GetAttr()
+                spec = Sdf.AttributeSpec(child, attr.GetName(), attr.GetTypeName())
+                spec.default = attr.Get()
+                spec.SetInfo("interpolation", UsdGeom.Tokens.constant)
+            count += 1
+            vertices += tile.num_vertices
+            faces += tile.num_faces
+        return PrimReport(path=sp.path, scheme=sp.scheme, rules=options.rules.value, faces_in=sp.mesh.num_faces,
+                          faces_out=faces, vertices_in=sp.mesh.num_vertices, vertices_out=vertices, samples=1,
+                          level=level)
+
+    def _relative(self, final: str) -> str:
+        anchor = os.path.dirname(self.layer.output)
+        return "./" + os.path.relpath(final, anchor).replace(os.sep, "/")
+
+    def publish(self) -> None:
+        """Give the tile layers their names (after the output is committed)."""
+        for tmp, final in self.written:
+            publish(tmp, final)
+            existing = Sdf.Layer.Find(final)
+            if existing is not None:
+                existing.Reload(force=True)
+
+    def discard(self) -> None:
+        """Remove the tile layers written (a failed bake)."""
+        for tmp, _ in self.written:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        remove_folders(self.created)
+
+
+__all__ = ["TiledMeshes", "check_tileable", "choose_tiled", "without"]
