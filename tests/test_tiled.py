@@ -506,3 +506,27 @@ def test_cli_usd_bake_in_tiles(tmp_path, capsys, monkeypatch):
     stage = Usd.Stage.Open(out)
     assert len(stage.GetPrimAtPath("/World/Grid_tiles").GetChildren()) > 1
     assert not stage.GetPrimAtPath("/World/Grid").IsActive()
+
+
+def test_usd_tile_folders_are_per_mesh_and_reruns_leave_no_stale_tiles(tmp_path, monkeypatch):
+    """Meshes whose paths flatten alike (/A_B/C, /A/B_C) get tile folders of their own; a rerun that writes
+    fewer tiles removes the tile layers it no longer references."""
+    import warp_subdiv.tiled
+    from warp_subdiv.usd import refine_usd
+    from warp_subdiv.usd.tiles import tile_folder_name
+
+    assert tile_folder_name("/A_B/C") != tile_folder_name("/A/B_C")
+    assert tile_folder_name("/World/Grid").startswith("World_Grid_")
+    src, out = str(tmp_path / "in.usda"), str(tmp_path / "out.usda")
+    _, points, quads = _grid_stage(src)
+    mesh = ws.Mesh(points, np.full(len(quads), 4), quads.ravel())
+    monkeypatch.setattr(warp_subdiv.tiled, "resident_bytes", lambda: 0)
+    whole = _tile_bytes(_Plan(mesh, 3, ws.Options()), np.arange(mesh.num_faces), 0, True, False, 3)
+    folder = os.path.join(str(tmp_path / "out_tiles"), tile_folder_name("/World/Grid"))
+    counts = []
+    for share in (6, 3):  # (more tiles, then fewer)
+        refine_usd(src, out, 3, device="cpu", max_memory=ws.runtime.estimate.RUNTIME_BYTES + whole // share,
+                   normals=True, resume=False)
+        counts.append(sorted(os.listdir(folder)))
+    assert len(counts[1]) < len(counts[0])
+    assert counts[1] == [f"tile_{k:04d}.usdc" for k in range(len(counts[1]))]  # nothing stale left

@@ -8,7 +8,7 @@ memory guard; :func:`without` takes them out of the plan; :class:`TiledMeshes` r
 * a sibling ``Xform`` ``<name>_tiles`` with the mesh's local transform (one ``xformOp:transform``, and
   ``!resetXformStack!`` where the mesh resets it), its ``purpose`` and ``visibility`` where authored;
 * under it one ``Mesh`` ``tile_0000``, ``tile_0001``, ... per tile, each loading a layer of its own
-  (``<output stem>_tiles/<mesh path>/tile_NNNN.usdc``) as a payload: subdivisionScheme "none", the refined
+  (``<output stem>_tiles/<mesh path, digest>/tile_NNNN.usdc``) as a payload: subdivisionScheme "none", the refined
   points (the limit points with ``limit``), extent, faces, ``int64[] warpSubdiv:vertexIds`` (the ids its vertices
   have in ``refine()``), the limit normals with ``normals`` (borders share their vertices' ids and bits, so
   they shade seamlessly), the face-varying primvars refined per tile, the mesh's orientation; the tile prims in
@@ -23,6 +23,7 @@ own under the memory guard, which still refuses a mesh that does not fit.
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import tempfile
 import time
@@ -156,7 +157,7 @@ class TiledMeshes:
         channels = [pv for pv in sp.primvars if pv.interpolation == "faceVarying"]
         mode = sp.face_varying_mode
         orientation = prim.GetAttribute("orientation").Get() if prim.GetAttribute("orientation") else None
-        folder = os.path.join(self.folder, sp.path.strip("/").replace("/", "_"))
+        folder = os.path.join(self.folder, tile_folder_name(sp.path))
         self.created += make_folders(folder)
         want = dict(max_memory=self.max_memory, options=options, device=self.device,
                     limit_points=bool(self.limit), limit_normals=bool(self.normals))
@@ -206,12 +207,19 @@ class TiledMeshes:
         return "./" + os.path.relpath(final, anchor).replace(os.sep, "/")
 
     def publish(self) -> None:
-        """Give the tile layers their names (after the output is committed)."""
+        """Give the tile layers their names (after the output is committed), and remove the tile layers an earlier
+        bake left in the same folders that this one no longer references (it wrote fewer tiles)."""
         for tmp, final in self.written:
             publish(tmp, final)
             existing = Sdf.Layer.Find(final)
             if existing is not None:
                 existing.Reload(force=True)
+        finals = {final for _, final in self.written}
+        for folder in {os.path.dirname(final) for final in finals}:
+            for name in os.listdir(folder):
+                path = os.path.join(folder, name)
+                if name.startswith("tile_") and name.endswith(".usdc") and path not in finals:
+                    os.unlink(path)
 
     def discard(self) -> None:
         """Remove the tile layers written (a failed bake)."""
@@ -219,6 +227,12 @@ class TiledMeshes:
             if os.path.exists(tmp):
                 os.unlink(tmp)
         remove_folders(self.created)
+
+
+def tile_folder_name(path: str) -> str:
+    """The folder of one mesh's tile layers: its path with "/" as "_", and a digest of the path, so that meshes
+    whose flattened paths coincide (``/A_B/C``, ``/A/B_C``) get folders of their own."""
+    return f"{path.strip('/').replace('/', '_')}_{hashlib.sha1(path.encode()).hexdigest()[:8]}"
 
 
 __all__ = ["TiledMeshes", "check_tileable", "choose_tiled", "without"]
