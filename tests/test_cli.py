@@ -79,7 +79,7 @@ def test_failed_write_leaves_no_partial_file(tmp_path, monkeypatch):
         raise OSError("disk full")
 
     target = tmp_path / "out.obj"
-    monkeypatch.setattr(objio.np, "savetxt", boom)
+    monkeypatch.setattr(objio, "_write_faces", boom)  # after the vertices: a file half written
     with pytest.raises(OSError):
         objio.write_obj(str(target), np.zeros((3, 3)), [3], [0, 1, 2])
     assert os.listdir(tmp_path) == []
