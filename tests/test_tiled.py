@@ -100,10 +100,11 @@ def noisy_torus(nu, nv, rng, triangles=0.0, tags=True, sheet=False):
 @pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])
 @pytest.mark.parametrize("rules", ["piecewise-smooth", "opensubdiv"])
 def test_test_meshes_bitwise(path, scheme, rules):
-    """Every test mesh, both schemes and rule sets, levels 1-3, one face per tile at level 1, three above."""
+    """Every test mesh, both schemes and rule sets, one face per tile at level 1, three at level 2 (level 3:
+    the random tagged meshes below and the rule variants, where it costs less)."""
     data = read_obj(path)
     options = {k: v for k, v in data.options.items() if k in ("boundary", "crease_method")}
-    for levels, tile_faces in ((1, 1), (2, 3), (3, 3)):
+    for levels, tile_faces in ((1, 1), (2, 3)):
         ref, points, *_, covered, _ = gather(data.mesh, levels, tile_faces, scheme=scheme, rules=rules, **options)
         assert_bitwise(ref, points, covered)
 
