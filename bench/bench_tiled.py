@@ -4,6 +4,11 @@ fresh process, in one run.
     python bench/bench_tiled.py                                  # cube64_noisy level 5, tiled under 1G
     python bench/bench_tiled.py --levels 6 --max-memory 3G       # BENCHMARKS.md, "Beyond memory"
     python bench/bench_tiled.py --levels 7 --max-memory 8G --no-in-core --obj /tmp/cube_L7.obj
+    python bench/bench_tiled.py --levels 7 --max-memory 8G --no-in-core --cli-output /tmp/L7/cube.usdc
+
+``--cli-output PATH`` runs the command line instead (``warp-subdiv refine MESH -o PATH --levels L --max-memory M``,
+in the worker process): the whole user path, reading the OBJ, tiling and writing PATH (an OBJ file, or a USD
+layer with one payload layer per tile), and reports the bytes written beside the time and peak.
 
 The in-core worker runs ``refine(mesh, levels)``; the tiled worker iterates ``refine_tiled(mesh, levels,
 max_memory=...)`` and drops each tile after summing its points (or streams the tiles into ``--obj``). Each
@@ -38,7 +43,14 @@ def worker(args) -> None:
     ws.refine(ws.Mesh(mesh.points[:4], [4], [0, 1, 2, 3]), 1, device="cpu")  # load the kernels
     baseline = proc_status().get("VmRSS", 0)
     start = time.perf_counter()
-    if args.worker == "in-core":
+    if args.cli_output:
+        from warp_subdiv.cli import main as cli_main
+
+        code = cli_main(["refine", args.mesh, "-o", args.cli_output, "--levels", str(args.levels), "--max-memory",
+                         args.max_memory, "--quiet"])
+        result = {"exit": code, "tiles": "cli", "faces": len(mesh.face_vertex_counts) * 4 ** args.levels,
+                  "bytes_written": _bytes_written(args.cli_output)}
+    elif args.worker == "in-core":
         refined = ws.refine(mesh, args.levels, device="cpu", max_memory=None)
         result = {"vertices": len(refined.points), "faces": len(refined.face_vertex_counts), "tiles": 1}
         del refined
@@ -68,6 +80,15 @@ def worker(args) -> None:
     print(MARK + json.dumps(result), flush=True)
 
 
+def _bytes_written(path: str) -> int:
+    """The size of ``path`` and, for a tiled USD layer, of the tile layers in its ``<stem>_tiles`` folder."""
+    total = os.path.getsize(path)
+    folder = os.path.splitext(path)[0] + "_tiles"
+    for root, _, files in os.walk(folder):
+        total += sum(os.path.getsize(os.path.join(root, f)) for f in files)
+    return total
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--mesh", default=MESH)
@@ -75,6 +96,8 @@ def main() -> None:
     parser.add_argument("--max-memory", default="1G")
     parser.add_argument("--no-in-core", action="store_true", help="skip the in-core run")
     parser.add_argument("--obj", default=None, help="tiled: stream the tiles into this OBJ file")
+    parser.add_argument("--cli-output", default=None,
+                        help="tiled: run `warp-subdiv refine MESH -o PATH --max-memory M` writing PATH (OBJ or USD)")
     parser.add_argument("--kill-above", default="20G", help="kill a worker whose process tree is above this")
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -88,7 +111,8 @@ def main() -> None:
     rows = {}
     for name in runs:
         cmd = [sys.executable, os.path.abspath(__file__), "--worker", name, "--mesh", args.mesh, "--levels",
-               str(args.levels), "--max-memory", args.max_memory] + (["--obj", args.obj] if args.obj else [])
+               str(args.levels), "--max-memory", args.max_memory] + (["--obj", args.obj] if args.obj else []) + (
+                   ["--cli-output", args.cli_output] if args.cli_output else [])
         result, reason = run_child(cmd, 7200, kill, MARK, {"PYTHONPATH": ROOT})
         if result is None:
             print(f"  {name:8s} failed: {reason}")
@@ -96,7 +120,8 @@ def main() -> None:
         rows[name] = result
         print(f"  {name:8s} peak RSS {format_bytes(result['peak_rss']):>10s} (before the call "
               f"{format_bytes(result['baseline_rss'])})  {result['seconds']:8.1f} s  "
-              f"{result['tiles']} tile(s), {result['faces']:,} faces")
+              f"{result['tiles']} tile(s), {result['faces']:,} faces"
+              + (f", {format_bytes(result['bytes_written'])} written" if "bytes_written" in result else ""))
     if len(rows) == 2:
         a, b = rows["in-core"], rows["tiled"]
         print(f"  tiled / in-core: peak {b['peak_rss'] / a['peak_rss']:.2f}x, time {b['seconds'] / a['seconds']:.2f}x")

@@ -455,7 +455,8 @@ def _tile_faces(plan: _Plan, tile_faces, budget, rings, limit, deeper, held=2) -
             yield np.sort(order[start:start + tile_faces])
         return
     # what the process holds now (Warp's runtime, the mesh, the plan, the caller's data) is not the tiles'
-    available = budget - max(estimate.RUNTIME_BYTES, resident_bytes()) - GLOBAL_BYTES_PER_CORNER * int(plan.offsets[-1])
+    held_now = max(estimate.RUNTIME_BYTES, resident_bytes()) + GLOBAL_BYTES_PER_CORNER * int(plan.offsets[-1])
+    available = budget - held_now
     everything = np.arange(F, dtype=np.int64)
     if _tile_bytes(plan, everything, 0, limit, deeper, held) <= available:
         yield everything
@@ -473,8 +474,9 @@ def _tile_faces(plan: _Plan, tile_faces, budget, rings, limit, deeper, held=2) -
             raise SubdivInputError(
                 f"refining one control face with its halo to level {plan.levels} needs about "
                 f"{estimate.format_bytes(_tile_bytes(plan, faces, rings, limit, deeper, held))} (with what the tiled "
-                f"refinement keeps), more than max_memory {estimate.format_bytes(budget)} allows; raise max_memory "
-                "or refine fewer levels", option="max_memory", value=budget)
+                f"refinement keeps), more than max_memory {estimate.format_bytes(budget)} leaves beside the "
+                f"{estimate.format_bytes(held_now)} the process and the whole mesh's plan already hold; raise "
+                "max_memory or refine fewer levels", option="max_memory", value=budget)
         half = len(faces) // 2
         stack.append(faces[half:])
         stack.append(faces[:half])
