@@ -323,43 +323,28 @@ def refine_usd(
              skinning=skinning, max_influences=max_influences)
     # the kept work's folder is cleaned and removed: the input must not read anything in it
     out_abs = check_output_path(output_path, p.stage, folders=[resume_folder(os.path.abspath(output_path))])
-    # meshes that do not fit max_memory are refined in tiles (warp_subdiv.usd.tiles); the rest must fit
-    chosen = choose_tiled(p, max_memory)
-    for i in chosen:
-        check_tileable(p, i, lod_variants=lod_variants, flatten=flatten)
-    tiled_items = [(p.prims[i], p.levels[i], p.options[i]) for i in chosen]
-    if chosen:
-        p.warnings.extend(f"{sp.path}: does not fit max_memory: refined in tiles ({os.path.basename(out_abs)}: "
-                          f"{sp.prim.GetName()}_tiles, the mesh deactivated)" for sp, _, _ in tiled_items)
-        without(p, chosen)
+    tiled_items = _split_off_tiled(p, max_memory, out_abs, lod_variants=lod_variants, flatten=flatten)
     check_memory(p.estimates, max_memory, p.max_level)
-    local = local_meshes(p.stage, [o.composed for o in p.scene.top.meshes]) if lod_variants else []
-    if local and not flatten:  # variants cannot override the input's own opinions: flattened (warp_subdiv.usd.lod)
-        flatten = True
-        p.warnings.append(f"lod_variants: {len(local)} mesh(es) authored in the input itself ({local[0]}"
-                          f"{', ...' if len(local) > 1 else ''}) take their levels only in a flattened output: "
-                          "the output is flattened")
+    flatten = _flatten_for_lod(p, lod_variants, flatten)
     custom = layer_record(p, levels, limit=limit, normals=normals, semi_sharp=semi_sharp, vertex_order=vertex_order,
                           all_variants=all_variants, flatten=flatten, frames=frames,
                           skinning=skinning, max_influences=max_influences, lod_variants=lod_variants)
     layer = OutputLayer(out_abs, p.stage, custom)
-    bake = store = None
     tiled = TiledMeshes(layer, out_abs, tiled_items, max_memory=max_memory, device=device, limit=limit,
                         normals=normals)
+    bake = store = entries = None
+    if resume and not lod_variants:  # (a mesh's LOD variants are written together: nothing to keep apart)
+        store = Store(out_abs, fresh=fresh, folder=resume if isinstance(resume, str) else None)
+        run = dict(limit=bool(limit), normals=bool(normals), semi_sharp=semi_sharp, frames=frames,
+                   samples_only=bool(samples_only), device=device, skinning=skinning, max_influences=max_influences)
+        entries = MeshEntries(store, p, list(p.levels), vertex_order=vertex_order, run=run)
+    settings = dict(device=device, limit=limit, normals=normals, vertex_order=vertex_order,
+                    samples_only=samples_only, batch=batch, max_memory=max_memory, shipped=shipped,
+                    progress=progress)
     try:
-        settings = dict(device=device, limit=limit, normals=normals, vertex_order=vertex_order,
-                        samples_only=samples_only, batch=batch, max_memory=max_memory, shipped=shipped,
-                        progress=progress)
         if lod_variants and flatten:
             bake, reports, merged = _flattened_levels(p, layer, settings, lod_variants, frames)
         else:
-            entries = None
-            if resume and not lod_variants:  # (a mesh's LOD variants are written together: nothing to keep apart)
-                store = Store(out_abs, fresh=fresh, folder=resume if isinstance(resume, str) else None)
-                entries = MeshEntries(store, p, list(p.levels), vertex_order=vertex_order,
-                                      run=dict(limit=bool(limit), normals=bool(normals), semi_sharp=semi_sharp,
-                                               frames=frames, samples_only=bool(samples_only), device=device,
-                                               skinning=skinning, max_influences=max_influences))
             bake = Bake(p, layer, lod_variants=lod_variants, resume=entries, **settings)
             reports, out_layout = bake.write()
             # bounding-box hints above the refined meshes: recomputed for the refined surfaces
@@ -384,6 +369,33 @@ def refine_usd(
     return Result(out_abs, reports, bake.warnings, _time.perf_counter() - start,
                   total_bytes(p.estimates, bake.ahead.concurrent), reused=bake.copied,
                   reused_samples=bake.reused_samples)
+
+
+def _split_off_tiled(p: Plan, max_memory, out_abs: str, *, lod_variants, flatten) -> list:
+    """The meshes that do not fit ``max_memory``, taken out of the plan to be refined in tiles
+    (:mod:`warp_subdiv.usd.tiles`; the rest must fit): (prim, level, options) of each, a warning per mesh.
+    A mesh that tiles cannot write is refused here, before anything is refined."""
+    chosen = choose_tiled(p, max_memory)
+    for i in chosen:
+        check_tileable(p, i, lod_variants=lod_variants, flatten=flatten)
+    items = [(p.prims[i], p.levels[i], p.options[i]) for i in chosen]
+    if chosen:
+        p.warnings.extend(f"{sp.path}: does not fit max_memory: refined in tiles ({os.path.basename(out_abs)}: "
+                          f"{sp.prim.GetName()}_tiles, the mesh deactivated)" for sp, _, _ in items)
+        without(p, chosen)
+    return items
+
+
+def _flatten_for_lod(p: Plan, lod_variants, flatten: bool) -> bool:
+    """Whether the output is flattened: asked for, or LOD variants over meshes authored in the input's own layer
+    stack, which no variant over them can beat (:mod:`warp_subdiv.usd.lod`; a warning says so)."""
+    local = local_meshes(p.stage, [o.composed for o in p.scene.top.meshes]) if lod_variants else []
+    if local and not flatten:
+        p.warnings.append(f"lod_variants: {len(local)} mesh(es) authored in the input itself ({local[0]}"
+                          f"{', ...' if len(local) > 1 else ''}) take their levels only in a flattened output: "
+                          "the output is flattened")
+        return True
+    return flatten
 
 
 def _flattened_levels(p: Plan, layer: OutputLayer, settings: dict, levels, frames):
