@@ -192,17 +192,23 @@ def plan(
         out.warnings.extend(f"{sp.path}: {w}" for w in sp.warnings)
         out.estimates.append(e)
     if require_meshes and not out.prims:
-        where = f"under {', '.join(prims)}" if prims else "in the file"
-        why = "; ".join(f"{p} ({r})" for p, r in out.left_alone[:3])
-        if prims and not scene.units:
-            raise SubdivInputError(f"{input_path}: {', '.join(prims)} is not a mesh and holds no meshes")
-        how = ""
-        if any(r == "subdivisionScheme none" for _, r in out.left_alone):
-            how = ("; polygonal meshes (subdivisionScheme none) are refined on request: give scheme loop or "
-                   "catmull-clark with prims naming them (or a prim above them)")
-        raise SubdivInputError(f"{input_path}: no subdivision meshes {where}" + (f": {why}" if why else "") + how,
-                               option=("scheme", "prims") if how else None)
+        _refuse_empty(input_path, prims, scene, out.left_alone)
     return out
+
+
+def _refuse_empty(input_path: str, prims, scene, left_alone) -> None:
+    """The error for a run that found no subdivision mesh to refine: where it looked, why the meshes there were
+    left alone, and how to refine polygonal meshes where those were all it found."""
+    where = f"under {', '.join(prims)}" if prims else "in the file"
+    why = "; ".join(f"{p} ({r})" for p, r in left_alone[:3])
+    if prims and not scene.units:
+        raise SubdivInputError(f"{input_path}: {', '.join(prims)} is not a mesh and holds no meshes")
+    how = ""
+    if any(r == "subdivisionScheme none" for _, r in left_alone):
+        how = ("; polygonal meshes (subdivisionScheme none) are refined on request: give scheme loop or "
+               "catmull-clark with prims naming them (or a prim above them)")
+    raise SubdivInputError(f"{input_path}: no subdivision meshes {where}" + (f": {why}" if why else "") + how,
+                           option=("scheme", "prims") if how else None)
 
 
 def _run_options(scheme, rules, boundary, precision):
