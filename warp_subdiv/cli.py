@@ -90,15 +90,11 @@ def _add_refine(sub) -> None:
                           "own or on an ancestor (the nearest wins); with --camera, the most any mesh gets")
     cmd.add_argument("--max-levels", type=int, default=None, metavar="N",
                      help="USD: refine no mesh more than N levels, whatever sets its level")
-    cmd.add_argument("--camera", default=None, metavar="PRIM",
-                     help="USD: a UsdGeom.Camera prim; with --pixel-error each mesh gets the smallest level whose "
-                          "longest refined edge projects to at most that many pixels (the worst of --frames)")
-    cmd.add_argument("--pixel-error", type=float, default=None, metavar="PX",
-                     help="with --camera: the longest refined edge on screen, in pixels (> 0)")
-    cmd.add_argument("--resolution", default=None, metavar="WxH",
-                     help="with --camera: the image size (default: the stage's render settings, else 1920x1080)")
-    cmd.add_argument("--offscreen-level", type=int, default=None, metavar="N",
-                     help="with --camera: the level of meshes outside the camera's frustum (default 0)")
+    _add_camera_arguments(
+        cmd, camera="USD: a UsdGeom.Camera prim; with --pixel-error each mesh gets the smallest level whose longest "
+                     "refined edge projects to at most that many pixels (the worst of --frames)",
+        pixel_error="with --camera: the longest refined edge on screen, in pixels (> 0)",
+        offscreen_level="with --camera: the level of meshes outside the camera's frustum (default 0)")
     cmd.add_argument("--lod-variants", default=None, metavar="L0,L1,...",
                      help="USD: write every refined mesh at each of these levels, inside the variants level<N> of a "
                           "variant set subdivLOD (the last selected); meshes defined in the input itself (whose "
@@ -188,11 +184,9 @@ def _add_info(sub) -> None:
                      help="predict sizes for levels 1..N (default 4); USD: the level of meshes without a "
                           "subdiv:levels (each mesh's level is shown with where it comes from)")
     cmd.add_argument("--max-levels", type=int, default=None, metavar="N", help="USD: as for refine")
-    cmd.add_argument("--camera", default=None, metavar="PRIM",
-                     help="USD: show the levels refine --camera would choose (with --pixel-error)")
-    cmd.add_argument("--pixel-error", type=float, default=None, metavar="PX", help="with --camera: as for refine")
-    cmd.add_argument("--resolution", default=None, metavar="WxH", help="with --camera: as for refine")
-    cmd.add_argument("--offscreen-level", type=int, default=None, metavar="N", help="with --camera: as for refine")
+    _add_camera_arguments(cmd, camera="USD: show the levels refine --camera would choose (with --pixel-error)",
+                          pixel_error="with --camera: as for refine", resolution="with --camera: as for refine",
+                          offscreen_level="with --camera: as for refine")
     cmd.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path")
 
 
@@ -225,6 +219,21 @@ def _add_render(sub) -> None:
     cmd.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
 
 
+_RESOLUTION_HELP = "with --camera: the image size (default: the stage's render settings, else 1920x1080)"
+
+
+def _add_camera_arguments(cmd, *, camera: str, pixel_error: str, resolution: str = _RESOLUTION_HELP,
+                          offscreen_level: str | None = None, camera_group=None) -> None:
+    """--camera, --pixel-error, --resolution (and --offscreen-level where ``offscreen_level`` gives its help) with
+    each command's own help texts; ``camera_group``: the group --camera belongs to (tessellate: one of the ways
+    to choose rates)."""
+    (camera_group or cmd).add_argument("--camera", default=None, metavar="PRIM", help=camera)
+    cmd.add_argument("--pixel-error", type=float, default=None, metavar="PX", help=pixel_error)
+    cmd.add_argument("--resolution", default=None, metavar="WxH", help=resolution)
+    if offscreen_level is not None:
+        cmd.add_argument("--offscreen-level", type=int, default=None, metavar="N", help=offscreen_level)
+
+
 def _add_tessellate(sub) -> None:
     """The arguments of ``tessellate``."""
     cmd = sub.add_parser("tessellate", help="tessellate the limit surfaces of an OBJ or USD file (watertight, "
@@ -239,13 +248,11 @@ def _add_tessellate(sub) -> None:
                      help="target edge length in object space: each control edge gets ceil(limit length / L) "
                           "segments")
     how.add_argument("--rate", type=int, metavar="N", help="segments per control edge (uniform)")
-    how.add_argument("--camera", default=None, metavar="PRIM",
-                     help="USD: a UsdGeom.Camera prim; with --pixel-error each control edge gets ceil(its limit "
-                          "curve's projected length / PX) segments (the worst of --frames)")
-    cmd.add_argument("--pixel-error", type=float, default=None, metavar="PX",
-                     help="with --camera: the longest segment on screen, in pixels (> 0)")
-    cmd.add_argument("--resolution", default=None, metavar="WxH",
-                     help="with --camera: the image size (default: the stage's render settings, else 1920x1080)")
+    _add_camera_arguments(
+        cmd, camera_group=how,
+        camera="USD: a UsdGeom.Camera prim; with --pixel-error each control edge gets ceil(its limit curve's "
+               "projected length / PX) segments (the worst of --frames)",
+        pixel_error="with --camera: the longest segment on screen, in pixels (> 0)")
     cmd.add_argument("--prim", action="append", metavar="PATH", help="only meshes at or under this prim path (USD)")
     cmd.add_argument("--scheme", default="auto", choices=["auto", "catmull-clark", "loop"],
                      help="as for refine: auto takes each mesh's subdivisionScheme (OBJ: Loop for all triangles)")
