@@ -262,52 +262,12 @@ def build_exact_caps(sub: LocalLevel, faces: np.ndarray, options: Options, margi
     triangles = scheme != CATMULL_CLARK
     n = 3 if triangles else 4
     level = sub.level
-    anchors = faces[sub.face_node[faces] >= 0]  # tree nodes (not n-gon base faces)
-    if len(anchors) == 0:
+    found = _boundary_anchors(sub, faces, o, triangles, n)
+    if found is None:
         return None
-    # extraordinary boundary and crease vertices: a sector of other than the regular number of faces, or (where
-    # the level keeps no sector, as after a semi-sharp tag decayed) a boundary vertex with another number
-    regular_k = 3 if triangles else 2
-    odd = np.zeros(level.num_vertices, bool)
-    odd[level.sector_vertex[level.sector_k() != regular_k]] = True
-    boundary = np.zeros(level.num_vertices, bool)
-    boundary[level.edge_verts.astype(np.int64)[np.diff(level.edge_corner_offsets) == 1].reshape(-1)] = True
-    odd |= boundary & (np.diff(level.vert_corner_offsets) != regular_k)
-    odd &= level.vert_class == CREASE
-    corners = face_corners(level, anchors, n)
-    hits = odd[level.corner_vert.astype(np.int64)[corners]]
-    one = hits.sum(1) == 1
-    if not one.any():
-        return None
-    anchors, corners, hits = anchors[one], corners[one], hits[one]
-    anchor_corner = np.argmax(hits, axis=1)
-    at_vertex = corners[np.arange(len(anchors)), anchor_corner]     # each anchor's corner at its vertex
-    xs, anchor_group = np.unique(level.corner_vert.astype(np.int64)[at_vertex], return_inverse=True)
-    # start corner of each vertex: a corner whose outgoing edge is a boundary or infinitely sharp (the first
-    # face of a sector, counter-clockwise); the smallest such corner
-    twin = _twin(level)
-    lookups = LevelLookups(level, o, sub.normal_ids[:0])
-    vc_off = level.vert_corner_offsets.astype(np.int64)
-    counts = vc_off[xs + 1] - vc_off[xs]
-    members = level.vert_corners.astype(np.int64)[np.repeat(vc_off[xs] - (np.cumsum(counts) - counts), counts)
-                                                  + np.arange(int(counts.sum()))]
-    member_group = np.repeat(np.arange(len(xs)), counts)
-    first = (twin[members] < 0) | lookups.edge_inf[level.corner_edge.astype(np.int64)[members]]
-    none = np.iinfo(np.int64).max
-    start = np.full(len(xs), none)
-    np.minimum.at(start, member_group[first], members[first])
-    use = start < none
-    start = np.where(use, start, members[np.searchsorted(member_group, np.arange(len(xs)))])
-    rings, ok = _rings(level, start, triangles)
-    use &= ok
-    if len(sub.normal_ids) and o.piecewise_smooth and o.normal_strength > 0:
-        near = np.zeros(level.num_vertices, bool)
-        near[sub.normal_ids] = True
-        use &= ~np.any(near[np.maximum(rings, 0)] & (rings >= 0), axis=1)
-    if not use.any():
-        return None
+    anchors, anchor_corner, at_vertex, anchor_group, start, rings, use = found
     m = rings.shape[1]
-    tags = np.arange(1, len(xs) + 1, dtype=np.float64)
+    tags = np.arange(1, len(start) + 1, dtype=np.float64)
     D = sub.points.shape[1]
     # level d -> d + 1 on a cut-out around the vertices (all columns of the points, then the ring's colours):
     # the step matrix, checked against the step's own refined geometry (normal control, which moves the
@@ -369,17 +329,76 @@ def build_exact_caps(sub: LocalLevel, faces: np.ndarray, options: Options, margi
         return None
     groups, anchor_group = np.unique(anchor_group[anchor_ok], return_inverse=True)
     step, P = step[groups], P[groups]
-    # the limit mask l (S^T l = l, l . 1 = 1): S^T - I with its first row replaced by the ones of the ring
-    # (its rows sum to zero, so any one of them is redundant); padding solves to zero
     valid = rings0[groups] >= 0
-    A = np.swapaxes(step, 1, 2) - np.eye(m)
-    A[:, 0, :] = valid
-    rhs = np.zeros((len(groups), m))
-    rhs[:, 0] = 1.0
-    limit = np.linalg.solve(A, rhs[..., None])[..., 0]
-    deflated = step - np.where(valid[:, :, None], 1.0, 0.0) * limit[:, None, :]
+    limit, deflated = _limit_and_deflated(step, valid)
     return ExactCaps(triangles, sub.face_node[anchors[anchor_ok]].astype(np.int64), anchor_group.astype(np.int64),
                      anchor_corner[anchor_ok].astype(np.int64), nets[anchor_ok], deflated, limit, P, valid.sum(1))
+
+
+def _boundary_anchors(sub: LocalLevel, faces: np.ndarray, o: Options, triangles: bool, n: int):
+    """The anchors among ``faces`` whose only irregular corner is an extraordinary boundary or crease vertex
+    (see :func:`build_exact_caps`), and per such vertex its sector's start corner and two-ring: (anchors, the
+    corner of each at its vertex (position, corner), each anchor's vertex group, start corners, rings, which
+    vertices can be used); None where there are none."""
+    level = sub.level
+    anchors = faces[sub.face_node[faces] >= 0]  # tree nodes (not n-gon base faces)
+    if len(anchors) == 0:
+        return None
+    # extraordinary boundary and crease vertices: a sector of other than the regular number of faces, or (where
+    # the level keeps no sector, as after a semi-sharp tag decayed) a boundary vertex with another number
+    regular_k = 3 if triangles else 2
+    odd = np.zeros(level.num_vertices, bool)
+    odd[level.sector_vertex[level.sector_k() != regular_k]] = True
+    boundary = np.zeros(level.num_vertices, bool)
+    boundary[level.edge_verts.astype(np.int64)[np.diff(level.edge_corner_offsets) == 1].reshape(-1)] = True
+    odd |= boundary & (np.diff(level.vert_corner_offsets) != regular_k)
+    odd &= level.vert_class == CREASE
+    corners = face_corners(level, anchors, n)
+    hits = odd[level.corner_vert.astype(np.int64)[corners]]
+    one = hits.sum(1) == 1
+    if not one.any():
+        return None
+    anchors, corners, hits = anchors[one], corners[one], hits[one]
+    anchor_corner = np.argmax(hits, axis=1)
+    at_vertex = corners[np.arange(len(anchors)), anchor_corner]     # each anchor's corner at its vertex
+    xs, anchor_group = np.unique(level.corner_vert.astype(np.int64)[at_vertex], return_inverse=True)
+    # start corner of each vertex: a corner whose outgoing edge is a boundary or infinitely sharp (the first
+    # face of a sector, counter-clockwise); the smallest such corner
+    twin = _twin(level)
+    lookups = LevelLookups(level, o, sub.normal_ids[:0])
+    vc_off = level.vert_corner_offsets.astype(np.int64)
+    counts = vc_off[xs + 1] - vc_off[xs]
+    members = level.vert_corners.astype(np.int64)[np.repeat(vc_off[xs] - (np.cumsum(counts) - counts), counts)
+                                                  + np.arange(int(counts.sum()))]
+    member_group = np.repeat(np.arange(len(xs)), counts)
+    first = (twin[members] < 0) | lookups.edge_inf[level.corner_edge.astype(np.int64)[members]]
+    none = np.iinfo(np.int64).max
+    start = np.full(len(xs), none)
+    np.minimum.at(start, member_group[first], members[first])
+    use = start < none
+    start = np.where(use, start, members[np.searchsorted(member_group, np.arange(len(xs)))])
+    rings, ok = _rings(level, start, triangles)
+    use &= ok
+    if len(sub.normal_ids) and o.piecewise_smooth and o.normal_strength > 0:
+        near = np.zeros(level.num_vertices, bool)
+        near[sub.normal_ids] = True
+        use &= ~np.any(near[np.maximum(rings, 0)] & (rings >= 0), axis=1)
+    if not use.any():
+        return None
+    return anchors, anchor_corner, at_vertex, anchor_group, start, rings, use
+
+
+def _limit_and_deflated(step: np.ndarray, valid: np.ndarray):
+    """The limit mask l of each step matrix S (S^T l = l, l . 1 = 1: S^T - I with its first row replaced by the
+    ones of the ring, whose rows sum to zero so any one of them is redundant; padding solves to zero) and S
+    minus its limit part (the ones column times l), whose powers keep relative precision at deep levels."""
+    m = step.shape[1]
+    A = np.swapaxes(step, 1, 2) - np.eye(m)
+    A[:, 0, :] = valid
+    rhs = np.zeros((len(step), m))
+    rhs[:, 0] = 1.0
+    limit = np.linalg.solve(A, rhs[..., None])[..., 0]
+    return limit, step - np.where(valid[:, :, None], 1.0, 0.0) * limit[:, None, :]
 
 
 # ----------------------------------------------------------------------------------------- evaluation
