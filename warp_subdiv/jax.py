@@ -139,9 +139,9 @@ def _make(refiner, kind: str, normal_control):
             if kind == "evaluate":
                 y = adj.forward(xw, nc_of(width))
             elif kind == "limit_points":
-                y = adj.limit_points_forward(xw, nc_of(width))
+                y = adj.limits.points_forward(xw, nc_of(width))
             else:
-                y = adj.limit_normals_forward(xw, nc_of(width))
+                y = adj.limits.normals_forward(xw, nc_of(width))
             return wp.to_jax(y).reshape(out_rows(True), width)
         shape = jax.ShapeDtypeStruct((out_rows(True), width), dtype)
         return jax.pure_callback(host_forward, shape, x, vmap_method="sequential")
@@ -165,9 +165,9 @@ def _make(refiner, kind: str, normal_control):
             if kind == "evaluate":
                 y = adj.backward(gw, nc_of(width))
             elif kind == "limit_points":
-                y = adj.limit_points_backward(gw, nc_of(width))
+                y = adj.limits.points_backward(gw, nc_of(width))
             else:
-                y = adj.limit_normals_backward(to_warp(x), gw, nc_of(width))
+                y = adj.limits.normals_backward(to_warp(x), gw, nc_of(width))
             return wp.to_jax(y).reshape(out_rows(False), width)
         shape = jax.ShapeDtypeStruct((out_rows(False), width), dtype)
         args = (jnp.zeros((0,), dtype) if x is None else x, g)

@@ -89,9 +89,9 @@ class _Refine(torch.autograd.Function):
         if kind == "evaluate":
             y = adj.forward(xw, nc)
         elif kind == "limit_points":
-            y = adj.limit_points_forward(xw, nc)
+            y = adj.limits.points_forward(xw, nc)
         else:
-            y = adj.limit_normals_forward(xw, nc)
+            y = adj.limits.normals_forward(xw, nc)
         ctx.refiner, ctx.kind, ctx.nc = refiner, kind, nc
         if kind == "limit_normals":
             ctx.save_for_backward(x)
@@ -106,10 +106,10 @@ class _Refine(torch.autograd.Function):
             y = adj.backward(gw, ctx.nc)
             rows = ctx.refiner.base_num_vertices
         elif ctx.kind == "limit_points":
-            y = adj.limit_points_backward(gw, ctx.nc)
+            y = adj.limits.points_backward(gw, ctx.nc)
             rows = ctx.refiner.num_vertices
         else:
             (x,) = ctx.saved_tensors
-            y = adj.limit_normals_backward(_to_warp(x), gw, ctx.nc)
+            y = adj.limits.normals_backward(_to_warp(x), gw, ctx.nc)
             rows = ctx.refiner.num_vertices
         return _to_torch(y, rows, width), None, None, None

@@ -4,7 +4,7 @@
 The backward pass applies the transposed tables (:mod:`warp_subdiv.gradients.transposed`) in reverse step order:
 a step's displacements first, then its rows. The forward passes run the evaluator's records through the
 evaluator's step loop. The JAX and PyTorch adapters (:mod:`warp_subdiv.jax`, :mod:`warp_subdiv.torch`) call
-:meth:`Adjoint.forward` / :meth:`Adjoint.backward` and the limit passes.
+:meth:`Adjoint.forward` / :meth:`Adjoint.backward` and the limit passes (:mod:`.limit_passes`).
 """
 from __future__ import annotations
 
@@ -13,36 +13,16 @@ import threading
 import numpy as np
 import warp as wp
 
-from ..errors import SubdivInputError
-from ..evaluator import (PRECISIONS, LevelBuffers, Launcher, apply, displace, kernel_view, limit_normals,
-                         limit_positions, load_kernels, normal_control_for, refine_step)
+from ..evaluator import (PRECISIONS, LevelBuffers, Launcher, displace, kernel_view, load_kernels, normal_control_for,
+                         refine_step)
+from .checks import check_data
+from .limit_passes import LimitPasses
 from .records import RegularRecord, TransposedTables, _kernels, apply_rows
 
 
 def adjoint(refiner) -> "Adjoint":
     """The refiner's :class:`Adjoint` (made on first use, then kept by the refiner: ``refiner.adjoint``)."""
     return refiner.adjoint
-
-
-def check_positions(x: wp.array) -> None:
-    """Refuse data other than vec3 positions (in the kernel view) where limit normals need them."""
-    if x.ndim != 1:
-        raise SubdivInputError(f"limit normals take (n, 3) positions, got {tuple(x.shape)}", element="data",
-                               value=tuple(x.shape))
-
-
-def check_data(adj: "Adjoint", *arrays: wp.array) -> None:
-    """Refuse arrays of another precision or device than the refiner's before a kernel sees them: the kernels
-    are generic, and a launch mixing the data's precision with the records' registers an overload that does not
-    compile; Warp keeps it, and every later load of that kernel module (any refiner's, in this process) fails."""
-    for a in arrays:
-        if a.dtype not in (adj.scalar, adj.vec):
-            name = wp.types.type_repr(a.dtype)
-            raise SubdivInputError(f"the refiner's gradients take {adj.precision} data (its precision), got {name}",
-                                   element="data", value=name)
-        if a.device != adj.device:
-            raise SubdivInputError(f"data on {a.device}, the refiner on {adj.device}", element="data",
-                                   value=str(a.device))
 
 
 class Adjoint:
@@ -52,7 +32,8 @@ class Adjoint:
     Arrays are in the kernels' view (:func:`warp_subdiv.evaluator.kernel_view`): vec3 rows for width 3, (rows, d)
     otherwise, of the refiner's precision, on its device. Every call returns fresh arrays (none is shared with
     the evaluator), so the results can be held by a tape or an autograd graph. Thread safe (a lock around the
-    shared backward buffers). ``tables``: the transposed tables (:class:`~.records.TransposedTables`);
+    shared backward buffers). ``tables``: the transposed tables (:class:`~.records.TransposedTables`); ``limits``:
+    the limit passes (:class:`~.limit_passes.LimitPasses`);
     ``adapter_functions``: what framework adapters build over this adjoint and keep with it (the JAX adapter's
     differentiable functions)."""
 
@@ -68,6 +49,7 @@ class Adjoint:
         self._lock = threading.RLock()
         self._buffers = None
         self._face_buffers: dict = {}
+        self.limits = LimitPasses(self)
 
     @property
     def launcher(self) -> Launcher:
@@ -179,7 +161,7 @@ class Adjoint:
                 run.rows(_kernels().add_rows, n, [src, out])
         return out
 
-    def _last_step_forward(self, x: wp.array, normal_control: bool) -> wp.array:
+    def last_step_forward(self, x: wp.array, normal_control: bool) -> wp.array:
         """Points of the second-to-last level through the last step only (fresh array)."""
         records = self.evaluator.records()
         width = self.width(x)
@@ -189,7 +171,7 @@ class Adjoint:
         refine_step(records[-1], x, out, scratch, normal_control, self.launcher)
         return out
 
-    def _last_step_backward(self, grad: wp.array, normal_control: bool) -> wp.array:
+    def last_step_backward(self, grad: wp.array, normal_control: bool) -> wp.array:
         """The adjoint of the last step alone; ``grad`` (fresh, last level's rows) is modified in place."""
         st = self.tables.step(self.refiner.levels - 1)
         run = self.launcher
@@ -203,106 +185,3 @@ class Adjoint:
         with self._lock:  # the face buffer is shared
             apply_rows(st, grad, out, run, self._faces(self.refiner.levels - 1, width))
         return out
-
-    # ---------------------------------------------------------------------------------------- limits
-    def limit_points_forward(self, x: wp.array, normal_control=None) -> wp.array:
-        """Limit values of the last level's data ``x`` (kernel view). Where the masks are read one level deeper
-        the extra step applies prescribed normals as :meth:`Refiner.limit_points` does: ``normal_control`` None
-        on width 3 only, False never (data that is not a position), True to width 3 (refused on other widths)."""
-        check_data(self, x)
-        width = self.width(x)
-        normal_control = normal_control_for(normal_control, width)
-        source, deeper = self.refiner.limit_source()
-        sa = source.adjoint
-        run = self.launcher
-        if deeper:
-            x = sa._last_step_forward(x, normal_control)
-        masks = source.evaluator.limit_masks()
-        full = sa.empty(masks.num_vertices, width)
-        limit_positions(masks, x, full, run)
-        out = self.empty(self.refiner.num_vertices, width)
-        wp.copy(out, full, count=self.refiner.num_vertices)
-        return out
-
-    def limit_points_backward(self, grad: wp.array, normal_control=None) -> wp.array:
-        """The gradient with respect to the last level's data of a gradient of :meth:`limit_points_forward` with
-        the same ``normal_control``."""
-        check_data(self, grad)
-        width = self.width(grad)
-        normal_control = normal_control_for(normal_control, width)
-        source, deeper = self.refiner.limit_source()
-        sa = source.adjoint
-        rec = sa.tables.limit(self.refiner.num_vertices)
-        g = sa.empty(source.num_vertices, width)
-        apply(rec.position, grad, g, self.launcher)
-        return sa._last_step_backward(g, normal_control) if deeper else g
-
-    def _prescribed(self, normal_control: bool = True):
-        """Ids (of this level's vertices) and vectors of the prescribed normals that replace computed limit normals
-        of positions refined with ``normal_control`` (none where it is off, in the options or for these)."""
-        h = self.hierarchy
-        ids = np.asarray(h.normal_vertices, np.int64)
-        if self.refiner.options.normal_strength <= 0 or not normal_control:
-            ids = ids[:0]
-        return ids[ids < self.refiner.num_vertices], h.normal_vectors
-
-    def limit_normals_forward(self, x: wp.array, normal_control=None) -> wp.array:
-        """Unit limit normals of the last level's positions ``x`` (vec3), as :meth:`Refiner.limit_normals` with
-        the same ``normal_control``: None or True substitute the prescribed normals (as given) and apply them in
-        the extra step where the masks are read one level deeper; False (positions refined without normal
-        control) does neither: computed normals everywhere."""
-        check_data(self, x)
-        check_positions(x)
-        normal_control = normal_control_for(normal_control, 3)
-        source, deeper = self.refiner.limit_source()
-        sa = source.adjoint
-        run = self.launcher
-        if deeper:
-            x = sa._last_step_forward(x, normal_control)
-        masks = source.evaluator.limit_masks()
-        tu, tv = sa.empty(masks.num_tangents, 3), sa.empty(masks.num_tangents, 3)
-        full = sa.empty(masks.num_vertices, 3)
-        limit_normals(masks, x, tu, tv, full, run)
-        h = sa.hierarchy
-        if normal_control and len(h.normal_vertices) and self.refiner.options.normal_strength > 0:
-            ids = np.asarray(h.normal_vertices, np.int32)  # prescribed: as given
-            values = np.asarray(h.normal_vectors, dtype=self.scalar_np).reshape(-1, 3)
-            wp.launch(_kernels().scatter_rows, dim=len(ids),
-                      inputs=[wp.array(ids, device=self.device), wp.array(values, dtype=self.vec, device=self.device),
-                              full], device=self.device)
-        out = self.empty(self.refiner.num_vertices, 3)
-        wp.copy(out, full, count=self.refiner.num_vertices)
-        return out
-
-    def limit_normals_backward(self, x: wp.array, grad: wp.array, normal_control=None) -> wp.array:
-        """The gradient with respect to the last level's positions ``x`` of a gradient ``grad`` of the limit
-        normals (vec3 arrays) of :meth:`limit_normals_forward` with the same ``normal_control``; recomputes the
-        tangents from ``x``."""
-        check_data(self, x, grad)
-        check_positions(x)
-        check_positions(grad)
-        normal_control = normal_control_for(normal_control, 3)
-        source, deeper = self.refiner.limit_source()
-        sa = source.adjoint
-        run = self.launcher
-        k = _kernels()
-        N = self.refiner.num_vertices
-        xs = sa._last_step_forward(x, normal_control) if deeper else x
-        masks = source.evaluator.limit_masks()
-        rec = sa.tables.limit(N)
-        T = rec.num_tangents
-        tu, tv = sa.empty(masks.num_tangents, 3), sa.empty(masks.num_tangents, 3)
-        apply(masks.tangent_u, xs, tu, run)
-        apply(masks.tangent_v, xs, tv, run)
-        g = grad
-        ids, _ = self._prescribed(normal_control)
-        if len(ids):  # prescribed normals are constants
-            g = self.empty(N, 3)
-            wp.copy(g, grad)
-            wp.launch(k.zero_rows, dim=len(ids), inputs=[wp.array(ids.astype(np.int32), device=self.device),
-                                                        self.vec(), g], device=self.device)
-        guv = sa.empty(2 * T, 3)
-        run.rows(k.vertex_normals_adjoint, N, [rec.vertex_offsets, tu, tv, g, self.vec(), T, guv])
-        gx = sa.empty(source.num_vertices, 3)
-        apply(rec.tangents, guv, gx, run)
-        return sa._last_step_backward(gx, normal_control) if deeper else gx

@@ -14,7 +14,8 @@ import warp as wp
 
 from ..errors import SubdivInputError
 from ..evaluator import PRECISIONS, Evaluated, device_rows, host_rows, kernel_view, normal_control_for
-from .passes import Adjoint, adjoint, check_positions
+from .checks import check_positions
+from .passes import Adjoint, adjoint
 from .records import _kernels
 
 
@@ -45,7 +46,7 @@ def limit_points_vjp(refiner, grad, normal_control=None) -> np.ndarray:
     one level deeper), False never (data that is not a position)."""
     g = _host_rows(refiner, grad, refiner.num_vertices, "gradient")
     adj = adjoint(refiner)
-    return _shaped(adj.to_host(adj.limit_points_backward(adj.to_device(g), normal_control)), grad)
+    return _shaped(adj.to_host(adj.limits.points_backward(adj.to_device(g), normal_control)), grad)
 
 
 def limit_normals_vjp(refiner, refined_points, grad, normal_control=None) -> np.ndarray:
@@ -61,7 +62,7 @@ def limit_normals_vjp(refiner, refined_points, grad, normal_control=None) -> np.
             raise SubdivInputError(f"limit normals take (N, 3) {name}, got {a.shape}", element="data",
                                    value=a.shape)
     adj = adjoint(refiner)
-    return adj.to_host(adj.limit_normals_backward(adj.to_device(x), adj.to_device(g), normal_control))
+    return adj.to_host(adj.limits.normals_backward(adj.to_device(x), adj.to_device(g), normal_control))
 
 
 def _active_tape():
@@ -195,10 +196,10 @@ def limit_points(refiner, refined: wp.array, requires_grad=None, *, normal_contr
     rg = refined.requires_grad if requires_grad is None else bool(requires_grad)
     out, view = _result_like(adj, refined, N, width, rg)
     with _NoTape():
-        wp.copy(view, adj.limit_points_forward(x, nc))
+        wp.copy(view, adj.limits.points_forward(x, nc))
 
     def backward():
-        g = adj.limit_points_backward(_grad_view(out, N), nc)
+        g = adj.limits.points_backward(_grad_view(out, N), nc)
         adj.launcher.rows(_kernels().add_rows, N, [g, _grad_view(refined, N)])
 
     _record(rg, [refined], out, backward)
@@ -219,10 +220,10 @@ def limit_normals(refiner, refined: wp.array, requires_grad=None, *, normal_cont
     rg = refined.requires_grad if requires_grad is None else bool(requires_grad)
     out, view = _result_like(adj, refined, N, 3, rg)
     with _NoTape():
-        wp.copy(view, adj.limit_normals_forward(x, nc))
+        wp.copy(view, adj.limits.normals_forward(x, nc))
 
     def backward():
-        g = adj.limit_normals_backward(x, _grad_view(out, N), nc)
+        g = adj.limits.normals_backward(x, _grad_view(out, N), nc)
         adj.launcher.rows(_kernels().add_rows, N, [g, _grad_view(refined, N)])
 
     _record(rg, [refined], out, backward)
