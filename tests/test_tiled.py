@@ -375,6 +375,53 @@ def test_face_varying_bitwise(scheme, mode):
         assert np.array_equal(gathered[used].astype(ref_values.dtype).view(np.uint8), ref_values[used].view(np.uint8))
 
 
+@pytest.mark.parametrize("scheme,rules,limit", [("catmull-clark", "piecewise-smooth", False),
+                                                ("catmull-clark", "opensubdiv", True),
+                                                ("loop", "piecewise-smooth", True)])
+def test_vertex_data_and_face_parents_bitwise(scheme, rules, limit):
+    """Vertex data (an (n,) and an (n, 3) array) refined beside the points: each tile's rows, gathered by vertex
+    id, are Refiner.evaluate's with normal_control=False bitwise, and their limit values Refiner.limit_points'
+    (normal_control=False); each tile face's face_parent is FaceMap.parent's for its id (a mixed mesh: Loop
+    faces come from the polygons' fans)."""
+    from warp_subdiv.tables import FaceMap
+
+    rng = np.random.default_rng(21)
+    mesh = noisy_torus(8, 6, rng, triangles=0.3)
+    data = [rng.random(mesh.num_vertices), rng.random((mesh.num_vertices, 3))]
+    for levels, tile_faces in ((1, 1), (2, 5)):
+        refiner = ws.Refiner(mesh, levels, scheme=scheme, rules=rules, device="cpu")
+        expected = [refiner.evaluate(a.reshape(len(a), -1), normal_control=False) for a in data]
+        expected_limit = [refiner.limit_points(e, normal_control=False) for e in expected]
+        parent = FaceMap(mesh, levels, scheme, refiner.options.boundary.value, hierarchy=refiner.hierarchy).parent
+        gathered = [np.full(e.shape, np.nan, e.dtype) for e in expected]
+        gathered_limit = [np.full(e.shape, np.nan, e.dtype) for e in expected]
+        faces = 0
+        for tile in refine_tiled(mesh, levels, tile_faces=tile_faces, scheme=scheme, rules=rules, device="cpu",
+                                 vertex_data=data, limit_points=limit):
+            assert np.array_equal(tile.face_parent, parent[tile.face_ids])
+            faces += tile.num_faces
+            for k in range(len(data)):
+                gathered[k][tile.vertex_ids] = tile.vertex_data[k]
+                if limit:
+                    gathered_limit[k][tile.vertex_ids] = tile.limit_vertex_data[k]
+            assert (tile.limit_vertex_data is not None) == limit
+        assert faces == len(parent)
+        used = np.isin(np.arange(len(expected[0])), refiner.refine().face_vertex_indices)
+        for k in range(len(data)):
+            assert np.array_equal(gathered[k][used].view(np.uint8), expected[k][used].view(np.uint8))
+            if limit:
+                assert np.array_equal(gathered_limit[k][used].view(np.uint8), expected_limit[k][used].view(np.uint8))
+
+
+def test_vertex_data_is_checked():
+    """vertex_data that is not a list of per-vertex arrays is refused, naming it."""
+    mesh = noisy_torus(4, 4, np.random.default_rng(0), tags=False)
+    with pytest.raises(ws.SubdivInputError, match="vertex_data must be a list"):
+        next(refine_tiled(mesh, 1, vertex_data=np.zeros(mesh.num_vertices)))
+    with pytest.raises(ws.SubdivInputError, match=r"vertex_data\[0\]"):
+        next(refine_tiled(mesh, 1, vertex_data=[np.zeros(mesh.num_vertices + 1)]))
+
+
 def _grid_stage(path, n=16):
     """A stage with an n x n Catmull-Clark grid (transformed, bound to a material, a constant displayColor and
     a face-varying st) and a small quad that fits any budget."""

@@ -59,8 +59,13 @@ class Tile:
     refined mesh's counts pass 2^31); vertices are sorted by id, faces are in the order of their ids.
     ``border``: (n,) bool, the vertices that faces of other tiles use too.
     ``control_faces``: the level-0 faces of the tile (Loop: triangles of the fan triangulation).
+    ``face_parent``: the face of the mesh as given (a polygon, not a triangle of its fan) each refined face comes
+    from, as :attr:`~warp_subdiv.tables.FaceMap.parent` says of ``refine``'s faces: per-face data (uniform
+    primvars, face subsets) follows it.
     ``limit_points`` and ``limit_normals``: of ``points``, where asked for; ``face_varying``: the tile's
-    face-varying channel, where asked for."""
+    face-varying channel, where asked for; ``vertex_data``: the tile's rows of each array of ``vertex_data``
+    (refined as the points, without normal control), their limit values with ``limit_points``
+    (``limit_vertex_data``)."""
 
     index: int
     control_faces: np.ndarray
@@ -70,9 +75,12 @@ class Tile:
     vertex_ids: np.ndarray
     face_ids: np.ndarray
     border: np.ndarray
+    face_parent: np.ndarray | None = None
     limit_points: np.ndarray | None = None
     limit_normals: np.ndarray | None = None
     face_varying: "TileFaceVarying | None" = None
+    vertex_data: list | None = None
+    limit_vertex_data: list | None = None
 
     @property
     def num_vertices(self) -> int:
@@ -329,6 +337,10 @@ class _Submesh:
         flat = np.where(self.complete, flat, 0.0)
         return options.replace(flatness=np.concatenate([flat, np.zeros(self.extra)]))
 
+    def rows(self, data: np.ndarray) -> np.ndarray:
+        """The submesh's rows of per-vertex ``data`` of the whole mesh (zeros for the separate face's vertices)."""
+        return np.concatenate([data[self.verts], np.zeros((self.extra,) + data.shape[1:])])
+
     def vertex_ids(self, plan: _Plan, levels: int) -> np.ndarray:
         """(vertices of the submesh's level ``levels``,) int64: their ids in the whole mesh's level."""
         loop = plan.loop
@@ -360,7 +372,7 @@ class _Submesh:
 
 def refine_tiled(mesh: Mesh, levels: int, *, max_memory=None, tile_faces: int | None = None,
                  options: Options | None = None, device=None, threads: int | None = None,
-                 limit_points: bool = False, limit_normals: bool = False, face_varying=None,
+                 limit_points: bool = False, limit_normals: bool = False, face_varying=None, vertex_data=None,
                  **option_keywords) -> Iterator[Tile]:
     """Refine ``mesh`` uniformly ``levels`` times in tiles: an iterator of :class:`Tile`.
 
@@ -376,6 +388,11 @@ def refine_tiled(mesh: Mesh, levels: int, *, max_memory=None, tile_faces: int | 
     :func:`warp_subdiv.refine` takes them. ``face_varying``: (values, indices, mode) of a face-varying channel (as
     :meth:`Refiner.evaluate_face_varying` takes them): each tile also carries :class:`TileFaceVarying`, bitwise
     that method's values and indices for the tile's faces (its value mesh is tiled with the same faces).
+    ``vertex_data``: a list of (n,) or (n, d) arrays of per-vertex data (vertex primvars) refined as
+    :meth:`Refiner.evaluate` refines them with ``normal_control=False``, each on its own: each tile carries its
+    rows of every one (``Tile.vertex_data``, bitwise those of refining the whole mesh), and with
+    ``limit_points`` their limit values (``Tile.limit_vertex_data``, as :meth:`Refiner.limit_points` with
+    ``normal_control=False``).
     """
     if not isinstance(mesh, Mesh):
         raise TypeError(f"mesh must be a warp_subdiv.Mesh, got {type(mesh).__name__}")
@@ -392,8 +409,23 @@ def refine_tiled(mesh: Mesh, levels: int, *, max_memory=None, tile_faces: int | 
     if budget is None and tile_faces is None:
         budget = estimate.default_max_memory()
     channel = None if face_varying is None else _face_varying_plan(mesh, int(levels), options, face_varying)
+    extra = _vertex_data(mesh, vertex_data)
     return _tiles(mesh, int(levels), options, budget, tile_faces, device, resolve_threads(threads), limit,
-                  bool(limit_points), bool(limit_normals), channel)
+                  bool(limit_points), bool(limit_normals), channel, extra)
+
+
+def _vertex_data(mesh: Mesh, vertex_data) -> list:
+    """``vertex_data`` checked: a list of float64 arrays of one row per control vertex ((n,) kept as (n, 1))."""
+    if vertex_data is None:
+        return []
+    if isinstance(vertex_data, np.ndarray) or not isinstance(vertex_data, (list, tuple)):
+        raise SubdivInputError("vertex_data must be a list of arrays (one per kind of vertex data)",
+                               option="vertex_data")
+    out = []
+    for i, data in enumerate(vertex_data):
+        rows = check_rows(data, mesh.num_vertices, f"vertex_data[{i}]")
+        out.append(np.asarray(rows, dtype=np.float64).reshape(mesh.num_vertices, -1))
+    return out
 
 
 def _face_varying_plan(mesh, levels, options, face_varying):
@@ -415,13 +447,16 @@ def _face_varying_plan(mesh, levels, options, face_varying):
         return _Plan(vmesh, levels, voptions), vals[source]
 
 
-def _tiles(mesh, levels, options, budget, tile_faces, device, threads, limit, want_points, want_normals, channel):
+def _tiles(mesh, levels, options, budget, tile_faces, device, threads, limit, want_points, want_normals, channel,
+           extra):
     plan = _Plan(mesh, levels, options)
     rings = HALO_RINGS_PROJECTING if plan.projects else HALO_RINGS
     deeper = plan.limit_deeper if limit else False
     held = 3 if channel is not None else 2  # the previous tile's arrays, and this tile's while its channel refines
+    held += sum(a.shape[1] for a in extra) / 3  # vertex data: rows of the points' size per 3 columns
     for index, faces in enumerate(_tile_faces(plan, tile_faces, budget, rings, limit, deeper, held)):
-        tile = _refine_tile(plan, index, faces, rings, device, threads, want_points, want_normals, deeper)
+        tile = _refine_tile(plan, index, faces, rings, device, threads, want_points, want_normals, deeper,
+                            extra=extra)
         if channel is not None:
             fv = _refine_tile(channel[0], index, faces, HALO_RINGS, device, threads, False, False, False,
                               data=channel[1])
@@ -442,7 +477,7 @@ def _tile_bytes(plan: _Plan, faces: np.ndarray, rings: int, limit: bool, deeper:
     o = plan.options
     est = estimate.estimate("tile", len(verts), counts, num_edges, plan.levels, o.scheme, precision=o.precision,
                             projecting=plan.projects, limit=limit, limit_deeper=deeper)
-    return est.working_bytes + held * est.output_bytes + ID_MAP_BYTES * est.final.vertices
+    return int(est.working_bytes + held * est.output_bytes + ID_MAP_BYTES * est.final.vertices)
 
 
 def _tile_faces(plan: _Plan, tile_faces, budget, rings, limit, deeper, held=2) -> Iterator[np.ndarray]:
@@ -483,9 +518,10 @@ def _tile_faces(plan: _Plan, tile_faces, budget, rings, limit, deeper, held=2) -
 
 
 def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device, threads, want_points: bool,
-                 want_normals: bool, deeper: bool, data=None) -> Tile:
+                 want_normals: bool, deeper: bool, data=None, extra=()) -> Tile:
     """Refine one tile with its halo and keep the children of its own faces, with their global ids. ``data``:
-    rows per vertex of the plan's mesh refined instead of its points (no normal control)."""
+    rows per vertex of the plan's mesh refined instead of its points (no normal control); ``extra``: arrays of
+    rows per vertex refined beside the points (no normal control), with their limits where ``want_points``."""
     levels = plan.levels
     sub = _Submesh(plan, faces, rings)
     options = sub.options(plan.options)
@@ -495,11 +531,17 @@ def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device,
         if data is None:
             points = refiner.evaluate(sub.mesh.points)
         else:
-            rows = np.concatenate([data[sub.verts], np.zeros((sub.extra,) + data.shape[1:])])
-            points = refiner.evaluate(rows, normal_control=False)
+            points = refiner.evaluate(sub.rows(data), normal_control=False)
+        refined_data = [refiner.evaluate(sub.rows(a), normal_control=False) for a in extra]
         lp = ln = None
+        limit_data = []
         if want_points or want_normals:
-            lp, ln = _limits(refiner, sub, points, options, device, threads, deeper, want_points, want_normals)
+            source, last_step, rows = _limit_source(refiner, sub, options, device, threads, deeper)
+            lp, ln = _limits(source, last_step, rows, points, options, want_points, want_normals)
+            if want_points:
+                limit_data = [source.evaluator.limit_points(a, last_step=last_step, normal_control=False, rows=rows)
+                              for a in refined_data]
+            del source
     final = refiner.hierarchy.final
     base_hole = refiner.hierarchy.parentage.base_face_hole  # the submesh's level-0 holes ("none" included)
     del refiner
@@ -516,6 +558,7 @@ def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device,
     mine = np.flatnonzero(sub.in_tile & ~base_hole)
     kept = _corners_of(first, mine)
     g = sub.faces[mine]
+    parent = g if plan.faces.control_face is None else plan.faces.control_face[g]
     shift = plan.first_child[g] - plan.holes_before[g] - first[mine]
     face_ids = (kept + np.repeat(shift, per_face[mine])).astype(plan.id_dtype)
     F = final.num_faces
@@ -546,19 +589,26 @@ def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device,
         vertex_ids=vertex_ids.astype(plan.id_dtype),
         face_ids=face_ids,
         border=border,
+        face_parent=np.repeat(parent, per_face[mine]).astype(plan.id_dtype),
         limit_points=None if lp is None else np.ascontiguousarray(lp[used]),
         limit_normals=None if ln is None else np.ascontiguousarray(ln[used]),
+        vertex_data=[np.ascontiguousarray(a[used]) for a in refined_data] if extra else None,
+        limit_vertex_data=[np.ascontiguousarray(a[used]) for a in limit_data] if extra and want_points else None,
     )
 
 
-def _limits(refiner: Refiner, sub: _Submesh, points, options, device, threads, deeper, want_points, want_normals):
-    """Limit points and normals of the submesh's last level, with the whole mesh's choice of masks (this level's,
-    or one level deeper's): a submesh's own choice can differ, its cut-off halo has crease sectors the whole
-    mesh does not."""
-    source, last_step, rows = refiner, False, None
-    if deeper:
-        source = Refiner(sub.mesh, refiner.levels + 1, options=options, device=device, threads=threads)
-        last_step, rows = True, refiner.num_vertices
+def _limit_source(refiner: Refiner, sub: _Submesh, options, device, threads, deeper: bool):
+    """(refiner whose limit masks serve, whether its last step is refined first, the rows kept): the submesh's
+    refiner itself, or with the whole mesh's choice of masks one level deeper (a submesh's own choice can differ:
+    its cut-off halo has crease sectors the whole mesh does not) a refiner of one more level."""
+    if not deeper:
+        return refiner, False, None
+    return Refiner(sub.mesh, refiner.levels + 1, options=options, device=device, threads=threads), True, \
+        refiner.num_vertices
+
+
+def _limits(source: Refiner, last_step: bool, rows, points, options, want_points, want_normals):
+    """Limit points and normals of the submesh's last level from ``source`` (:func:`_limit_source`)."""
     evaluator = source.evaluator
     lp = evaluator.limit_points(points, last_step=last_step, normal_control=True, rows=rows) if want_points else None
     ln = None
