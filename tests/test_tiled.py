@@ -375,6 +375,26 @@ def test_face_varying_bitwise(scheme, mode):
         assert np.array_equal(gathered[used].astype(ref_values.dtype).view(np.uint8), ref_values[used].view(np.uint8))
 
 
+def test_several_face_varying_channels_in_one_pass():
+    """A list of channels: each tile carries a list of TileFaceVarying in that order, each equal to the tile of
+    the same channel asked for alone (the tiles are the same)."""
+    rng = np.random.default_rng(5)
+    mesh = noisy_torus(6, 5, rng, triangles=0.3)
+    n = len(mesh.face_vertex_indices)
+    channels = [(rng.random((n, 2)), np.arange(n), "corners-plus1"),
+                (rng.random((mesh.num_vertices, 1)), mesh.face_vertex_indices, "all")]
+    both = list(refine_tiled(mesh, 2, tile_faces=4, device="cpu", face_varying=channels))
+    for k, channel in enumerate(channels):
+        alone = list(refine_tiled(mesh, 2, tile_faces=4, device="cpu", face_varying=channel))
+        assert len(alone) == len(both)
+        for a, b in zip(alone, both):
+            assert isinstance(b.face_varying, list) and len(b.face_varying) == 2
+            got = b.face_varying[k]
+            assert np.array_equal(a.face_varying.values, got.values)
+            assert np.array_equal(a.face_varying.indices, got.indices)
+            assert np.array_equal(a.face_varying.value_ids, got.value_ids)
+
+
 @pytest.mark.parametrize("scheme,rules,limit", [("catmull-clark", "piecewise-smooth", False),
                                                 ("catmull-clark", "opensubdiv", True),
                                                 ("loop", "piecewise-smooth", True)])

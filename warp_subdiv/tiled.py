@@ -63,9 +63,9 @@ class Tile:
     from, as :attr:`~warp_subdiv.tables.FaceMap.parent` says of ``refine``'s faces: per-face data (uniform
     primvars, face subsets) follows it.
     ``limit_points`` and ``limit_normals``: of ``points``, where asked for; ``face_varying``: the tile's
-    face-varying channel, where asked for; ``vertex_data``: the tile's rows of each array of ``vertex_data``
-    (refined as the points, without normal control), their limit values with ``limit_points``
-    (``limit_vertex_data``)."""
+    face-varying channel (a list of them where a list of channels was asked for); ``vertex_data``: the tile's
+    rows of each array of ``vertex_data`` (refined as the points, without normal control), their limit values
+    with ``limit_points`` (``limit_vertex_data``)."""
 
     index: int
     control_faces: np.ndarray
@@ -387,7 +387,8 @@ def refine_tiled(mesh: Mesh, levels: int, *, max_memory=None, tile_faces: int | 
     those of :meth:`Refined.limit_points` and :meth:`Refined.limit_normals`. ``device`` and ``threads`` as
     :func:`warp_subdiv.refine` takes them. ``face_varying``: (values, indices, mode) of a face-varying channel (as
     :meth:`Refiner.evaluate_face_varying` takes them): each tile also carries :class:`TileFaceVarying`, bitwise
-    that method's values and indices for the tile's faces (its value mesh is tiled with the same faces).
+    that method's values and indices for the tile's faces (its value mesh is tiled with the same faces); or a
+    list of such channels (UV sets, say): each tile carries a list of them, in that order.
     ``vertex_data``: a list of (n,) or (n, d) arrays of per-vertex data (vertex primvars) refined as
     :meth:`Refiner.evaluate` refines them with ``normal_control=False``, each on its own: each tile carries its
     rows of every one (``Tile.vertex_data``, bitwise those of refining the whole mesh), and with
@@ -408,10 +409,12 @@ def refine_tiled(mesh: Mesh, levels: int, *, max_memory=None, tile_faces: int | 
     budget = estimate.memory_limit(max_memory)
     if budget is None and tile_faces is None:
         budget = estimate.default_max_memory()
-    channel = None if face_varying is None else _face_varying_plan(mesh, int(levels), options, face_varying)
+    several = isinstance(face_varying, list)
+    channels = [_face_varying_plan(mesh, int(levels), options, c)
+                for c in (face_varying if several else [] if face_varying is None else [face_varying])]
     extra = _vertex_data(mesh, vertex_data)
     return _tiles(mesh, int(levels), options, budget, tile_faces, device, resolve_threads(threads), limit,
-                  bool(limit_points), bool(limit_normals), channel, extra)
+                  bool(limit_points), bool(limit_normals), channels, several, extra)
 
 
 def _vertex_data(mesh: Mesh, vertex_data) -> list:
@@ -447,20 +450,22 @@ def _face_varying_plan(mesh, levels, options, face_varying):
         return _Plan(vmesh, levels, voptions), vals[source]
 
 
-def _tiles(mesh, levels, options, budget, tile_faces, device, threads, limit, want_points, want_normals, channel,
-           extra):
+def _tiles(mesh, levels, options, budget, tile_faces, device, threads, limit, want_points, want_normals, channels,
+           several, extra):
     plan = _Plan(mesh, levels, options)
     rings = HALO_RINGS_PROJECTING if plan.projects else HALO_RINGS
     deeper = plan.limit_deeper if limit else False
-    held = 3 if channel is not None else 2  # the previous tile's arrays, and this tile's while its channel refines
-    held += sum(a.shape[1] for a in extra) / 3  # vertex data: rows of the points' size per 3 columns
+    # the previous tile's arrays and this tile's, and this tile's channels as they are refined one by one; vertex
+    # data: rows of the points' size per 3 columns
+    held = 2 + len(channels) + sum(a.shape[1] for a in extra) / 3
     for index, faces in enumerate(_tile_faces(plan, tile_faces, budget, rings, limit, deeper, held)):
         tile = _refine_tile(plan, index, faces, rings, device, threads, want_points, want_normals, deeper,
                             extra=extra)
-        if channel is not None:
-            fv = _refine_tile(channel[0], index, faces, HALO_RINGS, device, threads, False, False, False,
-                              data=channel[1])
-            tile.face_varying = TileFaceVarying(fv.points, fv.face_vertex_indices, fv.vertex_ids)
+        fvs = [_refine_tile(c[0], index, faces, HALO_RINGS, device, threads, False, False, False, data=c[1])
+               for c in channels]
+        fvs = [TileFaceVarying(fv.points, fv.face_vertex_indices, fv.vertex_ids) for fv in fvs]
+        if fvs:
+            tile.face_varying = fvs if several else fvs[0]
         yield tile
 
 
