@@ -537,6 +537,92 @@ def test_usd_bake_in_tiles(tmp_path, monkeypatch):
     assert not validation_errors(out)
 
 
+def _add_per_vertex_and_per_face_data(src):
+    """Give the grid of :func:`_grid_stage` a vertex primvar, a uniform one, an indexed uniform one and a
+    partition of its faces into two material subsets bound to two materials."""
+    from pxr import Sdf, Usd, UsdGeom, UsdShade
+
+    stage = Usd.Stage.Open(src)
+    grid = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Grid"))
+    n_points = len(grid.GetPointsAttr().Get())
+    n_faces = len(grid.GetFaceVertexCountsAttr().Get())
+    rng = np.random.default_rng(8)
+    pv = UsdGeom.PrimvarsAPI(grid)
+    pv.CreatePrimvar("height", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
+        rng.random(n_points).astype(np.float32))
+    pv.CreatePrimvar("tint", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.uniform).Set(
+        rng.random((n_faces, 3)).astype(np.float32))
+    kind = pv.CreatePrimvar("kind", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.uniform)
+    kind.Set([10, 20, 30])
+    kind.SetIndices(rng.integers(0, 3, n_faces).tolist())
+    left = np.flatnonzero(np.arange(n_faces) % 16 < 8)
+    right = np.setdiff1d(np.arange(n_faces), left)
+    for name, ids in (("left", left), ("right", right)):
+        material = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
+        subset = UsdShade.MaterialBindingAPI(grid.GetPrim()).CreateMaterialBindSubset(name, ids.tolist())
+        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(material)
+    UsdShade.MaterialBindingAPI(grid.GetPrim()).SetMaterialBindSubsetsFamilyType(UsdGeom.Tokens.partition)
+    stage.Save()
+
+
+@pytest.mark.parametrize("limit", [False, True])
+def test_usd_bake_in_tiles_carries_primvars_and_subsets(tmp_path, monkeypatch, limit):
+    """Vertex, uniform (plain and indexed) primvars and material subsets of a mesh baked in tiles: on each tile,
+    the values and faces the in-core bake (OpenSubdiv's vertex order) gives the same vertex and face ids, bitwise;
+    each tile face bound to the material its control face's subset binds; the subset family kept; no
+    validation error."""
+    from test_usd_production import validation_errors
+
+    import warp_subdiv.tiled
+    from pxr import Usd, UsdGeom, UsdShade
+    from warp_subdiv.usd import refine_usd
+
+    src = str(tmp_path / "in.usda")
+    _, points, quads = _grid_stage(src)
+    _add_per_vertex_and_per_face_data(src)
+    mesh = ws.Mesh(points, np.full(len(quads), 4), quads.ravel())
+    monkeypatch.setattr(warp_subdiv.tiled, "resident_bytes", lambda: 0)
+    budget = ws.runtime.estimate.RUNTIME_BYTES + _tile_bytes(_Plan(mesh, 2, ws.Options()), np.arange(mesh.num_faces),
+                                                             0, True, False, 4) // 3
+    common = dict(device="cpu", limit=limit, normals=True, resume=False, vertex_order="opensubdiv")
+    refine_usd(src, str(tmp_path / "whole.usda"), 2, **common)
+    result = refine_usd(src, str(tmp_path / "tiled.usda"), 2, max_memory=budget, **common)
+    assert any("refined in tiles" in w for w in result.warnings)
+    whole = Usd.Stage.Open(str(tmp_path / "whole.usda"))
+    ref = UsdGeom.Mesh(whole.GetPrimAtPath("/World/Grid"))
+    ref_pv = UsdGeom.PrimvarsAPI(ref)
+    ref_face_material = {}
+    for subset in UsdShade.MaterialBindingAPI(ref.GetPrim()).GetMaterialBindSubsets():
+        material = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()[0].GetPath()
+        ref_face_material.update({int(f): material for f in subset.GetIndicesAttr().Get()})
+    stage = Usd.Stage.Open(str(tmp_path / "tiled.usda"))
+    tiles = stage.GetPrimAtPath("/World/Grid_tiles").GetChildren()
+    assert len(tiles) > 1
+    seen = 0
+    for child in tiles:
+        tile = UsdGeom.Mesh(child)
+        vids = np.array(child.GetAttribute("warpSubdiv:vertexIds").Get())
+        fids = np.array(child.GetAttribute("warpSubdiv:faceIds").Get())
+        pv = UsdGeom.PrimvarsAPI(tile)
+        assert np.array_equal(np.array(pv.GetPrimvar("height").Get()), np.array(ref_pv.GetPrimvar("height").Get())[vids])
+        assert pv.GetPrimvar("height").GetInterpolation() == "vertex"
+        assert np.array_equal(np.array(pv.GetPrimvar("tint").Get()), np.array(ref_pv.GetPrimvar("tint").Get())[fids])
+        kind, ref_kind = pv.GetPrimvar("kind"), ref_pv.GetPrimvar("kind")
+        assert np.array_equal(np.array(kind.ComputeFlattened()), np.array(ref_kind.ComputeFlattened())[fids])
+        assert kind.IsIndexed()
+        binding = UsdShade.MaterialBindingAPI(child)
+        assert binding.GetMaterialBindSubsetsFamilyType() == UsdGeom.Tokens.partition
+        subsets = binding.GetMaterialBindSubsets()
+        assert subsets
+        for subset in subsets:
+            material = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()[0].GetPath()
+            for f in subset.GetIndicesAttr().Get():
+                assert ref_face_material[int(fids[f])] == material
+                seen += 1
+    assert seen == len(ref_face_material) == len(ref.GetFaceVertexCountsAttr().Get())
+    assert not validation_errors(str(tmp_path / "tiled.usda"))
+
+
 def test_usd_bake_refuses_what_tiles_cannot_write(tmp_path):
     """A mesh that must be tiled but has what tiles do not carry (time samples here) is refused, naming the
     prim and saying it is refined in tiles."""

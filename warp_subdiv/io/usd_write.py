@@ -408,13 +408,16 @@ def _prim_name(name: str) -> str:
     return "_" + prim_name if prim_name[0].isdigit() else prim_name
 
 
-def save_tile_layer(path: str, final: str, tile, points=None, primvars=(), orientation: str | None = None) -> None:
+def save_tile_layer(path: str, final: str, tile, points=None, primvars=(), orientation: str | None = None,
+                    subsets=(), attributes=()) -> None:
     """Save one tile of :func:`warp_subdiv.refine_tiled` as a layer at ``path`` (``final``: the name it will have,
     for the error): a Mesh /tile (its default prim) with subdivisionScheme "none", ``points`` (default: the
     tile's), extent, faces, the ids its vertices and faces have in the in-core refinement as ``int64[]
     warpSubdiv:vertexIds`` and ``warpSubdiv:faceIds``, and the tile's limit normals as ``normals`` where it has
     them. ``primvars``: (name, type name, values, indices or None, interpolation) written as they are;
-    ``orientation``: authored when given."""
+    ``orientation``: authored when given; ``subsets``: (name, face indices, family name or None), written as
+    face GeomSubsets under the mesh; ``attributes``: (name, type name, value) authored on the mesh as they are
+    (uniform: the mesh's ``subsetFamily:*`` attributes)."""
     T = Sdf.ValueTypeNames
     points = tile.points if points is None else points
     layer = Sdf.Layer.CreateNew(path)
@@ -445,6 +448,14 @@ def save_tile_layer(path: str, final: str, tile, points=None, primvars=(), orien
         spec.SetInfo("interpolation", interpolation)
         if indices is not None:
             Sdf.AttributeSpec(prim, name + ":indices", T.IntArray).default = int_array(indices)
+    for name, type_name, value in attributes:
+        Sdf.AttributeSpec(prim, name, type_name, Sdf.VariabilityUniform).default = value
+    for name, indices, family in subsets:
+        subset = Sdf.PrimSpec(prim, name, Sdf.SpecifierDef, "GeomSubset")
+        Sdf.AttributeSpec(subset, "elementType", T.Token, Sdf.VariabilityUniform).default = UsdGeom.Tokens.face
+        Sdf.AttributeSpec(subset, "indices", T.IntArray).default = int_array(indices)
+        if family is not None:
+            Sdf.AttributeSpec(subset, "familyName", T.Token, Sdf.VariabilityUniform).default = family
     if not layer.Save():
         raise OSError(f"could not save {final}")
 

@@ -351,6 +351,7 @@ def refine_usd(
             layer.override_extents_hints(p.stage, out_layout.hint_roots(p), frames)
             merged = None
         reports = reports + tiled.write()
+        bake.warnings.extend(tiled.warnings)
         if progress is not None:
             progress(1.0, "writing " + os.path.basename(out_abs))
         layer.commit(flatten=flatten, flattened=merged)

@@ -9,15 +9,19 @@ memory guard; :func:`without` takes them out of the plan; :class:`TiledMeshes` r
   ``!resetXformStack!`` where the mesh resets it), its ``purpose`` and ``visibility`` where authored;
 * under it one ``Mesh`` ``tile_0000``, ``tile_0001``, ... per tile, each loading a layer of its own
   (``<output stem>_tiles/<mesh path, digest>/tile_NNNN.usdc``) as a payload: subdivisionScheme "none", the refined
-  points (the limit points with ``limit``), extent, faces, ``int64[] warpSubdiv:vertexIds`` (the ids its vertices
-  have in ``refine()``), the limit normals with ``normals`` (borders share their vertices' ids and bits, so
-  they shade seamlessly), the face-varying primvars refined per tile, the mesh's orientation; the tile prims in
-  the output layer carry the mesh's material bindings (every ``material:binding*`` relationship, with
-  MaterialBindingAPI) and its constant primvars.
+  points (the limit points with ``limit``), extent, faces, ``int64[] warpSubdiv:vertexIds`` and ``faceIds`` (the
+  ids its vertices and faces have in ``refine()``), the limit normals with ``normals`` (borders share their
+  vertices' ids and bits, so they shade seamlessly), the mesh's orientation and its primvars refined per tile:
+  vertex primvars as the points (their limit values with ``limit``), uniform ones following each face's control
+  face, face-varying ones refined per tile; its face GeomSubsets with the tile's faces of each (a subset no face
+  of the tile is in is left out), their ``elementType``, ``familyName`` and the mesh's ``subsetFamily:*``
+  attributes; the tile prims in the output layer carry the mesh's material bindings (every
+  ``material:binding*`` relationship, with MaterialBindingAPI), the subsets' bindings likewise, and the mesh's
+  constant primvars.
 
-Refused, with an error naming the prim: meshes with time samples (points, primvars, topology or transform),
-skinned meshes, meshes inside instances or variants or shared with identical meshes, bilinear meshes, meshes
-with vertex, varying or uniform primvars, velocities / accelerations or GeomSubsets, and LOD variants or
+Refused, with an error naming the prim: meshes with time samples (points, primvars, subsets, topology or
+transform), skinned meshes, meshes inside instances or variants or shared with identical meshes, bilinear
+meshes, meshes with varying primvars, velocities / accelerations or edge GeomSubsets, and LOD variants or
 flattened output. Distributed bakes (:mod:`~warp_subdiv.usd.distributed`) build a mesh's tables in a task of its
 own under the memory guard, which still refuses a mesh that does not fit.
 """
@@ -78,7 +82,7 @@ def check_tileable(p: Plan, i: int, *, lod_variants=None, flatten=False) -> None
         _refuse(sp, "meshes in instances, in variants or shared with identical meshes")
     if isinstance(sp, SkinnedPrim):
         _refuse(sp, "skinned meshes")
-    if sp.point_times or sp.topologies or any(pv.times for pv in sp.primvars):
+    if sp.point_times or sp.topologies or any(pv.times for pv in sp.primvars) or any(s.times for s in sp.subsets):
         _refuse(sp, "time samples")
     if UsdGeom.Xformable(sp.prim).TransformMightBeTimeVarying():
         _refuse(sp, "a time-varying transform")
@@ -86,11 +90,12 @@ def check_tileable(p: Plan, i: int, *, lod_variants=None, flatten=False) -> None
         _refuse(sp, "bilinear meshes")
     if sp.point_arrays:
         _refuse(sp, "velocities or accelerations")
-    if sp.subsets:
-        _refuse(sp, "GeomSubsets")
-    other = [pv.name for pv in sp.primvars if pv.interpolation != "faceVarying"]
-    if other:
-        _refuse(sp, f"vertex, varying or uniform primvars ({', '.join(other)})")
+    edges = [s.path for s in sp.subsets if s.element != "face"]
+    if edges:
+        _refuse(sp, f"edge GeomSubsets ({', '.join(edges)})")
+    varying = [pv.name for pv in sp.primvars if pv.interpolation == "varying"]
+    if varying:
+        _refuse(sp, f"varying primvars ({', '.join(varying)})")
     parent = sp.prim.GetParent()
     if parent.GetChild(sp.prim.GetName() + "_tiles"):
         _refuse(sp, f"a sibling named {sp.prim.GetName()}_tiles (the tiles' name)")
@@ -121,6 +126,7 @@ class TiledMeshes:
         self.folder = os.path.splitext(os.path.abspath(output))[0] + "_tiles"
         self.created: list = []
         self.written: list = []  # (temporary, final)
+        self.warnings: list = []
 
     def write(self) -> list:
         """Refine and write every tiled mesh; returns a report per mesh."""
@@ -136,60 +142,37 @@ class TiledMeshes:
         layer = self.layer
         prim = sp.prim
         layer.prim(sp.path).SetInfo("active", False)
-        tiles_path = prim.GetPath().GetParentPath().AppendChild(prim.GetName() + "_tiles")
-        xform = Sdf.CreatePrimInLayer(layer.layer, tiles_path)
-        xform.specifier = Sdf.SpecifierDef
-        xform.typeName = "Xform"
-        T = Sdf.ValueTypeNames
-        xformable = UsdGeom.Xformable(prim)
-        order = ["!resetXformStack!"] if xformable.GetResetXformStack() else []
-        matrix = xformable.GetLocalTransformation()
-        Sdf.AttributeSpec(xform, "xformOp:transform", T.Matrix4d).default = matrix
-        order.append("xformOp:transform")
-        Sdf.AttributeSpec(xform, "xformOpOrder", T.TokenArray, Sdf.VariabilityUniform).default = order
-        for name, variability in (("purpose", Sdf.VariabilityUniform), ("visibility", Sdf.VariabilityVarying)):
-            attr = prim.GetAttribute(name)
-            if attr and attr.HasAuthoredValue():
-                Sdf.AttributeSpec(xform, name, T.Token, variability).default = attr.Get()
+        xform = self._tiles_xform(prim)
         bindings = [r for r in prim.GetRelationships() if r.GetName().startswith("material:binding")]
         constants = [pv for pv in UsdGeom.PrimvarsAPI(prim).GetPrimvars()
                      if pv.GetInterpolation() == UsdGeom.Tokens.constant and pv.HasAuthoredValue()]
-        channels = [pv for pv in sp.primvars if pv.interpolation == "faceVarying"]
-        mode = sp.face_varying_mode
+        families = [a for a in prim.GetAttributes() if a.GetName().startswith("subsetFamily:") and a.HasAuthoredValue()]
+        per_tile = _TilePrimvars(sp)
+        subsets = _TileSubsets(sp)
         orientation = prim.GetAttribute("orientation").Get() if prim.GetAttribute("orientation") else None
         folder = os.path.join(self.folder, tile_folder_name(sp.path))
         self.created += make_folders(folder)
-        want = dict(max_memory=self.max_memory, options=options, device=self.device,
-                    limit_points=bool(self.limit), limit_normals=bool(self.normals))
-        # one tiled refinement per face-varying channel (the first gives the points too), all with the same tiles:
-        # the tiling depends on the mesh, the budget and whether a channel is refined
-        runs = [refine_tiled(sp.mesh, level, face_varying=(*face_varying_input(sp, pv, DEFAULT)[:2], mode), **want)
-                for pv in channels] or [refine_tiled(sp.mesh, level, **want)]
+        tiles = refine_tiled(sp.mesh, level, max_memory=self.max_memory, options=options, device=self.device,
+                             limit_points=bool(self.limit), limit_normals=bool(self.normals),
+                             face_varying=per_tile.channels or None, vertex_data=per_tile.vertex_rows or None)
         count = vertices = faces = 0
-        for tiles in zip(*runs):
-            tile = tiles[0]
-            others = tiles if channels else ()
+        for tile in tiles:
             name = f"tile_{count:04d}"
             final = os.path.join(folder, name + ".usdc")
             fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=".usdc", dir=folder)
             os.close(fd)
             self.written.append((tmp, final))
-            primvars = []
-            for pv, other in zip(channels, others):
-                like = np.asarray(pv.raw(DEFAULT)[0])
-                values = np.asarray(other.face_varying.values).reshape(len(other.face_varying.values), -1)
-                shaped = values.reshape((len(values) * pv.element_size,) + like.shape[1:])
-                primvars.append((pv.name, pv.type_name, vt_array(pv.type_name, shaped, like),
-                                 other.face_varying.indices, "faceVarying"))
             points = tile.limit_points if self.limit else tile.points
-            save_tile_layer(tmp, final, tile, points=points, primvars=primvars, orientation=orientation)
+            tile_subsets = subsets.of(tile)
+            save_tile_layer(tmp, final, tile, points=points, primvars=per_tile.of(tile, self.limit),
+                            orientation=orientation, subsets=[(n, idx, family) for n, idx, family, _ in tile_subsets],
+                            attributes=[(a.GetName(), a.GetTypeName(), a.Get()) for a in families])
             child = Sdf.PrimSpec(xform, name, Sdf.SpecifierDef, "Mesh")
             child.payloadList.Prepend(Sdf.Payload(self._relative(final)))
-            if bindings:
-                child.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=["MaterialBindingAPI"]))
-            for rel in bindings:
-                spec = Sdf.RelationshipSpec(child, rel.GetName(), custom=False)
-                spec.targetPathList.explicitItems = rel.GetTargets()
+            _bind(child, bindings)
+            for subset_name, _, _, subset_bindings in tile_subsets:
+                if subset_bindings:
+                    _bind(Sdf.PrimSpec(child, subset_name, Sdf.SpecifierOver), subset_bindings)
             for pv in constants:
                 attr = pv.GetAttr()
                 spec = Sdf.AttributeSpec(child, attr.GetName(), attr.GetTypeName())
@@ -198,9 +181,28 @@ class TiledMeshes:
             count += 1
             vertices += tile.num_vertices
             faces += tile.num_faces
+        self.warnings.extend(subsets.warnings)
         return PrimReport(path=sp.path, scheme=sp.scheme, rules=options.rules.value, faces_in=sp.mesh.num_faces,
                           faces_out=faces, vertices_in=sp.mesh.num_vertices, vertices_out=vertices, samples=1,
                           level=level)
+
+    def _tiles_xform(self, prim) -> Sdf.PrimSpec:
+        """The Xform ``<name>_tiles`` beside ``prim`` with its local transform, purpose and visibility."""
+        tiles_path = prim.GetPath().GetParentPath().AppendChild(prim.GetName() + "_tiles")
+        xform = Sdf.CreatePrimInLayer(self.layer.layer, tiles_path)
+        xform.specifier = Sdf.SpecifierDef
+        xform.typeName = "Xform"
+        T = Sdf.ValueTypeNames
+        xformable = UsdGeom.Xformable(prim)
+        order = ["!resetXformStack!"] if xformable.GetResetXformStack() else []
+        Sdf.AttributeSpec(xform, "xformOp:transform", T.Matrix4d).default = xformable.GetLocalTransformation()
+        order.append("xformOp:transform")
+        Sdf.AttributeSpec(xform, "xformOpOrder", T.TokenArray, Sdf.VariabilityUniform).default = order
+        for name, variability in (("purpose", Sdf.VariabilityUniform), ("visibility", Sdf.VariabilityVarying)):
+            attr = prim.GetAttribute(name)
+            if attr and attr.HasAuthoredValue():
+                Sdf.AttributeSpec(xform, name, T.Token, variability).default = attr.Get()
+        return xform
 
     def _relative(self, final: str) -> str:
         anchor = os.path.dirname(self.layer.output)
@@ -227,6 +229,106 @@ class TiledMeshes:
             if os.path.exists(tmp):
                 os.unlink(tmp)
         remove_folders(self.created)
+
+
+def _bind(spec: Sdf.PrimSpec, bindings) -> None:
+    """Author the material binding relationships ``bindings`` (of another prim) on ``spec``, with
+    MaterialBindingAPI."""
+    if not bindings:
+        return
+    spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=["MaterialBindingAPI"]))
+    for rel in bindings:
+        target = Sdf.RelationshipSpec(spec, rel.GetName(), custom=False)
+        target.targetPathList.explicitItems = rel.GetTargets()
+
+
+class _TilePrimvars:
+    """A mesh's vertex, uniform and face-varying primvars (at the default time) as a tiled refinement takes
+    them (:attr:`vertex_rows`, :attr:`channels`) and as each tile writes them (:meth:`of`), the values the in-core
+    bake writes for the same vertices and faces."""
+
+    def __init__(self, sp):
+        self.sp = sp
+        self.vertex = [pv for pv in sp.primvars if pv.interpolation == "vertex"]
+        self.uniform = [pv for pv in sp.primvars if pv.interpolation == "uniform"]
+        self.face_varying = [pv for pv in sp.primvars if pv.interpolation == "faceVarying"]
+        self.vertex_rows = [self._rows(pv, sp.mesh.num_vertices) for pv in self.vertex]
+        self.uniform_values = [self._uniform(pv) for pv in self.uniform]
+        mode = sp.face_varying_mode
+        self.channels = [(*face_varying_input(sp, pv, DEFAULT)[:2], mode) for pv in self.face_varying]
+
+    def _rows(self, pv, expected: int) -> np.ndarray:
+        rows = pv.flattened(DEFAULT, self.sp.path)
+        if len(rows) != expected:
+            raise SubdivInputError(f"{self.sp.path}: {pv.name} has {len(rows)} {pv.interpolation} values, the mesh "
+                                   f"needs {expected}")
+        return rows.astype(np.float64) if pv.interpolation == "vertex" else rows
+
+    def _uniform(self, pv):
+        """(values as authored, indices per face) of an indexed uniform primvar; (rows per face, None) else."""
+        faces = self.sp.mesh.num_faces
+        if not pv.indexed:
+            return self._rows(pv, faces), None
+        _, idx = pv.elements(DEFAULT, self.sp.path)
+        if idx is None or len(idx) != faces:
+            raise SubdivInputError(f"{self.sp.path}: {pv.name}:indices has {0 if idx is None else len(idx)} entries "
+                                   f"for {faces} faces")
+        return pv.raw(DEFAULT)[0], idx
+
+    def of(self, tile, limit: bool) -> list:
+        """(name, type name, values, indices or None, interpolation) of every primvar on ``tile``."""
+        out = []
+
+        def shaped(pv, rows):
+            like = np.asarray(pv.raw(DEFAULT)[0])
+            rows = np.asarray(rows).reshape(len(rows), -1)
+            return vt_array(pv.type_name, rows.reshape((len(rows) * pv.element_size,) + like.shape[1:]), like)
+
+        data = tile.limit_vertex_data if limit else tile.vertex_data
+        for k, pv in enumerate(self.vertex):
+            out.append((pv.name, pv.type_name, shaped(pv, data[k]), None, "vertex"))
+        for pv, (values, idx) in zip(self.uniform, self.uniform_values):
+            if idx is None:
+                out.append((pv.name, pv.type_name, shaped(pv, values[tile.face_parent]), None, "uniform"))
+            else:
+                out.append((pv.name, pv.type_name, values, idx[tile.face_parent], "uniform"))
+        channels = tile.face_varying if self.face_varying else []
+        for pv, channel in zip(self.face_varying, channels):
+            out.append((pv.name, pv.type_name, shaped(pv, channel.values), channel.indices, "faceVarying"))
+        return out
+
+
+class _TileSubsets:
+    """A mesh's face GeomSubsets (at the default time), remapped per tile (:meth:`of`); a subset whose indices are
+    not faces of the mesh is left out, with a warning (as the in-core bake drops it)."""
+
+    def __init__(self, sp):
+        self.subsets, self.warnings = [], []
+        n = sp.mesh.num_faces
+        for subset in sp.subsets:
+            value = subset.attr.Get(DEFAULT)
+            ids = np.asarray([] if value is None else value, dtype=np.int64)
+            bad = np.flatnonzero((ids < 0) | (ids >= n))
+            if len(bad):
+                self.warnings.append(f"{subset.path}: indices[{bad[0]}] = {ids[bad[0]]} is not a face of the mesh; "
+                                     "the subset is dropped")
+                continue
+            member = np.zeros(n, dtype=bool)
+            member[ids] = True
+            geom = UsdGeom.Subset(subset.attr.GetPrim())
+            family = geom.GetFamilyNameAttr().Get() if geom.GetFamilyNameAttr().HasAuthoredValue() else None
+            bindings = [r for r in geom.GetPrim().GetRelationships() if r.GetName().startswith("material:binding")]
+            self.subsets.append((geom.GetPrim().GetName(), member, family, bindings))
+
+    def of(self, tile) -> list:
+        """(name, the tile's face indices in it, family name or None, binding relationships) of every subset that
+        holds faces of ``tile``."""
+        out = []
+        for name, member, family, bindings in self.subsets:
+            indices = np.flatnonzero(member[tile.face_parent])
+            if len(indices):
+                out.append((name, indices, family, bindings))
+        return out
 
 
 def tile_folder_name(path: str) -> str:
