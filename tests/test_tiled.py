@@ -623,19 +623,27 @@ def test_usd_bake_in_tiles_carries_primvars_and_subsets(tmp_path, monkeypatch, l
     assert not validation_errors(str(tmp_path / "tiled.usda"))
 
 
-def test_usd_bake_refuses_what_tiles_cannot_write(tmp_path):
-    """A mesh that must be tiled but has what tiles do not carry (time samples here) is refused, naming the
-    prim and saying it is refined in tiles."""
-    from pxr import Usd, UsdGeom
+@pytest.mark.parametrize("what", ["time samples", "varying primvars", "edge GeomSubsets"])
+def test_usd_bake_refuses_what_tiles_cannot_write(tmp_path, what):
+    """A mesh that must be tiled but has what tiles do not carry (time samples, a varying primvar, an edge
+    subset) is refused, naming the prim and saying it is refined in tiles; nothing is written."""
+    from pxr import Sdf, Usd, UsdGeom
     from warp_subdiv.runtime.estimate import RUNTIME_BYTES
     from warp_subdiv.usd import refine_usd
 
     src = str(tmp_path / "in.usda")
     prim, points, _ = _grid_stage(src)
     stage = Usd.Stage.Open(src)
-    UsdGeom.Mesh(stage.GetPrimAtPath("/World/Grid")).GetPointsAttr().Set(points, 1.0)
+    grid = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Grid"))
+    if what == "time samples":
+        grid.GetPointsAttr().Set(points, 1.0)
+    elif what == "varying primvars":
+        UsdGeom.PrimvarsAPI(grid).CreatePrimvar("w", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.varying).Set(
+            np.zeros(len(points), np.float32))
+    else:
+        UsdGeom.Subset.CreateGeomSubset(grid, "seam", "edge", [0, 1, 1, 2])
     stage.Save()
-    with pytest.raises(ws.SubdivInputError, match="/World/Grid.*in tiles.*time samples"):
+    with pytest.raises(ws.SubdivInputError, match=f"/World/Grid.*in tiles.*{what}"):
         refine_usd(src, str(tmp_path / "out.usda"), 3, device="cpu", max_memory=RUNTIME_BYTES + 1, resume=False)
     assert sorted(os.listdir(tmp_path)) == ["in.usda"]  # nothing written
 
