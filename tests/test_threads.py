@@ -191,10 +191,11 @@ def test_threaded_build_is_bitwise_one_thread(name, scheme):
 @pytest.mark.parametrize("name,scheme", [("cube_creased", "catmull-clark"), ("quad_halffan", "catmull-clark"),
                                          ("mixed_prism", "catmull-clark"), ("tri_hexfan", "loop"),
                                          ("mixed_prism", "loop"), ("icosahedron", "loop")])
-def test_threaded_topology_is_bitwise_one_thread(monkeypatch, name, scheme, rules):
+def test_threaded_topology_is_bitwise_one_thread(monkeypatch, small_ranges, name, scheme, rules):
     """Refinement steps whose per-face tables are written in blocks split over 2 threads (blocks of 2 faces,
-    so that these small meshes split) give, array for array, the levels, step tables and topology of a
-    one-thread build in one block."""
+    so that these small meshes split), child edges filled and step tables gathered in ranges of a few rows on
+    2 threads, give, array for array, the levels, step tables and topology of a one-thread build in one
+    block."""
     from warp_subdiv.topology import refinement as topology
     from warp_subdiv.tables.hierarchy import Hierarchy
     from warp_subdiv.options import Options

@@ -185,6 +185,18 @@ def map_ranges(fn, n: int, threads: int, min_rows: int = MIN_ROWS) -> list:
     return run([(lambda a=a, b=b: fn(a, b)) for a, b in ranges(n, threads, min_rows)], threads)
 
 
+def take(values, index, threads: int):
+    """``values[index]`` (rows of ``values``, a new array) gathered in the :func:`chunks` of ``index`` on ``threads``
+    threads (numpy frees the GIL inside a gather). For the library's own index tables, valid by construction:
+    out-of-range indices are clipped, not refused (refusing would make numpy buffer every chunk)."""
+    import numpy as np
+
+    index = np.asarray(index)
+    out = np.empty(index.shape + values.shape[1:], dtype=values.dtype)
+    each_chunk(lambda a, b: np.take(values, index[a:b], axis=0, out=out[a:b], mode="clip"), len(index), threads)
+    return out
+
+
 def each_chunk(fn, n: int, threads: int, min_rows: int | None = None) -> None:
     """``fn(start, stop)`` over the :func:`chunks` of 0..n, run by :func:`run_shared` (results dropped)."""
     run_shared([(lambda a=a, b=b: fn(a, b)) for a, b in chunks(n, threads, min_rows)], threads)

@@ -169,7 +169,7 @@ class Hierarchy:
         """Phase 3a: the tables of one step over ``level``: index tables on uniform levels, else stencils."""
         o = self.options
         if level.face_size == (4 if o.scheme == Scheme.CATMULL_CLARK else 3):
-            return build_regular(level, o.rules, o.loop_beta)
+            return build_regular(level, o.rules, o.loop_beta, threads=self.threads)
         return build_stencils(level, o.rules, o.loop_beta, smooth_triangles=o.smooth_triangles)
 
     def _projections(self, level: Level):

@@ -16,6 +16,7 @@ import numpy as np
 from ..rules import crease
 from ..rules import weights as rules
 from ..runtime.estimate import check_int32
+from ..runtime.threads import take
 from ..mesh import expand_counts, face_offsets_of
 from ..rules import CATMULL_CLARK, CORNER, CREASE, DART, SMOOTH
 from ..topology import Level, child_sharpness, has_semi_sharpness, level_child_rules, level_fractional_weight
@@ -411,10 +412,10 @@ def _put_edge_rows(level: Level, out: _StencilEntries, first_row: int, es: np.nd
         out.put(rows[rep], base_pos[rep] + t, corner_vert[walk], wing[rep])
 
 
-def _edge_neighbours(level: Level, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
+def _edge_neighbours(level: Level, h0: np.ndarray, h1: np.ndarray, threads: int = 1) -> np.ndarray:
     """Per edge what the edge kernels read: on quads (E, 2) int32 its two corners (endpoints and face points
     follow by index arithmetic); on triangles (E, 4) int32 its endpoints, then the vertices opposite it, so
-    the kernel reads four indices in a row."""
+    the kernel reads four indices in a row (gathered on ``threads`` threads)."""
     if level.face_size == 4:
         out = np.empty((level.num_edges, 2), dtype=np.int32)
         out[:, 0], out[:, 1] = h0, h1
@@ -423,8 +424,8 @@ def _edge_neighbours(level: Level, h0: np.ndarray, h1: np.ndarray) -> np.ndarray
     # the endpoint pair as one 8-byte value per edge (half the element copies of a strided int32 copy)
     out.view(np.int64)[:, 0] = np.ascontiguousarray(level.edge_verts, dtype=np.int32).view(np.int64).reshape(-1)
     opposite = level.at_prev(level.corner_vert)  # the vertex before each corner: the one opposite its edge
-    out[:, 2] = opposite[h0]
-    out[:, 3] = opposite[h1]
+    out[:, 2] = take(opposite, h0, threads)
+    out[:, 3] = take(opposite, h1, threads)
     return out
 
 
@@ -433,8 +434,10 @@ def _flags(regular: np.ndarray) -> np.ndarray:
     return np.zeros(0, np.uint8) if regular.all() else regular.astype(np.uint8)
 
 
-def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop") -> RegularTables:
-    """Split one step into rows the regular kernels compute from the index tables and explicit stencils.
+def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: str = "loop",
+                  threads: int = 1) -> RegularTables:
+    """Split one step into rows the regular kernels compute from the index tables and explicit stencils (their
+    large gathers on ``threads`` threads; the tables do not depend on it).
 
     Regular rows: interior and dart vertices (the smooth vertex rule of their valence) and non-crease edges
     whose endpoint weights are the smooth ones (no crease/corner-neighbour shift). Crease and corner vertices,
@@ -445,7 +448,7 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
     scheme = level.scheme
     vclass = level.vert_class
     vertex_regular = (vclass == SMOOTH) | (vclass == DART)
-    h0, h1 = level.edge_corner_pair()
+    h0, h1 = level.edge_corner_pair(threads)
     edge_regular = ~level.edge_sharp
     plain = rules.smooth_edge_mask(scheme, 1)
     w, w_wing = plain.end_a[0], plain.wing_0[0]
@@ -476,9 +479,9 @@ def build_regular(level: Level, rule_set: str = "piecewise-smooth", loop_beta: s
         num_vertices=level.num_vertices,
         num_faces=level.num_faces,
         corner_vert=level.corner_vert if quads else np.zeros(0, np.int32),
-        edge_neighbours=_edge_neighbours(level, h0, h1),
+        edge_neighbours=_edge_neighbours(level, h0, h1, threads),
         vert_corner_offsets=level.vert_corner_offsets.astype(np.int32),
-        ring=level.vert_corners if quads else level.at_next(level.corner_vert)[level.vert_corners],
+        ring=level.vert_corners if quads else take(level.at_next(level.corner_vert), level.vert_corners, threads),
         vertex_regular=_flags(vertex_regular),
         edge_regular=_flags(edge_regular),
         ring_weights=ring,

@@ -161,11 +161,14 @@ class Level:
         pos = np.minimum(np.searchsorted(sorted_members, query), len(members) - 1)
         return np.where(sorted_members[pos] == query, theta[pos], np.nan)
 
-    def edge_corner_pair(self):
-        """(h0, h1): the first and second corner of every edge (h1 = h0 on boundary edges), int32."""
+    def edge_corner_pair(self, threads: int = 1):
+        """(h0, h1): the first and second corner of every edge (h1 = h0 on boundary edges), int32; gathered on
+        ``threads`` threads."""
+        from ..runtime.threads import take
+
         eoff = self.edge_corner_offsets
-        h0 = self.edge_corners[eoff[:-1]]
-        h1 = self.edge_corners[np.minimum(eoff[:-1] + 1, len(self.edge_corners) - 1)]
+        h0 = take(self.edge_corners, eoff[:-1], threads)
+        h1 = take(self.edge_corners, np.minimum(eoff[:-1] + 1, len(self.edge_corners) - 1), threads)
         return h0, h1
 
     def face_vertex_counts(self) -> np.ndarray:

@@ -336,19 +336,25 @@ class _EdgeSlots(NamedTuple):
 def _assemble(level: Level, split: _ChildSplit, threads: int = 1) -> Level:
     """Shared tail of both schemes: child edges, edge->corner and vertex->corner tables, classes, thetas.
 
-    ``threads``: the edge tables, the vertex-corner lists and the classes are built as three jobs on up to that
-    many threads (the same arrays whatever the count)."""
+    ``threads``: the edge tables (their corner lists in ranges of the parent's edge slots), the vertex-corner lists
+    and the classes are built as jobs taken from one queue by up to that many threads (the same arrays whatever
+    the count)."""
     ecount = np.diff(level.edge_corner_offsets)
     slots = _EdgeSlots(ecount, np.repeat(np.arange(level.num_edges, dtype=np.int32), ecount), level.edge_corners)
 
-    # the three read the parent level and the step's tables only: with threads, at once (numpy releases the
-    # GIL inside large gathers and scatters; the results do not depend on it)
-    from ..runtime.threads import run as run_jobs
+    # the jobs read the parent level and the step's tables only, and write apart: with threads, at once (numpy
+    # releases the GIL inside large gathers and scatters; the results do not depend on it)
+    from ..runtime import threads as _threads
 
-    (child_edge_verts, child_eoff, child_ecorners), (child_voff, child_vcorners), \
-        (child_class, child_edge_sharpness, child_vert_sharpness, sectors) = \
-        run_jobs([lambda: _child_edges(level, split, slots), lambda: _child_vertex_corners(level, split, slots),
-                  lambda: _child_classes(level, split, slots)], max(1, min(int(threads), 3)))
+    edges = _ChildEdges(level, split, slots)
+    done: dict = {}
+    jobs = [lambda a=a, b=b: edges.fill_halves(a, b) for a, b in _threads.chunks(len(slots.edge), max(1, int(threads)))]
+    jobs[:0] = [lambda: done.update(vertex=_child_vertex_corners(level, split, slots)),
+                lambda: done.update(classes=_child_classes(level, split, slots))]
+    _threads.run_shared(jobs, max(1, int(threads)))
+    child_edge_verts, child_eoff, child_ecorners = edges.verts, edges.offsets, edges.corners
+    child_voff, child_vcorners = done["vertex"]
+    child_class, child_edge_sharpness, child_vert_sharpness, sectors = done["classes"]
     return full_level(
         level.scheme, split.num_vertices, split.face_size, split.corner_vert, split.face_hole,
         corner_edge=split.corner_edge, edge_verts=child_edge_verts, edge_corner_offsets=child_eoff,
@@ -358,27 +364,36 @@ def _assemble(level: Level, split: _ChildSplit, threads: int = 1) -> Level:
     )
 
 
-def _child_edges(level: Level, split: _ChildSplit, slots: _EdgeSlots):
-    """Child edges (nI interior ones, then halves (child of v0, child of e) and (child of v1, child of e))
-    and their corners: interior edges have two, each half as many as its parent edge."""
-    nI, E, C = level.num_corners, level.num_edges, level.num_corners
-    eoff, ecount = level.edge_corner_offsets, slots.count
-    child_edge_verts = np.empty((nI + 2 * E, 2), dtype=np.int32)
-    child_edge_verts[:nI] = split.interior_verts
-    halves = child_edge_verts[nI:].reshape(E, 2, 2)
-    halves[:, :, 0] = (split.edge_child_base + np.arange(E, dtype=np.int32))[:, None]
-    halves[:, :, 1] = level.edge_verts
-    half_off = np.empty((E, 2), dtype=np.int64)
-    half_off[:, 0] = 2 * nI + 2 * eoff[:-1]
-    half_off[:, 1] = half_off[:, 0] + ecount
-    child_eoff = np.concatenate([2 * np.arange(nI, dtype=np.int64), half_off.reshape(-1), [4 * C]])
-    child_ecorners = np.empty(4 * C, dtype=np.int32)
-    child_ecorners[: 2 * nI] = split.interior_corners.reshape(-1)
-    t = np.arange(C, dtype=np.int64) - eoff[slots.edge]
-    s0 = _side(level, slots.corner, slots.edge)
-    child_ecorners[half_off[slots.edge, s0] + t] = split.near[slots.corner]
-    child_ecorners[half_off[slots.edge, 1 - s0] + t] = split.far[slots.corner]
-    return child_edge_verts, child_eoff, child_ecorners
+class _ChildEdges:
+    """Child edges (nI interior ones, then halves (child of v0, child of e) and (child of v1, child of e)) and
+    their corners: interior edges have two, each half as many as its parent edge. The interior edges and every
+    edge's vertices are written here; the halves' corners by :meth:`fill_halves`, over ranges of the parent's
+    edge slots (each range writes its own entries)."""
+
+    def __init__(self, level: Level, split: _ChildSplit, slots: _EdgeSlots):
+        self.level, self.split, self.slots = level, split, slots
+        nI, E, C = level.num_corners, level.num_edges, level.num_corners
+        eoff, ecount = level.edge_corner_offsets, slots.count
+        self.verts = np.empty((nI + 2 * E, 2), dtype=np.int32)
+        self.verts[:nI] = split.interior_verts
+        halves = self.verts[nI:].reshape(E, 2, 2)
+        halves[:, :, 0] = (split.edge_child_base + np.arange(E, dtype=np.int32))[:, None]
+        halves[:, :, 1] = level.edge_verts
+        self.half_off = np.empty((E, 2), dtype=np.int64)
+        self.half_off[:, 0] = 2 * nI + 2 * eoff[:-1]
+        self.half_off[:, 1] = self.half_off[:, 0] + ecount
+        self.offsets = np.concatenate([2 * np.arange(nI, dtype=np.int64), self.half_off.reshape(-1), [4 * C]])
+        self.corners = np.empty(4 * C, dtype=np.int32)
+        self.corners[: 2 * nI] = split.interior_corners.reshape(-1)
+
+    def fill_halves(self, a: int, b: int) -> None:
+        """The halves' corners of the parent's edge slots a..b (slot t of edge e: its t-th corner)."""
+        level, slots = self.level, self.slots
+        edge, corner = slots.edge[a:b], slots.corner[a:b]
+        t = np.arange(a, b, dtype=np.int64) - level.edge_corner_offsets[edge]
+        s0 = _side(level, corner, edge)
+        self.corners[self.half_off[edge, s0] + t] = self.split.near[corner]
+        self.corners[self.half_off[edge, 1 - s0] + t] = self.split.far[corner]
 
 
 def _child_vertex_corners(level: Level, split: _ChildSplit, slots: _EdgeSlots):
