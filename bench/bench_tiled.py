@@ -83,6 +83,8 @@ def worker(args) -> None:
 def _bytes_written(path: str) -> int:
     """The size of ``path`` and, for a tiled USD layer, of the tile layers in its ``<stem>_tiles`` folder."""
     total = os.path.getsize(path)
+    if path.lower().endswith(".obj"):
+        return total
     folder = os.path.splitext(path)[0] + "_tiles"
     for root, _, files in os.walk(folder):
         total += sum(os.path.getsize(os.path.join(root, f)) for f in files)
