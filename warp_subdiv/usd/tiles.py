@@ -256,6 +256,8 @@ class _TilePrimvars:
         self.uniform_values = [self._uniform(pv) for pv in self.uniform]
         mode = sp.face_varying_mode
         self.channels = [(*face_varying_input(sp, pv, DEFAULT)[:2], mode) for pv in self.face_varying]
+        # each primvar's values as authored (read once): what the written arrays are shaped like
+        self.like = {pv.name: np.asarray(pv.raw(DEFAULT)[0]) for pv in sp.primvars}
 
     def _rows(self, pv, expected: int) -> np.ndarray:
         rows = pv.flattened(DEFAULT, self.sp.path)
@@ -280,7 +282,7 @@ class _TilePrimvars:
         out = []
 
         def shaped(pv, rows):
-            like = np.asarray(pv.raw(DEFAULT)[0])
+            like = self.like[pv.name]
             rows = np.asarray(rows).reshape(len(rows), -1)
             return vt_array(pv.type_name, rows.reshape((len(rows) * pv.element_size,) + like.shape[1:]), like)
 
