@@ -229,13 +229,15 @@ def build(mesh: Mesh, options: Options, depth: int, *, data: np.ndarray | None =
     todo = np.union1d(todo, polygon_faces).astype(np.int64)
     while len(todo):
         last = cur.depth >= depth
+        # cut out even where the region is the whole level: a cut-out is rebuilt from its faces, and some of its
+        # stencils sum in another order than the level's own, so refining the level itself where the region
+        # covers it would make a face's patches depend (in the last bits) on how far the mesh extends; cut out
+        # always, they depend on the face's neighbourhood only, and a submesh with a halo (tiled tessellation)
+        # has the whole mesh's patches bit for bit
         region = region_around(cur.level, todo, MARGIN)
-        if region.all():
-            sub, sub_todo, region_faces = cur, todo, None
-        else:
-            sub = cut_out(cur, region, o)
-            region_faces = np.flatnonzero(region)
-            sub_todo = np.searchsorted(region_faces, todo)
+        sub = cut_out(cur, region, o)
+        region_faces = np.flatnonzero(region)
+        sub_todo = np.searchsorted(region_faces, todo)
         child, child_points = refine_step(sub, o)
         if last:
             caps = end_cap_nets(sub, child, child_points, sub_todo, o)
