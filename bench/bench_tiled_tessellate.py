@@ -38,20 +38,23 @@ def worker(args) -> None:
     mesh = read_obj(args.mesh).mesh
     small = ws.Mesh(mesh.points[:4], [4], [0, 1, 2, 3])
     ws.LimitSurface(small, device="cpu").tessellate(rate=2)  # load the kernels
-    plan = _SurfacePlan(mesh, ws.Options())
+    options = ws.Options(scheme=args.scheme)
+    plan = _SurfacePlan(mesh, options)
     numbering = _Numbering(plan, *_rates(type("M", (), {"mesh": mesh})(), args.rate, None), True)
     emitted, faces = numbering.size_of(np.arange(len(plan.counts)))
     corners = int(plan.counts.sum())
+    irregular = int(plan.counts[plan.irregular].sum())
     del plan, numbering
     baseline = proc_status().get("VmRSS", 0)
     start = time.perf_counter()
     if args.worker == "in-core":
-        t = ws.LimitSurface(mesh, device="cpu").tessellate(rate=args.rate)
+        t = ws.LimitSurface(mesh, device="cpu", options=options).tessellate(rate=args.rate)
         result = {"vertices": t.num_vertices, "faces": t.num_faces, "tiles": 1}
         del t
     else:
         vertices, out_faces, count = 0, 0, 0
-        for tile in ws.tessellate_tiled(mesh, rate=args.rate, max_memory=args.max_memory, device="cpu"):
+        for tile in ws.tessellate_tiled(mesh, rate=args.rate, max_memory=args.max_memory, device="cpu",
+                                        options=options):
             count += 1
             vertices += int(np.count_nonzero(~tile.border))
             out_faces += tile.num_faces
@@ -59,7 +62,7 @@ def worker(args) -> None:
     result["seconds"] = time.perf_counter() - start
     result["peak_rss"] = proc_status().get("VmHWM", 0)
     result["baseline_rss"] = baseline
-    result["predicted"] = predict(corners, emitted, faces)
+    result["predicted"] = predict(corners, irregular, emitted, faces)
     print(MARK + json.dumps(result), flush=True)
 
 
@@ -67,6 +70,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--mesh", default=MESH)
     parser.add_argument("--rate", type=int, default=24)
+    parser.add_argument("--scheme", default="catmull-clark", choices=["catmull-clark", "loop"])
     parser.add_argument("--rates", default="4,8,16,32", help="--calibrate: the rates")
     parser.add_argument("--max-memory", default="1G")
     parser.add_argument("--calibrate", action="store_true")
@@ -88,7 +92,7 @@ def main() -> None:
     rows = {}
     for name, rate in runs:
         cmd = [sys.executable, os.path.abspath(__file__), "--worker", name, "--mesh", args.mesh, "--rate",
-               str(rate), "--max-memory", args.max_memory]
+               str(rate), "--max-memory", args.max_memory, "--scheme", args.scheme]
         result, reason = run_child(cmd, 7200, kill, MARK, {"PYTHONPATH": ROOT})
         if result is None:
             print(f"  {name:8s} rate {rate} failed: {reason}")

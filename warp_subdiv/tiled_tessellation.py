@@ -55,10 +55,14 @@ from .tables import Hierarchy
 from .tiled import HALO_RINGS, HALO_RINGS_PROJECTING, FaceGroups, Tile, _Submesh, _corners_of, resident_bytes
 from .topology import base_faces
 
-#: Bytes per control face corner of a limit surface (its patch tree, parameterisation and the level-0 analysis),
-#: per emitted vertex of a tessellation (ids, (u, v), their sort, the evaluation's points, derivatives and normals)
-#: and per output face (corner ids and (u, v), the faces' arrays), measured (see the module docstring).
-SURFACE_BYTES_PER_CORNER = 6000
+#: Bytes per control face corner of a limit surface (its patch tree, parameterisation and the level-0 analysis)
+#: where the face's limit is a polynomial patch, and where it is refined locally (:func:`irregular_faces`: n-gons,
+#: extraordinary and boundary vertices, tags; at the default depth 8), per emitted vertex of a tessellation (ids,
+#: (u, v), their sort, the evaluation's points, derivatives and normals) and per output face (corner ids and
+#: (u, v), the faces' arrays); measured peaks above the baseline (``bench/bench_tiled_tessellate.py
+#: --calibrate``, BENCHMARKS.md "Beyond memory").
+SURFACE_BYTES_PER_CORNER = 1000
+SURFACE_BYTES_PER_IRREGULAR_CORNER = 256 * 1024
 TESSELLATION_BYTES_PER_VERTEX = 320
 TESSELLATION_BYTES_PER_FACE = 320
 #: Bytes per vertex and per face of a tile held by the caller (points, normals, ids; faces, ids).
@@ -68,11 +72,38 @@ TILE_BYTES_PER_FACE = 4 + 4 * 4 + 8
 GLOBAL_BYTES_PER_CORNER = 400
 
 
-def predict(corners: int, vertices: int, faces: int) -> int:
-    """The predicted peak (bytes above the process's baseline) of tessellating ``corners`` control face corners
-    (the surface's faces) into about ``vertices`` emitted vertices and ``faces`` faces."""
-    return (SURFACE_BYTES_PER_CORNER * corners + TESSELLATION_BYTES_PER_VERTEX * vertices
-            + TESSELLATION_BYTES_PER_FACE * faces)
+def predict(corners: int, irregular_corners: int, vertices: int, faces: int, depth: int = DEFAULT_DEPTH) -> int:
+    """The predicted peak (bytes above the process's baseline) of tessellating control faces of ``corners``
+    corners, ``irregular_corners`` of them on faces refined locally (``depth`` levels), into about ``vertices``
+    emitted vertices and ``faces`` faces."""
+    local = SURFACE_BYTES_PER_IRREGULAR_CORNER * min(1.0, 2.0 ** (depth - DEFAULT_DEPTH))
+    return int(SURFACE_BYTES_PER_CORNER * corners + local * irregular_corners
+               + TESSELLATION_BYTES_PER_VERTEX * vertices + TESSELLATION_BYTES_PER_FACE * faces)
+
+
+def irregular_faces(mesh: Mesh, options: Options) -> np.ndarray:
+    """(F,) bool: the control faces whose limit surface is refined locally, or may be (a conservative guess for
+    the memory prediction): polygons other than the scheme's, faces at a vertex whose number of faces is not the
+    regular one (4 Catmull-Clark, 6 Loop) or that is on a boundary, faces with a tagged edge or vertex."""
+    counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
+    indices = np.asarray(mesh.face_vertex_indices, dtype=np.int64)
+    F, V = len(counts), mesh.num_vertices
+    if options.linear:
+        return np.zeros(F, dtype=bool)
+    loop = options.scheme == Scheme.LOOP
+    corner_face = np.repeat(np.arange(F), counts)
+    corner_edge = np.asarray(mesh.edges.corner_edge, dtype=np.int64)
+    edge_faces = np.bincount(corner_edge, minlength=len(mesh.edges.edge_verts))
+    odd = np.bincount(indices, minlength=V) != (6 if loop else 4)
+    ev = np.asarray(mesh.edges.edge_verts, dtype=np.int64)
+    odd[ev[edge_faces != 2].reshape(-1)] = True
+    if len(mesh.creases):
+        odd[np.asarray(mesh.creases, dtype=np.int64).reshape(-1)] = True
+    if len(mesh.corners):
+        odd[np.asarray(mesh.corners, dtype=np.int64)] = True
+    out = counts != (3 if loop else 4)
+    out[corner_face[odd[indices]]] = True
+    return out
 
 
 class _SurfacePlan(FaceGroups):
@@ -80,8 +111,8 @@ class _SurfacePlan(FaceGroups):
     them itself), with what :class:`~warp_subdiv.tiled._Submesh` reads of a plan, the analysis of the whole
     mesh (whether the paper's projections act) and the limit surface's holes."""
 
-    def __init__(self, mesh: Mesh, options: Options):
-        if not options.linear and not is_manifold(mesh, options):
+    def __init__(self, mesh: Mesh, options: Options, tiles: bool = True):
+        if tiles and not options.linear and not is_manifold(mesh, options):
             raise SubdivInputError("a tiled tessellation needs a manifold mesh (this one has non-manifold edges or "
                                    "vertices, whose limit surface is built from the whole mesh): tessellate it in "
                                    "core", option="max_memory")
@@ -103,6 +134,7 @@ class _SurfacePlan(FaceGroups):
             first = np.concatenate([[0], np.cumsum(self.counts - 2)[:-1]]).astype(np.int64)
             hole = hole[first]
         self.holes = explicit if options.linear else hole
+        self.irregular = irregular_faces(mesh, options)
 
 
 class _Numbering:
@@ -230,14 +262,14 @@ def _tiles(plan: _SurfacePlan, rate, edge_length, quads, budget, tile_faces, dep
     if rates is None:  # edge lengths: the edges' curves measured on the tiles' surfaces
         lengths = np.zeros(len(plan.mesh.edges.edge_verts))
         rough = _Numbering(plan, *_rates(SimpleNamespace(mesh=plan.mesh), 1, None), quads)
-        for faces in _tile_faces(plan, rough, tile_faces, budget, rings):
+        for faces in _tile_faces(plan, rough, tile_faces, budget, rings, depth):
             _measure_edges(plan, faces, rings, depth, device, lengths)
         rates = _rates(SimpleNamespace(mesh=plan.mesh), None, edge_length, lengths=lengths)
     numbering = _Numbering(plan, rates[0], rates[1], quads)
     if numbering.groups is None:
         return
     index = 0
-    for faces in _tile_faces(plan, numbering, tile_faces, budget, rings):
+    for faces in _tile_faces(plan, numbering, tile_faces, budget, rings, depth):
         if plan.holes[faces].all():  # nothing to tessellate: no tile
             continue
         yield _tessellate_tile(plan, numbering, index, faces, rings, depth, device)
@@ -313,18 +345,20 @@ def _tessellate_tile(plan: _SurfacePlan, numbering: _Numbering, index: int, face
                 limit_normals=ev.normals)
 
 
-def _tile_bytes(plan: _SurfacePlan, numbering: _Numbering, faces: np.ndarray, rings: int) -> int:
+def _tile_bytes(plan: _SurfacePlan, numbering: _Numbering, faces: np.ndarray, rings: int, depth: int) -> int:
     """The predicted peak of one tile: its surface (faces and halo), its tessellation (and its ring's cells,
     emitted too), and the previous tile held by the caller."""
     sub = plan.grow(faces, rings) if rings else faces
     corners = int(plan.counts[sub].sum())
+    irregular = int(plan.counts[sub][plan.irregular[sub]].sum())
     vertices, out_faces = numbering.size_of(faces)
     ring_vertices, _ = numbering.size_of(plan.grow(faces, 1)) if rings else (vertices, 0)
-    return (predict(corners, ring_vertices, out_faces)
+    return (predict(corners, irregular, ring_vertices, out_faces, depth)
             + 2 * (TILE_BYTES_PER_VERTEX * vertices + TILE_BYTES_PER_FACE * out_faces))
 
 
-def _tile_faces(plan: _SurfacePlan, numbering: _Numbering, tile_faces, budget, rings) -> Iterator[np.ndarray]:
+def _tile_faces(plan: _SurfacePlan, numbering: _Numbering, tile_faces, budget, rings,
+                depth: int = DEFAULT_DEPTH) -> Iterator[np.ndarray]:
     """The control faces of every tile (sorted): runs of ``tile_faces`` faces along the Morton curve, or runs
     sized to ``budget``, halved until each one's prediction fits."""
     F = len(plan.counts)
@@ -334,7 +368,7 @@ def _tile_faces(plan: _SurfacePlan, numbering: _Numbering, tile_faces, budget, r
     available = (budget - max(estimate.RUNTIME_BYTES, resident_bytes())
                  - GLOBAL_BYTES_PER_CORNER * int(plan.offsets[-1]))
     everything = np.arange(F, dtype=np.int64)
-    whole = _tile_bytes(plan, numbering, everything, 0)
+    whole = _tile_bytes(plan, numbering, everything, 0, depth)
     if whole <= available:
         yield everything
         return
@@ -342,16 +376,16 @@ def _tile_faces(plan: _SurfacePlan, numbering: _Numbering, tile_faces, budget, r
     def too_big(faces):
         return SubdivInputError(
             f"tessellating one control face with its halo needs about "
-            f"{estimate.format_bytes(_tile_bytes(plan, numbering, faces, rings))} (with what the tiled "
+            f"{estimate.format_bytes(_tile_bytes(plan, numbering, faces, rings, depth))} (with what the tiled "
             f"tessellation keeps), more than max_memory {estimate.format_bytes(budget)} allows; raise max_memory "
             "or lower the rate", option="max_memory", value=budget)
 
     yield from plan.fitted_runs(max(1, int(F * max(available, 0) / whole / 2)),
-                                lambda f: _tile_bytes(plan, numbering, f, rings) <= available, too_big)
+                                lambda f: _tile_bytes(plan, numbering, f, rings, depth) <= available, too_big)
 
 
 def tessellation_fits(mesh: Mesh, *, rate=None, edge_length=None, quads: bool = True, max_memory=None,
-                      options: Options | None = None, **option_keywords) -> tuple:
+                      depth: int = DEFAULT_DEPTH, options: Options | None = None, **option_keywords) -> tuple:
     """(whether the in-core tessellation's predicted peak fits ``max_memory`` (None: no limit), the prediction in
     bytes). With ``edge_length`` the output is sized with rates from the control polygon's edge lengths (the
     limit curves are not measured: that needs the surface); the in-core guard of 50M vertices counts as not
@@ -360,7 +394,7 @@ def tessellation_fits(mesh: Mesh, *, rate=None, edge_length=None, quads: bool = 
     budget = estimate.memory_limit(max_memory)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NonManifoldWarning)
-        plan = _SurfacePlan(mesh, options)
+        plan = _SurfacePlan(mesh, options, tiles=False)
     lite = SimpleNamespace(mesh=mesh)
     if edge_length is None:
         rates = _rates(lite, rate, None)
@@ -372,7 +406,7 @@ def tessellation_fits(mesh: Mesh, *, rate=None, edge_length=None, quads: bool = 
     if numbering.groups is None:
         return True, 0
     F = len(plan.counts)
-    need = _tile_bytes(plan, numbering, np.arange(F, dtype=np.int64), 0)
+    need = _tile_bytes(plan, numbering, np.arange(F, dtype=np.int64), 0, depth)
     fits = (budget is None or need + max(estimate.RUNTIME_BYTES, resident_bytes()) <= budget) \
         and numbering.num_vertices <= MAX_VERTICES
     return fits, need

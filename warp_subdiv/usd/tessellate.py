@@ -22,6 +22,7 @@ class MeshReport:
     faces_out: int
     vertices_out: int
     seconds: float
+    tiles: int = 0  # tessellated in this many tiles (0: in core)
 
 
 @dataclass
@@ -36,7 +37,7 @@ class FileResult:
 def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length=None, prims=None, scheme="auto",
                     rules=None, boundary=None, depth=None, quads: bool = True, device=None,
                     flatten: bool = False, frames=None, all_variants: bool = False, camera=None, pixel_error=None,
-                    resolution=None) -> FileResult:
+                    resolution=None, max_memory=None) -> FileResult:
     """Tessellate the limit surfaces of an OBJ or USD file (the ``tessellate`` command's library side).
 
     OBJ input is written as OBJ or as a USD layer holding one mesh; USD input as a layer over it (see
@@ -45,7 +46,11 @@ def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length
     (None: its default); ``quads=False`` for triangles only; ``flatten`` (USD) for one self-contained layer;
     ``all_variants`` (USD) tessellates every variant that changes a mesh, as refine does. ``camera`` (USD, a
     UsdGeom.Camera prim path) with ``pixel_error`` and ``resolution`` instead of ``rate`` / ``edge_length``:
-    per-edge rates from the camera (see :func:`tessellate_usd`). Errors name options by keyword."""
+    per-edge rates from the camera (see :func:`tessellate_usd`). ``max_memory`` (bytes; None: no limit): an OBJ
+    mesh whose predicted tessellation does not fit is tessellated in tiles
+    (:func:`warp_subdiv.tessellate_tiled`), streamed into one OBJ file (shared vertices written once) or written
+    as a USD Xform of tile meshes, one layer each (:func:`~warp_subdiv.io.usd_write.write_tiled_mesh_layer`); a
+    USD mesh that does not fit is refused, naming the prim. Errors name options by keyword."""
     import os
     import time
 
@@ -54,7 +59,7 @@ def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     options = dict(rate=rate, edge_length=edge_length, scheme=scheme, rules=rules, boundary=boundary, depth=depth,
-                   quads=quads, device=device)
+                   quads=quads, device=device, max_memory=max_memory)
     if kind == "obj":
         for name, value in (("prims", prims), ("flatten", flatten), ("frames", frames),
                             ("all_variants", all_variants), ("camera", camera)):
@@ -84,17 +89,30 @@ def _surface(mesh, options, depth, device):
 
 
 def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, scheme, rules, boundary, depth, quads,
-                   device):
-    """Tessellate an OBJ file's mesh; write OBJ or a USD layer holding one mesh (as ``refine`` does)."""
+                   device, max_memory=None):
+    """Tessellate an OBJ file's mesh; write OBJ or a USD layer holding one mesh (as ``refine`` does); in tiles
+    where it would not fit ``max_memory`` (:func:`_tessellate_obj_tiled`)."""
     import os
     import time
 
     from ..io.obj import read_obj, write_obj
+    from ..tiled_tessellation import tessellation_fits
     from .planning import options_for
 
     t0 = time.perf_counter()
     data = read_obj(input_path)
     options = options_for(data, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+    if max_memory is not None:
+        surface_depth = DEFAULT_DEPTH if depth is None else depth
+        fits, _ = tessellation_fits(data.mesh, rate=rate, edge_length=edge_length, quads=quads, max_memory=max_memory,
+                                    depth=surface_depth, options=options)
+        if not fits:
+            tiles, faces, vertices = _tessellate_obj_tiled(data, output_path, out_kind, options, rate=rate,
+                                                           edge_length=edge_length, quads=quads, depth=surface_depth,
+                                                           device=device, max_memory=max_memory)
+            return [MeshReport(os.path.basename(input_path), options.scheme.value, options.rules.value,
+                               len(data.mesh.face_vertex_counts), faces, vertices, time.perf_counter() - t0,
+                               tiles)], []
     surface = _surface(data.mesh, options, depth, device)
     t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
     if out_kind == "obj":
@@ -109,9 +127,46 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
     return [report], []
 
 
+def _tessellate_obj_tiled(data, output_path, out_kind, options, *, rate, edge_length, quads, depth, device,
+                          max_memory) -> tuple:
+    """An OBJ mesh's tessellation in tiles (:func:`warp_subdiv.tessellate_tiled`) streamed into one OBJ file
+    (:func:`~warp_subdiv.io.obj.write_obj_tiles`: shared vertices written once) or written as a USD Xform of tile
+    meshes with their normals, one layer each (:func:`~warp_subdiv.io.usd_write.write_tiled_mesh_layer`).
+    Returns (tiles, faces, vertices) written (border vertices: once in OBJ, in every tile in USD)."""
+    import os
+
+    from ..io.obj import write_obj_tiles
+    from ..io.usd_write import make_folders, remove_folders, write_tiled_mesh_layer
+    from ..tiled_tessellation import tessellate_tiled
+
+    tiles = tessellate_tiled(data.mesh, rate=rate, edge_length=edge_length, quads=quads, max_memory=max_memory,
+                             depth=depth, options=options, device=device)
+    created = make_folders(os.path.dirname(os.path.abspath(output_path)))
+    count = [0]
+
+    def counted():
+        for tile in tiles:
+            count[0] += 1
+            yield tile
+
+    try:
+        if out_kind == "obj":
+            vertices, faces = write_obj_tiles(output_path, counted(), header="warp-subdiv: tessellated in tiles")
+        else:
+            name = os.path.splitext(os.path.basename(output_path))[0]
+            count[0], vertices, faces = write_tiled_mesh_layer(os.path.abspath(output_path), name, tiles)
+    except OSError as exc:
+        remove_folders(created)
+        raise SubdivInputError(f"{output_path}: cannot write: {exc.strerror or exc}") from None
+    except BaseException:
+        remove_folders(created)
+        raise
+    return count[0], faces, vertices
+
+
 def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length, scheme, rules, boundary, depth,
                    quads, device, frames=None, all_variants: bool = False, camera=None, pixel_error=None,
-                   resolution=None):
+                   resolution=None, max_memory=None):
     """Tessellate every subdivision mesh of a USD file and write a layer over it, with the conventions of
     refine (:func:`warp_subdiv.usd.refine_usd`): an ``over`` at each mesh's path with ``subdivisionScheme =
     "none"``, its points, faces, normals and extent (at the default time and every selected time sample of the
@@ -201,7 +256,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
             mesh_rate = {"edges": rates_of[scene.levels[key]]} if camera is not None else rate
             reports.append(_tessellate_prim(sp, target, layer, warnings_, rate=mesh_rate, edge_length=edge_length,
                                             scheme=scheme, rules=rules, boundary=boundary, depth=depth, quads=quads,
-                                            device=device))
+                                            device=device, max_memory=max_memory))
             for dst in out_layout.copies[key]:
                 layer.copy(out_layout.homes[key], dst)
         out_layout.write(layer)
@@ -251,8 +306,10 @@ def _camera_rates(stage, camera, pixel_error, resolution, frames, rates_of, rate
 
 
 def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme, rules, boundary, depth, quads,
-                     device) -> MeshReport:
-    """Tessellate one mesh (as read) and write it at ``target``, its path in ``layer``."""
+                     device, max_memory=None) -> MeshReport:
+    """Tessellate one mesh (as read) and write it at ``target``, its path in ``layer``; a mesh whose predicted
+    tessellation does not fit ``max_memory`` is refused (tiles of a USD mesh, with its primvars, subsets, time
+    samples and bindings, are not written)."""
     import time
 
     from pxr import Sdf, UsdGeom, Vt
@@ -273,6 +330,8 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
     if getattr(sp, "skin", None) is not None and sp.skin.mode == "bake":
         mesh = _with_points(mesh, sp.points_at(DEFAULT))  # a skinned mesh: as UsdSkel poses it at the default time
     try:
+        if max_memory is not None:
+            _check_fits(mesh, options, rate, edge_length, quads, depth, max_memory)
         surface = _surface(mesh, options, depth, device)
         t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
     except SubdivInputError as exc:
@@ -359,6 +418,20 @@ def _write_samples(sp, layer, prim, t, surface, surface_at, linear: bool) -> Non
         write_vectors(when, moved)
     for when in sorted({x for times in sp.point_arrays.values() for x in times} - set(sp.point_times)):
         write_vectors(when, surface)
+
+
+def _check_fits(mesh, options, rate, edge_length, quads, depth, max_memory) -> None:
+    """Refuse (SubdivInputError) a USD mesh whose predicted tessellation does not fit ``max_memory``."""
+    from ..runtime.estimate import format_bytes
+    from ..tiled_tessellation import tessellation_fits
+
+    fits, need = tessellation_fits(mesh, rate=rate, edge_length=edge_length, quads=quads, max_memory=max_memory,
+                                   depth=DEFAULT_DEPTH if depth is None else depth, options=options)
+    if not fits:
+        raise SubdivInputError(f"its tessellation would need about {format_bytes(need)}, more than max_memory "
+                               f"{format_bytes(max_memory)}; tiled tessellation writes meshes of OBJ input only "
+                               "(USD meshes carry primvars, subsets and time samples the tiles do not): lower the "
+                               "rate, or raise max_memory", option="max_memory", value=max_memory)
 
 
 def _block_control_attributes(sp, layer, prim, warnings_) -> None:
