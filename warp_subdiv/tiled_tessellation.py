@@ -65,6 +65,9 @@ SURFACE_BYTES_PER_CORNER = 1000
 SURFACE_BYTES_PER_IRREGULAR_CORNER = 256 * 1024
 TESSELLATION_BYTES_PER_VERTEX = 320
 TESSELLATION_BYTES_PER_FACE = 320
+#: Bytes per vertex that a tile emits for the ring of faces around it only to find its border vertices' first
+#: cells (ids and (u, v), concatenated and sorted; not evaluated).
+RING_BYTES_PER_VERTEX = 80
 #: Bytes per vertex and per face of a tile held by the caller (points, normals, ids; faces, ids).
 TILE_BYTES_PER_VERTEX = 3 * 24 + 8 + 1
 TILE_BYTES_PER_FACE = 4 + 4 * 4 + 8
@@ -353,7 +356,7 @@ def _tile_bytes(plan: _SurfacePlan, numbering: _Numbering, faces: np.ndarray, ri
     irregular = int(plan.counts[sub][plan.irregular[sub]].sum())
     vertices, out_faces = numbering.size_of(faces)
     ring_vertices, _ = numbering.size_of(plan.grow(faces, 1)) if rings else (vertices, 0)
-    return (predict(corners, irregular, ring_vertices, out_faces, depth)
+    return (predict(corners, irregular, vertices, out_faces, depth) + RING_BYTES_PER_VERTEX * (ring_vertices - vertices)
             + 2 * (TILE_BYTES_PER_VERTEX * vertices + TILE_BYTES_PER_FACE * out_faces))
 
 
