@@ -130,6 +130,25 @@ def test_max_memory_sizes_tiles(monkeypatch):
     assert not fits and need == whole
 
 
+def test_ids_past_32_bits():
+    """Ids are int64 where the tessellation's counts pass 2^31 (182 x 182 quads at rate 256: 2.2e9 faces; only
+    the numbering is made), int32 below; the counts are the in-core ones."""
+    n = 182
+    u, v = np.meshgrid(np.arange(n + 1.0), np.arange(n + 1.0), indexing="ij")
+    pts = np.stack([u, v, 0 * u], -1).reshape(-1, 3)
+    q = (np.arange(n)[:, None] * (n + 1) + np.arange(n)).reshape(-1)
+    mesh = ws.Mesh(pts, np.full(n * n, 4), np.stack([q, q + n + 1, q + n + 2, q + 1], 1).reshape(-1))
+    plan = _SurfacePlan(mesh, ws.Options())
+    deep = _Numbering(plan, np.full(mesh.num_edges, 256), np.full(n * n, 256), True)
+    assert deep.id_dtype == np.int64 and deep.num_faces == n * n * 256**2
+    assert deep.num_vertices == (n * 256 + 1)**2
+    last = deep.vertex_ids(np.array([deep.num_vertices + deep.dropped - 1]))
+    assert last.dtype == np.int64 and last[0] == deep.num_vertices - 1
+    shallow = _Numbering(plan, np.full(mesh.num_edges, 3), np.full(n * n, 3), True)
+    t = ws.LimitSurface(mesh, device="cpu").tessellate(rate=3)
+    assert shallow.id_dtype == np.int32 and (shallow.num_vertices, shallow.num_faces) == (t.num_vertices, t.num_faces)
+
+
 @pytest.mark.parametrize("bad", [{"tile_faces": 0}, {"tile_faces": 1.5}, {"depth": 0}, {"rate": 0},
                                  {"rate": 2, "edge_length": 1.0}, {"edge_length": -1.0}])
 def test_bad_arguments(bad):

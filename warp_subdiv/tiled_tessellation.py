@@ -128,7 +128,8 @@ class _SurfacePlan(FaceGroups):
         explicit = np.zeros(F, dtype=bool)
         explicit[np.asarray(mesh.holes, dtype=np.int64)] = True
         self.faces = SimpleNamespace(face_hole=explicit)  # the submeshes' holes: the mesh's own
-        self.projects = False if options.linear else Hierarchy(mesh, 0, options).projects
+        # whether the paper's projections act (a wider halo); a plan for the prediction only needs no halo
+        self.projects = False if options.linear or not tiles else Hierarchy(mesh, 0, options).projects
         # the surface's holes (holes, and boundary="none"'s faces): those of its level 0, a Loop polygon's from
         # its first fan triangle (as LimitSurface reads them from the patch tree's roots)
         base = base_faces(mesh, options.scheme, options.boundary, True)
