@@ -103,6 +103,15 @@ def test_triangles_per_face_rates_and_default_depth():
     assert np.all(t.face_vertex_counts == 3)
 
 
+def test_linear_surface_and_rates_per_edge():
+    """A linear (bilinear) surface, and rates given per edge as a dict: still bitwise."""
+    mesh, _ = _obj("mixed_prism.obj")
+    t, points, normals, _ = gather(mesh, 2, rate=3, linear=True)
+    assert_bitwise(t, points, normals)
+    t, points, normals, _ = gather(mesh, 2, rate={"edges": np.arange(mesh.num_edges) % 4 + 1})
+    assert_bitwise(t, points, normals)
+
+
 def test_one_tile_when_it_fits_and_ids_match():
     """Without tile_faces a mesh that fits is one tile: the in-core tessellation itself."""
     mesh, _ = _obj("mixed_prism.obj")
