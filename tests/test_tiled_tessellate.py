@@ -259,20 +259,73 @@ def test_cli_bad_max_memory_is_named(tmp_path, capsys):
     assert "--max-memory" in capsys.readouterr().err
 
 
-def test_usd_mesh_that_does_not_fit_is_refused_by_name(tmp_path):
-    """USD input: a mesh whose tessellation would not fit max_memory is refused, naming the prim."""
-    from pxr import Usd, UsdGeom
+def _usd_stage(path, meshes, uv=None):
+    """A stage of plain meshes ({name: Mesh}) under /World; ``uv``: a face-varying primvar on the first."""
+    from pxr import Sdf, Usd, UsdGeom, Vt
 
+    stage = Usd.Stage.CreateNew(path)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    for i, (name, mesh) in enumerate(meshes.items()):
+        prim = UsdGeom.Mesh.Define(stage, f"/World/{name}")
+        prim.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(np.asarray(mesh.points, np.float32)))
+        prim.GetFaceVertexCountsAttr().Set(np.asarray(mesh.face_vertex_counts).tolist())
+        prim.GetFaceVertexIndicesAttr().Set(np.asarray(mesh.face_vertex_indices).tolist())
+        prim.GetSubdivisionSchemeAttr().Set("catmullClark")
+        prim.AddTranslateOp().Set((3.0 * i, 0.0, 0.0))
+        if uv and i == 0:
+            pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                         UsdGeom.Tokens.faceVarying)
+            pv.Set(Vt.Vec2fArray.FromNumpy(np.zeros((len(mesh.face_vertex_indices), 2), np.float32)))
+    stage.Save()
+
+
+def test_usd_mesh_in_tiles(tmp_path, monkeypatch):
+    """USD input: a mesh whose tessellation would not fit max_memory is tessellated in tiles (deactivated, a
+    sibling Xform of tile meshes with its transform, points gathered by id the in-core tessellation's), the mesh
+    that fits in core as before; the output is valid."""
+    from test_usd_production import validation_errors
+
+    import warp_subdiv.tiled_tessellation as tt
+    from pxr import Usd, UsdGeom
     from warp_subdiv.usd.tessellate import tessellate_file
 
+    monkeypatch.setattr(tt, "resident_bytes", lambda: 0)
+    torus = noisy_torus(8, 6, np.random.default_rng(11), tags=False)
+    small = noisy_torus(3, 3, np.random.default_rng(12), tags=False)
+    src, out = str(tmp_path / "in.usda"), str(tmp_path / "out.usda")
+    _usd_stage(src, {"Torus": torus, "Small": small})
+    torus32 = ws.Mesh(np.asarray(torus.points, np.float32).astype(np.float64), torus.face_vertex_counts,
+                      torus.face_vertex_indices)
+    result = tessellate_file(src, out, rate=4, max_memory=_cli_limit(torus32, 4), device="cpu")
+    by_path = {r.path: r for r in result.reports}
+    assert by_path["/World/Torus"].tiles > 1 and by_path["/World/Small"].tiles == 0
+    assert any("tessellated in tiles" in w for w in result.warnings)
+    stage = Usd.Stage.Open(out)
+    assert not stage.GetPrimAtPath("/World/Torus").IsActive()
+    assert UsdGeom.Mesh(stage.GetPrimAtPath("/World/Small")).GetSubdivisionSchemeAttr().Get() == "none"
+    tiles = stage.GetPrimAtPath("/World/Torus_tiles")
+    assert tiles.GetTypeName() == "Xform" and len(tiles.GetChildren()) == by_path["/World/Torus"].tiles
+    t = ws.LimitSurface(torus32, device="cpu").tessellate(rate=4)
+    points = np.full(t.points.shape, np.nan, np.float32)
+    for child in tiles.GetChildren():
+        ids = np.array(child.GetAttribute("warpSubdiv:vertexIds").Get())
+        points[ids] = np.array(UsdGeom.Mesh(child).GetPointsAttr().Get())
+    assert np.array_equal(points, t.points.astype(np.float32))
+    assert not validation_errors(out)
+
+
+def test_usd_mesh_that_tiles_cannot_write_is_refused_by_name(tmp_path, monkeypatch):
+    """A mesh that must be tiled but has a face-varying primvar (tiles carry points, faces and normals) is
+    refused, naming the prim."""
+    import warp_subdiv.tiled_tessellation as tt
+    from warp_subdiv.usd.tessellate import tessellate_file
+
+    monkeypatch.setattr(tt, "resident_bytes", lambda: 0)
     mesh, _ = _obj("cube.obj")
     path = str(tmp_path / "in.usda")
-    stage = Usd.Stage.CreateNew(path)
-    prim = UsdGeom.Mesh.Define(stage, "/Cube")
-    prim.GetPointsAttr().Set(mesh.points.astype(np.float32).tolist())
-    prim.GetFaceVertexCountsAttr().Set(np.asarray(mesh.face_vertex_counts).tolist())
-    prim.GetFaceVertexIndicesAttr().Set(np.asarray(mesh.face_vertex_indices).tolist())
-    stage.SetDefaultPrim(prim.GetPrim())
-    stage.Save()
-    with pytest.raises(SubdivInputError, match="/Cube.*max_memory"):
+    _usd_stage(path, {"Cube": mesh}, uv=True)
+    with pytest.raises(SubdivInputError, match="/World/Cube.*face-varying primvars"):
         tessellate_file(path, str(tmp_path / "out.usda"), rate=64, max_memory=1000, device="cpu")

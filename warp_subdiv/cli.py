@@ -258,9 +258,9 @@ def _add_tessellate(sub) -> None:
                      help="as for refine: tessellate the points' time samples in [A, B] (default: all)")
     cmd.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
     cmd.add_argument("--max-memory", default=None, metavar="SIZE",
-                     help="as for refine (default: half of the physical memory): OBJ input whose tessellation would "
-                          "not fit is tessellated in tiles that do (one OBJ file, or a USD Xform of tile meshes); "
-                          "USD input is refused")
+                     help="as for refine (default: half of the physical memory): a mesh whose tessellation would "
+                          "not fit is tessellated in tiles that do (OBJ: one OBJ file, or a USD Xform of tile "
+                          "meshes; USD: a sibling Xform <name>_tiles of tile meshes, the mesh deactivated)")
     cmd.add_argument("--flatten", action="store_true", help="write one self-contained layer (USD)")
     cmd.add_argument("--all-variants", action="store_true",
                      help="as for refine: tessellate every variant that changes a mesh, inside its variant set (USD)")

@@ -50,7 +50,8 @@ def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length
     mesh whose predicted tessellation does not fit is tessellated in tiles
     (:func:`warp_subdiv.tessellate_tiled`), streamed into one OBJ file (shared vertices written once) or written
     as a USD Xform of tile meshes, one layer each (:func:`~warp_subdiv.io.usd_write.write_tiled_mesh_layer`); a
-    USD mesh that does not fit is refused, naming the prim. Errors name options by keyword."""
+    USD mesh that does not fit is tessellated in tiles as the tiled bake writes refined meshes (see
+    :func:`tessellate_usd`). Errors name options by keyword."""
     import os
     import time
 
@@ -194,7 +195,14 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     ceil(the projected length of its limit curve / ``pixel_error``) segments, at the worst time of ``frames``
     (:meth:`warp_subdiv.usd.levels.CameraLevels.edge_rates`: the edge-length mode's curves, measured in pixels
     through the camera); rates are per edge, so the tessellation stays watertight. Meshes off screen get rate
-    1; instances and identical meshes placed differently are tessellated apart where their rates differ."""
+    1; instances and identical meshes placed differently are tessellated apart where their rates differ.
+
+    ``max_memory`` (bytes; None: no limit): a mesh whose predicted tessellation does not fit is tessellated in tiles
+    (:func:`warp_subdiv.tessellate_tiled`) and written as the tiled bake writes a refined mesh
+    (:class:`~warp_subdiv.usd.tiles.TiledMeshes`): the mesh deactivated, a sibling Xform ``<name>_tiles`` of tile
+    meshes (points, faces, normals, ids; bindings and constant primvars carried), with a warning; a mesh the tiles
+    cannot write (face-varying or other non-constant primvars, subsets, time samples, skinning, instances,
+    variants, shared meshes, flattened output, bilinear) is refused, naming it."""
     import os
 
     from ..io.usd_write import check_flatten
@@ -207,6 +215,9 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     from ..io.usd_scene import read_scene
     from ..io.usd_stage import open_stage, parse_frames
     from ..io.usd_write import OutputLayer, check_output_path
+    import time
+
+    from .tiles import TiledMeshes
 
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
@@ -242,6 +253,9 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
         raise SubdivInputError(f"{input_path}: no subdivision meshes to tessellate"
                                + (f" under {', '.join(prims)}" if prims else ""))
     warnings_ = [f"{sp.path}: {w}" for sp in p.prims for w in sp.warnings]
+    rate_of = {key: {"edges": rates_of[scene.levels[key]]} if camera is not None else rate for key in p.keys}
+    tiled_items = _choose_tiled(p, rate_of, warnings_, max_memory, flatten, out_abs, edge_length=edge_length,
+                                scheme=scheme, rules=rules, boundary=boundary, depth=depth, quads=quads)
     custom = {"warpSubdiv": {"version": __version__, "command": "tessellate", "source": os.path.basename(input_path),
                              "rate": int(rate) if rate is not None else 0,
                              **({"camera": str(camera), "pixelError": float(pixel_error)} if camera else {}),
@@ -249,24 +263,74 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
                              "allVariants": bool(all_variants)}}
     layer = OutputLayer(out_abs, stage, custom)
     reports = []
+    tiled = TiledMeshes(layer, out_abs, [], max_memory=max_memory, device=device, limit=False, normals=True)
     try:
         out_layout = layout(p)
         for sp, key in zip(p.prims, p.keys):
             target = str(out_layout.homes[key])  # its own path, a prototype's content or a shared mesh
-            mesh_rate = {"edges": rates_of[scene.levels[key]]} if camera is not None else rate
-            reports.append(_tessellate_prim(sp, target, layer, warnings_, rate=mesh_rate, edge_length=edge_length,
+            reports.append(_tessellate_prim(sp, target, layer, warnings_, rate=rate_of[key], edge_length=edge_length,
                                             scheme=scheme, rules=rules, boundary=boundary, depth=depth, quads=quads,
-                                            device=device, max_memory=max_memory))
+                                            device=device))
             for dst in out_layout.copies[key]:
                 layer.copy(out_layout.homes[key], dst)
         out_layout.write(layer)
         out_layout.check(layer, p, reports)
         layer.override_extents_hints(stage, out_layout.hint_roots(p), chosen)
+        for sp, keywords in tiled_items:
+            t0 = time.perf_counter()
+            _, count, faces, vertices = tiled.write_tessellated([(sp, keywords)])[0]
+            options = keywords["options"]
+            reports.append(MeshReport(sp.path, options.scheme.value, options.rules.value, sp.mesh.num_faces, faces,
+                                      vertices, time.perf_counter() - t0, count))
         layer.commit(flatten=flatten)
+        tiled.publish()
     except BaseException:
         layer.discard()
+        tiled.discard()
         raise
     return reports, warnings_
+
+
+def _prim_options(sp, scheme, rules, boundary):
+    """A mesh's tessellation options (float64; a bilinear mesh's linear surface)."""
+    from .planning import options_for
+
+    options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+    return options.replace(linear=True) if sp.scheme == "bilinear" else options
+
+
+def _choose_tiled(p, rate_of, warnings_, max_memory, flatten, out_abs, *, edge_length, scheme, rules, boundary,
+                  depth, quads) -> list:
+    """The meshes of the plan whose tessellation would not fit ``max_memory``, taken out of the plan (refused,
+    naming the prim, where tiles cannot write them: :func:`~warp_subdiv.usd.tiles.check_tileable`): (SubdivPrim,
+    keywords of :func:`warp_subdiv.tessellate_tiled`) each."""
+    import os
+
+    from ..tiled_tessellation import tessellation_fits
+    from .tiles import check_tileable, without
+
+    if max_memory is None:
+        return []
+    chosen, items = [], []
+    for i, (sp, key) in enumerate(zip(p.prims, p.keys)):
+        if sp.topologies:
+            continue  # refused by _tessellate_prim
+        options = _prim_options(sp, scheme, rules, boundary)
+        keywords = dict(rate=rate_of[key], edge_length=edge_length, quads=quads, options=options,
+                        depth=DEFAULT_DEPTH if depth is None else depth)
+        try:
+            fits, _ = tessellation_fits(sp.mesh, max_memory=max_memory, **keywords)
+        except SubdivInputError as exc:
+            raise sp.error(exc) from None
+        if not fits:
+            check_tileable(p, i, flatten=flatten, tessellate=True)
+            chosen.append(i)
+            items.append((sp, keywords))
+            warnings_.append(f"{sp.path}: does not fit max_memory: tessellated in tiles ({os.path.basename(out_abs)}: "
+                             f"{sp.prim.GetName()}_tiles, the mesh deactivated)")
+    if chosen:
+        without(p, chosen)
+    return items
 
 
 def _camera_rates(stage, camera, pixel_error, resolution, frames, rates_of, rate, edge_length, surface_options):
@@ -306,15 +370,12 @@ def _camera_rates(stage, camera, pixel_error, resolution, frames, rates_of, rate
 
 
 def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme, rules, boundary, depth, quads,
-                     device, max_memory=None) -> MeshReport:
-    """Tessellate one mesh (as read) and write it at ``target``, its path in ``layer``; a mesh whose predicted
-    tessellation does not fit ``max_memory`` is refused (tiles of a USD mesh, with its primvars, subsets, time
-    samples and bindings, are not written)."""
+                     device) -> MeshReport:
+    """Tessellate one mesh (as read) and write it at ``target``, its path in ``layer``."""
     import time
 
     from pxr import Sdf, UsdGeom, Vt
 
-    from .planning import options_for
     from ..io.usd_stage import DEFAULT
     from ..io.usd_write import extent_of
 
@@ -322,16 +383,13 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
     t0 = time.perf_counter()
     if sp.topologies:
         raise SubdivInputError(f"{sp.path}: its topology changes over time; tessellate takes one topology")
-    options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+    # bilinear meshes: bilinear patches (quads; a polygon's quad sub-faces, as bilinear refinement splits it)
+    options = _prim_options(sp, scheme, rules, boundary)
     linear = sp.scheme == "bilinear"
-    if linear:  # bilinear patches (quads; a polygon's quad sub-faces, as bilinear refinement splits it)
-        options = options.replace(linear=True)
     mesh = sp.mesh
     if getattr(sp, "skin", None) is not None and sp.skin.mode == "bake":
         mesh = _with_points(mesh, sp.points_at(DEFAULT))  # a skinned mesh: as UsdSkel poses it at the default time
     try:
-        if max_memory is not None:
-            _check_fits(mesh, options, rate, edge_length, quads, depth, max_memory)
         surface = _surface(mesh, options, depth, device)
         t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
     except SubdivInputError as exc:
@@ -418,20 +476,6 @@ def _write_samples(sp, layer, prim, t, surface, surface_at, linear: bool) -> Non
         write_vectors(when, moved)
     for when in sorted({x for times in sp.point_arrays.values() for x in times} - set(sp.point_times)):
         write_vectors(when, surface)
-
-
-def _check_fits(mesh, options, rate, edge_length, quads, depth, max_memory) -> None:
-    """Refuse (SubdivInputError) a USD mesh whose predicted tessellation does not fit ``max_memory``."""
-    from ..runtime.estimate import format_bytes
-    from ..tiled_tessellation import tessellation_fits
-
-    fits, need = tessellation_fits(mesh, rate=rate, edge_length=edge_length, quads=quads, max_memory=max_memory,
-                                   depth=DEFAULT_DEPTH if depth is None else depth, options=options)
-    if not fits:
-        raise SubdivInputError(f"its tessellation would need about {format_bytes(need)}, more than max_memory "
-                               f"{format_bytes(max_memory)}; tiled tessellation writes meshes of OBJ input only "
-                               "(USD meshes carry primvars, subsets and time samples the tiles do not): lower the "
-                               "rate, or raise max_memory", option="max_memory", value=max_memory)
 
 
 def _block_control_attributes(sp, layer, prim, warnings_) -> None:
