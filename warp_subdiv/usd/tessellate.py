@@ -196,13 +196,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     (:meth:`warp_subdiv.usd.levels.CameraLevels.edge_rates`: the edge-length mode's curves, measured in pixels
     through the camera); rates are per edge, so the tessellation stays watertight. Meshes off screen get rate
     1; instances and identical meshes placed differently are tessellated apart where their rates differ.
-
-    ``max_memory`` (bytes; None: no limit): a mesh whose predicted tessellation does not fit is tessellated in tiles
-    (:func:`warp_subdiv.tessellate_tiled`) and written as the tiled bake writes a refined mesh
-    (:class:`~warp_subdiv.usd.tiles.TiledMeshes`): the mesh deactivated, a sibling Xform ``<name>_tiles`` of tile
-    meshes (points, faces, normals, ids; bindings and constant primvars carried), with a warning; a mesh the tiles
-    cannot write (face-varying or other non-constant primvars, subsets, time samples, skinning, instances,
-    variants, shared meshes, flattened output, bilinear) is refused, naming it."""
+    ``max_memory``: meshes that would not fit are tessellated in tiles (:func:`_choose_tiled`)."""
     import os
 
     from ..io.usd_write import check_flatten
@@ -215,8 +209,6 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     from ..io.usd_scene import read_scene
     from ..io.usd_stage import open_stage, parse_frames
     from ..io.usd_write import OutputLayer, check_output_path
-    import time
-
     from .tiles import TiledMeshes
 
     if not os.path.exists(input_path):
@@ -276,12 +268,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
         out_layout.write(layer)
         out_layout.check(layer, p, reports)
         layer.override_extents_hints(stage, out_layout.hint_roots(p), chosen)
-        for sp, keywords in tiled_items:
-            t0 = time.perf_counter()
-            _, count, faces, vertices = tiled.write_tessellated([(sp, keywords)])[0]
-            options = keywords["options"]
-            reports.append(MeshReport(sp.path, options.scheme.value, options.rules.value, sp.mesh.num_faces, faces,
-                                      vertices, time.perf_counter() - t0, count))
+        reports += _write_tiled(tiled, tiled_items)
         layer.commit(flatten=flatten)
         tiled.publish()
     except BaseException:
@@ -289,6 +276,20 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
         tiled.discard()
         raise
     return reports, warnings_
+
+
+def _write_tiled(tiled, items) -> list:
+    """Tessellate in tiles and write the meshes of ``items`` (:func:`_choose_tiled`); a report per mesh."""
+    import time
+
+    reports = []
+    for sp, keywords in items:
+        t0 = time.perf_counter()
+        _, count, faces, vertices = tiled.write_tessellated([(sp, keywords)])[0]
+        options = keywords["options"]
+        reports.append(MeshReport(sp.path, options.scheme.value, options.rules.value, sp.mesh.num_faces, faces,
+                                  vertices, time.perf_counter() - t0, count))
+    return reports
 
 
 def _prim_options(sp, scheme, rules, boundary):
@@ -301,9 +302,13 @@ def _prim_options(sp, scheme, rules, boundary):
 
 def _choose_tiled(p, rate_of, warnings_, max_memory, flatten, out_abs, *, edge_length, scheme, rules, boundary,
                   depth, quads) -> list:
-    """The meshes of the plan whose tessellation would not fit ``max_memory``, taken out of the plan (refused,
-    naming the prim, where tiles cannot write them: :func:`~warp_subdiv.usd.tiles.check_tileable`): (SubdivPrim,
-    keywords of :func:`warp_subdiv.tessellate_tiled`) each."""
+    """The meshes of the plan whose tessellation would not fit ``max_memory`` (bytes; None: no limit), taken out
+    of the plan: (SubdivPrim, keywords of :func:`warp_subdiv.tessellate_tiled`) each. They are written as the
+    tiled bake writes a refined mesh (:class:`~warp_subdiv.usd.tiles.TiledMeshes`): the mesh deactivated, a
+    sibling Xform ``<name>_tiles`` of tile meshes (points, faces, normals, ids; bindings and constant primvars
+    carried), with a warning; a mesh the tiles cannot write (face-varying or other non-constant primvars, subsets,
+    time samples, skinning, instances, variants, shared meshes, flattened output, bilinear) is refused, naming it
+    (:func:`~warp_subdiv.usd.tiles.check_tileable`)."""
     import os
 
     from ..tiled_tessellation import tessellation_fits
