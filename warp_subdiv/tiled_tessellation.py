@@ -31,9 +31,11 @@ Rates
     patches, the same face), and the tiles are tessellated in a second pass.
 
 Memory
-    A tile's peak is predicted from its surface (per control corner of the tile and its halo) and its output
-    (per emitted vertex and per output face, with the previous tile held by the caller): :func:`predict`,
-    calibrated against measured peaks (``bench/bench_tessellate_memory.py``).
+    A tile's peak is predicted from its surface (per control corner of the tile and its halo, far more per corner
+    of a face the surface refines locally), the ring's emitted vertices, its output (per emitted vertex and per
+    output face) and the previous tile held by the caller: :func:`predict`, calibrated against measured peaks
+    (``bench/bench_tiled_tessellate.py --calibrate``). Non-manifold meshes are refused (their limit surface's local
+    refinement works on the whole level where it can).
 """
 from __future__ import annotations
 
@@ -250,7 +252,7 @@ def tessellate_tiled(mesh: Mesh, *, rate=None, edge_length=None, quads: bool = T
     if budget is None and tile_faces is None:
         budget = estimate.default_max_memory()
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NonManifoldWarning)  # LimitSurface(mesh) would warn once; the tiles don't
+        warnings.simplefilter("ignore", NonManifoldWarning)  # (a non-manifold mesh is refused)
         plan = _SurfacePlan(mesh, options)
     lite = SimpleNamespace(mesh=mesh)
     if edge_length is None:
@@ -262,6 +264,7 @@ def tessellate_tiled(mesh: Mesh, *, rate=None, edge_length=None, quads: bool = T
 
 
 def _tiles(plan: _SurfacePlan, rate, edge_length, quads, budget, tile_faces, depth, device, rates):
+    """The tiles (``rates``: (edge rates, face rates), or None to measure the edges' curves for ``edge_length``)."""
     rings = (HALO_RINGS_PROJECTING if plan.projects else HALO_RINGS) + 1
     if rates is None:  # edge lengths: the edges' curves measured on the tiles' surfaces
         lengths = np.zeros(len(plan.mesh.edges.edge_verts))
