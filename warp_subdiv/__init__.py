@@ -13,8 +13,9 @@ from .options import (Boundary, CreaseMethod, FaceVaryingMode, LoopBeta, Options
 from .refiner import Refined, Refiner, refine
 from .limit import LimitEvaluation, LimitSurface
 from .tiled import Tile, TileFaceVarying, refine_tiled
+from .tiled_tessellation import tessellate_tiled
 
 __all__ = ["Mesh", "Options", "Refiner", "Refined", "refine", "default_device", "SubdivInputError",
            "NonManifoldWarning", "Scheme", "RuleSet", "Boundary", "Precision", "LoopBeta", "CreaseMethod",
            "TriangleSubdivision", "FaceVaryingMode", "LimitSurface", "LimitEvaluation", "refine_tiled", "Tile",
-           "TileFaceVarying", "__version__"]
+           "TileFaceVarying", "tessellate_tiled", "__version__"]

@@ -264,6 +264,10 @@ def _add_tessellate(sub) -> None:
     cmd.add_argument("--frames", default=None, metavar="A:B",
                      help="as for refine: tessellate the points' time samples in [A, B] (default: all)")
     cmd.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: cuda when present)")
+    cmd.add_argument("--max-memory", default=None, metavar="SIZE",
+                     help="as for refine (default: half of the physical memory): a mesh whose tessellation would "
+                          "not fit is tessellated in tiles that do (OBJ: one OBJ file, or a USD Xform of tile "
+                          "meshes; USD: a sibling Xform <name>_tiles of tile meshes, the mesh deactivated)")
     cmd.add_argument("--flatten", action="store_true", help="write one self-contained layer (USD)")
     cmd.add_argument("--all-variants", action="store_true",
                      help="as for refine: tessellate every variant that changes a mesh, inside its variant set (USD)")
@@ -727,17 +731,21 @@ def _tessellate(args) -> int:
     if args.edge_length is not None and not args.edge_length > 0:
         raise UsageError(f"--edge-length must be positive, got {args.edge_length}")
     _check_device(args.device)
+    max_memory = _max_memory(args.max_memory)
     result = tessellate_file(args.input, args.output, rate=args.rate, edge_length=args.edge_length, prims=args.prim,
                              scheme=args.scheme, rules=args.rules, boundary=args.boundary, depth=args.depth,
                              quads=not args.triangles, device=args.device, flatten=args.flatten,
                              frames=args.frames, all_variants=args.all_variants, camera=args.camera,
-                             pixel_error=args.pixel_error, resolution=args.resolution)
+                             pixel_error=args.pixel_error, resolution=args.resolution, max_memory=max_memory)
     for w in result.warnings:
         _warn(w)
     if not args.quiet:
         how = (f"rate {args.rate}" if args.rate is not None else f"edge length {args.edge_length:g}"
                if args.edge_length is not None else f"camera {args.camera}, {args.pixel_error:g} px")
         print(f"{args.input} -> {args.output}: limit surfaces tessellated ({how}) on {_device_name(args.device)}")
+        for r in result.reports:
+            if r.tiles:
+                print(f"  {r.path}: in {r.tiles} tiles (the whole tessellation would not fit --max-memory)")
         header = ("prim", "scheme", "rules", "faces in", "faces out", "vertices out", "time")
         rows = [(r.path, r.scheme, r.rules, f"{r.faces_in:,}", f"{r.faces_out:,}", f"{r.vertices_out:,}",
                  f"{r.seconds:.2f} s") for r in result.reports]

@@ -116,7 +116,68 @@ GLOBAL_BYTES_PER_CORNER = 16
 ID_MAP_BYTES = 24
 
 
-class _Plan:
+class FaceGroups:
+    """Control faces (``counts``, ``indices`` over ``num_vertices`` vertices at ``points``) as tiles are cut from
+    them: the faces at every vertex (to grow a halo of rings) and a Morton order of the faces' centres (runs of
+    it are compact tiles). Shared by tiled refinement and tiled tessellation."""
+
+    def __init__(self, points, counts, indices, num_vertices: int):
+        self.points = points
+        self.counts = np.asarray(counts, dtype=np.int64)
+        self.indices = np.asarray(indices, dtype=np.int64)
+        self.offsets = face_offsets_of(self.counts)
+        self.corner_face = np.repeat(np.arange(len(self.counts), dtype=np.int64), self.counts)
+        self.num_vertices = num_vertices
+        # the faces at each vertex (for halos)
+        self.vert_faces_order = np.argsort(self.indices, kind="stable")
+        self.vert_offsets = face_offsets_of(np.bincount(self.indices, minlength=num_vertices))
+
+    def grow(self, faces: np.ndarray, rings: int) -> np.ndarray:
+        """``faces`` (sorted level-0 face ids) and ``rings`` rings of faces around them (sharing a vertex)."""
+        for _ in range(rings):
+            verts = _members(self.indices[_corners_of(self.offsets, faces)], self.num_vertices)
+            around = self.vert_faces_order[_corners_of(self.vert_offsets, verts)]
+            faces = _members(np.concatenate([faces, self.corner_face[around]]), len(self.counts))
+        return faces
+
+    def morton_order(self) -> np.ndarray:
+        """Level-0 faces along a Morton (Z-order) curve of their centres: runs of it are compact tiles."""
+        pts = self.points
+        centres = np.add.reduceat(pts[self.indices], self.offsets[:-1], axis=0) / self.counts[:, None]
+        lo, hi = centres.min(axis=0), centres.max(axis=0)
+        extent = max(float(np.max(hi - lo)), 1e-300)  # one scale for all axes: a cube's cells
+        cells = np.floor((centres - lo) / extent * (2**21 - 1)).astype(np.uint64)
+        code = np.zeros(len(centres), dtype=np.uint64)
+        for axis in range(3):
+            code |= _spread_bits(cells[:, axis]) << np.uint64(axis)
+        return np.argsort(code, kind="stable")
+
+    def runs(self, size: int) -> Iterator[np.ndarray]:
+        """Runs of ``size`` faces along the Morton order (sorted); all faces in one run where they fit."""
+        F = len(self.counts)
+        order = self.morton_order() if size < F else np.arange(F)
+        for start in range(0, F, size):
+            yield np.sort(order[start:start + size])
+
+    def fitted_runs(self, size: int, fits, too_big) -> Iterator[np.ndarray]:
+        """Runs of ``size`` faces along the Morton order (sorted), each halved until ``fits(faces)``; a face that
+        does not fit alone raises ``too_big(faces)``."""
+        F = len(self.counts)
+        order = self.morton_order()
+        stack = [order[start:start + size] for start in range(0, F, size)][::-1]
+        while stack:
+            faces = np.sort(stack.pop())
+            if fits(faces):
+                yield faces
+                continue
+            if len(faces) == 1:
+                raise too_big(faces)
+            half = len(faces) // 2
+            stack.append(faces[half:])
+            stack.append(faces[:half])
+
+
+class _Plan(FaceGroups):
     """What a tiled refinement knows of the whole mesh: level 0 as the refiner sees it, its edges, the counts of
     every level, the vertex-to-face lists the halos are grown with, and the ids of the refined faces."""
 
@@ -131,13 +192,9 @@ class _Plan:
         self.loop = options.scheme == Scheme.LOOP
         faces = base_faces(mesh, options.scheme, options.boundary, options.triangulate)
         self.faces = faces
-        self.counts = np.asarray(faces.counts, dtype=np.int64)
-        self.indices = np.asarray(faces.indices, dtype=np.int64)
-        self.offsets = face_offsets_of(self.counts)
-        self.corner_face = np.repeat(np.arange(len(self.counts), dtype=np.int64), self.counts)
+        super().__init__(mesh.points, faces.counts, faces.indices, mesh.num_vertices)
         self.edges = faces.edges
         self.face_size = faces.face_size
-        self.num_vertices = mesh.num_vertices
         # counts of every level (hole faces included): V, F, E, C
         F0 = len(self.counts)
         V, F, E, C = mesh.num_vertices, F0, len(self.edges.edge_verts), int(self.offsets[-1])
@@ -150,9 +207,6 @@ class _Plan:
             self.level_counts.append((V, F, E, C))
         wide = max(self.level_counts[-1][0], self.level_counts[-1][1]) >= 2**31
         self.id_dtype = np.int64 if wide else np.int32
-        # the faces at each vertex (for halos), and the number of corners at each vertex
-        self.vert_faces_order = np.argsort(self.indices, kind="stable")
-        self.vert_offsets = face_offsets_of(np.bincount(self.indices, minlength=self.num_vertices))
         # refined faces: the descendants of level-0 face f are a run [first[f], first[f] + per_face[f]) of the
         # last level; refine() leaves hole faces out, so ids drop by the hole faces before
         if levels == 0:
@@ -165,27 +219,6 @@ class _Plan:
         holes_before = np.zeros(F0, np.int64)
         np.cumsum((per_face * faces.face_hole)[:-1], out=holes_before[1:])
         self.holes_before = holes_before
-
-    # ------------------------------------------------------------------------------------------ faces
-    def grow(self, faces: np.ndarray, rings: int) -> np.ndarray:
-        """``faces`` (sorted level-0 face ids) and ``rings`` rings of faces around them (sharing a vertex)."""
-        for _ in range(rings):
-            verts = _members(self.indices[_corners_of(self.offsets, faces)], self.num_vertices)
-            around = self.vert_faces_order[_corners_of(self.vert_offsets, verts)]
-            faces = _members(np.concatenate([faces, self.corner_face[around]]), len(self.counts))
-        return faces
-
-    def morton_order(self) -> np.ndarray:
-        """Level-0 faces along a Morton (Z-order) curve of their centres: runs of it are compact tiles."""
-        pts = self.mesh.points
-        centres = np.add.reduceat(pts[self.indices], self.offsets[:-1], axis=0) / self.counts[:, None]
-        lo, hi = centres.min(axis=0), centres.max(axis=0)
-        extent = max(float(np.max(hi - lo)), 1e-300)  # one scale for all axes: a cube's cells
-        cells = np.floor((centres - lo) / extent * (2**21 - 1)).astype(np.uint64)
-        code = np.zeros(len(centres), dtype=np.uint64)
-        for axis in range(3):
-            code |= _spread_bits(cells[:, axis]) << np.uint64(axis)
-        return np.argsort(code, kind="stable")
 
     def face_ids(self, base_face: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """Ids in ``refine``'s faces of the child ``offset`` (in the run of its level-0 face) of ``base_face``."""
@@ -490,9 +523,7 @@ def _tile_faces(plan: _Plan, tile_faces, budget, rings, limit, deeper, held=2) -
     sized to ``budget``, halved until each one's prediction fits."""
     F = len(plan.counts)
     if tile_faces is not None:
-        order = plan.morton_order() if tile_faces < F else np.arange(F)
-        for start in range(0, F, tile_faces):
-            yield np.sort(order[start:start + tile_faces])
+        yield from plan.runs(tile_faces)
         return
     # what the process holds now (Warp's runtime, the mesh, the plan, the caller's data) is not the tiles'
     held_now = max(estimate.RUNTIME_BYTES, resident_bytes()) + GLOBAL_BYTES_PER_CORNER * int(plan.offsets[-1])
@@ -502,24 +533,18 @@ def _tile_faces(plan: _Plan, tile_faces, budget, rings, limit, deeper, held=2) -
         yield everything
         return
     whole = _tile_bytes(plan, everything, 0, limit, deeper, held)
+
+    def too_big(faces):
+        return SubdivInputError(
+            f"refining one control face with its halo to level {plan.levels} needs about "
+            f"{estimate.format_bytes(_tile_bytes(plan, faces, rings, limit, deeper, held))} (with what the tiled "
+            f"refinement keeps), more than max_memory {estimate.format_bytes(budget)} leaves beside the "
+            f"{estimate.format_bytes(held_now)} the process and the whole mesh's plan already hold; raise "
+            "max_memory or refine fewer levels", option="max_memory", value=budget)
+
     size = max(1, int(F * available / whole / 2))  # half the share: room for the halo
-    order = plan.morton_order()
-    stack = [order[start:start + size] for start in range(0, F, size)][::-1]
-    while stack:
-        faces = np.sort(stack.pop())
-        if _tile_bytes(plan, faces, rings, limit, deeper, held) <= available:
-            yield faces
-            continue
-        if len(faces) == 1:
-            raise SubdivInputError(
-                f"refining one control face with its halo to level {plan.levels} needs about "
-                f"{estimate.format_bytes(_tile_bytes(plan, faces, rings, limit, deeper, held))} (with what the tiled "
-                f"refinement keeps), more than max_memory {estimate.format_bytes(budget)} leaves beside the "
-                f"{estimate.format_bytes(held_now)} the process and the whole mesh's plan already hold; raise "
-                "max_memory or refine fewer levels", option="max_memory", value=budget)
-        half = len(faces) // 2
-        stack.append(faces[half:])
-        stack.append(faces[:half])
+    yield from plan.fitted_runs(size, lambda faces: _tile_bytes(plan, faces, rings, limit, deeper, held) <= available,
+                                too_big)
 
 
 def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device, threads, want_points: bool,

@@ -41,7 +41,8 @@ import numpy as np
 from ..mesh import Mesh
 from ..options import Options, Scheme
 from ..tables import Hierarchy
-from ..topology import Level
+from ..topology import Level, base_faces
+from ..topology.connectivity import connectivity
 from .bezier import regular_bezier
 from .end_caps import end_cap_nets
 from .exact_caps import ExactCaps, build_exact_caps
@@ -66,6 +67,12 @@ REGULAR, END_CAP = 0, 1
 #: Patch bases: uniform cubic B-spline over 16 indexed points, or Bezier (bicubic / quartic triangular).
 BSPLINE, BEZIER = 0, 1
 
+
+
+def is_manifold(mesh: Mesh, options: Options) -> bool:
+    """Whether the control faces (as ``options`` subdivide them) have no non-manifold edge or vertex."""
+    faces = base_faces(mesh, options.scheme, options.boundary, True)
+    return not connectivity(faces, mesh.num_vertices).nonmanifold_vert.any()
 
 
 # ----------------------------------------------------------------------------------------- the tree
@@ -200,6 +207,7 @@ def build(mesh: Mesh, options: Options, depth: int, *, data: np.ndarray | None =
     n = 3 if triangles else 4
     hierarchy = Hierarchy(mesh, 0, o)
     level0 = hierarchy.final
+    manifold = is_manifold(mesh, o)
     normal_ids = hierarchy.normal_vertices.astype(np.int64)
     if o.normal_strength <= 0:
         normal_ids = normal_ids[:0]
@@ -229,8 +237,14 @@ def build(mesh: Mesh, options: Options, depth: int, *, data: np.ndarray | None =
     todo = np.union1d(todo, polygon_faces).astype(np.int64)
     while len(todo):
         last = cur.depth >= depth
+        # a manifold mesh is cut out even where the region is the whole level: a cut-out is rebuilt from its
+        # faces, and some of its stencils sum in another order than the level's own, so refining the level
+        # itself where the region covers it would make a face's patches depend (in the last bits) on how far
+        # the mesh extends; cut out always, they depend on the face's neighbourhood only, and a submesh with a
+        # halo (tiled tessellation) has the whole mesh's patches bit for bit. (A cut-out does not keep
+        # non-manifold edges and fans as they are: a non-manifold mesh is refined whole where it can be.)
         region = region_around(cur.level, todo, MARGIN)
-        if region.all():
+        if region.all() and not manifold:
             sub, sub_todo, region_faces = cur, todo, None
         else:
             sub = cut_out(cur, region, o)

@@ -87,8 +87,9 @@ class _Cells:
     rate: np.ndarray  # (C, 4)
 
 
-def _rates(surface, rate, edge_length) -> tuple:
-    """(edge rates (E,), face inner rates (F,)) from the arguments."""
+def _rates(surface, rate, edge_length, lengths=None) -> tuple:
+    """(edge rates (E,), face inner rates (F,)) from the arguments; ``lengths``: the edges' limit curve lengths
+    where known (else measured on ``surface``)."""
     mesh = surface.mesh
     counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
     F = len(counts)
@@ -102,7 +103,7 @@ def _rates(surface, rate, edge_length) -> tuple:
                 or not np.isfinite(edge_length):
             raise SubdivInputError(f"edge_length must be a positive number, got {edge_length!r}",
                                    option="edge_length", value=edge_length)
-        lengths = _edge_lengths(surface)
+        lengths = _edge_lengths(surface) if lengths is None else lengths
         edge = np.clip(np.ceil(lengths / float(edge_length)), 1, MAX_RATE).astype(np.int64)
         face = _max_per_face(edge[corner_edge], corner_face, F)
         return edge, face
@@ -169,19 +170,21 @@ def _edge_points(surface, faces, corners, t) -> tuple:
     return uv
 
 
-def _edge_lengths(surface) -> np.ndarray:
-    """Length of every control edge's limit curve, from 16 segments evaluated on one of its faces."""
-    has, p = edge_curves(surface)
+def _edge_lengths(surface, edges=None) -> np.ndarray:
+    """Length of every control edge's limit curve, from 16 segments evaluated on one of its faces (``edges``: a
+    mask of the edges to measure; the others get 0)."""
+    has, p = edge_curves(surface, edges=edges)
     lengths = np.zeros(len(has))
     lengths[has] = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
     return lengths
 
 
-def edge_curves(surface, samples: int = 17):
+def edge_curves(surface, samples: int = 17, edges=None):
     """The limit curve of every control edge, sampled: (has (E,) bool: the edge lies on a face that is not a
     hole, points (has.sum(), samples, 3): ``samples`` points evenly spaced in the parameter of one of its
     faces). The edge-length rates measure these polylines (object space); a camera's rates project them
-    (:class:`warp_subdiv.usd.levels.CameraLevels`)."""
+    (:class:`warp_subdiv.usd.levels.CameraLevels`). ``edges``: a mask of the edges to sample (the others have
+    ``has`` False)."""
     mesh = surface.mesh
     counts = np.asarray(mesh.face_vertex_counts, dtype=np.int64)
     corner_edge = np.asarray(mesh.edges.corner_edge, dtype=np.int64)
@@ -193,6 +196,8 @@ def edge_curves(surface, samples: int = 17):
     order = np.flatnonzero(usable)[::-1]
     owner[corner_edge[order]] = order  # the first usable corner of each edge
     has = owner >= 0
+    if edges is not None:
+        has &= np.asarray(edges, dtype=bool)
     h = owner[has]
     t = np.tile(np.linspace(0.0, 1.0, samples), len(h))
     hh = np.repeat(h, samples)
@@ -367,13 +372,53 @@ def _pad(a):
     return np.concatenate([a, np.zeros((len(a), 4 - a.shape[1]), a.dtype)], 1)
 
 
+@dataclass
+class CellGroups:
+    """Cells grouped by their pattern (kind and side rates), in the order :func:`tessellate` emits them: the
+    ``patterns`` (one per group, in sorted key order) and the ``group`` of every cell."""
+
+    patterns: list
+    group: np.ndarray
+
+
+def cell_groups(cells: _Cells, quad_cells: bool) -> CellGroups:
+    """The cells' groups (:class:`CellGroups`): one :func:`cell_pattern` per distinct (kind, side rates)."""
+    n_sides = np.where(cells.kind == QUAD, QUAD, TRI)
+    key = np.concatenate([cells.kind[:, None], cells.rate * (np.arange(4) < n_sides[:, None])], 1)
+    keys, group = np.unique(key, axis=0, return_inverse=True)
+    patterns = [cell_pattern(int(k[0]), tuple(int(x) for x in k[1:1 + int(k[0])]), quad_cells) for k in keys]
+    return CellGroups(patterns, group.reshape(-1))
+
+
+def emit_cells(cells: _Cells, sel: np.ndarray, pat, lines: tuple, interior_base: np.ndarray) -> tuple:
+    """The vertices and faces of cells ``sel`` (all of one pattern ``pat``): (vertex ids (G, local), their
+    (u, v) (G, local, 2), faces as vertex ids (G, m, 4; -1 pads a triangle), the faces' corner (u, v)
+    (G, m, 4, 2)). Vertices on the cells' sides get the ids of their lines' points (``lines``: start vertex,
+    end vertex, rate and first inner id of every line), the interior vertices of cell i the ids
+    ``interior_base[i]`` on."""
+    l_start, l_end, l_rate, l_base = lines
+    side = pat.boundary[:, 0]
+    idx = pat.boundary[:, 1]
+    line = cells.line[sel][:, side]
+    x = cells.start[sel][:, side] + cells.step[sel][:, side] * idx
+    R = l_rate[line]
+    bid = np.where(x == 0, l_start[line], np.where(x == R, l_end[line], l_base[line] + x - 1))
+    iid = np.asarray(interior_base, dtype=np.int64)[:, None] + np.arange(len(pat.interior_st))
+    gid = np.concatenate([bid, iid], 1)
+    st = np.concatenate([pat.boundary_st, pat.interior_st], 0)
+    uv = cells.offset[sel][:, None, :] + cells.scale[sel][:, None, None] * st[None]
+    f = pat.faces
+    fg = np.where((f >= 0)[None], gid[:, np.maximum(f, 0)], -1)
+    return gid, uv, fg, uv[:, np.maximum(f, 0)]
+
+
 # ----------------------------------------------------------------------------------------- tessellate
 def tessellate(surface, *, rate=None, edge_length=None, quads: bool = True) -> Tessellation:
     """A watertight tessellation of ``surface`` (a :class:`~warp_subdiv.limit.LimitSurface`); see the module
     docstring for ``rate``, ``edge_length`` and the output. ``quads``: uniform cells of Catmull-Clark faces as
     quads (else every face a triangle)."""
     edge_rate, face_rate = _rates(surface, rate, edge_length)
-    cells, (l_start, l_end, l_rate, l_base), next_id, edge_rate = _cells(surface, edge_rate, face_rate)
+    cells, lines, next_id, edge_rate = _cells(surface, edge_rate, face_rate)
     if cells.kind is None:
         empty = np.zeros((0, 3))
         return Tessellation(empty, empty.copy(), np.zeros(0, np.int32), np.zeros(0, np.int32),
@@ -383,41 +428,20 @@ def tessellate(surface, *, rate=None, edge_length=None, quads: bool = True) -> T
     if estimate > MAX_VERTICES:
         raise SubdivInputError(f"the tessellation would have about {estimate} vertices (more than {MAX_VERTICES}); "
                                "use a lower rate or a longer edge_length", option="rate", value=estimate)
-    quad_cells = bool(quads) and not surface.triangles
-    n_sides = np.where(cells.kind == QUAD, QUAD, TRI)
-    key = np.concatenate([cells.kind[:, None], cells.rate * (np.arange(4) < n_sides[:, None])], 1)
-    keys, group = np.unique(key, axis=0, return_inverse=True)
-    group = group.reshape(-1)
+    groups = cell_groups(cells, bool(quads) and not surface.triangles)
     all_faces, all_face_cell, all_corner_uv = [], [], []
     emit_id, emit_face, emit_uv = [], [], []
     interior_next = next_id
-    for g, k in enumerate(keys):
-        kind = int(k[0])
-        rates = tuple(int(x) for x in k[1:1 + kind])
-        pat = cell_pattern(kind, rates, quad_cells)
-        sel = np.flatnonzero(group == g)
-        G = len(sel)
-        side = pat.boundary[:, 0]
-        idx = pat.boundary[:, 1]
-        line = cells.line[sel][:, side]
-        x = cells.start[sel][:, side] + cells.step[sel][:, side] * idx
-        R = l_rate[line]
-        bid = np.where(x == 0, l_start[line], np.where(x == R, l_end[line], l_base[line] + x - 1))
+    for g, pat in enumerate(groups.patterns):
+        sel = np.flatnonzero(groups.group == g)
         n_int = len(pat.interior_st)
-        iid = interior_next + np.arange(G * n_int).reshape(G, n_int)
-        interior_next += G * n_int
-        gid = np.concatenate([bid, iid], 1)
-        st = np.concatenate([pat.boundary_st, pat.interior_st], 0)
-        uv = cells.offset[sel][:, None, :] + cells.scale[sel][:, None, None] * st[None]
+        gid, uv, fg, fuv = emit_cells(cells, sel, pat, lines, interior_next + n_int * np.arange(len(sel)))
+        interior_next += len(sel) * n_int
         emit_id.append(gid.reshape(-1))
         emit_face.append(np.repeat(cells.face[sel], pat.num_local))
         emit_uv.append(uv.reshape(-1, 2))
-        f = pat.faces
-        valid = f >= 0
-        fg = np.where(valid[None], gid[:, np.maximum(f, 0)], -1)  # (G, m, 4)
-        fuv = uv[:, np.maximum(f, 0)]  # (G, m, 4, 2)
         all_faces.append(fg.reshape(-1, 4))
-        all_face_cell.append(np.repeat(cells.face[sel], len(f)))
+        all_face_cell.append(np.repeat(cells.face[sel], len(pat.faces)))
         all_corner_uv.append(fuv.reshape(-1, 4, 2))
     faces = np.concatenate(all_faces)
     face_base = np.concatenate(all_face_cell)

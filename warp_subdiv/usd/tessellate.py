@@ -22,6 +22,7 @@ class MeshReport:
     faces_out: int
     vertices_out: int
     seconds: float
+    tiles: int = 0  # tessellated in this many tiles (0: in core)
 
 
 @dataclass
@@ -36,7 +37,7 @@ class FileResult:
 def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length=None, prims=None, scheme="auto",
                     rules=None, boundary=None, depth=None, quads: bool = True, device=None,
                     flatten: bool = False, frames=None, all_variants: bool = False, camera=None, pixel_error=None,
-                    resolution=None) -> FileResult:
+                    resolution=None, max_memory=None) -> FileResult:
     """Tessellate the limit surfaces of an OBJ or USD file (the ``tessellate`` command's library side).
 
     OBJ input is written as OBJ or as a USD layer holding one mesh; USD input as a layer over it (see
@@ -45,7 +46,12 @@ def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length
     (None: its default); ``quads=False`` for triangles only; ``flatten`` (USD) for one self-contained layer;
     ``all_variants`` (USD) tessellates every variant that changes a mesh, as refine does. ``camera`` (USD, a
     UsdGeom.Camera prim path) with ``pixel_error`` and ``resolution`` instead of ``rate`` / ``edge_length``:
-    per-edge rates from the camera (see :func:`tessellate_usd`). Errors name options by keyword."""
+    per-edge rates from the camera (see :func:`tessellate_usd`). ``max_memory`` (bytes; None: no limit): an OBJ
+    mesh whose predicted tessellation does not fit is tessellated in tiles
+    (:func:`warp_subdiv.tessellate_tiled`), streamed into one OBJ file (shared vertices written once) or written
+    as a USD Xform of tile meshes, one layer each (:func:`~warp_subdiv.io.usd_write.write_tiled_mesh_layer`); a
+    USD mesh that does not fit is tessellated in tiles as the tiled bake writes refined meshes (see
+    :func:`tessellate_usd`). Errors name options by keyword."""
     import os
     import time
 
@@ -54,7 +60,7 @@ def tessellate_file(input_path: str, output_path: str, *, rate=None, edge_length
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
     options = dict(rate=rate, edge_length=edge_length, scheme=scheme, rules=rules, boundary=boundary, depth=depth,
-                   quads=quads, device=device)
+                   quads=quads, device=device, max_memory=max_memory)
     if kind == "obj":
         for name, value in (("prims", prims), ("flatten", flatten), ("frames", frames),
                             ("all_variants", all_variants), ("camera", camera)):
@@ -84,17 +90,30 @@ def _surface(mesh, options, depth, device):
 
 
 def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, scheme, rules, boundary, depth, quads,
-                   device):
-    """Tessellate an OBJ file's mesh; write OBJ or a USD layer holding one mesh (as ``refine`` does)."""
+                   device, max_memory=None):
+    """Tessellate an OBJ file's mesh; write OBJ or a USD layer holding one mesh (as ``refine`` does); in tiles
+    where it would not fit ``max_memory`` (:func:`_tessellate_obj_tiled`)."""
     import os
     import time
 
     from ..io.obj import read_obj, write_obj
+    from ..tiled_tessellation import tessellation_fits
     from .planning import options_for
 
     t0 = time.perf_counter()
     data = read_obj(input_path)
     options = options_for(data, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+    if max_memory is not None:
+        surface_depth = DEFAULT_DEPTH if depth is None else depth
+        fits, _ = tessellation_fits(data.mesh, rate=rate, edge_length=edge_length, quads=quads, max_memory=max_memory,
+                                    depth=surface_depth, options=options)
+        if not fits:
+            tiles, faces, vertices = _tessellate_obj_tiled(data, output_path, out_kind, options, rate=rate,
+                                                           edge_length=edge_length, quads=quads, depth=surface_depth,
+                                                           device=device, max_memory=max_memory)
+            return [MeshReport(os.path.basename(input_path), options.scheme.value, options.rules.value,
+                               len(data.mesh.face_vertex_counts), faces, vertices, time.perf_counter() - t0,
+                               tiles)], []
     surface = _surface(data.mesh, options, depth, device)
     t = surface.tessellate(rate=rate, edge_length=edge_length, quads=quads)
     if out_kind == "obj":
@@ -109,9 +128,46 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
     return [report], []
 
 
+def _tessellate_obj_tiled(data, output_path, out_kind, options, *, rate, edge_length, quads, depth, device,
+                          max_memory) -> tuple:
+    """An OBJ mesh's tessellation in tiles (:func:`warp_subdiv.tessellate_tiled`) streamed into one OBJ file
+    (:func:`~warp_subdiv.io.obj.write_obj_tiles`: shared vertices written once) or written as a USD Xform of tile
+    meshes with their normals, one layer each (:func:`~warp_subdiv.io.usd_write.write_tiled_mesh_layer`).
+    Returns (tiles, faces, vertices) written (border vertices: once in OBJ, in every tile in USD)."""
+    import os
+
+    from ..io.obj import write_obj_tiles
+    from ..io.usd_write import make_folders, remove_folders, write_tiled_mesh_layer
+    from ..tiled_tessellation import tessellate_tiled
+
+    tiles = tessellate_tiled(data.mesh, rate=rate, edge_length=edge_length, quads=quads, max_memory=max_memory,
+                             depth=depth, options=options, device=device)
+    created = make_folders(os.path.dirname(os.path.abspath(output_path)))
+    count = [0]
+
+    def counted():
+        for tile in tiles:
+            count[0] += 1
+            yield tile
+
+    try:
+        if out_kind == "obj":
+            vertices, faces = write_obj_tiles(output_path, counted(), header="warp-subdiv: tessellated in tiles")
+        else:
+            name = os.path.splitext(os.path.basename(output_path))[0]
+            count[0], vertices, faces = write_tiled_mesh_layer(os.path.abspath(output_path), name, tiles)
+    except OSError as exc:
+        remove_folders(created)
+        raise SubdivInputError(f"{output_path}: cannot write: {exc.strerror or exc}") from None
+    except BaseException:
+        remove_folders(created)
+        raise
+    return count[0], faces, vertices
+
+
 def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length, scheme, rules, boundary, depth,
                    quads, device, frames=None, all_variants: bool = False, camera=None, pixel_error=None,
-                   resolution=None):
+                   resolution=None, max_memory=None):
     """Tessellate every subdivision mesh of a USD file and write a layer over it, with the conventions of
     refine (:func:`warp_subdiv.usd.refine_usd`): an ``over`` at each mesh's path with ``subdivisionScheme =
     "none"``, its points, faces, normals and extent (at the default time and every selected time sample of the
@@ -139,7 +195,8 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     ceil(the projected length of its limit curve / ``pixel_error``) segments, at the worst time of ``frames``
     (:meth:`warp_subdiv.usd.levels.CameraLevels.edge_rates`: the edge-length mode's curves, measured in pixels
     through the camera); rates are per edge, so the tessellation stays watertight. Meshes off screen get rate
-    1; instances and identical meshes placed differently are tessellated apart where their rates differ."""
+    1; instances and identical meshes placed differently are tessellated apart where their rates differ.
+    ``max_memory``: meshes that would not fit are tessellated in tiles (:func:`_choose_tiled`)."""
     import os
 
     from ..io.usd_write import check_flatten
@@ -152,6 +209,7 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     from ..io.usd_scene import read_scene
     from ..io.usd_stage import open_stage, parse_frames
     from ..io.usd_write import OutputLayer, check_output_path
+    from .tiles import TiledMeshes
 
     if not os.path.exists(input_path):
         raise SubdivInputError(f"{input_path}: no such file")
@@ -187,6 +245,9 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
         raise SubdivInputError(f"{input_path}: no subdivision meshes to tessellate"
                                + (f" under {', '.join(prims)}" if prims else ""))
     warnings_ = [f"{sp.path}: {w}" for sp in p.prims for w in sp.warnings]
+    rate_of = {key: {"edges": rates_of[scene.levels[key]]} if camera is not None else rate for key in p.keys}
+    tiled_items = _choose_tiled(p, rate_of, warnings_, max_memory, flatten, out_abs, edge_length=edge_length,
+                                scheme=scheme, rules=rules, boundary=boundary, depth=depth, quads=quads)
     custom = {"warpSubdiv": {"version": __version__, "command": "tessellate", "source": os.path.basename(input_path),
                              "rate": int(rate) if rate is not None else 0,
                              **({"camera": str(camera), "pixelError": float(pixel_error)} if camera else {}),
@@ -194,12 +255,12 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
                              "allVariants": bool(all_variants)}}
     layer = OutputLayer(out_abs, stage, custom)
     reports = []
+    tiled = TiledMeshes(layer, out_abs, [], max_memory=max_memory, device=device, limit=False, normals=True)
     try:
         out_layout = layout(p)
         for sp, key in zip(p.prims, p.keys):
             target = str(out_layout.homes[key])  # its own path, a prototype's content or a shared mesh
-            mesh_rate = {"edges": rates_of[scene.levels[key]]} if camera is not None else rate
-            reports.append(_tessellate_prim(sp, target, layer, warnings_, rate=mesh_rate, edge_length=edge_length,
+            reports.append(_tessellate_prim(sp, target, layer, warnings_, rate=rate_of[key], edge_length=edge_length,
                                             scheme=scheme, rules=rules, boundary=boundary, depth=depth, quads=quads,
                                             device=device))
             for dst in out_layout.copies[key]:
@@ -207,11 +268,74 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
         out_layout.write(layer)
         out_layout.check(layer, p, reports)
         layer.override_extents_hints(stage, out_layout.hint_roots(p), chosen)
+        reports += _write_tiled(tiled, tiled_items)
         layer.commit(flatten=flatten)
+        tiled.publish()
     except BaseException:
         layer.discard()
+        tiled.discard()
         raise
     return reports, warnings_
+
+
+def _write_tiled(tiled, items) -> list:
+    """Tessellate in tiles and write the meshes of ``items`` (:func:`_choose_tiled`); a report per mesh."""
+    import time
+
+    reports = []
+    for sp, keywords in items:
+        t0 = time.perf_counter()
+        _, count, faces, vertices = tiled.write_tessellated([(sp, keywords)])[0]
+        options = keywords["options"]
+        reports.append(MeshReport(sp.path, options.scheme.value, options.rules.value, sp.mesh.num_faces, faces,
+                                  vertices, time.perf_counter() - t0, count))
+    return reports
+
+
+def _prim_options(sp, scheme, rules, boundary):
+    """A mesh's tessellation options (float64; a bilinear mesh's linear surface)."""
+    from .planning import options_for
+
+    options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+    return options.replace(linear=True) if sp.scheme == "bilinear" else options
+
+
+def _choose_tiled(p, rate_of, warnings_, max_memory, flatten, out_abs, *, edge_length, scheme, rules, boundary,
+                  depth, quads) -> list:
+    """The meshes of the plan whose tessellation would not fit ``max_memory`` (bytes; None: no limit), taken out
+    of the plan: (SubdivPrim, keywords of :func:`warp_subdiv.tessellate_tiled`) each. They are written as the
+    tiled bake writes a refined mesh (:class:`~warp_subdiv.usd.tiles.TiledMeshes`): the mesh deactivated, a
+    sibling Xform ``<name>_tiles`` of tile meshes (points, faces, normals, ids; bindings and constant primvars
+    carried), with a warning; a mesh the tiles cannot write (face-varying or other non-constant primvars, subsets,
+    time samples, skinning, instances, variants, shared meshes, flattened output, bilinear) is refused, naming it
+    (:func:`~warp_subdiv.usd.tiles.check_tileable`)."""
+    import os
+
+    from ..tiled_tessellation import tessellation_fits
+    from .tiles import check_tileable, without
+
+    if max_memory is None:
+        return []
+    chosen, items = [], []
+    for i, (sp, key) in enumerate(zip(p.prims, p.keys)):
+        if sp.topologies:
+            continue  # refused by _tessellate_prim
+        options = _prim_options(sp, scheme, rules, boundary)
+        keywords = dict(rate=rate_of[key], edge_length=edge_length, quads=quads, options=options,
+                        depth=DEFAULT_DEPTH if depth is None else depth)
+        try:
+            fits, _ = tessellation_fits(sp.mesh, max_memory=max_memory, **keywords)
+        except SubdivInputError as exc:
+            raise sp.error(exc) from None
+        if not fits:
+            check_tileable(p, i, flatten=flatten, tessellate=True)
+            chosen.append(i)
+            items.append((sp, keywords))
+            warnings_.append(f"{sp.path}: does not fit max_memory: tessellated in tiles ({os.path.basename(out_abs)}: "
+                             f"{sp.prim.GetName()}_tiles, the mesh deactivated)")
+    if chosen:
+        without(p, chosen)
+    return items
 
 
 def _camera_rates(stage, camera, pixel_error, resolution, frames, rates_of, rate, edge_length, surface_options):
@@ -257,7 +381,6 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
 
     from pxr import Sdf, UsdGeom, Vt
 
-    from .planning import options_for
     from ..io.usd_stage import DEFAULT
     from ..io.usd_write import extent_of
 
@@ -265,10 +388,9 @@ def _tessellate_prim(sp, target, layer, warnings_, *, rate, edge_length, scheme,
     t0 = time.perf_counter()
     if sp.topologies:
         raise SubdivInputError(f"{sp.path}: its topology changes over time; tessellate takes one topology")
-    options = options_for(sp, scheme=scheme, rules=rules, boundary=boundary, precision="float64")
+    # bilinear meshes: bilinear patches (quads; a polygon's quad sub-faces, as bilinear refinement splits it)
+    options = _prim_options(sp, scheme, rules, boundary)
     linear = sp.scheme == "bilinear"
-    if linear:  # bilinear patches (quads; a polygon's quad sub-faces, as bilinear refinement splits it)
-        options = options.replace(linear=True)
     mesh = sp.mesh
     if getattr(sp, "skin", None) is not None and sp.skin.mode == "bake":
         mesh = _with_points(mesh, sp.points_at(DEFAULT))  # a skinned mesh: as UsdSkel poses it at the default time

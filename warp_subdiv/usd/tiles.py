@@ -22,7 +22,9 @@ memory guard; :func:`without` takes them out of the plan; :class:`TiledMeshes` r
 Refused, with an error naming the prim: meshes with time samples (points, primvars, subsets, topology or
 transform), skinned meshes, meshes inside instances or variants or shared with identical meshes, bilinear
 meshes, meshes with varying primvars, velocities / accelerations or edge GeomSubsets, and LOD variants or
-flattened output. Distributed bakes (:mod:`~warp_subdiv.usd.distributed`) build a mesh's tables in a task of its
+flattened output. The ``tessellate`` command writes the meshes it tessellates in tiles the same way
+(:meth:`TiledMeshes.write_tessellated`: points, faces, normals, ids; meshes with non-constant primvars or
+GeomSubsets refused too). Distributed bakes (:mod:`~warp_subdiv.usd.distributed`) build a mesh's tables in a task of its
 own under the memory guard, which still refuses a mesh that does not fit.
 """
 from __future__ import annotations
@@ -63,52 +65,68 @@ def choose_tiled(p: Plan, max_memory) -> list:
     return sorted(chosen)
 
 
-def _refuse(sp, why: str):
-    raise SubdivInputError(f"{sp.path}: does not fit max_memory and is refined in tiles, which do not support "
-                           f"{why}; raise max_memory or lower its level", option="max_memory")
+def _refuse(sp, why: str, verb: str = "refined", lower: str = "its level"):
+    raise SubdivInputError(f"{sp.path}: does not fit max_memory and is {verb} in tiles, which do not support "
+                           f"{why}; raise max_memory or lower {lower}", option="max_memory")
 
 
-def check_tileable(p: Plan, i: int, *, lod_variants=None, flatten=False) -> None:
-    """Refuse, naming the prim, a mesh that a tiled bake cannot write (see the module docstring)."""
+def check_tileable(p: Plan, i: int, *, lod_variants=None, flatten=False, tessellate: bool = False) -> None:
+    """Refuse, naming the prim, a mesh that a tiled bake cannot write (see the module docstring); with
+    ``tessellate``, a mesh that a tiled tessellation cannot write (face-varying primvars too: its tiles carry
+    points, faces and normals only)."""
     sp = p.prims[i]
     key = p.keys[i]
+
+    def refuse(sp, why):
+        _refuse(sp, why, *(("tessellated", "its rate") if tessellate else ()))
+
+    if tessellate and any(pv.interpolation == "faceVarying" for pv in sp.primvars):
+        refuse(sp, "face-varying primvars")
     if lod_variants:
-        _refuse(sp, "LOD variants")
+        refuse(sp, "LOD variants")
     if flatten:
-        _refuse(sp, "flattened output")
+        refuse(sp, "flattened output")
     occurrences = [o for o in p.scene.top.meshes if o.key == key]
     if (len(occurrences) != 1 or occurrences[0].dest.ContainsPrimVariantSelection()
             or str(occurrences[0].dest) != sp.path or any(r.site == key for r in p.scene.top.refs)):
-        _refuse(sp, "meshes in instances, in variants or shared with identical meshes")
+        refuse(sp, "meshes in instances, in variants or shared with identical meshes")
     if isinstance(sp, SkinnedPrim):
-        _refuse(sp, "skinned meshes")
+        refuse(sp, "skinned meshes")
     if sp.point_times or sp.topologies or any(pv.times for pv in sp.primvars) or any(s.times for s in sp.subsets):
-        _refuse(sp, "time samples")
+        refuse(sp, "time samples")
     if UsdGeom.Xformable(sp.prim).TransformMightBeTimeVarying():
-        _refuse(sp, "a time-varying transform")
+        refuse(sp, "a time-varying transform")
     if sp.scheme == "bilinear":
-        _refuse(sp, "bilinear meshes")
+        refuse(sp, "bilinear meshes")
     if sp.point_arrays:
-        _refuse(sp, "velocities or accelerations")
+        refuse(sp, "velocities or accelerations")
+    if tessellate and sp.subsets:
+        refuse(sp, "GeomSubsets")
     edges = [s.path for s in sp.subsets if s.element != "face"]
     if edges:
-        _refuse(sp, f"edge GeomSubsets ({', '.join(edges)})")
+        refuse(sp, f"edge GeomSubsets ({', '.join(edges)})")
+    other = [pv.name for pv in sp.primvars if pv.interpolation != "faceVarying" or tessellate]
     varying = [pv.name for pv in sp.primvars if pv.interpolation == "varying"]
+    if tessellate and other:
+        refuse(sp, f"vertex, varying, uniform or face-varying primvars ({', '.join(other)})")
     if varying:
-        _refuse(sp, f"varying primvars ({', '.join(varying)})")
+        refuse(sp, f"varying primvars ({', '.join(varying)})")
     parent = sp.prim.GetParent()
     if parent.GetChild(sp.prim.GetName() + "_tiles"):
-        _refuse(sp, f"a sibling named {sp.prim.GetName()}_tiles (the tiles' name)")
-    check_index_range([p.estimates[i]], p.levels[i])
+        refuse(sp, f"a sibling named {sp.prim.GetName()}_tiles (the tiles' name)")
+    if not tessellate:
+        check_index_range([p.estimates[i]], p.levels[i])
 
 
 def without(p: Plan, chosen) -> Plan:
     """The plan with the meshes ``chosen`` (indices) taken out (they are refined in tiles instead)."""
     keep = [i for i in range(len(p.prims)) if i not in set(chosen)]
     keys = {p.keys[i] for i in chosen}
+    count = len(p.prims)
     for name in ("prims", "keys", "levels", "options", "analyses", "estimates", "tables"):
         values = getattr(p, name)
-        setattr(p, name, [values[i] for i in keep])
+        if len(values) == count:  # (a tessellation's plan has no levels, estimates, ...)
+            setattr(p, name, [values[i] for i in keep])
     p.scene.top.meshes = [o for o in p.scene.top.meshes if o.key not in keys]
     for key in keys:
         p.scene.units.pop(key, None)
@@ -138,46 +156,80 @@ class TiledMeshes:
             reports.append(report)
         return reports
 
-    def _write_mesh(self, sp, level, options) -> PrimReport:
-        layer = self.layer
+    def write_tessellated(self, items) -> list:
+        """Tessellate in tiles and write every mesh of ``items`` ((SubdivPrim, keywords of
+        :func:`warp_subdiv.tessellate_tiled`) each) as the tiled bake writes a refined mesh: the mesh
+        deactivated, a sibling Xform of tile meshes (points, faces, normals, ids); returns (mesh path, tiles,
+        faces, vertices) per mesh."""
+        from ..tiled_tessellation import tessellate_tiled
+
+        out = []
+        for sp, keywords in items:
+            target = self._begin(sp)
+            count = vertices = faces = 0
+            for tile in tessellate_tiled(sp.mesh, max_memory=self.max_memory, device=self.device, **keywords):
+                if target[3] == UsdGeom.Tokens.leftHanded:  # as the in-core tessellation writes them
+                    tile.limit_normals = -tile.limit_normals
+                self._write_tile(target, count, tile, tile.points, [])
+                count += 1
+                vertices += tile.num_vertices
+                faces += tile.num_faces
+            out.append((sp.path, count, faces, vertices))
+        return out
+
+    def _begin(self, sp) -> tuple:
+        """Deactivate the mesh and define its tiles' Xform; returns what each tile prim carries: (the Xform spec,
+        material bindings, constant primvars, orientation, the tile layers' folder, the mesh's authored
+        ``subsetFamily:*`` attributes)."""
         prim = sp.prim
-        layer.prim(sp.path).SetInfo("active", False)
+        self.layer.prim(sp.path).SetInfo("active", False)
         xform = self._tiles_xform(prim)
         bindings = [r for r in prim.GetRelationships() if r.GetName().startswith("material:binding")]
         constants = [pv for pv in UsdGeom.PrimvarsAPI(prim).GetPrimvars()
                      if pv.GetInterpolation() == UsdGeom.Tokens.constant and pv.HasAuthoredValue()]
         families = [a for a in prim.GetAttributes() if a.GetName().startswith("subsetFamily:") and a.HasAuthoredValue()]
-        per_tile = _TilePrimvars(sp)
-        subsets = _TileSubsets(sp)
         orientation = prim.GetAttribute("orientation").Get() if prim.GetAttribute("orientation") else None
         folder = os.path.join(self.folder, tile_folder_name(sp.path))
         self.created += make_folders(folder)
+        return xform, bindings, constants, orientation, folder, families
+
+    def _write_tile(self, target: tuple, count: int, tile, points, primvars, subsets=()) -> None:
+        """Save tile number ``count`` as a layer of its own and add its prim under the Xform of ``target``
+        (:meth:`_begin`); ``subsets``: (name, the tile's face indices, family name, binding relationships) of
+        each face subset that holds faces of the tile (:meth:`_TileSubsets.of`)."""
+        xform, bindings, constants, orientation, folder, families = target
+        name = f"tile_{count:04d}"
+        final = os.path.join(folder, name + ".usdc")
+        fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=".usdc", dir=folder)
+        os.close(fd)
+        self.written.append((tmp, final))
+        save_tile_layer(tmp, final, tile, points=points, primvars=primvars, orientation=orientation,
+                        subsets=[(n, indices, family) for n, indices, family, _ in subsets],
+                        attributes=[(a.GetName(), a.GetTypeName(), a.Get()) for a in families])
+        child = Sdf.PrimSpec(xform, name, Sdf.SpecifierDef, "Mesh")
+        child.payloadList.Prepend(Sdf.Payload(self._relative(final)))
+        _bind(child, bindings)
+        for subset_name, _, _, subset_bindings in subsets:
+            if subset_bindings:
+                _bind(Sdf.PrimSpec(child, subset_name, Sdf.SpecifierOver), subset_bindings)
+        for pv in constants:
+            attr = pv.GetAttr()
+            spec = Sdf.AttributeSpec(child, attr.GetName(), attr.GetTypeName())
+            spec.default = attr.Get()
+            spec.SetInfo("interpolation", UsdGeom.Tokens.constant)
+
+    def _write_mesh(self, sp, level, options) -> PrimReport:
+        target = self._begin(sp)
+        per_tile = _TilePrimvars(sp)
+        subsets = _TileSubsets(sp)
+        # every primvar and face-varying channel in the one pass over the tiles
         tiles = refine_tiled(sp.mesh, level, max_memory=self.max_memory, options=options, device=self.device,
                              limit_points=bool(self.limit), limit_normals=bool(self.normals),
                              face_varying=per_tile.channels or None, vertex_data=per_tile.vertex_rows or None)
         count = vertices = faces = 0
         for tile in tiles:
-            name = f"tile_{count:04d}"
-            final = os.path.join(folder, name + ".usdc")
-            fd, tmp = tempfile.mkstemp(prefix=".warp-subdiv-", suffix=".usdc", dir=folder)
-            os.close(fd)
-            self.written.append((tmp, final))
             points = tile.limit_points if self.limit else tile.points
-            tile_subsets = subsets.of(tile)
-            save_tile_layer(tmp, final, tile, points=points, primvars=per_tile.of(tile, self.limit),
-                            orientation=orientation, subsets=[(n, idx, family) for n, idx, family, _ in tile_subsets],
-                            attributes=[(a.GetName(), a.GetTypeName(), a.Get()) for a in families])
-            child = Sdf.PrimSpec(xform, name, Sdf.SpecifierDef, "Mesh")
-            child.payloadList.Prepend(Sdf.Payload(self._relative(final)))
-            _bind(child, bindings)
-            for subset_name, _, _, subset_bindings in tile_subsets:
-                if subset_bindings:
-                    _bind(Sdf.PrimSpec(child, subset_name, Sdf.SpecifierOver), subset_bindings)
-            for pv in constants:
-                attr = pv.GetAttr()
-                spec = Sdf.AttributeSpec(child, attr.GetName(), attr.GetTypeName())
-                spec.default = attr.Get()
-                spec.SetInfo("interpolation", UsdGeom.Tokens.constant)
+            self._write_tile(target, count, tile, points, per_tile.of(tile, self.limit), subsets.of(tile))
             count += 1
             vertices += tile.num_vertices
             faces += tile.num_faces
