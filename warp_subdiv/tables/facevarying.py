@@ -86,10 +86,16 @@ class _ValueTags:
             level = base_level(mesh, "catmull-clark", boundary, "opensubdiv")
         self.level = level
         cv = mesh.face_vertex_indices.astype(np.int64)
-        self.pid, self.source, self.pair_vertex = _value_vertices(level, cv, idx)
         self.nxt = mesh.edges.corner_next.astype(np.int64)
-        value_sharp = _sharp_values(level, mesh.num_vertices, cv, self.nxt, self.pid, self.pair_vertex, mode,
-                                    boundary)
+        self.unshared = _unshared(idx)
+        if self.unshared:  # every value used by one corner only (unindexed UVs): the tags in closed form
+            self.pid, self.source, self.pair_vertex = _unshared_value_vertices(cv, idx)
+            value_sharp = _unshared_sharp_values(level, mesh.num_vertices, cv, self.nxt, self.pid,
+                                                 self.pair_vertex, mode, boundary)
+        else:
+            self.pid, self.source, self.pair_vertex = _value_vertices(level, cv, idx)
+            value_sharp = _sharp_values(level, mesh.num_vertices, cv, self.nxt, self.pid, self.pair_vertex, mode,
+                                        boundary)
         self.corner_sharp = np.maximum(level.vert_sharpness[self.pair_vertex],
                                        np.where(value_sharp, INFINITE_SHARPNESS, 0.0))
 
@@ -106,8 +112,9 @@ class _ValueTags:
         depend on its own corner values only, and on the order of its value-mesh vertices (see
         :class:`_Islands`)."""
         mesh = self.analysed
-        span = np.bincount(self.pid, minlength=len(self.source))
-        lonely = (span[self.pid] == 1) & (self.corner_sharp[self.pid] >= INFINITE_SHARPNESS)
+        lonely = self.corner_sharp[self.pid] >= INFINITE_SHARPNESS
+        if not self.unshared:  # (unshared: every value-mesh vertex has one corner)
+            lonely &= np.bincount(self.pid, minlength=len(self.source))[self.pid] == 1
         counts = mesh.face_vertex_counts
         face_of = np.repeat(np.arange(len(counts)), counts)
         island = np.bincount(face_of, weights=~lonely, minlength=len(counts)) == 0
@@ -132,6 +139,67 @@ def _value_vertices(level, cv: np.ndarray, idx: np.ndarray):
         source = np.concatenate([source, source[extra]])
         pair_vertex = np.concatenate([pair_vertex, pair_vertex[extra]])
     return pid, source, pair_vertex
+
+
+#: Value indices per corner from which :func:`_unshared` counts uses with a bincount only when the largest index
+#: is below this many times the corners (a sparse numbering is left to the general path).
+UNSHARED_SPAN = 4
+
+
+def _unshared(idx: np.ndarray) -> bool:
+    """Whether every value index of ``idx`` (checked) is used by one face corner only (UVs authored without
+    indices), where the value mesh's tags have a closed form (:func:`_unshared_value_vertices`,
+    :func:`_unshared_sharp_values`)."""
+    if not len(idx):
+        return False
+    top = int(idx.max())
+    if top >= UNSHARED_SPAN * len(idx):
+        return False
+    return top + 1 >= len(idx) and int(np.bincount(idx, minlength=top + 1).max()) == 1
+
+
+def _unshared_value_vertices(cv: np.ndarray, idx: np.ndarray):
+    """:func:`_value_vertices` where every value is used by one corner only: every corner is a (vertex, value)
+    pair of its own, numbered in the order of (vertex, value), as ``np.unique`` of the pairs numbers them, with a
+    sort of the corners by vertex (stable: by value within a vertex where the values increase with the
+    corners, as unindexed UVs' do) instead of ``np.unique``'s of the pairs. OpenSubdiv's repeated sibling
+    (:func:`_repeated_sibling`) needs a value used at two corners of a vertex: there is none."""
+    if len(idx) < 2 or bool((idx[1:] > idx[:-1]).all()):
+        order = np.argsort(cv, kind="stable")
+    else:
+        order = np.lexsort((idx, cv))
+    pid = np.empty(len(cv), dtype=np.int64)
+    pid[order] = np.arange(len(cv), dtype=np.int64)
+    return pid, idx[order], cv[order]
+
+
+def _unshared_sharp_values(level, nv: int, cv: np.ndarray, nxt: np.ndarray, pid: np.ndarray,
+                           pair_vertex: np.ndarray, mode: str, boundary: str) -> np.ndarray:
+    """:func:`_sharp_values` where every value is used by one corner only (each value-mesh vertex has one face):
+    no value is disjoint (its one face is one run), a vertex has as many values as corners, so that a value is
+    sharp exactly where its vertex mismatches (a seam or a boundary the mode makes sharp) and the mode makes
+    corners sharp (all but ``none``) or the vertex is sharp anyway (the module's table); the same tags, without
+    the per-value counts."""
+    if mode == FaceVaryingMode.ALL:
+        return np.ones(len(pair_vertex), dtype=bool)
+    ecount = np.diff(level.edge_corner_offsets)
+    ev = level.edge_verts.astype(np.int64)
+    seam, _, _ = _seams(level, cv, nxt, pid)
+    vertex_boundary = np.zeros(nv, dtype=bool)
+    vertex_boundary[ev[ecount == 1].reshape(-1)] = True
+    faces_at = np.bincount(cv, minlength=nv)  # (the values at each vertex too)
+    nonmanifold = np.zeros(nv, dtype=bool)
+    nonmanifold[ev[ecount > 2].reshape(-1)] = True
+    linear_boundaries = mode == FaceVaryingMode.BOUNDARIES
+    corners_sharp = mode != FaceVaryingMode.NONE
+    mismatch = np.zeros(nv, dtype=bool)
+    mismatch[ev[seam].reshape(-1)] = True
+    mismatch |= vertex_boundary & linear_boundaries & (faces_at > 0)
+    mismatch |= vertex_boundary & (faces_at == 1) & (boundary != "edge-and-corner") & corners_sharp
+    if corners_sharp:
+        return mismatch[pair_vertex]
+    # mode none: only the values that the vertex's own sharpness or a non-manifold vertex make sharp
+    return (mismatch & ((level.vert_sharpness >= INFINITE_SHARPNESS) | nonmanifold))[pair_vertex]
 
 
 def _seams(level, cv: np.ndarray, nxt: np.ndarray, pid: np.ndarray):
