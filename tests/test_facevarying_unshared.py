@@ -150,3 +150,22 @@ def test_unshared_values_refine_to_the_same_bits(name, mesh, scheme, boundary, l
                 expected, expected_at = general.evaluate(uv)
                 np.testing.assert_array_equal(_bits(values), _bits(expected), err_msg=str(mode))
                 np.testing.assert_array_equal(at, expected_at, err_msg=str(mode))
+
+
+@pytest.mark.parametrize("n", [3, 4, 5, 6, 7])
+def test_vertex_orders_equal_sorting_and_unique(n):
+    """Islands' vertex orders (ranks by pairwise comparison, groups by a count per key, up to SMALL_FACE
+    corners) are those of np.argsort along rows and np.unique of the keys: ranks, orders, groups, each group's
+    first island and size."""
+    rng = np.random.default_rng(n)
+    k = 3000
+    ids = np.stack([rng.choice(10 * n, n, replace=False) for _ in range(k)])
+    ids[: k // 2] = np.sort(ids[: k // 2], axis=1)  # a common order, as real islands have
+    order, rank, first, which, group_size = facevarying._vertex_orders(ids)
+    ref_order = np.argsort(ids, axis=1, kind="stable")
+    ref_rank = np.argsort(ref_order, axis=1, kind="stable")
+    key = (ref_rank * n ** np.arange(n)).sum(axis=1)
+    _, ref_first, ref_which, ref_size = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+    for got, want in ((order, ref_order), (rank, ref_rank), (first, ref_first), (which, ref_which.reshape(-1)),
+                      (group_size, ref_size)):
+        np.testing.assert_array_equal(got, want)

@@ -478,6 +478,50 @@ def _single_face(channel: FaceVaryingChannel, rank: np.ndarray):
     return single
 
 
+#: Face sizes up to which :func:`_vertex_orders` ranks a face's corners by comparing them pairwise and finds
+#: the vertex orders with a count per possible order (n ** n of them), not with sorts.
+SMALL_FACE = 6
+
+
+def _stable_order(labels: np.ndarray, num_labels: int) -> np.ndarray:
+    """``np.argsort(labels, kind="stable")`` of labels in [0, num_labels): as 16-bit labels where they fit, which
+    numpy sorts with a radix sort (linear time) rather than a merge sort."""
+    small = np.int16 if num_labels <= np.iinfo(np.int16).max else np.int32
+    return np.argsort(labels.astype(small, copy=False), kind="stable")
+
+
+def _vertex_orders(ids: np.ndarray):
+    """(order, rank, first, which, group_size) of islands' value-mesh vertices ``ids`` (K, n), distinct within
+    each island: ``order`` sorts each island's corners by vertex (np.argsort along rows), ``rank`` is each
+    corner's place in that order; the vertex orders (groups) in order of their key (the ranks as base-n
+    digits), each one's first island and size, and each island's group (``which``): what ``np.unique`` of the
+    keys gives. Faces of up to :data:`SMALL_FACE` corners: ranks by pairwise comparison and groups by a count per
+    key, without sorts."""
+    k, n = ids.shape
+    if n > SMALL_FACE:
+        order = np.argsort(ids, axis=1, kind="stable")
+        rank = np.argsort(order, axis=1, kind="stable")
+        key = (rank * n ** np.arange(n)).sum(axis=1)
+        _, first, which, group_size = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+        return order, rank, first, which.reshape(-1), group_size
+    rank = np.zeros((k, n), dtype=np.int64)
+    for i in range(n):
+        for j in range(n):
+            if i != j:
+                rank[:, i] += ids[:, j] < ids[:, i]
+    order = np.empty_like(rank)
+    np.put_along_axis(order, rank, np.arange(n), axis=1)
+    key = rank @ (n ** np.arange(n))
+    counts = np.bincount(key, minlength=n ** n)
+    present = np.flatnonzero(counts)
+    group_of_key = np.zeros(len(counts), dtype=np.int64)
+    group_of_key[present] = np.arange(len(present))
+    which = group_of_key[key]
+    group_size = counts[present]
+    first = _stable_order(which, len(present))[np.cumsum(group_size) - group_size]
+    return order, rank, first, which, group_size
+
+
 #: Runs of consecutive blocks :func:`_put` writes one slice at a time at most (more: one scatter).
 PUT_RUNS = 1024
 
@@ -497,13 +541,16 @@ def _put(out: np.ndarray, starts: np.ndarray, base: np.ndarray, table: np.ndarra
         out[(starts[:, None] + np.arange(width)).reshape(-1)] = rows.reshape(-1)
         return
     bounds = np.concatenate([[0], breaks, [len(starts)]])
+    # in the output's type (they fit: single faces' values, and places in ``out``), so that no loop casts
+    table, base = table.astype(out.dtype, copy=False), base.astype(out.dtype, copy=False)
+    scale = None if scale is None else scale.astype(out.dtype, copy=False)
     for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
-        rows = np.take(table, which[a:b], axis=0)
-        if scale is not None:
-            rows *= scale[a:b, None]
         start = int(starts[a])
-        np.add(rows, base[a:b, None], out=out[start:start + (b - a) * width].reshape(b - a, width),
-               casting="unsafe")
+        rows = out[start:start + (b - a) * width].reshape(b - a, width)
+        np.take(table, which[a:b], axis=0, out=rows, mode="clip")  # (valid: "raise" would buffer the out)
+        if scale is not None:
+            np.multiply(rows, scale[a:b, None], out=rows)
+        np.add(rows, base[a:b, None], out=rows)
 
 
 class _Islands:
@@ -535,13 +582,7 @@ class _Islands:
         for n in np.unique(counts[island]):
             faces = np.flatnonzero(island & (counts == n))
             ids = tags.pid[mesh.face_offsets[faces][:, None] + np.arange(n)]  # (K, n): their value-mesh vertices
-            order = np.argsort(ids, axis=1, kind="stable")
-            rank = np.argsort(order, axis=1, kind="stable")  # each corner's place among its face's values
-            key = (rank * n ** np.arange(n)).sum(axis=1)
-            # the vertex orders (groups): each one's first island and each island's group, sorted by key
-            _, first, which, group_size = np.unique(key, return_index=True, return_inverse=True,
-                                                    return_counts=True)
-            which = which.reshape(-1)
+            order, rank, first, which, group_size = _vertex_orders(ids)
             kept = group_size >= MIN_ISLANDS
             if not kept.all():  # whole groups leave: renumber the rest's groups and first islands
                 common = kept[which]
@@ -584,7 +625,7 @@ class _Islands:
         for faces, values, which, singles in sizes:
             m = singles[0][1]
             group_size = np.bincount(which, minlength=len(singles))
-            members = np.argsort(which, kind="stable")  # the islands of each group, in face order
+            members = _stable_order(which, len(singles))  # the islands of each group, in face order
             group_first = np.cumsum(group_size) - group_size
             place = np.empty(len(faces), dtype=np.int64)  # each island's place in its group
             place[members] = np.arange(len(faces)) - np.repeat(group_first, group_size)
