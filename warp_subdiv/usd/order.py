@@ -324,6 +324,8 @@ def _fast_plan(refiner, idx, mode):
     one_value[cv] = idx
     multi = np.bincount(cv, weights=one_value[cv] != idx, minlength=nv) > 0
     aligned = (h.base_vert_class == SMOOTH) & ~multi
+    if not aligned.any():  # every face has a corner that is not aligned: every face is near a seam
+        return None
     bad_face = np.bincount(face_of, weights=~aligned[cv], minlength=nf) > 0
     bad_vertex = np.bincount(cv, weights=bad_face[face_of], minlength=nv) > 0
     near_seam = np.bincount(face_of, weights=bad_vertex[cv], minlength=nf) > 0
