@@ -525,6 +525,10 @@ def _vertex_orders(ids: np.ndarray):
 #: Runs of consecutive blocks :func:`_put` writes one slice at a time at most (more: one scatter).
 PUT_RUNS = 1024
 
+#: Entries that one run costs :func:`_put` as much as scattering them (a few numpy calls, ~7 us, against ~6 ns an
+#: entry, measured): short runs (islands of two sizes in turn) are scattered.
+PUT_RUN_ENTRIES = 1024
+
 
 def _put(out: np.ndarray, starts: np.ndarray, base: np.ndarray, table: np.ndarray, which: np.ndarray,
          scale: np.ndarray | None = None) -> None:
@@ -533,7 +537,7 @@ def _put(out: np.ndarray, starts: np.ndarray, base: np.ndarray, table: np.ndarra
     computed straight into its slice of ``out``, with no index array and no temporary of the whole."""
     width = table.shape[1]
     breaks = np.flatnonzero(np.diff(starts) != width) + 1
-    if len(breaks) >= PUT_RUNS:
+    if len(breaks) >= PUT_RUNS or len(breaks) * PUT_RUN_ENTRIES > len(starts) * width:
         rows = np.take(table, which, axis=0)
         if scale is not None:
             rows *= scale[:, None]
@@ -551,6 +555,21 @@ def _put(out: np.ndarray, starts: np.ndarray, base: np.ndarray, table: np.ndarra
         if scale is not None:
             np.multiply(rows, scale[a:b, None], out=rows)
         np.add(rows, base[a:b, None], out=rows)
+
+
+def _filled(faces: np.ndarray, base: np.ndarray, which: np.ndarray, slot: np.ndarray):
+    """(slots, base, which): the islands ``faces`` (sorted) with their ``base`` and group ``which``, among all
+    faces flagged ``slot`` (a superset), the others with group 0 and base 0 (rows written only to be written
+    over)."""
+    slots = np.flatnonzero(slot)
+    if len(slots) == len(faces):
+        return faces, base, which
+    at = np.searchsorted(slots, faces)
+    all_base = np.zeros(len(slots), dtype=base.dtype)
+    all_base[at] = base
+    all_which = np.zeros(len(slots), dtype=which.dtype)
+    all_which[at] = which
+    return slots, all_base, all_which
 
 
 class _Islands:
@@ -614,9 +633,6 @@ class _Islands:
         self.num_values = rest_values + int(value_count.sum())
         kind = np.int32 if self.num_values < 2**31 - 1 else np.int64
         indices = np.empty(self.num_out_faces * self.size, dtype=kind)
-        if self.rest is not None:
-            corner_rows = (self.rest_rows * self.size)[:, None] + np.arange(self.size)
-            indices[corner_rows.reshape(-1)] = self.rest.topology()[1]
         # the evaluation concatenates the rest's values and each group's (value i of island j of a group at
         # i K + j: the single face's values for K columns), and takes them out in the channel's order
         self.order = np.empty(self.num_values, dtype=np.int64)
@@ -633,12 +649,19 @@ class _Islands:
             own = np.stack([s[3] for s in singles]).astype(np.int64)  # (groups, corners)
             old_id = np.stack([s[2] for s in singles]).astype(np.int64)  # (groups, m)
             starts = value_start[faces]
-            _put(indices, first_out[faces] * self.size, starts, own, which)
+            # (every face of this size with refined faces gets rows, so that the rest's faces between islands
+            # do not break the runs: theirs are written over below)
+            slots, slot_base, slot_which = _filled(faces, starts, which,
+                                                   (counts == counts[faces[0]]) & (per_face > 0))
+            _put(indices, first_out[slots] * self.size, slot_base, own, slot_which)
             _put(self.order, starts, group_block[which] + place, old_id, which, group_size[which])
             for g, single in enumerate(singles):
                 chosen = members[group_first[g]:group_first[g] + group_size[g]]
                 self.groups.append((single[0], np.ascontiguousarray(values[chosen].T)))
             block += len(faces) * m
+        if self.rest is not None:
+            corner_rows = (self.rest_rows * self.size)[:, None] + np.arange(self.size)
+            indices[corner_rows.reshape(-1)] = self.rest.topology()[1]
         indices.flags.writeable = False  # (handed out by every evaluation, as a refiner's topology is)
         self.indices = indices
 
