@@ -118,7 +118,10 @@ class _ValueTags:
         counts = mesh.face_vertex_counts
         face_of = np.repeat(np.arange(len(counts)), counts)
         island = np.bincount(face_of, weights=~lonely, minlength=len(counts)) == 0
-        island &= ~faces_with_repeats(counts, mesh.face_vertex_indices)
+        repeats = mesh.edges.repeat_faces  # (found with the edges, which the tags needed)
+        if repeats is None:
+            repeats = np.flatnonzero(faces_with_repeats(counts, mesh.face_vertex_indices))
+        island[repeats] = False
         if self.level.face_hole is not None:
             island &= ~self.level.face_hole
         return island
@@ -504,14 +507,17 @@ def _vertex_orders(ids: np.ndarray):
         key = (rank * n ** np.arange(n)).sum(axis=1)
         _, first, which, group_size = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
         return order, rank, first, which.reshape(-1), group_size
-    rank = np.zeros((k, n), dtype=np.int64)
+    cols = np.ascontiguousarray(ids.T)  # (n, K): each corner's ids in a row
+    rank_t = np.zeros((n, k), dtype=np.int64)
+    key = np.zeros(k, dtype=np.int64)
     for i in range(n):
         for j in range(n):
             if i != j:
-                rank[:, i] += ids[:, j] < ids[:, i]
+                rank_t[i] += cols[j] < cols[i]
+        key += rank_t[i] * n ** i
+    rank = np.ascontiguousarray(rank_t.T)
     order = np.empty_like(rank)
     np.put_along_axis(order, rank, np.arange(n), axis=1)
-    key = rank @ (n ** np.arange(n))
     counts = np.bincount(key, minlength=n ** n)
     present = np.flatnonzero(counts)
     group_of_key = np.zeros(len(counts), dtype=np.int64)
