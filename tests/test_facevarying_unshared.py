@@ -169,3 +169,40 @@ def test_vertex_orders_equal_sorting_and_unique(n):
     for got, want in ((order, ref_order), (rank, ref_rank), (first, ref_first), (which, ref_which.reshape(-1)),
                       (group_size, ref_size)):
         np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("min_islands", [1, 4])
+def test_first_use_numbering_equals_renumbering_the_channel(seed, min_islands, monkeypatch):
+    """Islands with a rest (shared values on some faces, rarer vertex orders, a hole): the channel's first-use
+    numbering (what the compact vertex order writes) is its own numbering renumbered by first use with the
+    unused values left out (the compact order's general renumbering), values bit for bit and indices; its own
+    numbering is unchanged (the whole value mesh's values at every corner)."""
+    from warp_subdiv.usd.order import OrderedRefiner
+
+    monkeypatch.setattr(facevarying, "MIN_ISLANDS", min_islands)
+    rng = np.random.default_rng(seed)
+    mesh = polygons_mesh(rng)
+    n = len(mesh.face_vertex_indices)
+    own = rng.random(len(mesh.face_vertex_counts)) < 0.7
+    idx = np.where(np.repeat(own, mesh.face_vertex_counts), mesh.num_vertices + np.arange(n),
+                   mesh.face_vertex_indices)
+    uv = rng.random((mesh.num_vertices + n, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ws.NonManifoldWarning)
+        r = ws.Refiner(mesh, 1 + seed % 2, scheme="catmull-clark", boundary=BOUNDARIES[seed % 3], device="cpu",
+                       precision=("float32", "float64")[seed % 2])
+        for mode in FVAR_MODES[1:]:
+            channel = r.face_varying_channel(idx, mode)
+            assert channel.first_use_capable and channel._islands.rest is not None
+            values, at = channel.evaluate(uv)
+            whole = channel.refiner
+            expected = whole.evaluate(uv[channel.source], normal_control=False)[whole.topology()[1]]
+            np.testing.assert_array_equal(_bits(values[at]), _bits(expected))
+            first, first_at = channel.evaluate(uv, first_use=True)
+            renumbered, renumbered_at = OrderedRefiner._face_varying(None, values, at)
+            np.testing.assert_array_equal(_bits(first), _bits(renumbered), err_msg=str(mode))
+            np.testing.assert_array_equal(first_at, renumbered_at, err_msg=str(mode))
+            again, again_at = channel.evaluate(uv)  # (the channel's own numbering again, after the other)
+            np.testing.assert_array_equal(_bits(again), _bits(values))
+            np.testing.assert_array_equal(again_at, at)

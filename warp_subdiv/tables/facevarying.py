@@ -386,6 +386,11 @@ class FaceVaryingChannel:
         every face is an island)."""
         return self._islands is not None and self._islands.first_use_order
 
+    @property
+    def first_use_capable(self) -> bool:
+        """Whether :meth:`evaluate` can number the values in first-use order itself (``first_use``)."""
+        return self._islands is not None
+
     def _refine(self, mesh: Mesh):
         """A refiner of a value mesh (of the owner's type, with the channel's options)."""
         with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
@@ -408,12 +413,15 @@ class FaceVaryingChannel:
             )
         return check_rows(values, self.num_source_values, "face-varying values", at_least=True)
 
-    def evaluate(self, values):
-        """(refined values (M, d), refined face-varying indices int32 aligned with the refined faces)."""
+    def evaluate(self, values, first_use: bool = False):
+        """(refined values (M, d), refined face-varying indices int32 aligned with the refined faces).
+        ``first_use``: where the channel refines islands apart (:attr:`first_use_capable`), the values numbered in
+        the order the refined faces first use them, values no face uses left out (as the compact vertex order
+        numbers them: the same values at every corner)."""
         squeeze = np.ndim(values) == 1
         vals = self._checked(values)
         if self._islands is not None:
-            out, indices = self._islands.evaluate(vals)
+            out, indices = self._islands.evaluate(vals, first_use)
         else:
             out = self.refiner.evaluate(vals[self.source], normal_control=False)
             _, indices = self.refiner.topology()
@@ -627,22 +635,25 @@ class _Islands:
             self.rest_rows = np.flatnonzero(np.repeat(rest, per_face))
         self.groups = []  # (refiner, value indices (n, K) in its vertex order), by face size, then vertex order
         rest_values = 0 if self.rest is None else self.rest.num_vertices
-        self.first_use_order = self.rest is None
+        self.first_use_order = self.rest is None  # (of the channel's numbering: see evaluate)
+        self._own_numbering = None  # (order, indices) of the channel's numbering, where it differs: see evaluate
         sizes, value_count = [], np.zeros(len(counts), dtype=np.int64)
         for n, faces, ids, order, rank, first, which in orders:
             singles = [_single_face(channel, rank[f]) for f in first]
             value_count[faces] = singles[0][1]  # (every single face of a size has as many values)
             sizes.append((faces, tags.source[np.take_along_axis(ids, order, axis=1)], which, singles))
-        # values: the rest's, then each island's in face order, each numbered in the order its refined faces
-        # first use them; so where every face is an island they come in the order the refined faces use them
-        value_start = rest_values + np.cumsum(value_count) - value_count
-        self.num_values = rest_values + int(value_count.sum())
-        kind = np.int32 if self.num_values < 2**31 - 1 else np.int64
+        # values in the order the refined faces first use them: each island's block (numbered in that order) at
+        # its place among the rest's values (those its faces use, first used where they are)
+        value_start = np.cumsum(value_count) - value_count
+        rest_first = self._rest_first_uses(first_out, value_start, per_face, rest) if self.rest is not None else None
+        if rest_first is not None:
+            value_start += np.searchsorted(rest_first[0], first_out[:-1] * self.size)
+        self.num_values = int(value_count.sum()) + (len(rest_first[1]) if rest_first is not None else 0)
+        kind = np.int32 if rest_values + int(value_count.sum()) < 2**31 - 1 else np.int64  # (either numbering)
         indices = np.empty(self.num_out_faces * self.size, dtype=kind)
         # the evaluation concatenates the rest's values and each group's (value i of island j of a group at
-        # i K + j: the single face's values for K columns), and takes them out in the channel's order
+        # i K + j: the single face's values for K columns), and takes them out in this order
         self.order = np.empty(self.num_values, dtype=np.int64)
-        self.order[:rest_values] = np.arange(rest_values)
         block = rest_values
         for faces, values, which, singles in sizes:
             m = singles[0][1]
@@ -665,14 +676,53 @@ class _Islands:
                 chosen = members[group_first[g]:group_first[g] + group_size[g]]
                 self.groups.append((single[0], np.ascontiguousarray(values[chosen].T)))
             block += len(faces) * m
-        if self.rest is not None:
+        if rest_first is not None:
+            _, old_rest, new_rest = rest_first
+            self.order[new_rest] = old_rest
+            number = np.zeros(rest_values, dtype=kind)
+            number[old_rest] = new_rest
             corner_rows = (self.rest_rows * self.size)[:, None] + np.arange(self.size)
-            indices[corner_rows.reshape(-1)] = self.rest.topology()[1]
+            indices[corner_rows.reshape(-1)] = number[np.asarray(self.rest.topology()[1])]
         indices.flags.writeable = False  # (handed out by every evaluation, as a refiner's topology is)
         self.indices = indices
 
-    def evaluate(self, vals: np.ndarray):
-        """(values (M, d), value index per refined face corner) of the channel's values ``vals`` (m, d)."""
+    def _rest_first_uses(self, first_out: np.ndarray, value_start: np.ndarray, per_face: np.ndarray,
+                         rest: np.ndarray):
+        """(where, old, new): the rest's values that its refined faces use, in the order they first use them:
+        the position among all refined corners of each one's first use, its vertex in the rest's refiner, and its
+        number among all the channel's values in first-use order (``value_start``: the island values before each
+        face)."""
+        rest_idx = np.asarray(self.rest.topology()[1], dtype=np.int64)
+        first = np.full(self.rest.num_vertices, len(rest_idx), dtype=np.int64)
+        np.minimum.at(first, rest_idx, np.arange(len(rest_idx), dtype=np.int64))
+        used = np.flatnonzero(first < len(rest_idx))
+        used = used[np.argsort(first[used], kind="stable")]
+        at = first[used]  # (increasing) the rest's corner of each first use
+        where = self.rest_rows[at // self.size] * self.size + at % self.size
+        rest_faces = np.flatnonzero(rest & (per_face > 0))
+        face = np.repeat(rest_faces, per_face[rest_faces])[at // self.size]  # (the rest's rows: its faces' in order)
+        return where, used, np.arange(len(used)) + value_start[face]
+
+    def _channel_numbering(self):
+        """(order, indices) of the channel's own numbering, where a rest makes it differ from first use: the
+        rest's values as its refiner numbers them (unused ones too), then each island's block in face order."""
+        if self._own_numbering is None:
+            rest_values = self.rest.num_vertices
+            is_rest = self.order < rest_values
+            number = np.where(is_rest, self.order, rest_values + np.cumsum(~is_rest) - 1)
+            order = np.empty(rest_values + int((~is_rest).sum()), dtype=np.int64)
+            order[:rest_values] = np.arange(rest_values)
+            order[number[~is_rest]] = self.order[~is_rest]
+            indices = number[self.indices].astype(self.indices.dtype)
+            indices.flags.writeable = False
+            self._own_numbering = (order, indices)
+        return self._own_numbering
+
+    def evaluate(self, vals: np.ndarray, first_use: bool = False):
+        """(values (M, d), value index per refined face corner) of the channel's values ``vals`` (m, d), in the
+        channel's numbering (the rest's values, then the islands'), or with ``first_use`` in the order the refined
+        faces first use them, the rest's unused values left out (the compact vertex order's numbering)."""
+        order, indices = (self.order, self.indices) if first_use or self.rest is None else self._channel_numbering()
         d = vals.shape[1]
         blocks = []
         if self.rest is not None:
@@ -696,4 +746,4 @@ class _Islands:
                 out[:, a:b] = part.reshape(len(part), ISLANDS_PER_EVALUATION, d)[:, :b - a]
             blocks.append(out.reshape(-1, d))
         joined = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
-        return np.take(joined, self.order, axis=0), self.indices
+        return np.take(joined, order, axis=0), indices

@@ -154,10 +154,10 @@ class OrderedRefiner:
         fast = _fast_parts(self.refiner, values, indices, mode, self._fast_plan, rows=self.old_id)
         if fast is None:
             channel = self.refiner.face_varying_channel(indices, mode)
-            refined, at = channel.evaluate(values)
-            if channel.first_use_order:  # (a channel of islands only)
+            if channel.first_use_capable:  # (islands refined apart: numbered in first-use order by the channel)
+                refined, at = channel.evaluate(values, first_use=True)
                 return refined, at.astype(np.int32, copy=False)
-            return self._face_varying(refined, at)
+            return self._face_varying(*channel.evaluate(values))
         # values away from the seams are the vertices' (ids below N): numbered as the vertices are (the rows
         # come in the compact order), so no second renumbering pass; the values near the seams follow (a vertex
         # only the faces near a seam use keeps a value that no corner uses). The indices are the compact
