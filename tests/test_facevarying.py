@@ -229,18 +229,22 @@ def every_island_apart(monkeypatch):
 
 
 @pytest.mark.parametrize("seed", range(10))
-@pytest.mark.parametrize("min_islands, put_runs", [(1, 1024), (4, 1024), (1, 0)])
-def test_islands_refined_apart_equal_the_whole_value_mesh_bit_for_bit(seed, min_islands, put_runs, monkeypatch):
+@pytest.mark.parametrize("min_islands, put_runs, run_entries", [(1, 1024, 0), (4, 1024, 0), (1, 0, 0),
+                                                               (1, 1024, 1024)])
+def test_islands_refined_apart_equal_the_whole_value_mesh_bit_for_bit(seed, min_islands, put_runs, run_entries,
+                                                                       monkeypatch):
     """Faces that are UV islands of their own (per-corner values) refine apart from the rest of the value mesh
     (one small refiner per face size and vertex order): on random open grids of quads, triangles or mixed
     polygons, with shared-value regions, creases (one on an island), a hole and a semi-sharp corner, every
     mode, both precisions, levels 1-3: the same bits at every refined corner as the whole value mesh's refiner
     gives. ``min_islands`` 4: the islands of rarer vertex orders refine with the rest. ``put_runs`` 0: the
-    islands' refined indices and value order are scattered, not written run by run."""
+    islands' refined indices and value order are scattered, not written run by run; ``run_entries`` 0: written run
+    by run however short the runs (1024, the default: short runs scattered)."""
     from warp_subdiv.tables import facevarying
 
     monkeypatch.setattr(facevarying, "MIN_ISLANDS", min_islands)
     monkeypatch.setattr(facevarying, "PUT_RUNS", put_runs)
+    monkeypatch.setattr(facevarying, "PUT_RUN_ENTRIES", run_entries)
     rng = np.random.default_rng(seed)
     nx, ny = 6, 5
     x, y = np.meshgrid(np.arange(nx + 1, dtype=float), np.arange(ny + 1, dtype=float))

@@ -39,6 +39,7 @@ class MeshEdges:
     sorted_keys: np.ndarray
     sorted_ids: np.ndarray
     nonmanifold: np.ndarray | None = None  # (E,) bool; None: no edge is flagged
+    repeat_faces: np.ndarray | None = None  # the faces that use some vertex more than once (None: not known)
 
     def find(self, pairs: np.ndarray, num_vertices: int) -> np.ndarray:
         """Edge ids of vertex pairs (m, 2); -1 where the pair is not an edge (a pair with several instances:
@@ -142,6 +143,7 @@ def find_edges(counts: np.ndarray, indices: np.ndarray, num_vertices: int) -> Me
         sorted_keys=uniq,
         sorted_ids=rank[first],
         nonmanifold=nonmanifold,
+        repeat_faces=odd,
     )
 
 

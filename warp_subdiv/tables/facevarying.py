@@ -86,10 +86,16 @@ class _ValueTags:
             level = base_level(mesh, "catmull-clark", boundary, "opensubdiv")
         self.level = level
         cv = mesh.face_vertex_indices.astype(np.int64)
-        self.pid, self.source, self.pair_vertex = _value_vertices(level, cv, idx)
         self.nxt = mesh.edges.corner_next.astype(np.int64)
-        value_sharp = _sharp_values(level, mesh.num_vertices, cv, self.nxt, self.pid, self.pair_vertex, mode,
-                                    boundary)
+        self.unshared = _unshared(idx)
+        if self.unshared:  # every value used by one corner only (unindexed UVs): the tags in closed form
+            self.pid, self.source, self.pair_vertex = _unshared_value_vertices(cv, idx)
+            value_sharp = _unshared_sharp_values(level, mesh.num_vertices, cv, self.nxt, self.pid,
+                                                 self.pair_vertex, mode, boundary)
+        else:
+            self.pid, self.source, self.pair_vertex = _value_vertices(level, cv, idx)
+            value_sharp = _sharp_values(level, mesh.num_vertices, cv, self.nxt, self.pid, self.pair_vertex, mode,
+                                        boundary)
         self.corner_sharp = np.maximum(level.vert_sharpness[self.pair_vertex],
                                        np.where(value_sharp, INFINITE_SHARPNESS, 0.0))
 
@@ -106,12 +112,16 @@ class _ValueTags:
         depend on its own corner values only, and on the order of its value-mesh vertices (see
         :class:`_Islands`)."""
         mesh = self.analysed
-        span = np.bincount(self.pid, minlength=len(self.source))
-        lonely = (span[self.pid] == 1) & (self.corner_sharp[self.pid] >= INFINITE_SHARPNESS)
+        lonely = self.corner_sharp[self.pid] >= INFINITE_SHARPNESS
+        if not self.unshared:  # (unshared: every value-mesh vertex has one corner)
+            lonely &= np.bincount(self.pid, minlength=len(self.source))[self.pid] == 1
         counts = mesh.face_vertex_counts
         face_of = np.repeat(np.arange(len(counts)), counts)
         island = np.bincount(face_of, weights=~lonely, minlength=len(counts)) == 0
-        island &= ~faces_with_repeats(counts, mesh.face_vertex_indices)
+        repeats = mesh.edges.repeat_faces  # (found with the edges, which the tags needed)
+        if repeats is None:
+            repeats = np.flatnonzero(faces_with_repeats(counts, mesh.face_vertex_indices))
+        island[repeats] = False
         if self.level.face_hole is not None:
             island &= ~self.level.face_hole
         return island
@@ -132,6 +142,67 @@ def _value_vertices(level, cv: np.ndarray, idx: np.ndarray):
         source = np.concatenate([source, source[extra]])
         pair_vertex = np.concatenate([pair_vertex, pair_vertex[extra]])
     return pid, source, pair_vertex
+
+
+#: Value indices per corner from which :func:`_unshared` counts uses with a bincount only when the largest index
+#: is below this many times the corners (a sparse numbering is left to the general path).
+UNSHARED_SPAN = 4
+
+
+def _unshared(idx: np.ndarray) -> bool:
+    """Whether every value index of ``idx`` (checked) is used by one face corner only (UVs authored without
+    indices), where the value mesh's tags have a closed form (:func:`_unshared_value_vertices`,
+    :func:`_unshared_sharp_values`)."""
+    if not len(idx):
+        return False
+    top = int(idx.max())
+    if top >= UNSHARED_SPAN * len(idx):
+        return False
+    return top + 1 >= len(idx) and int(np.bincount(idx, minlength=top + 1).max()) == 1
+
+
+def _unshared_value_vertices(cv: np.ndarray, idx: np.ndarray):
+    """:func:`_value_vertices` where every value is used by one corner only: every corner is a (vertex, value)
+    pair of its own, numbered in the order of (vertex, value), as ``np.unique`` of the pairs numbers them, with a
+    sort of the corners by vertex (stable: by value within a vertex where the values increase with the
+    corners, as unindexed UVs' do) instead of ``np.unique``'s of the pairs. OpenSubdiv's repeated sibling
+    (:func:`_repeated_sibling`) needs a value used at two corners of a vertex: there is none."""
+    if len(idx) < 2 or bool((idx[1:] > idx[:-1]).all()):
+        order = np.argsort(cv, kind="stable")
+    else:
+        order = np.lexsort((idx, cv))
+    pid = np.empty(len(cv), dtype=np.int64)
+    pid[order] = np.arange(len(cv), dtype=np.int64)
+    return pid, idx[order], cv[order]
+
+
+def _unshared_sharp_values(level, nv: int, cv: np.ndarray, nxt: np.ndarray, pid: np.ndarray,
+                           pair_vertex: np.ndarray, mode: str, boundary: str) -> np.ndarray:
+    """:func:`_sharp_values` where every value is used by one corner only (each value-mesh vertex has one face):
+    no value is disjoint (its one face is one run), a vertex has as many values as corners, so that a value is
+    sharp exactly where its vertex mismatches (a seam or a boundary the mode makes sharp) and the mode makes
+    corners sharp (all but ``none``) or the vertex is sharp anyway (the module's table); the same tags, without
+    the per-value counts."""
+    if mode == FaceVaryingMode.ALL:
+        return np.ones(len(pair_vertex), dtype=bool)
+    ecount = np.diff(level.edge_corner_offsets)
+    ev = level.edge_verts.astype(np.int64)
+    seam, _, _ = _seams(level, cv, nxt, pid)
+    vertex_boundary = np.zeros(nv, dtype=bool)
+    vertex_boundary[ev[ecount == 1].reshape(-1)] = True
+    faces_at = np.bincount(cv, minlength=nv)  # (the values at each vertex too)
+    nonmanifold = np.zeros(nv, dtype=bool)
+    nonmanifold[ev[ecount > 2].reshape(-1)] = True
+    linear_boundaries = mode == FaceVaryingMode.BOUNDARIES
+    corners_sharp = mode != FaceVaryingMode.NONE
+    mismatch = np.zeros(nv, dtype=bool)
+    mismatch[ev[seam].reshape(-1)] = True
+    mismatch |= vertex_boundary & linear_boundaries & (faces_at > 0)
+    mismatch |= vertex_boundary & (faces_at == 1) & (boundary != "edge-and-corner") & corners_sharp
+    if corners_sharp:
+        return mismatch[pair_vertex]
+    # mode none: only the values that the vertex's own sharpness or a non-manifold vertex make sharp
+    return (mismatch & ((level.vert_sharpness >= INFINITE_SHARPNESS) | nonmanifold))[pair_vertex]
 
 
 def _seams(level, cv: np.ndarray, nxt: np.ndarray, pid: np.ndarray):
@@ -315,6 +386,11 @@ class FaceVaryingChannel:
         every face is an island)."""
         return self._islands is not None and self._islands.first_use_order
 
+    @property
+    def first_use_capable(self) -> bool:
+        """Whether :meth:`evaluate` can number the values in first-use order itself (``first_use``)."""
+        return self._islands is not None
+
     def _refine(self, mesh: Mesh):
         """A refiner of a value mesh (of the owner's type, with the channel's options)."""
         with warnings.catch_warnings():  # disjoint value fans are expected (they become sharp values)
@@ -337,12 +413,15 @@ class FaceVaryingChannel:
             )
         return check_rows(values, self.num_source_values, "face-varying values", at_least=True)
 
-    def evaluate(self, values):
-        """(refined values (M, d), refined face-varying indices int32 aligned with the refined faces)."""
+    def evaluate(self, values, first_use: bool = False):
+        """(refined values (M, d), refined face-varying indices int32 aligned with the refined faces).
+        ``first_use``: where the channel refines islands apart (:attr:`first_use_capable`), the values numbered in
+        the order the refined faces first use them, values no face uses left out (as the compact vertex order
+        numbers them: the same values at every corner)."""
         squeeze = np.ndim(values) == 1
         vals = self._checked(values)
         if self._islands is not None:
-            out, indices = self._islands.evaluate(vals)
+            out, indices = self._islands.evaluate(vals, first_use)
         else:
             out = self.refiner.evaluate(vals[self.source], normal_control=False)
             _, indices = self.refiner.topology()
@@ -410,8 +489,59 @@ def _single_face(channel: FaceVaryingChannel, rank: np.ndarray):
     return single
 
 
+#: Face sizes up to which :func:`_vertex_orders` ranks a face's corners by comparing them pairwise and finds
+#: the vertex orders with a count per possible order (n ** n of them), not with sorts.
+SMALL_FACE = 6
+
+
+def _stable_order(labels: np.ndarray, num_labels: int) -> np.ndarray:
+    """``np.argsort(labels, kind="stable")`` of labels in [0, num_labels): as 16-bit labels where they fit, which
+    numpy sorts with a radix sort (linear time) rather than a merge sort."""
+    small = np.int16 if num_labels <= np.iinfo(np.int16).max else np.int32
+    return np.argsort(labels.astype(small, copy=False), kind="stable")
+
+
+def _vertex_orders(ids: np.ndarray):
+    """(order, rank, first, which, group_size) of islands' value-mesh vertices ``ids`` (K, n), distinct within
+    each island: ``order`` sorts each island's corners by vertex (np.argsort along rows), ``rank`` is each
+    corner's place in that order; the vertex orders (groups) in order of their key (the ranks as base-n
+    digits), each one's first island and size, and each island's group (``which``): what ``np.unique`` of the
+    keys gives. Faces of up to :data:`SMALL_FACE` corners: ranks by pairwise comparison and groups by a count per
+    key, without sorts."""
+    k, n = ids.shape
+    if n > SMALL_FACE:
+        order = np.argsort(ids, axis=1, kind="stable")
+        rank = np.argsort(order, axis=1, kind="stable")
+        key = (rank * n ** np.arange(n)).sum(axis=1)
+        _, first, which, group_size = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+        return order, rank, first, which.reshape(-1), group_size
+    cols = np.ascontiguousarray(ids.T)  # (n, K): each corner's ids in a row
+    rank_t = np.zeros((n, k), dtype=np.int64)
+    key = np.zeros(k, dtype=np.int64)
+    for i in range(n):
+        for j in range(n):
+            if i != j:
+                rank_t[i] += cols[j] < cols[i]
+        key += rank_t[i] * n ** i
+    rank = np.ascontiguousarray(rank_t.T)
+    order = np.empty_like(rank)
+    np.put_along_axis(order, rank, np.arange(n), axis=1)
+    counts = np.bincount(key, minlength=n ** n)
+    present = np.flatnonzero(counts)
+    group_of_key = np.zeros(len(counts), dtype=np.int64)
+    group_of_key[present] = np.arange(len(present))
+    which = group_of_key[key]
+    group_size = counts[present]
+    first = _stable_order(which, len(present))[np.cumsum(group_size) - group_size]
+    return order, rank, first, which, group_size
+
+
 #: Runs of consecutive blocks :func:`_put` writes one slice at a time at most (more: one scatter).
 PUT_RUNS = 1024
+
+#: Entries that one run costs :func:`_put` as much as scattering them (a few numpy calls, ~7 us, against ~6 ns an
+#: entry, measured): short runs (islands of two sizes in turn) are scattered.
+PUT_RUN_ENTRIES = 1024
 
 
 def _put(out: np.ndarray, starts: np.ndarray, base: np.ndarray, table: np.ndarray, which: np.ndarray,
@@ -421,7 +551,7 @@ def _put(out: np.ndarray, starts: np.ndarray, base: np.ndarray, table: np.ndarra
     computed straight into its slice of ``out``, with no index array and no temporary of the whole."""
     width = table.shape[1]
     breaks = np.flatnonzero(np.diff(starts) != width) + 1
-    if len(breaks) >= PUT_RUNS:
+    if len(breaks) >= PUT_RUNS or len(breaks) * PUT_RUN_ENTRIES > len(starts) * width:
         rows = np.take(table, which, axis=0)
         if scale is not None:
             rows *= scale[:, None]
@@ -429,13 +559,31 @@ def _put(out: np.ndarray, starts: np.ndarray, base: np.ndarray, table: np.ndarra
         out[(starts[:, None] + np.arange(width)).reshape(-1)] = rows.reshape(-1)
         return
     bounds = np.concatenate([[0], breaks, [len(starts)]])
+    # in the output's type (they fit: single faces' values, and places in ``out``), so that no loop casts
+    table, base = table.astype(out.dtype, copy=False), base.astype(out.dtype, copy=False)
+    scale = None if scale is None else scale.astype(out.dtype, copy=False)
     for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
-        rows = np.take(table, which[a:b], axis=0)
-        if scale is not None:
-            rows *= scale[a:b, None]
         start = int(starts[a])
-        np.add(rows, base[a:b, None], out=out[start:start + (b - a) * width].reshape(b - a, width),
-               casting="unsafe")
+        rows = out[start:start + (b - a) * width].reshape(b - a, width)
+        np.take(table, which[a:b], axis=0, out=rows, mode="clip")  # (valid: "raise" would buffer the out)
+        if scale is not None:
+            np.multiply(rows, scale[a:b, None], out=rows)
+        np.add(rows, base[a:b, None], out=rows)
+
+
+def _filled(faces: np.ndarray, base: np.ndarray, which: np.ndarray, slot: np.ndarray):
+    """(slots, base, which): the islands ``faces`` (sorted) with their ``base`` and group ``which``, among all
+    faces flagged ``slot`` (a superset), the others with group 0 and base 0 (rows written only to be written
+    over)."""
+    slots = np.flatnonzero(slot)
+    if len(slots) == len(faces):
+        return faces, base, which
+    at = np.searchsorted(slots, faces)
+    all_base = np.zeros(len(slots), dtype=base.dtype)
+    all_base[at] = base
+    all_which = np.zeros(len(slots), dtype=which.dtype)
+    all_which[at] = which
+    return slots, all_base, all_which
 
 
 class _Islands:
@@ -467,13 +615,7 @@ class _Islands:
         for n in np.unique(counts[island]):
             faces = np.flatnonzero(island & (counts == n))
             ids = tags.pid[mesh.face_offsets[faces][:, None] + np.arange(n)]  # (K, n): their value-mesh vertices
-            order = np.argsort(ids, axis=1, kind="stable")
-            rank = np.argsort(order, axis=1, kind="stable")  # each corner's place among its face's values
-            key = (rank * n ** np.arange(n)).sum(axis=1)
-            # the vertex orders (groups): each one's first island and each island's group, sorted by key
-            _, first, which, group_size = np.unique(key, return_index=True, return_inverse=True,
-                                                    return_counts=True)
-            which = which.reshape(-1)
+            order, rank, first, which, group_size = _vertex_orders(ids)
             kept = group_size >= MIN_ISLANDS
             if not kept.all():  # whole groups leave: renumber the rest's groups and first islands
                 common = kept[which]
@@ -493,30 +635,30 @@ class _Islands:
             self.rest_rows = np.flatnonzero(np.repeat(rest, per_face))
         self.groups = []  # (refiner, value indices (n, K) in its vertex order), by face size, then vertex order
         rest_values = 0 if self.rest is None else self.rest.num_vertices
-        self.first_use_order = self.rest is None
+        self.first_use_order = self.rest is None  # (of the channel's numbering: see evaluate)
+        self._own_numbering = None  # (order, indices) of the channel's numbering, where it differs: see evaluate
         sizes, value_count = [], np.zeros(len(counts), dtype=np.int64)
         for n, faces, ids, order, rank, first, which in orders:
             singles = [_single_face(channel, rank[f]) for f in first]
             value_count[faces] = singles[0][1]  # (every single face of a size has as many values)
             sizes.append((faces, tags.source[np.take_along_axis(ids, order, axis=1)], which, singles))
-        # values: the rest's, then each island's in face order, each numbered in the order its refined faces
-        # first use them; so where every face is an island they come in the order the refined faces use them
-        value_start = rest_values + np.cumsum(value_count) - value_count
-        self.num_values = rest_values + int(value_count.sum())
-        kind = np.int32 if self.num_values < 2**31 - 1 else np.int64
+        # values in the order the refined faces first use them: each island's block (numbered in that order) at
+        # its place among the rest's values (those its faces use, first used where they are)
+        value_start = np.cumsum(value_count) - value_count
+        rest_first = self._rest_first_uses(first_out, value_start, per_face, rest) if self.rest is not None else None
+        if rest_first is not None:
+            value_start += np.searchsorted(rest_first[0], first_out[:-1] * self.size)
+        self.num_values = int(value_count.sum()) + (len(rest_first[1]) if rest_first is not None else 0)
+        kind = np.int32 if rest_values + int(value_count.sum()) < 2**31 - 1 else np.int64  # (either numbering)
         indices = np.empty(self.num_out_faces * self.size, dtype=kind)
-        if self.rest is not None:
-            corner_rows = (self.rest_rows * self.size)[:, None] + np.arange(self.size)
-            indices[corner_rows.reshape(-1)] = self.rest.topology()[1]
         # the evaluation concatenates the rest's values and each group's (value i of island j of a group at
-        # i K + j: the single face's values for K columns), and takes them out in the channel's order
+        # i K + j: the single face's values for K columns), and takes them out in this order
         self.order = np.empty(self.num_values, dtype=np.int64)
-        self.order[:rest_values] = np.arange(rest_values)
         block = rest_values
         for faces, values, which, singles in sizes:
             m = singles[0][1]
             group_size = np.bincount(which, minlength=len(singles))
-            members = np.argsort(which, kind="stable")  # the islands of each group, in face order
+            members = _stable_order(which, len(singles))  # the islands of each group, in face order
             group_first = np.cumsum(group_size) - group_size
             place = np.empty(len(faces), dtype=np.int64)  # each island's place in its group
             place[members] = np.arange(len(faces)) - np.repeat(group_first, group_size)
@@ -524,17 +666,63 @@ class _Islands:
             own = np.stack([s[3] for s in singles]).astype(np.int64)  # (groups, corners)
             old_id = np.stack([s[2] for s in singles]).astype(np.int64)  # (groups, m)
             starts = value_start[faces]
-            _put(indices, first_out[faces] * self.size, starts, own, which)
+            # (every face of this size with refined faces gets rows, so that the rest's faces between islands
+            # do not break the runs: theirs are written over below)
+            slots, slot_base, slot_which = _filled(faces, starts, which,
+                                                   (counts == counts[faces[0]]) & (per_face > 0))
+            _put(indices, first_out[slots] * self.size, slot_base, own, slot_which)
             _put(self.order, starts, group_block[which] + place, old_id, which, group_size[which])
             for g, single in enumerate(singles):
                 chosen = members[group_first[g]:group_first[g] + group_size[g]]
                 self.groups.append((single[0], np.ascontiguousarray(values[chosen].T)))
             block += len(faces) * m
+        if rest_first is not None:
+            _, old_rest, new_rest = rest_first
+            self.order[new_rest] = old_rest
+            number = np.zeros(rest_values, dtype=kind)
+            number[old_rest] = new_rest
+            corner_rows = (self.rest_rows * self.size)[:, None] + np.arange(self.size)
+            indices[corner_rows.reshape(-1)] = number[np.asarray(self.rest.topology()[1])]
         indices.flags.writeable = False  # (handed out by every evaluation, as a refiner's topology is)
         self.indices = indices
 
-    def evaluate(self, vals: np.ndarray):
-        """(values (M, d), value index per refined face corner) of the channel's values ``vals`` (m, d)."""
+    def _rest_first_uses(self, first_out: np.ndarray, value_start: np.ndarray, per_face: np.ndarray,
+                         rest: np.ndarray):
+        """(where, old, new): the rest's values that its refined faces use, in the order they first use them:
+        the position among all refined corners of each one's first use, its vertex in the rest's refiner, and its
+        number among all the channel's values in first-use order (``value_start``: the island values before each
+        face)."""
+        rest_idx = np.asarray(self.rest.topology()[1], dtype=np.int64)
+        first = np.full(self.rest.num_vertices, len(rest_idx), dtype=np.int64)
+        np.minimum.at(first, rest_idx, np.arange(len(rest_idx), dtype=np.int64))
+        used = np.flatnonzero(first < len(rest_idx))
+        used = used[np.argsort(first[used], kind="stable")]
+        at = first[used]  # (increasing) the rest's corner of each first use
+        where = self.rest_rows[at // self.size] * self.size + at % self.size
+        rest_faces = np.flatnonzero(rest & (per_face > 0))
+        face = np.repeat(rest_faces, per_face[rest_faces])[at // self.size]  # (the rest's rows: its faces' in order)
+        return where, used, np.arange(len(used)) + value_start[face]
+
+    def _channel_numbering(self):
+        """(order, indices) of the channel's own numbering, where a rest makes it differ from first use: the
+        rest's values as its refiner numbers them (unused ones too), then each island's block in face order."""
+        if self._own_numbering is None:
+            rest_values = self.rest.num_vertices
+            is_rest = self.order < rest_values
+            number = np.where(is_rest, self.order, rest_values + np.cumsum(~is_rest) - 1)
+            order = np.empty(rest_values + int((~is_rest).sum()), dtype=np.int64)
+            order[:rest_values] = np.arange(rest_values)
+            order[number[~is_rest]] = self.order[~is_rest]
+            indices = number[self.indices].astype(self.indices.dtype)
+            indices.flags.writeable = False
+            self._own_numbering = (order, indices)
+        return self._own_numbering
+
+    def evaluate(self, vals: np.ndarray, first_use: bool = False):
+        """(values (M, d), value index per refined face corner) of the channel's values ``vals`` (m, d), in the
+        channel's numbering (the rest's values, then the islands'), or with ``first_use`` in the order the refined
+        faces first use them, the rest's unused values left out (the compact vertex order's numbering)."""
+        order, indices = (self.order, self.indices) if first_use or self.rest is None else self._channel_numbering()
         d = vals.shape[1]
         blocks = []
         if self.rest is not None:
@@ -558,4 +746,4 @@ class _Islands:
                 out[:, a:b] = part.reshape(len(part), ISLANDS_PER_EVALUATION, d)[:, :b - a]
             blocks.append(out.reshape(-1, d))
         joined = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
-        return np.take(joined, self.order, axis=0), self.indices
+        return np.take(joined, order, axis=0), indices

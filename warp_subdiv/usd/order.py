@@ -154,10 +154,10 @@ class OrderedRefiner:
         fast = _fast_parts(self.refiner, values, indices, mode, self._fast_plan, rows=self.old_id)
         if fast is None:
             channel = self.refiner.face_varying_channel(indices, mode)
-            refined, at = channel.evaluate(values)
-            if channel.first_use_order:  # (a channel of islands only)
+            if channel.first_use_capable:  # (islands refined apart: numbered in first-use order by the channel)
+                refined, at = channel.evaluate(values, first_use=True)
                 return refined, at.astype(np.int32, copy=False)
-            return self._face_varying(refined, at)
+            return self._face_varying(*channel.evaluate(values))
         # values away from the seams are the vertices' (ids below N): numbered as the vertices are (the rows
         # come in the compact order), so no second renumbering pass; the values near the seams follow (a vertex
         # only the faces near a seam use keeps a value that no corner uses). The indices are the compact
@@ -324,6 +324,8 @@ def _fast_plan(refiner, idx, mode):
     one_value[cv] = idx
     multi = np.bincount(cv, weights=one_value[cv] != idx, minlength=nv) > 0
     aligned = (h.base_vert_class == SMOOTH) & ~multi
+    if not aligned.any():  # every face has a corner that is not aligned: every face is near a seam
+        return None
     bad_face = np.bincount(face_of, weights=~aligned[cv], minlength=nf) > 0
     bad_vertex = np.bincount(cv, weights=bad_face[face_of], minlength=nv) > 0
     near_seam = np.bincount(face_of, weights=bad_vertex[cv], minlength=nf) > 0
