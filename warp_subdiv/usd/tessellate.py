@@ -204,9 +204,6 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
 
     check_flatten(flatten, all_variants)  # before any work, as refine refuses it
     from .output_layout import layout
-    from .planning import Plan
-    from ..io.usd_read import read_mesh
-    from ..io.usd_scene import read_scene
     from ..io.usd_stage import open_stage, parse_frames
     from ..io.usd_write import OutputLayer, check_output_path
     from .tiles import TiledMeshes
@@ -217,35 +214,10 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
     out_abs = check_output_path(output_path, stage)
     chosen = parse_frames(frames)
 
-    from .skinning import Skinning
-
-    skinning = Skinning("bake", chosen)  # a skinned mesh: tessellated as UsdSkel poses it at each time
-
-    def read(prim):
-        return skinning.attach(read_mesh(prim, scheme=scheme, rules=rules, boundary=boundary, frames=chosen))
-
-    rates_of: dict = {}  # digest of a mesh's camera rates -> the rates
-    level = context = None
-    if camera is not None:
-        level, context = _camera_rates(stage, camera, pixel_error, resolution, chosen, rates_of, rate, edge_length,
-                                       dict(scheme=scheme, rules=rules, boundary=boundary, depth=depth,
-                                            device=device))
-    elif pixel_error is not None or resolution is not None:
-        raise SubdivInputError("pixel_error and resolution are for rates from camera: give camera too",
-                               option=("pixel_error", "camera"))
-    scene = read_scene(stage, prims, read=read, all_variants=all_variants, where=input_path, level=level,
-                       level_context=context)
-    p = Plan(input_path, stage, [], [], scene=scene)
-    p.left_alone.extend(scene.left_alone)
-    for key, sp in scene.units.items():
-        if sp is not None:
-            p.prims.append(sp)
-            p.keys.append(key)
-    if not p.prims:
-        raise SubdivInputError(f"{input_path}: no subdivision meshes to tessellate"
-                               + (f" under {', '.join(prims)}" if prims else ""))
-    warnings_ = [f"{sp.path}: {w}" for sp in p.prims for w in sp.warnings]
-    rate_of = {key: {"edges": rates_of[scene.levels[key]]} if camera is not None else rate for key in p.keys}
+    p, rate_of, warnings_ = _read_plan(stage, input_path, prims, chosen, scheme=scheme, rules=rules,
+                                       boundary=boundary, all_variants=all_variants, camera=camera,
+                                       pixel_error=pixel_error, resolution=resolution, rate=rate,
+                                       edge_length=edge_length, depth=depth, device=device)
     tiled_items = _choose_tiled(p, rate_of, warnings_, max_memory, flatten, out_abs, edge_length=edge_length,
                                 scheme=scheme, rules=rules, boundary=boundary, depth=depth, quads=quads)
     custom = {"warpSubdiv": {"version": __version__, "command": "tessellate", "source": os.path.basename(input_path),
@@ -276,6 +248,46 @@ def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length
         tiled.discard()
         raise
     return reports, warnings_
+
+
+def _read_plan(stage, input_path, prims, chosen, *, scheme, rules, boundary, all_variants, camera, pixel_error,
+               resolution, rate, edge_length, depth, device):
+    """The meshes to tessellate (a skinned mesh as UsdSkel poses it at each time), in refine's plan, with each
+    mesh's rate (the camera's per-edge rates where a camera is given) and the meshes' warnings: (plan, rate of
+    each mesh key, warnings)."""
+    from ..io.usd_read import read_mesh
+    from ..io.usd_scene import read_scene
+    from .planning import Plan
+    from .skinning import Skinning
+
+    skinning = Skinning("bake", chosen)  # a skinned mesh: tessellated as UsdSkel poses it at each time
+
+    def read(prim):
+        return skinning.attach(read_mesh(prim, scheme=scheme, rules=rules, boundary=boundary, frames=chosen))
+
+    rates_of: dict = {}  # digest of a mesh's camera rates -> the rates
+    level = context = None
+    if camera is not None:
+        level, context = _camera_rates(stage, camera, pixel_error, resolution, chosen, rates_of, rate, edge_length,
+                                       dict(scheme=scheme, rules=rules, boundary=boundary, depth=depth,
+                                            device=device))
+    elif pixel_error is not None or resolution is not None:
+        raise SubdivInputError("pixel_error and resolution are for rates from camera: give camera too",
+                               option=("pixel_error", "camera"))
+    scene = read_scene(stage, prims, read=read, all_variants=all_variants, where=input_path, level=level,
+                       level_context=context)
+    p = Plan(input_path, stage, [], [], scene=scene)
+    p.left_alone.extend(scene.left_alone)
+    for key, sp in scene.units.items():
+        if sp is not None:
+            p.prims.append(sp)
+            p.keys.append(key)
+    if not p.prims:
+        raise SubdivInputError(f"{input_path}: no subdivision meshes to tessellate"
+                               + (f" under {', '.join(prims)}" if prims else ""))
+    warnings_ = [f"{sp.path}: {w}" for sp in p.prims for w in sp.warnings]
+    rate_of = {key: {"edges": rates_of[scene.levels[key]]} if camera is not None else rate for key in p.keys}
+    return p, rate_of, warnings_
 
 
 def _write_tiled(tiled, items) -> list:
