@@ -33,14 +33,14 @@ def worker(args) -> None:
     import warp_subdiv as ws
     from warp_subdiv.io.obj import read_obj
     from warp_subdiv.tiled_tessellation import _Numbering, _SurfacePlan, predict
-    from warp_subdiv.limit.tessellation import _rates
+    from warp_subdiv.limit.tessellation import segment_rates
 
     mesh = read_obj(args.mesh).mesh
     small = ws.Mesh(mesh.points[:4], [4], [0, 1, 2, 3])
     ws.LimitSurface(small, device="cpu").tessellate(rate=2)  # load the kernels
     options = ws.Options(scheme=args.scheme)
     plan = _SurfacePlan(mesh, options)
-    numbering = _Numbering(plan, *_rates(type("M", (), {"mesh": mesh})(), args.rate, None), True)
+    numbering = _Numbering(plan, *segment_rates(type("M", (), {"mesh": mesh})(), args.rate, None), True)
     emitted, faces = numbering.size_of(np.arange(len(plan.counts)))
     corners = int(plan.counts.sum())
     irregular = int(plan.counts[plan.irregular].sum())

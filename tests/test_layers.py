@@ -27,11 +27,12 @@ FLOORS = {
     "warp_subdiv.limit": 8, "warp_subdiv.gradients": 8,
     "warp_subdiv.refiner": 9,
     "warp_subdiv.batch": 10, "warp_subdiv.tiled": 10,
-    "warp_subdiv.usd": 11,
-    "warp_subdiv.render": 12, "warp_subdiv.jax": 12, "warp_subdiv.torch": 12,
-    "warp_subdiv.cli": 13,
-    "warp_subdiv.__main__": 14,
-    "warp_subdiv": 15,
+    "warp_subdiv.tiled_tessellation": 11,
+    "warp_subdiv.usd": 12,
+    "warp_subdiv.render": 13, "warp_subdiv.jax": 13, "warp_subdiv.torch": 13,
+    "warp_subdiv.cli": 14,
+    "warp_subdiv.__main__": 15,
+    "warp_subdiv": 16,
 }
 
 #: Units that must not import some lower units even so: the evaluator applies tables and never knows what a

@@ -127,7 +127,7 @@ def test_max_memory_sizes_tiles(monkeypatch):
     monkeypatch.setattr(tt, "resident_bytes", lambda: 0)
     mesh = noisy_torus(10, 8, np.random.default_rng(4), tags=False)
     plan = _SurfacePlan(mesh, ws.Options())
-    numbering = _Numbering(plan, *tt._rates(type("M", (), {"mesh": mesh})(), 6, None), True)
+    numbering = _Numbering(plan, *tt.segment_rates(type("M", (), {"mesh": mesh})(), 6, None), True)
     whole = _tile_bytes(plan, numbering, np.arange(mesh.num_faces), 0, DEPTH)
     limit = 64 * 2**20 + tt.GLOBAL_BYTES_PER_CORNER * int(plan.counts.sum()) + whole // 2
     tiles = list(ws.tessellate_tiled(mesh, rate=6, max_memory=limit, depth=DEPTH, device="cpu"))

@@ -135,8 +135,8 @@ class FaceGroups:
     def grow(self, faces: np.ndarray, rings: int) -> np.ndarray:
         """``faces`` (sorted level-0 face ids) and ``rings`` rings of faces around them (sharing a vertex)."""
         for _ in range(rings):
-            verts = _members(self.indices[_corners_of(self.offsets, faces)], self.num_vertices)
-            around = self.vert_faces_order[_corners_of(self.vert_offsets, verts)]
+            verts = _members(self.indices[corners_of(self.offsets, faces)], self.num_vertices)
+            around = self.vert_faces_order[corners_of(self.vert_offsets, verts)]
             faces = _members(np.concatenate([faces, self.corner_face[around]]), len(self.counts))
         return faces
 
@@ -225,7 +225,7 @@ class _Plan(FaceGroups):
         return self.first_child[base_face] + offset - self.holes_before[base_face]
 
 
-#: The vertices of the separate face a submesh of one face size gets (:class:`_Submesh`).
+#: The vertices of the separate face a submesh of one face size gets (:class:`Submesh`).
 _EXTRA_FACE_POINTS = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
 
 
@@ -261,7 +261,7 @@ def _renumbering(members: np.ndarray, size: int) -> np.ndarray:
     return out
 
 
-def _corners_of(offsets: np.ndarray, items: np.ndarray) -> np.ndarray:
+def corners_of(offsets: np.ndarray, items: np.ndarray) -> np.ndarray:
     """The flat positions offsets[i]..offsets[i+1] of every item i of ``items``, concatenated."""
     starts, ends = offsets[items], offsets[items + 1]
     sizes = ends - starts
@@ -278,7 +278,7 @@ def _spread_bits(x: np.ndarray) -> np.ndarray:
     return x
 
 
-class _Submesh:
+class Submesh:
     """A tile's faces with their halo as a mesh of its own (vertices renumbered in increasing order, faces in
     the whole mesh's order), its tags restricted, and the maps of its level-0 elements to the whole mesh's."""
 
@@ -286,7 +286,7 @@ class _Submesh:
         mesh = plan.mesh
         self.faces = plan.grow(tile_faces, rings)  # level-0 faces, sorted
         self.in_tile = _mask(tile_faces, len(plan.counts))[self.faces]
-        global_corners = _corners_of(plan.offsets, self.faces)
+        global_corners = corners_of(plan.offsets, self.faces)
         corner_verts = plan.indices[global_corners]
         self.verts = _members(corner_verts, plan.num_vertices)
         local_indices = _renumbering(self.verts, plan.num_vertices)[corner_verts]
@@ -507,7 +507,7 @@ def _tile_bytes(plan: _Plan, faces: np.ndarray, rings: int, limit: bool, deeper:
     tile's, the previous one's held by the caller, and where a face-varying channel is refined after the points,
     the tile's points meanwhile; the channel's own tile is about the points' size)."""
     sub = plan.grow(faces, rings)
-    corners = _corners_of(plan.offsets, sub)
+    corners = corners_of(plan.offsets, sub)
     verts = _members(plan.indices[corners], plan.num_vertices)
     counts = plan.counts[sub]
     # edges of the submesh: (corners + boundary edges) / 2, bounded by the corners
@@ -553,7 +553,7 @@ def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device,
     rows per vertex of the plan's mesh refined instead of its points (no normal control); ``extra``: arrays of
     rows per vertex refined beside the points (no normal control), with their limits where ``want_points``."""
     levels = plan.levels
-    sub = _Submesh(plan, faces, rings)
+    sub = Submesh(plan, faces, rings)
     options = sub.options(plan.options)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NonManifoldWarning)  # the whole mesh's analysis would warn once
@@ -586,7 +586,7 @@ def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device,
         per_face = sub_counts * 4 ** (levels - 1)
     first = face_offsets_of(per_face)
     mine = np.flatnonzero(sub.in_tile & ~base_hole)
-    kept = _corners_of(first, mine)
+    kept = corners_of(first, mine)
     g = sub.faces[mine]
     parent = g if plan.faces.control_face is None else plan.faces.control_face[g]
     shift = plan.first_child[g] - plan.holes_before[g] - first[mine]
@@ -596,17 +596,17 @@ def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device,
     if final.face_size:
         corner_vert = final.corner_vert.reshape(F, final.face_size)[kept].reshape(-1)
     else:
-        corner_vert = final.corner_vert[_corners_of(final.face_offsets, kept)]
+        corner_vert = final.corner_vert[corners_of(final.face_offsets, kept)]
     used = _members(corner_vert, final.num_vertices)
     vertex_ids = sub.vertex_ids(plan, levels)[used]
     order = np.argsort(vertex_ids, kind="stable")
     used, vertex_ids = used[order], vertex_ids[order]
     # border vertices: also used by a face of another tile that refine() keeps (not a hole)
-    others = _corners_of(first, np.flatnonzero(~sub.in_tile & ~base_hole))
+    others = corners_of(first, np.flatnonzero(~sub.in_tile & ~base_hole))
     if final.face_size:
         other_verts = final.corner_vert.reshape(F, final.face_size)[others].reshape(-1)
     else:
-        other_verts = final.corner_vert[_corners_of(final.face_offsets, others)]
+        other_verts = final.corner_vert[corners_of(final.face_offsets, others)]
     border = _mask(other_verts, final.num_vertices)[used]
     to_tile = np.full(final.num_vertices, -1, dtype=np.int64)
     to_tile[used] = np.arange(len(used))
@@ -627,7 +627,7 @@ def _refine_tile(plan: _Plan, index: int, faces: np.ndarray, rings: int, device,
     )
 
 
-def _limit_source(refiner: Refiner, sub: _Submesh, options, device, threads, deeper: bool):
+def _limit_source(refiner: Refiner, sub: Submesh, options, device, threads, deeper: bool):
     """(refiner whose limit masks serve, whether its last step is refined first, the rows kept): the submesh's
     refiner itself, or with the whole mesh's choice of masks one level deeper (a submesh's own choice can differ:
     its cut-off halo has crease sectors the whole mesh does not) a refiner of one more level."""

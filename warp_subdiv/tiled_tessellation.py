@@ -4,7 +4,7 @@ the in-core one (:func:`warp_subdiv.limit.tessellate`).
 Tiles
     Runs of control faces along a Morton curve of their centres (:class:`warp_subdiv.tiled.FaceGroups`, as
     :func:`warp_subdiv.refine_tiled` cuts them). Each tile is tessellated from a
-    :class:`~warp_subdiv.limit.LimitSurface` of its faces with a halo (:class:`warp_subdiv.tiled._Submesh`: tags,
+    :class:`~warp_subdiv.limit.LimitSurface` of its faces with a halo (:class:`warp_subdiv.tiled.Submesh`: tags,
     holes and flatness restricted as tiled refinement restricts them). The patches of a face depend on the
     control mesh near it only (its local refinement and end caps are refinement with the library's rules, whose
     reach :mod:`warp_subdiv.tiled` bounds by two rings of faces, four where the paper's projections act), so
@@ -49,12 +49,13 @@ import numpy as np
 from .errors import NonManifoldWarning, SubdivInputError
 from .limit import DEFAULT_DEPTH, LimitSurface
 from .limit.patches import is_manifold
-from .limit.tessellation import MAX_VERTICES, _cells, _edge_lengths, _rates, cell_groups, emit_cells
+from .limit.tessellation import (MAX_VERTICES, cell_groups, edge_curve_lengths, emit_cells, segment_rates,
+                                 tessellation_cells)
 from .mesh import Mesh
 from .options import Options, Scheme
 from .runtime import estimate
 from .tables import Hierarchy
-from .tiled import HALO_RINGS, HALO_RINGS_PROJECTING, FaceGroups, Tile, _Submesh, _corners_of, resident_bytes
+from .tiled import HALO_RINGS, HALO_RINGS_PROJECTING, FaceGroups, Tile, Submesh, corners_of, resident_bytes
 from .topology import base_faces
 
 #: Bytes per control face corner of a limit surface (its patch tree, parameterisation and the level-0 analysis)
@@ -113,7 +114,7 @@ def irregular_faces(mesh: Mesh, options: Options) -> np.ndarray:
 
 class _SurfacePlan(FaceGroups):
     """The control mesh as its limit surface has it (Loop polygons stay polygons: the surface parameterises
-    them itself), with what :class:`~warp_subdiv.tiled._Submesh` reads of a plan, the analysis of the whole
+    them itself), with what :class:`~warp_subdiv.tiled.Submesh` reads of a plan, the analysis of the whole
     mesh (whether the paper's projections act) and the limit surface's holes."""
 
     def __init__(self, mesh: Mesh, options: Options, tiles: bool = True):
@@ -152,7 +153,7 @@ class _Numbering:
         loop = plan.options.scheme == Scheme.LOOP
         layout = SimpleNamespace(mesh=mesh, triangles=loop, holes=plan.holes,
                                  face_tiles=np.ceil(np.sqrt(plan.counts)).astype(np.int32))
-        self.cells, self.lines, next_id, self.edge_rate = _cells(layout, edge_rate, face_rate)
+        self.cells, self.lines, next_id, self.edge_rate = tessellation_cells(layout, edge_rate, face_rate)
         F = len(plan.counts)
         if self.cells.kind is None:
             self.groups, self.face_cells = None, np.zeros(F + 1, np.int64)
@@ -209,12 +210,12 @@ class _Numbering:
 
     def cells_of(self, faces: np.ndarray) -> np.ndarray:
         """The cells of control ``faces``, in the order the in-core tessellation emits them."""
-        cells = self.face_cell_order[_corners_of(self.face_cells, np.asarray(faces, dtype=np.int64))]
+        cells = self.face_cell_order[corners_of(self.face_cells, np.asarray(faces, dtype=np.int64))]
         return cells[np.argsort(self.emit_pos[cells], kind="stable")]
 
     def size_of(self, faces: np.ndarray) -> tuple:
         """(emitted vertices, output faces) of control ``faces``."""
-        cells = self.face_cell_order[_corners_of(self.face_cells, np.asarray(faces, dtype=np.int64))]
+        cells = self.face_cell_order[corners_of(self.face_cells, np.asarray(faces, dtype=np.int64))]
         g = self.groups.group[cells]
         return int(self.n_local[g].sum()), int(self.n_faces[g].sum())
 
@@ -256,9 +257,9 @@ def tessellate_tiled(mesh: Mesh, *, rate=None, edge_length=None, quads: bool = T
         plan = _SurfacePlan(mesh, options)
     lite = SimpleNamespace(mesh=mesh)
     if edge_length is None:
-        edge_rate, face_rate = _rates(lite, rate, None)
+        edge_rate, face_rate = segment_rates(lite, rate, None)
     else:
-        _rates(lite, rate, edge_length, lengths=np.zeros(len(mesh.edges.edge_verts)))  # the arguments' checks
+        segment_rates(lite, rate, edge_length, lengths=np.zeros(len(mesh.edges.edge_verts)))  # the arguments' checks
     return _tiles(plan, rate, edge_length, quads, budget, tile_faces, int(depth), device,
                   None if edge_length is not None else (edge_rate, face_rate))
 
@@ -268,10 +269,10 @@ def _tiles(plan: _SurfacePlan, rate, edge_length, quads, budget, tile_faces, dep
     rings = (HALO_RINGS_PROJECTING if plan.projects else HALO_RINGS) + 1
     if rates is None:  # edge lengths: the edges' curves measured on the tiles' surfaces
         lengths = np.zeros(len(plan.mesh.edges.edge_verts))
-        rough = _Numbering(plan, *_rates(SimpleNamespace(mesh=plan.mesh), 1, None), quads)
+        rough = _Numbering(plan, *segment_rates(SimpleNamespace(mesh=plan.mesh), 1, None), quads)
         for faces in _tile_faces(plan, rough, tile_faces, budget, rings, depth):
             _measure_edges(plan, faces, rings, depth, device, lengths)
-        rates = _rates(SimpleNamespace(mesh=plan.mesh), None, edge_length, lengths=lengths)
+        rates = segment_rates(SimpleNamespace(mesh=plan.mesh), None, edge_length, lengths=lengths)
     numbering = _Numbering(plan, rates[0], rates[1], quads)
     if numbering.groups is None:
         return
@@ -285,7 +286,7 @@ def _tiles(plan: _SurfacePlan, rate, edge_length, quads, budget, tile_faces, dep
 
 def _surface(plan: _SurfacePlan, faces: np.ndarray, rings: int, depth: int, device) -> tuple:
     """(the tile's submesh, the limit surface of the tile's ``faces`` with their halo)."""
-    sub = _Submesh(plan, faces, rings)
+    sub = Submesh(plan, faces, rings)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NonManifoldWarning)
         surface = LimitSurface(sub.mesh, options=sub.options(plan.options), depth=depth, device=device)
@@ -303,7 +304,7 @@ def _measure_edges(plan: _SurfacePlan, faces: np.ndarray, rings: int, depth: int
     counts = np.asarray(sub.mesh.face_vertex_counts, dtype=np.int64)
     mine = np.zeros(len(sub.mesh.edges.edge_verts), dtype=bool)
     mine[corner_edge[np.repeat(sub.in_tile, counts)]] = True
-    local = _edge_lengths(surface, edges=mine)
+    local = edge_curve_lengths(surface, edges=mine)
     lengths[sub.edge_map[mine]] = local[mine]
 
 
@@ -404,11 +405,11 @@ def tessellation_fits(mesh: Mesh, *, rate=None, edge_length=None, quads: bool = 
         plan = _SurfacePlan(mesh, options, tiles=False)
     lite = SimpleNamespace(mesh=mesh)
     if edge_length is None:
-        rates = _rates(lite, rate, None)
+        rates = segment_rates(lite, rate, None)
     else:
         ev = np.asarray(mesh.edges.edge_verts, dtype=np.int64)
         pts = np.asarray(mesh.points, dtype=np.float64)
-        rates = _rates(lite, None, edge_length, lengths=np.linalg.norm(pts[ev[:, 1]] - pts[ev[:, 0]], axis=1))
+        rates = segment_rates(lite, None, edge_length, lengths=np.linalg.norm(pts[ev[:, 1]] - pts[ev[:, 0]], axis=1))
     numbering = _Numbering(plan, *rates, quads)
     if numbering.groups is None:
         return True, 0

@@ -87,7 +87,7 @@ class _Cells:
     rate: np.ndarray  # (C, 4)
 
 
-def _rates(surface, rate, edge_length, lengths=None) -> tuple:
+def segment_rates(surface, rate, edge_length, lengths=None) -> tuple:
     """(edge rates (E,), face inner rates (F,)) from the arguments; ``lengths``: the edges' limit curve lengths
     where known (else measured on ``surface``)."""
     mesh = surface.mesh
@@ -103,7 +103,7 @@ def _rates(surface, rate, edge_length, lengths=None) -> tuple:
                 or not np.isfinite(edge_length):
             raise SubdivInputError(f"edge_length must be a positive number, got {edge_length!r}",
                                    option="edge_length", value=edge_length)
-        lengths = _edge_lengths(surface) if lengths is None else lengths
+        lengths = edge_curve_lengths(surface) if lengths is None else lengths
         edge = np.clip(np.ceil(lengths / float(edge_length)), 1, MAX_RATE).astype(np.int64)
         face = _max_per_face(edge[corner_edge], corner_face, F)
         return edge, face
@@ -170,7 +170,7 @@ def _edge_points(surface, faces, corners, t) -> tuple:
     return uv
 
 
-def _edge_lengths(surface, edges=None) -> np.ndarray:
+def edge_curve_lengths(surface, edges=None) -> np.ndarray:
     """Length of every control edge's limit curve, from 16 segments evaluated on one of its faces (``edges``: a
     mask of the edges to measure; the others get 0)."""
     has, p = edge_curves(surface, edges=edges)
@@ -270,7 +270,7 @@ class _Corners:
         return e, np.where(fwd, 0, r), np.where(fwd, 1, -1), r
 
 
-def _cells(surface, edge_rate, face_rate) -> tuple:
+def tessellation_cells(surface, edge_rate, face_rate) -> tuple:
     """The cells of every non-hole face, and the lines (start vertex, end vertex, rate, first interior id)."""
     corners = _Corners.of(surface.mesh)
     loop = surface.triangles
@@ -417,8 +417,8 @@ def tessellate(surface, *, rate=None, edge_length=None, quads: bool = True) -> T
     """A watertight tessellation of ``surface`` (a :class:`~warp_subdiv.limit.LimitSurface`); see the module
     docstring for ``rate``, ``edge_length`` and the output. ``quads``: uniform cells of Catmull-Clark faces as
     quads (else every face a triangle)."""
-    edge_rate, face_rate = _rates(surface, rate, edge_length)
-    cells, lines, next_id, edge_rate = _cells(surface, edge_rate, face_rate)
+    edge_rate, face_rate = segment_rates(surface, rate, edge_length)
+    cells, lines, next_id, edge_rate = tessellation_cells(surface, edge_rate, face_rate)
     if cells.kind is None:
         empty = np.zeros((0, 3))
         return Tessellation(empty, empty.copy(), np.zeros(0, np.int32), np.zeros(0, np.int32),
