@@ -406,17 +406,37 @@ class _ChildEdges:
 
 def _child_vertex_corners(level: Level, split: _ChildSplit, slots: _EdgeSlots):
     """Vertex -> corners: vertex children keep their ring, face children get their face's corners, edge
-    children get m corners per parent corner on the edge."""
-    vcount = np.diff(level.vert_corner_offsets)
+    children get m corners per parent corner on the edge.
+
+    The three blocks are gathered straight into the output, and the offsets follow from the parent's own
+    offsets (vertex rings, faces, edge slots) shifted by each block's start: no per-vertex counts, no
+    concatenation and no running sum over every child vertex (the same values as summing the counts)."""
     m = split.edge_child_corners.shape[1]
-    count_blocks = [vcount]
-    corner_blocks = [split.vertex_child_corner[level.vert_corners]]
-    if split.face_child_corners is not None:
-        count_blocks.append(level.face_sizes())
-        corner_blocks.append(split.face_child_corners)
-    count_blocks.append(m * slots.count)
-    corner_blocks.append(split.edge_child_corners[slots.corner].reshape(-1))
-    return face_offsets_of(np.concatenate(count_blocks)), np.concatenate(corner_blocks)
+    V, F, E, C = level.num_vertices, level.num_faces, level.num_edges, level.num_corners
+    faces = split.face_child_corners is not None
+    blocks = [split.vertex_child_corner, split.edge_child_corners] + ([split.face_child_corners] if faces else [])
+    kind = np.result_type(*blocks)
+    ring = len(level.vert_corners)
+    face_corners = C if faces else 0
+    corners = np.empty(ring + face_corners + m * len(slots.corner), dtype=kind)
+    if any(b.dtype != kind for b in blocks):  # mixed index types: gathered and converted as before
+        corners[:ring] = split.vertex_child_corner[level.vert_corners]
+        corners[ring + face_corners:] = split.edge_child_corners[slots.corner].reshape(-1)
+    else:  # mode="clip": np.take buffers its output in the default mode (the indices are in range)
+        np.take(split.vertex_child_corner, level.vert_corners, out=corners[:ring], mode="clip")
+        np.take(split.edge_child_corners, slots.corner, axis=0, mode="clip",
+                out=corners[ring + face_corners:].reshape(-1, m))
+    n_face = F if faces else 0
+    offsets = np.empty(V + n_face + E + 1, dtype=np.int64)
+    offsets[: V + 1] = level.vert_corner_offsets
+    if faces:
+        corners[ring: ring + C] = split.face_child_corners
+        offsets[V + 1: V + F + 1] = face_offsets_of(level.face_sizes())[1:]
+        offsets[V + 1: V + F + 1] += ring
+    edge_offsets = offsets[V + n_face + 1:]
+    np.multiply(level.edge_corner_offsets[1:], m, out=edge_offsets)
+    edge_offsets += ring + face_corners
+    return offsets, corners
 
 
 def _child_classes(level: Level, split: _ChildSplit, slots: _EdgeSlots):
