@@ -379,10 +379,14 @@ class _ChildEdges:
         halves = self.verts[nI:].reshape(E, 2, 2)
         halves[:, :, 0] = (split.edge_child_base + np.arange(E, dtype=np.int32))[:, None]
         halves[:, :, 1] = level.edge_verts
-        self.half_off = np.empty((E, 2), dtype=np.int64)
-        self.half_off[:, 0] = 2 * nI + 2 * eoff[:-1]
-        self.half_off[:, 1] = self.half_off[:, 0] + ecount
-        self.offsets = np.concatenate([2 * np.arange(nI, dtype=np.int64), self.half_off.reshape(-1), [4 * C]])
+        # offsets: 2 per interior edge, then each parent edge's two halves (its corner count each), written
+        # in place (no concatenation)
+        self.offsets = np.empty(nI + 2 * E + 1, dtype=np.int64)
+        self.offsets[:nI] = np.arange(0, 2 * nI, 2, dtype=np.int64)
+        half_off = self.offsets[nI: nI + 2 * E].reshape(E, 2)
+        half_off[:, 0] = 2 * nI + 2 * eoff[:-1]
+        np.add(half_off[:, 0], ecount, out=half_off[:, 1])
+        self.offsets[-1] = 4 * C
         self.corners = np.empty(4 * C, dtype=np.int32)
         self.corners[: 2 * nI] = split.interior_corners.reshape(-1)
 
@@ -390,8 +394,8 @@ class _ChildEdges:
         """The halves' corners of the parent's edge slots a..b (slot t of edge e: its t-th corner)."""
         level, slots = self.level, self.slots
         edge, corner = slots.edge[a:b], slots.corner[a:b]
-        # slot t of edge e goes to half_off[e, s] + t = 2 nI + eoff[e] + slot + s * count[e] (s: the half):
-        # two gathers per slot instead of four (no 2-D fancy indexing of half_off)
+        # slot t of edge e goes to 2 nI + 2 eoff[e] + s * count[e] + t = 2 nI + eoff[e] + slot + s * count[e]
+        # (s: the half; the offsets of __init__): two gathers per slot, no 2-D fancy indexing
         count = slots.count[edge]
         side = _side(level, corner, edge) * count
         base = level.edge_corner_offsets[edge] + np.arange(a + 2 * level.num_corners, b + 2 * level.num_corners,
