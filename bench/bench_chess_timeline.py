@@ -11,6 +11,12 @@ and phase, wall and CPU summed over the intervals (inclusive of nested phases) a
 CPU / wall well below 1 while the machine has an idle core: it waits for the GIL); and the timeline of the
 phase intervals longer than ``--min-ms``, to see what overlaps what (the writer's ``waiting`` against the
 workers' ``analyse`` / ``refine`` / ``face-varying``, the layer's save at the end).
+
+``--probes``: afterwards, two probes of what threads can do here. The save probe: usd-core saves a copy of the
+bake's output while a pure-Python counter runs on another thread; the counter's rate during the save against
+its rate alone (near 0: the save holds the GIL, so nothing in Python overlaps it). The analysis probe: the
+refiners of every planned mesh (``make_refiner``, levels as given, one thread each) built twice one after the
+other and twice at once on two threads (the speed-up: whether the analysis itself is GIL-bound).
 """
 from __future__ import annotations
 
@@ -63,6 +69,72 @@ def report(events: list, t0: float, min_ms: float) -> None:
             print(f"  {a - t0:6.3f} - {b - t0:6.3f}  {thread:24s} {name:13s} CPU {cpu:.3f}")
 
 
+def save_probe(path: str) -> None:
+    """usd-core's save of a copy of the layer at ``path`` against a Python counter thread (see the docstring)."""
+    from pxr import Sdf
+
+    src = Sdf.Layer.FindOrOpen(path)
+    count, stop = [0], [False]
+
+    def spin():
+        while not stop[0]:
+            count[0] += 1
+
+    with tempfile.TemporaryDirectory(prefix="wsprobe_") as folder:
+        for rep in range(2):
+            layer = Sdf.Layer.CreateNew(os.path.join(folder, f"copy{rep}.usdc"))
+            layer.TransferContent(src)
+            count[0], stop[0] = 0, False
+            thread = threading.Thread(target=spin)
+            thread.start()
+            time.sleep(0.2)
+            alone = count[0] / 0.2
+            count[0] = 0
+            t0, c0 = time.perf_counter(), time.thread_time()
+            layer.Save()
+            wall, cpu = time.perf_counter() - t0, time.thread_time() - c0
+            during = count[0] / wall
+            stop[0] = True
+            thread.join()
+            print(f"save probe: save {wall:.3f} s (saving thread's CPU {cpu:.3f} s); the Python counter ran at "
+                  f"{during / alone:.2f} of its rate alone during it")
+
+
+def analysis_probe(asset: str, levels: int) -> None:
+    """The planned meshes' refiners built twice in a row, then twice at once on two threads."""
+    from warp_subdiv.runtime import threads as _threads
+    from warp_subdiv.usd.planning import make_refiner, plan
+
+    p = plan(asset, levels, device="cpu")
+
+    def job(out, k):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        with _threads.inline():
+            for i, sp in enumerate(p.prims):
+                make_refiner(sp, p.levels[i], options=p.options[i], device="cpu")
+        out[k] = (time.perf_counter() - t0, time.thread_time() - c0)
+
+    job({}, 0)
+    for _ in range(3):
+        serial: dict = {}
+        t0 = time.perf_counter()
+        job(serial, 0)
+        job(serial, 1)
+        one = time.perf_counter() - t0
+        both: dict = {}
+        pair = [threading.Thread(target=job, args=(both, k)) for k in range(2)]
+        t0 = time.perf_counter()
+        for t in pair:
+            t.start()
+        for t in pair:
+            t.join()
+        two = time.perf_counter() - t0
+        ratios = ", ".join(f"{c / w:.2f}" for w, c in both.values())
+        print(f"analysis probe: {len(p.prims)} meshes' refiners twice, one after the other {one:.3f} s, on two "
+              f"threads at once {two:.3f} s (speed-up {one / two:.2f}; each thread's CPU / wall {ratios}); "
+              f"load average {os.getloadavg()[0]:.2f}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("asset")
@@ -71,6 +143,7 @@ def main(argv=None) -> int:
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--min-ms", type=float, default=20.0)
     ap.add_argument("--lib", help="import warp_subdiv from this folder instead")
+    ap.add_argument("--probes", action="store_true", help="then the save probe and the analysis probe")
     args = ap.parse_args(argv)
     if args.lib:
         sys.path.insert(0, os.path.abspath(args.lib))
@@ -103,7 +176,10 @@ def main(argv=None) -> int:
                   f"(CPU / wall {cpu / wall:.2f}); load average {os.getloadavg()[0]:.2f}; phases "
                   + ", ".join(f"{k} {v:.2f}" for k, v in r["phases"].items()) + "\n")
             report(events, t0, args.min_ms)
-    undo()
+        undo()
+        if args.probes:
+            save_probe(out)
+            analysis_probe(args.asset, args.levels)
     return 0
 
 
