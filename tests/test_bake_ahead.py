@@ -179,3 +179,28 @@ def test_cli_reports_the_writers_waiting(props_scene, tmp_path, every_mesh_ahead
     assert len(two) == 1 and "waiting" in two[0] and "overlap the writer" in two[0], two
     assert len(one) == 1 and "waiting" not in one[0] and "overlap" not in one[0], one
     assert any(ctx is not None for _, _, ctx, _ in every_mesh_ahead)
+
+
+def test_small_meshes_go_ahead_within_the_predicted_working_sets(props_scene, tmp_path, every_mesh_ahead,
+                                                                 monkeypatch):
+    """Beyond the count of meshes in flight (depth), more small meshes go ahead while the working sets held at
+    once (the writer's mesh, those in flight or refined and not taken) stay within the largest ``concurrent``
+    working sets that the memory prediction counts; the layer is still the one-thread bake's."""
+    seen = []
+    original = ahead.Ahead._fill
+
+    def spied(self, i):
+        original(self, i)
+        working = [e.working_bytes for e in self.bake.plan.estimates]
+        held = sum(working[j] for j in self.futures) + (working[self.writing] if self.writing is not None else 0)
+        budget = sum(sorted(working, reverse=True)[:self.concurrent])
+        assert self.budget == budget
+        assert len(self.futures) <= self.depth or held <= budget
+        seen.append(len(self.futures))
+
+    monkeypatch.setattr(ahead.Ahead, "_fill", spied)
+    on = _bake(props_scene, str(tmp_path / "on.usda"), 2, batch=False)
+    assert seen and max(seen) > 2  # more than the two workers' depth were in flight at some point
+    off = _bake(props_scene, str(tmp_path / "off.usda"), 1, batch=False)
+    _same_layers(on.output, off.output)
+    assert on.predicted_bytes == total_bytes(usd.plan(props_scene, 2, device="cpu").estimates, 3)

@@ -1,4 +1,6 @@
 """Topology derived by index arithmetic equals topology rediscovered from scratch on the refined faces."""
+import warnings
+
 import numpy as np
 import pytest
 
@@ -193,3 +195,60 @@ def test_small_pages_restores_numpy_hint_after_nesting_and_errors():
         assert switch(True) is True
     finally:
         switch(original)
+
+
+def _fin_mesh(triangles: bool = False):
+    """Three sheets of two quads meeting along a spine (two non-manifold edges); each quad split in two
+    triangles with ``triangles``."""
+    points, faces = [[0, 0, 0], [1, 0, 0], [2, 0, 0]], []
+    for sheet, angle in enumerate([0.0, 2.1, 4.2]):
+        out = np.array([0, np.cos(angle), np.sin(angle)]) * (1 + 0.1 * sheet)
+        x0 = len(points)
+        points += [(np.array([i, 0, 0]) + out).tolist() for i in range(3)]
+        pair = [[0, 1, x0 + 1, x0], [1, 2, x0 + 2, x0 + 1]]
+        faces += pair if sheet % 2 == 0 else [f[::-1] for f in pair]
+    if triangles:
+        faces = [t for a, b, c, d in faces for t in ([a, b, c], [a, c, d])]
+    return ws.Mesh(np.array(points, dtype=float), [len(faces[0])] * len(faces), np.array(faces).reshape(-1))
+
+
+def _vertex_corners_by_concatenation(level, split, slots):
+    """The child vertex -> corner table as counts per child vertex, a running sum and concatenated blocks."""
+    from warp_subdiv.mesh import face_offsets_of
+
+    m = split.edge_child_corners.shape[1]
+    counts = [np.diff(level.vert_corner_offsets)]
+    blocks = [split.vertex_child_corner[level.vert_corners]]
+    if split.face_child_corners is not None:
+        counts.append(level.face_sizes())
+        blocks.append(split.face_child_corners)
+    counts.append(m * slots.count)
+    blocks.append(split.edge_child_corners[slots.corner].reshape(-1))
+    return face_offsets_of(np.concatenate(counts)), np.concatenate(blocks)
+
+
+@pytest.mark.parametrize("name, scheme", CASES + [("fin", "catmull-clark"), ("fin", "loop")])
+def test_child_vertex_corners_equal_concatenated_blocks(name, scheme, monkeypatch):
+    """The child vertex -> corner table, gathered in place with offsets from the parent's, is the table of
+    per-vertex counts and concatenated blocks, values and types (quads, mixed polygons, Loop, non-manifold),
+    on every step."""
+    from warp_subdiv.topology import refinement
+
+    mesh = _fin_mesh(scheme == "loop") if name == "fin" else load_mesh(name)
+    built = refinement._child_vertex_corners
+    seen = []
+
+    def compare(level, split, slots):
+        offsets, corners = built(level, split, slots)
+        ref_offsets, ref_corners = _vertex_corners_by_concatenation(level, split, slots)
+        assert offsets.dtype == ref_offsets.dtype and corners.dtype == ref_corners.dtype
+        np.testing.assert_array_equal(offsets, ref_offsets)
+        np.testing.assert_array_equal(corners, ref_corners)
+        seen.append(level.num_corners)
+        return offsets, corners
+
+    monkeypatch.setattr(refinement, "_child_vertex_corners", compare)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the fin's non-manifold warning
+        levels_of(mesh, scheme, 3)
+    assert len(seen) == 3

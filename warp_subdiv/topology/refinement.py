@@ -379,10 +379,14 @@ class _ChildEdges:
         halves = self.verts[nI:].reshape(E, 2, 2)
         halves[:, :, 0] = (split.edge_child_base + np.arange(E, dtype=np.int32))[:, None]
         halves[:, :, 1] = level.edge_verts
-        self.half_off = np.empty((E, 2), dtype=np.int64)
-        self.half_off[:, 0] = 2 * nI + 2 * eoff[:-1]
-        self.half_off[:, 1] = self.half_off[:, 0] + ecount
-        self.offsets = np.concatenate([2 * np.arange(nI, dtype=np.int64), self.half_off.reshape(-1), [4 * C]])
+        # offsets: 2 per interior edge, then each parent edge's two halves (its corner count each), written
+        # in place (no concatenation)
+        self.offsets = np.empty(nI + 2 * E + 1, dtype=np.int64)
+        self.offsets[:nI] = np.arange(0, 2 * nI, 2, dtype=np.int64)
+        half_off = self.offsets[nI: nI + 2 * E].reshape(E, 2)
+        half_off[:, 0] = 2 * nI + 2 * eoff[:-1]
+        np.add(half_off[:, 0], ecount, out=half_off[:, 1])
+        self.offsets[-1] = 4 * C
         self.corners = np.empty(4 * C, dtype=np.int32)
         self.corners[: 2 * nI] = split.interior_corners.reshape(-1)
 
@@ -390,25 +394,53 @@ class _ChildEdges:
         """The halves' corners of the parent's edge slots a..b (slot t of edge e: its t-th corner)."""
         level, slots = self.level, self.slots
         edge, corner = slots.edge[a:b], slots.corner[a:b]
-        t = np.arange(a, b, dtype=np.int64) - level.edge_corner_offsets[edge]
-        s0 = _side(level, corner, edge)
-        self.corners[self.half_off[edge, s0] + t] = self.split.near[corner]
-        self.corners[self.half_off[edge, 1 - s0] + t] = self.split.far[corner]
+        # slot t of edge e goes to 2 nI + 2 eoff[e] + s * count[e] + t = 2 nI + eoff[e] + slot + s * count[e]
+        # (s: the half; the offsets of __init__): two gathers per slot, no 2-D fancy indexing
+        count = slots.count[edge]
+        side = _side(level, corner, edge) * count
+        base = level.edge_corner_offsets[edge] + np.arange(a + 2 * level.num_corners, b + 2 * level.num_corners,
+                                                           dtype=np.int64)
+        base += side
+        self.corners[base] = self.split.near[corner]
+        base += count
+        base -= side
+        base -= side
+        self.corners[base] = self.split.far[corner]
 
 
 def _child_vertex_corners(level: Level, split: _ChildSplit, slots: _EdgeSlots):
     """Vertex -> corners: vertex children keep their ring, face children get their face's corners, edge
-    children get m corners per parent corner on the edge."""
-    vcount = np.diff(level.vert_corner_offsets)
+    children get m corners per parent corner on the edge.
+
+    The three blocks are gathered straight into the output, and the offsets follow from the parent's own
+    offsets (vertex rings, faces, edge slots) shifted by each block's start: no per-vertex counts, no
+    concatenation and no running sum over every child vertex (the same values as summing the counts)."""
     m = split.edge_child_corners.shape[1]
-    count_blocks = [vcount]
-    corner_blocks = [split.vertex_child_corner[level.vert_corners]]
-    if split.face_child_corners is not None:
-        count_blocks.append(level.face_sizes())
-        corner_blocks.append(split.face_child_corners)
-    count_blocks.append(m * slots.count)
-    corner_blocks.append(split.edge_child_corners[slots.corner].reshape(-1))
-    return face_offsets_of(np.concatenate(count_blocks)), np.concatenate(corner_blocks)
+    V, F, E, C = level.num_vertices, level.num_faces, level.num_edges, level.num_corners
+    faces = split.face_child_corners is not None
+    blocks = [split.vertex_child_corner, split.edge_child_corners] + ([split.face_child_corners] if faces else [])
+    kind = np.result_type(*blocks)
+    ring = len(level.vert_corners)
+    face_corners = C if faces else 0
+    corners = np.empty(ring + face_corners + m * len(slots.corner), dtype=kind)
+    if any(b.dtype != kind for b in blocks):  # mixed index types: gathered and converted as before
+        corners[:ring] = split.vertex_child_corner[level.vert_corners]
+        corners[ring + face_corners:] = split.edge_child_corners[slots.corner].reshape(-1)
+    else:  # mode="clip": np.take buffers its output in the default mode (the indices are in range)
+        np.take(split.vertex_child_corner, level.vert_corners, out=corners[:ring], mode="clip")
+        np.take(split.edge_child_corners, slots.corner, axis=0, mode="clip",
+                out=corners[ring + face_corners:].reshape(-1, m))
+    n_face = F if faces else 0
+    offsets = np.empty(V + n_face + E + 1, dtype=np.int64)
+    offsets[: V + 1] = level.vert_corner_offsets
+    if faces:
+        corners[ring: ring + C] = split.face_child_corners
+        offsets[V + 1: V + F + 1] = face_offsets_of(level.face_sizes())[1:]
+        offsets[V + 1: V + F + 1] += ring
+    edge_offsets = offsets[V + n_face + 1:]
+    np.multiply(level.edge_corner_offsets[1:], m, out=edge_offsets)
+    edge_offsets += ring + face_corners
+    return offsets, corners
 
 
 def _child_classes(level: Level, split: _ChildSplit, slots: _EdgeSlots):

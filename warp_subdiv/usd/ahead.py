@@ -45,6 +45,7 @@ class Ahead:
         p, batches = bake.plan, bake.batches
         self.bake = bake
         self.futures: dict = {}
+        self.writing = None  # the mesh the writer took last (it holds its working set while writing it)
         self.pool = None
         self.concurrent = 1
         kept = set(bake.reused) | set(bake.partial)  # kept by an earlier run (resume), whole or some samples
@@ -67,14 +68,24 @@ class Ahead:
 
         load_kernels(wp.get_device(bake.device))  # loaded once, before threads launch them
         self.depth, self.concurrent = depth, depth + 1
+        # the working sets the prediction counts (the largest `concurrent` of the bake): smaller meshes may be
+        # held more at once within them (see _fill)
+        self.budget = sum(sorted((e.working_bytes for e in p.estimates), reverse=True)[:self.concurrent])
         self.pool = ThreadPoolExecutor(workers, thread_name_prefix="warp-subdiv-bake")
 
     def _fill(self, i: int) -> None:
-        """Keep :attr:`depth` meshes from ``i`` on in flight."""
+        """Keep meshes from ``i`` on in flight: :attr:`depth` of them, and more while the working sets held at
+        once (the writer's mesh, those in flight or refined and not yet taken, the next one) stay within
+        :attr:`budget`, the largest :attr:`concurrent` working sets of the bake that the memory prediction
+        counts. So a large mesh's refinement no longer leaves a worker idle once the small meshes after it
+        are done (a count of meshes alone stops at :attr:`depth` of them), and the prediction still holds."""
         while self.queue and self.queue[0] < i:
             self.queue.popleft()
-        while self.queue and len(self.futures) < self.depth:
+        working = [e.working_bytes for e in self.bake.plan.estimates]
+        held = sum(working[j] for j in self.futures) + (working[self.writing] if self.writing is not None else 0)
+        while self.queue and (len(self.futures) < self.depth or held + working[self.queue[0]] <= self.budget):
             j = self.queue.popleft()
+            held += working[j]
             self.futures[j] = self.pool.submit(_phases.bound(self._refine, j))
 
     def _refine(self, i: int):
@@ -97,6 +108,7 @@ class Ahead:
             return None
         self._fill(i)
         future = self.futures.pop(i, None)
+        self.writing = i
         self._fill(i + 1)
         if future is None:
             return None
