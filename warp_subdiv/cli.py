@@ -546,37 +546,18 @@ def _refine_obj(args, out_kind, max_memory, progress) -> int:
 
 def _refine_obj_tiled(args, data, options, max_memory, start, out_kind) -> int:
     """An OBJ refinement that does not fit ``max_memory`` at once: refined in tiles that each fit
-    (:func:`warp_subdiv.refine_tiled`), streamed into one OBJ file (:func:`warp_subdiv.io.obj.write_obj_tiles`)
-    or written as one USD layer per tile under an Xform (:func:`warp_subdiv.io.usd_write.write_tiled_mesh_layer`)."""
-    from .io.obj import write_obj_tiles
-    from .io.usd_write import make_folders, remove_folders, write_tiled_mesh_layer
+    (:func:`warp_subdiv.refine_tiled`), streamed into one OBJ file or written as one USD layer per tile under an
+    Xform (:func:`warp_subdiv.io.usd_write.write_tiles`)."""
+    from .io.usd_write import write_tiles
     from .tiled import refine_tiled
 
     tiles = refine_tiled(data.mesh, args.levels, max_memory=max_memory, options=options, device=args.device,
                          threads=args.threads)
-    created = make_folders(os.path.dirname(os.path.abspath(args.output)))
-    try:
-        if out_kind == "obj":
-            count = [0]
-
-            def counted():
-                for tile in tiles:
-                    count[0] += 1
-                    yield tile
-
-            header = f"warp-subdiv: level {args.levels} in tiles"
-            vertices, faces = write_obj_tiles(args.output, counted(), header=header)
-            written = f"{count[0]} tiles"
-        else:
-            name = os.path.splitext(os.path.basename(args.input))[0]
-            count, vertices, faces = write_tiled_mesh_layer(os.path.abspath(args.output), name, tiles)
-            written = f"{count} tiles (one layer each in {os.path.splitext(args.output)[0]}_tiles/)"
-    except OSError as exc:
-        remove_folders(created)
-        raise SubdivInputError(f"{args.output}: cannot write: {exc.strerror or exc}") from None
-    except BaseException:
-        remove_folders(created)
-        raise
+    count, vertices, faces = write_tiles(args.output, tiles, out_kind,
+                                         os.path.splitext(os.path.basename(args.input))[0],
+                                         header=f"warp-subdiv: level {args.levels} in tiles")
+    written = f"{count} tiles" if out_kind == "obj" else \
+        f"{count} tiles (one layer each in {os.path.splitext(args.output)[0]}_tiles/)"
     if not args.quiet:
         print(f"{args.input}: {options.scheme.value}, {options.rules.value} rules, {args.levels} levels in {written} "
               "(the whole refinement would not fit --max-memory)")

@@ -460,6 +460,35 @@ def save_tile_layer(path: str, final: str, tile, points=None, primvars=(), orien
         raise OSError(f"could not save {final}")
 
 
+def write_tiles(output: str, tiles, kind: str, name: str, header: str = "") -> tuple[int, int, int]:
+    """The tiles of a tiled refinement or tessellation written to ``output``: streamed into one OBJ file
+    (``kind`` "obj": :func:`warp_subdiv.io.obj.write_obj_tiles`, shared vertices written once, ``header`` its
+    comment) or as an Xform ``name`` of tile meshes, one layer each (:func:`write_tiled_mesh_layer`). The output's
+    folders are made here and removed again if the write fails; an OS error is a :class:`SubdivInputError` naming
+    ``output``. Returns (tiles, vertices, faces) written."""
+    from .obj import write_obj_tiles
+
+    created = make_folders(os.path.dirname(os.path.abspath(output)))
+    try:
+        if kind != "obj":
+            return write_tiled_mesh_layer(os.path.abspath(output), name, tiles)
+        count = [0]
+
+        def counted():
+            for tile in tiles:
+                count[0] += 1
+                yield tile
+
+        vertices, faces = write_obj_tiles(output, counted(), header=header)
+        return count[0], vertices, faces
+    except OSError as exc:
+        remove_folders(created)
+        raise SubdivInputError(f"{output}: cannot write: {exc.strerror or exc}") from None
+    except BaseException:
+        remove_folders(created)
+        raise
+
+
 def write_tiled_mesh_layer(output: str, name: str, tiles) -> tuple[int, int, int]:
     """A refined mesh written tile by tile (the tiles of :func:`warp_subdiv.refine_tiled`), for a mesh whose
     refinement does not fit in memory at once: each tile a layer of its own in the folder ``<output stem>_tiles``

@@ -131,38 +131,20 @@ def tessellate_obj(input_path, output_path, out_kind, *, rate, edge_length, sche
 def _tessellate_obj_tiled(data, output_path, out_kind, options, *, rate, edge_length, quads, depth, device,
                           max_memory) -> tuple:
     """An OBJ mesh's tessellation in tiles (:func:`warp_subdiv.tessellate_tiled`) streamed into one OBJ file
-    (:func:`~warp_subdiv.io.obj.write_obj_tiles`: shared vertices written once) or written as a USD Xform of tile
-    meshes with their normals, one layer each (:func:`~warp_subdiv.io.usd_write.write_tiled_mesh_layer`).
+    (shared vertices written once) or written as a USD Xform of tile meshes with their normals, one layer each
+    (:func:`~warp_subdiv.io.usd_write.write_tiles`).
     Returns (tiles, faces, vertices) written (border vertices: once in OBJ, in every tile in USD)."""
     import os
 
-    from ..io.obj import write_obj_tiles
-    from ..io.usd_write import make_folders, remove_folders, write_tiled_mesh_layer
+    from ..io.usd_write import write_tiles
     from ..tiled_tessellation import tessellate_tiled
 
     tiles = tessellate_tiled(data.mesh, rate=rate, edge_length=edge_length, quads=quads, max_memory=max_memory,
                              depth=depth, options=options, device=device)
-    created = make_folders(os.path.dirname(os.path.abspath(output_path)))
-    count = [0]
-
-    def counted():
-        for tile in tiles:
-            count[0] += 1
-            yield tile
-
-    try:
-        if out_kind == "obj":
-            vertices, faces = write_obj_tiles(output_path, counted(), header="warp-subdiv: tessellated in tiles")
-        else:
-            name = os.path.splitext(os.path.basename(output_path))[0]
-            count[0], vertices, faces = write_tiled_mesh_layer(os.path.abspath(output_path), name, tiles)
-    except OSError as exc:
-        remove_folders(created)
-        raise SubdivInputError(f"{output_path}: cannot write: {exc.strerror or exc}") from None
-    except BaseException:
-        remove_folders(created)
-        raise
-    return count[0], faces, vertices
+    count, vertices, faces = write_tiles(output_path, tiles, out_kind,
+                                         os.path.splitext(os.path.basename(output_path))[0],
+                                         header="warp-subdiv: tessellated in tiles")
+    return count, faces, vertices
 
 
 def tessellate_usd(input_path, output_path, *, prims, flatten, rate, edge_length, scheme, rules, boundary, depth,
