@@ -23,6 +23,22 @@ def load_mesh(name: str):
     return read_obj(mesh_path(name)).mesh
 
 
+def fin_mesh(triangles: bool = False):
+    """Three sheets of two quads meeting along a spine (two non-manifold edges, the middle vertex in six faces),
+    as a warp_subdiv.Mesh; each quad split in two triangles with ``triangles``."""
+    import warp_subdiv as ws
+
+    points, faces = [[0, 0, 0], [1, 0, 0], [2, 0, 0]], []
+    for sheet, angle in enumerate([0.0, 2.1, 4.2]):
+        out = np.array([0, np.cos(angle), np.sin(angle)]) * (1 + 0.1 * sheet)
+        x0 = len(points)
+        points += [(np.array([i, 0, 0]) + out).tolist() for i in range(3)]
+        pair = [[0, 1, x0 + 1, x0], [1, 2, x0 + 2, x0 + 1]]
+        faces += pair if sheet % 2 == 0 else [f[::-1] for f in pair]
+    if triangles:
+        faces = [t for a, b, c, d in faces for t in ([a, b, c], [a, c, d])]
+    return ws.Mesh(np.array(points, dtype=float), [len(faces[0])] * len(faces), np.array(faces).reshape(-1))
+
 def devices():
     out = ["cpu"]
     if wp.get_cuda_device_count() > 0:

@@ -39,7 +39,7 @@ if not osd_peer.available():
                 + osd_peer.build_log()[-300:], allow_module_level=True)
 
 import warp_subdiv as ws  # noqa: E402
-from conftest import DATA, MESHES  # noqa: E402
+from conftest import DATA, MESHES, fin_mesh  # noqa: E402
 from warp_subdiv.io.obj import read_obj  # noqa: E402
 
 SHAPES = os.path.join(DATA, "opensubdiv-shapes")
@@ -535,14 +535,8 @@ def test_limit_normal_at_a_semi_sharp_boundary_vertex(tags):
 def test_non_manifold_fin_is_a_crease():
     """Three sheets of two quads meeting along a spine a-b-c: b (two non-manifold edges, six faces, five
     edges) follows the crease rule in both, a and c are corners."""
-    points, faces = [[0, 0, 0], [1, 0, 0], [2, 0, 0]], []
-    for sheet, angle in enumerate([0.0, 2.1, 4.2]):
-        out = np.array([0, np.cos(angle), np.sin(angle)]) * (1 + 0.1 * sheet)
-        x0 = len(points)
-        points += [(np.array([i, 0, 0]) + out).tolist() for i in range(3)]
-        pair = [[0, 1, x0 + 1, x0], [1, 2, x0 + 2, x0 + 1]]
-        faces += pair if sheet % 2 == 0 else [f[::-1] for f in pair]
-    points, counts, indices = np.array(points), [4] * len(faces), np.array(faces).reshape(-1)
+    fin = fin_mesh()
+    points, counts, indices = fin.points, fin.face_vertex_counts, fin.face_vertex_indices
     peer = osd_peer.refine(points, counts, indices, 2, boundary="edge-only")
     assert peer.levels[0].vertex_rules[:3].tolist() == [osd_peer.RULE_CORNER, osd_peer.RULE_CREASE,
                                                         osd_peer.RULE_CORNER]

@@ -311,7 +311,6 @@ def test_cli_usd_in_tiles(tmp_path, capsys, monkeypatch):
     from test_usd_production import validation_errors
 
     import warp_subdiv.tiled
-    from pxr import Usd, UsdGeom
     from warp_subdiv.cli import main
     from warp_subdiv.io.obj import write_obj
 
@@ -325,21 +324,36 @@ def test_cli_usd_in_tiles(tmp_path, capsys, monkeypatch):
     assert main(["refine", src, "-o", out, "--levels", "3", "--device", "cpu", "--max-memory", str(limit)]) == 0
     assert re.search(r"3 levels in [2-9]\d* tiles", capsys.readouterr().out)
     ref = ws.refine(read_obj(src).mesh, 3, device="cpu")
-    stage = Usd.Stage.Open(out)
+    points, faces = gather_tile_layer(out, len(ref.points))
+    assert faces == len(ref.face_vertex_counts)
+    assert np.array_equal(points, ref.points)
+    assert not validation_errors(out)
+
+
+def gather_tile_layer(path, num_vertices: int, each=None):
+    """The tiles of a tiled layer (an Xform default prim of tile meshes, each with ``warpSubdiv:vertexIds``),
+    gathered by vertex id: (points (float32, NaN where no tile has the vertex), faces in all). Asserts that there
+    are several tiles and that a vertex in several tiles has the same bits in each; ``each(tile)``: more checks
+    of every tile (a UsdGeom.Mesh, valid while the stage is open here)."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(path))
     root = stage.GetDefaultPrim()
     assert root.GetTypeName() == "Xform"
-    points = np.full(ref.points.shape, np.nan, np.float32)
+    children = root.GetChildren()
+    assert len(children) > 1
+    points = np.full((num_vertices, 3), np.nan, np.float32)
     faces = 0
-    for child in root.GetChildren():
+    for child in children:
         tile = UsdGeom.Mesh(child)
         ids = np.array(child.GetAttribute("warpSubdiv:vertexIds").Get())
         pts = np.array(tile.GetPointsAttr().Get())
         assert np.all(np.isnan(points[ids]) | (points[ids] == pts))
         points[ids] = pts
         faces += len(tile.GetFaceVertexCountsAttr().Get())
-    assert len(root.GetChildren()) > 1 and faces == len(ref.face_vertex_counts)
-    assert np.array_equal(points, ref.points)
-    assert not validation_errors(out)
+        if each is not None:
+            each(tile)
+    return points, faces
 
 
 @pytest.mark.parametrize("scheme", ["catmull-clark", "loop"])

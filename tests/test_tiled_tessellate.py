@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from conftest import MESHES
-from test_tiled import noisy_torus
+from test_tiled import gather_tile_layer, noisy_torus
 import warp_subdiv as ws
 from warp_subdiv.errors import NonManifoldWarning, SubdivInputError
 from warp_subdiv.io.obj import read_obj
@@ -222,7 +222,6 @@ def test_cli_usd_in_tiles(tmp_path, capsys, monkeypatch):
     from test_usd_production import validation_errors
 
     import warp_subdiv.tiled_tessellation as tt
-    from pxr import Usd, UsdGeom
     from warp_subdiv.cli import main
 
     mesh, src = _write_source(tmp_path, 10)
@@ -232,19 +231,10 @@ def test_cli_usd_in_tiles(tmp_path, capsys, monkeypatch):
                  str(_cli_limit(mesh, 4))]) == 0
     assert "tiles (the whole tessellation would not fit" in capsys.readouterr().out
     t = ws.LimitSurface(mesh, device="cpu").tessellate(rate=4)
-    stage = Usd.Stage.Open(out)
-    root = stage.GetDefaultPrim()
-    assert root.GetTypeName() == "Xform" and len(root.GetChildren()) > 1
-    points = np.full(t.points.shape, np.nan, np.float32)
-    faces = 0
-    for child in root.GetChildren():
-        tile = UsdGeom.Mesh(child)
-        ids = np.array(child.GetAttribute("warpSubdiv:vertexIds").Get())
-        pts = np.array(tile.GetPointsAttr().Get())
-        assert np.all(np.isnan(points[ids]) | (points[ids] == pts))
-        points[ids] = pts
-        assert len(tile.GetNormalsAttr().Get()) == len(pts)
-        faces += len(tile.GetFaceVertexCountsAttr().Get())
+    def normals_per_point(tile):
+        assert len(tile.GetNormalsAttr().Get()) == len(tile.GetPointsAttr().Get())
+
+    points, faces = gather_tile_layer(out, len(t.points), each=normals_per_point)
     assert faces == t.num_faces
     assert np.array_equal(points, t.points.astype(np.float32))
     assert not validation_errors(out)

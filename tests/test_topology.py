@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import warp_subdiv as ws
-from conftest import load_mesh
+from conftest import fin_mesh, load_mesh
 from warp_subdiv.rules import weights as rules
 from warp_subdiv.topology import base_level, refine_level, triangulate
 
@@ -197,21 +197,6 @@ def test_small_pages_restores_numpy_hint_after_nesting_and_errors():
         switch(original)
 
 
-def _fin_mesh(triangles: bool = False):
-    """Three sheets of two quads meeting along a spine (two non-manifold edges); each quad split in two
-    triangles with ``triangles``."""
-    points, faces = [[0, 0, 0], [1, 0, 0], [2, 0, 0]], []
-    for sheet, angle in enumerate([0.0, 2.1, 4.2]):
-        out = np.array([0, np.cos(angle), np.sin(angle)]) * (1 + 0.1 * sheet)
-        x0 = len(points)
-        points += [(np.array([i, 0, 0]) + out).tolist() for i in range(3)]
-        pair = [[0, 1, x0 + 1, x0], [1, 2, x0 + 2, x0 + 1]]
-        faces += pair if sheet % 2 == 0 else [f[::-1] for f in pair]
-    if triangles:
-        faces = [t for a, b, c, d in faces for t in ([a, b, c], [a, c, d])]
-    return ws.Mesh(np.array(points, dtype=float), [len(faces[0])] * len(faces), np.array(faces).reshape(-1))
-
-
 def _vertex_corners_by_concatenation(level, split, slots):
     """The child vertex -> corner table as counts per child vertex, a running sum and concatenated blocks."""
     from warp_subdiv.mesh import face_offsets_of
@@ -234,7 +219,7 @@ def test_child_vertex_corners_equal_concatenated_blocks(name, scheme, monkeypatc
     on every step."""
     from warp_subdiv.topology import refinement
 
-    mesh = _fin_mesh(scheme == "loop") if name == "fin" else load_mesh(name)
+    mesh = fin_mesh(scheme == "loop") if name == "fin" else load_mesh(name)
     built = refinement._child_vertex_corners
     seen = []
 
