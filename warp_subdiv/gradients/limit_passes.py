@@ -22,6 +22,12 @@ class LimitPasses:
     def __init__(self, adjoint):
         self.adjoint = adjoint
 
+    def _at_source(self, x: wp.array, normal_control: bool):
+        """(the refiner whose limit masks serve, whether they are read one level deeper, the points they read:
+        ``x``, or ``x`` through that refiner's last step with ``normal_control``)."""
+        source, deeper = self.adjoint.refiner.limit_source()
+        return source, deeper, source.adjoint.last_step_forward(x, normal_control) if deeper else x
+
     def points_forward(self, x: wp.array, normal_control=None) -> wp.array:
         """Limit values of the last level's data ``x`` (kernel view). Where the masks are read one level deeper
         the extra step applies prescribed normals as :meth:`Refiner.limit_points` does: ``normal_control`` None
@@ -30,11 +36,9 @@ class LimitPasses:
         check_data(adj, x)
         width = adj.width(x)
         normal_control = normal_control_for(normal_control, width)
-        source, deeper = adj.refiner.limit_source()
+        source, _, x = self._at_source(x, normal_control)
         sa = source.adjoint
         run = adj.launcher
-        if deeper:
-            x = sa.last_step_forward(x, normal_control)
         masks = source.evaluator.limit_masks()
         full = sa.empty(masks.num_vertices, width)
         limit_positions(masks, x, full, run)
@@ -75,11 +79,9 @@ class LimitPasses:
         check_data(adj, x)
         check_positions(x)
         normal_control = normal_control_for(normal_control, 3)
-        source, deeper = adj.refiner.limit_source()
+        source, _, x = self._at_source(x, normal_control)
         sa = source.adjoint
         run = adj.launcher
-        if deeper:
-            x = sa.last_step_forward(x, normal_control)
         masks = source.evaluator.limit_masks()
         tu, tv = sa.empty(masks.num_tangents, 3), sa.empty(masks.num_tangents, 3)
         full = sa.empty(masks.num_vertices, 3)
@@ -104,12 +106,11 @@ class LimitPasses:
         check_positions(x)
         check_positions(grad)
         normal_control = normal_control_for(normal_control, 3)
-        source, deeper = adj.refiner.limit_source()
+        source, deeper, xs = self._at_source(x, normal_control)
         sa = source.adjoint
         run = adj.launcher
         k = _kernels()
         N = adj.refiner.num_vertices
-        xs = sa.last_step_forward(x, normal_control) if deeper else x
         masks = source.evaluator.limit_masks()
         rec = sa.tables.limit(N)
         T = rec.num_tangents
